@@ -1,0 +1,91 @@
+"""Compiled copies of the scalar-style modules (the law, kinematics, the grid).
+
+The control law is written once, in plain scalar Python that numba can compile
+(`swarm.law`, `swarm.kinematics`, `swarm.grid`). A robot process imports those
+modules as they are and never loads numba. The batched simulator calls
+`compiled("swarm.law")`, which executes the same source file a second time as a
+separate module (`swarm.law_jit`) whose `@_jit` decorator is `numba.njit`. One source,
+two executions: there is no second implementation to drift.
+
+Compiled code is cached on disk under a directory named after a hash of every
+kernel source file, so an edited law can never run against a stale cache (numba's
+own cache does not track changes in called functions of other files).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import sys
+from pathlib import Path
+from types import ModuleType
+
+# Every module whose source ends up inside a compiled kernel.
+KERNEL_SOURCES = ("swarm.law", "swarm.kinematics", "swarm.grid", "swarm.kernel")
+
+
+def _source_path(name: str) -> Path:
+    spec = importlib.util.find_spec(name)
+    if spec is None or spec.origin is None:
+        raise ImportError(f"cannot find the source of {name}")
+    return Path(spec.origin)
+
+
+def cache_dir() -> Path:
+    """Where compiled kernels are cached: $SWARM_CACHE_DIR, else ~/.cache/swarm, plus a source hash."""
+    h = hashlib.sha256()
+    for name in KERNEL_SOURCES:
+        h.update(_source_path(name).read_bytes())
+    base = os.environ.get("SWARM_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "swarm"
+    )
+    return Path(base) / f"numba-{h.hexdigest()[:16]}"
+
+
+_numba_ready = False
+
+
+def _setup_numba() -> None:
+    global _numba_ready
+    if _numba_ready:
+        return
+    import numba
+
+    if not os.environ.get("NUMBA_CACHE_DIR"):
+        d = cache_dir()
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+            numba.config.CACHE_DIR = str(d)
+        except OSError:
+            pass  # read-only home: numba falls back to compiling in memory each run
+    _numba_ready = True
+
+
+def njit(fn):
+    """numba.njit with the on-disk cache (the kernel's own decorator)."""
+    _setup_numba()
+    import numba
+
+    return numba.njit(cache=True, error_model="numpy")(fn)
+
+
+def compiled(name: str) -> ModuleType:
+    """Return the compiled twin of scalar-style module `name` (e.g. "swarm.law")."""
+    jit_name = name + "_jit"
+    mod = sys.modules.get(jit_name)
+    if mod is not None:
+        return mod
+    _setup_numba()
+    spec = importlib.util.spec_from_file_location(jit_name, _source_path(name))
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    mod.__dict__["__swarm_jit__"] = njit
+    # numba's cache re-imports a function's module by name when it loads compiled code.
+    sys.modules[jit_name] = mod
+    try:
+        spec.loader.exec_module(mod)
+    except BaseException:
+        del sys.modules[jit_name]
+        raise
+    return mod

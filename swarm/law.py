@@ -1,0 +1,258 @@
+"""The formation control law (DESIGN.md section 2), for one robot at a time.
+
+Scalar style on purpose: this exact source runs as plain Python in a robot process (no
+compiler loaded, a few tens of microseconds a tick) and, compiled by numba through
+`swarm.jit.compiled("swarm.law")`, inside the batched simulator. Keep to what numba
+compiles: `math`, floats, ints, 1-D numpy arrays indexed by ints, tuples. No imports
+of other swarm modules (the compiled copy would call their uncompiled versions).
+
+Units: metres, radians, seconds. Neighbour arrays are in summation order: robots by
+ascending id, then obstacles by ascending index (the same order everywhere, so a
+distributed run adds the same floats in the same order as the simulator).
+"""
+
+import math
+
+_jit = globals().get("__swarm_jit__", lambda f: f)
+
+PI = math.pi
+TWO_PI = 2.0 * math.pi
+
+# A centre distance below r is evaluated at r + COLLISION_EPS: inside a body the
+# repulsion stays at its (huge) value next to the border instead of vanishing (the
+# paper's B = 0 for l < r would switch avoidance off exactly when it is needed most).
+COLLISION_EPS = 1e-4  # m
+
+# Threshold rule of Assumption 3 (control.threshold).
+THRESHOLD_OFF = 0
+THRESHOLD_FROZEN = 1
+THRESHOLD_ALWAYS = 2
+
+# Safety governor: over one step a robot closes at most GOVERNOR_FRACTION of its
+# clearance to a static body, and half of that to another robot (which may close too).
+GOVERNOR_FRACTION = 0.5
+
+# Layout of the float64 parameter vector `p` (build it with swarm.scenario.Control.vector).
+P_K1 = 0
+P_K2 = 1
+P_K3 = 2
+P_TU = 3
+P_VT = 4
+P_THRESHOLD = 5  # one of THRESHOLD_*
+P_GOVERNOR = 6  # 1.0 on, 0.0 off
+P_DT = 7  # s, the control period
+P_SENSE = 8  # m, bodies closer than this are known (the cell side)
+P_SIZE = 9
+
+# Layout of the per-robot memory vector `mem` (freeze state), updated in place.
+M_FROZEN = 0  # 1.0 while frozen
+M_SNAP_X = 1  # reference snapshot held while frozen
+M_SNAP_Y = 2
+M_SNAP_TH = 3
+M_T_SNAP = 4  # s, when the snapshot was taken
+M_EX = 5  # diagnostics of the last command: E_x, E_y [m], e_theta [rad]
+M_EY = 6
+M_ETH = 7
+M_SCALE = 8  # governor scale applied to (v, w), 1.0 when it did not act
+M_SIZE = 9
+
+# Neighbour kinds in the `nk` array.
+KIND_OBSTACLE = 0
+KIND_ROBOT = 1
+
+
+@_jit
+def wrap_angle(a):
+    """Wrap an angle [rad] into (-pi, pi]."""
+    if -PI < a <= PI:
+        return a  # exact: no rounding for angles already in range
+    w = a - TWO_PI * math.floor((a + PI) / TWO_PI)
+    if w > PI:
+        w -= TWO_PI
+    elif w <= -PI:
+        w += TWO_PI
+    return w
+
+
+@_jit
+def potential(l, r, R):
+    """V(l) = B/(1-B) of a body with radii r < R at centre distance l [m] (>= 0, 0 beyond R)."""
+    if l >= R:
+        return 0.0
+    if l < r + COLLISION_EPS:
+        l = r + COLLISION_EPS
+    u = (l - r) / (l - R)
+    return math.exp(u) / -math.expm1(u)
+
+
+@_jit
+def potential_slope(l, r, R):
+    """dV/dl [1/m] (<= 0): B (r - R) / ((l - R)^2 (1 - B)^2), clamped at r + eps."""
+    if l >= R:
+        return 0.0
+    if l < r + COLLISION_EPS:
+        l = r + COLLISION_EPS
+    d = l - R
+    u = (l - r) / d
+    b = math.exp(u)
+    if b == 0.0:  # far side of the region: also avoids 0/0 when (l - R)^2 underflows
+        return 0.0
+    one_minus_b = -math.expm1(u)
+    return b * (r - R) / (d * d * one_minus_b * one_minus_b)
+
+
+@_jit
+def repulsion_gradient(xi, yi, xj, yj, r, R):
+    """(dV/dx_i, dV/dy_i) of body j (radii r, R) at robot i's position.
+
+    Coincident centres have no direction; the gradient then points along -x, so the
+    correction pushes robot i along +x (a degenerate case; counted as a collision).
+    """
+    dx = xi - xj
+    dy = yi - yj
+    l = math.sqrt(dx * dx + dy * dy)
+    if l >= R:
+        return 0.0, 0.0
+    s = potential_slope(l, r, R)
+    if l < 1e-12:
+        return -s, 0.0
+    return s * dx / l, s * dy / l
+
+
+@_jit
+def sgn_gain(vl):
+    """The factor of k2 E_y: sgn(v_l), but +1 when v_l = 0 (the paper keeps k2 E_y there)."""
+    if vl > 0.0:
+        return 1.0
+    if vl < 0.0:
+        return -1.0
+    return 1.0
+
+
+@_jit
+def tracking_command(x, y, th, xd, yd, thd, vl, wl, gx, gy, k1, k2, k3):
+    """Eq. (16) with the corrections of Eq. (8).
+
+    (x, y, th): robot pose; (xd, yd, thd): its desired pose (leader + offset);
+    (vl, wl): the leader's velocities used in the law (0, 0 while frozen);
+    (gx, gy): the summed repulsion gradient. Returns v [m/s], w [rad/s], E_x, E_y, e_theta.
+    """
+    px = xd - x
+    py = yd - y
+    eth = wrap_angle(thd - th)
+    cx = px - gx
+    cy = py - gy
+    c = math.cos(th)
+    s = math.sin(th)
+    ex = c * cx + s * cy
+    ey = -s * cx + c * cy
+    v = vl * math.cos(eth) + k1 * ex
+    w = wl + k2 * sgn_gain(vl) * ey + k3 * eth
+    return v, w, ex, ey, eth
+
+
+@_jit
+def apply_threshold(v, vt, mode, frozen):
+    """Assumption 3: |v| < vt becomes S(v) vt (S(0) = +1) when the mode says it applies."""
+    if mode == THRESHOLD_OFF or (mode == THRESHOLD_FROZEN and not frozen):
+        return v
+    if abs(v) < vt:
+        return vt if v >= 0.0 else -vt
+    return v
+
+
+@_jit
+def freeze_update(mem, inside, t, xl, yl, thl, tu):
+    """Assumption 2, the freeze state machine of one robot; updates `mem` in place.
+
+    inside: the robot is within R_j of some other robot j at time t [s].
+    Entering takes a snapshot of the live reference (xl, yl, thl); while inside it is
+    refreshed every tu seconds; leaving releases at once. Returns True while frozen.
+    """
+    if not inside:
+        mem[M_FROZEN] = 0.0
+        return False
+    if mem[M_FROZEN] == 0.0 or t - mem[M_T_SNAP] >= tu * (1.0 - 1e-9):
+        mem[M_SNAP_X] = xl
+        mem[M_SNAP_Y] = yl
+        mem[M_SNAP_TH] = thl
+        mem[M_T_SNAP] = t
+    mem[M_FROZEN] = 1.0
+    return True
+
+
+@_jit
+def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, dt, sense):
+    """Largest |v| [m/s] with which one step of length dt keeps every known body safe.
+
+    Over a step the robot moves at most |v| dt (an arc is no shorter than its chord).
+    A static body may take GOVERNOR_FRACTION of the clearance l - r per step, another
+    robot half of that (it may close by as much). Clearance then shrinks at most
+    geometrically and never reaches zero. Bodies beyond `sense` are unknown; to keep
+    them safe too, |v| dt is also held below the same share of (sense - r_self).
+    A body already inside (clearance <= 0) sets no limit: the clamped repulsion
+    pushes the robot out and stopping it there would trap it.
+    """
+    limit = 0.5 * GOVERNOR_FRACTION * (sense - r_self) / dt
+    for k in range(n):
+        dx = x - nx[k]
+        dy = y - ny[k]
+        l = math.sqrt(dx * dx + dy * dy)
+        if nk[k] == KIND_ROBOT:
+            c = l - max(r_self, nr[k])
+            share = 0.5 * GOVERNOR_FRACTION
+        else:
+            c = l - nr[k]
+            share = GOVERNOR_FRACTION
+        if c > 0.0:
+            cap = share * c / dt
+            if cap < limit:
+                limit = cap
+    return limit
+
+
+@_jit
+def robot_command(x, y, th, ox, oy, r_self, t, xl, yl, thl, vl, wl, nx, ny, nr, nR, nk, n, mem, p):
+    """One control step of one robot: freeze rule, law, threshold, governor.
+
+    x, y, th: the robot's pose; (ox, oy): its formation offset d_i; r_self: its radius;
+    t: the step time [s]; (xl, yl, thl, vl, wl): the live leader reference;
+    nx, ny, nr, nR, nk: the first n entries are the known bodies (closer than p[P_SENSE])
+    in summation order, with radii and kind (KIND_ROBOT / KIND_OBSTACLE);
+    mem: this robot's memory (M_* layout), updated; p: parameters (P_* layout).
+    Returns (v [m/s], w [rad/s]).
+    """
+    gx = 0.0
+    gy = 0.0
+    inside = False
+    for k in range(n):
+        dx = x - nx[k]
+        dy = y - ny[k]
+        if nk[k] == KIND_ROBOT and dx * dx + dy * dy < nR[k] * nR[k]:
+            inside = True
+        ax, ay = repulsion_gradient(x, y, nx[k], ny[k], nr[k], nR[k])
+        gx += ax
+        gy += ay
+    frozen = freeze_update(mem, inside, t, xl, yl, thl, p[P_TU])
+    if frozen:
+        v, w, ex, ey, eth = tracking_command(
+            x, y, th, mem[M_SNAP_X] + ox, mem[M_SNAP_Y] + oy, mem[M_SNAP_TH], 0.0, 0.0, gx, gy,
+            p[P_K1], p[P_K2], p[P_K3],
+        )
+    else:
+        v, w, ex, ey, eth = tracking_command(
+            x, y, th, xl + ox, yl + oy, thl, vl, wl, gx, gy, p[P_K1], p[P_K2], p[P_K3]
+        )
+    v = apply_threshold(v, p[P_VT], int(p[P_THRESHOLD]), frozen)
+    scale = 1.0
+    if p[P_GOVERNOR] != 0.0:
+        limit = governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, p[P_DT], p[P_SENSE])
+        if abs(v) > limit:
+            scale = limit / abs(v)
+            v *= scale
+            w *= scale
+    mem[M_EX] = ex
+    mem[M_EY] = ey
+    mem[M_ETH] = eth
+    mem[M_SCALE] = scale
+    return v, w

@@ -1,0 +1,133 @@
+"""A resolved scenario: every robot, offset, obstacle and setting as explicit numbers.
+
+`swarm.scenario_file` turns a TOML file (DESIGN.md section 6) or a built-in name into a
+`Scenario`; everything downstream (simulator, world, agents) reads only this.
+Arrays are row-per-robot: poses (N, 3) x [m], y [m], theta [rad]; offsets (N, 2)
+d_x, d_y [m] (already assigned: robot i's slot is leader + offsets[i]);
+obstacles (M, 4) x, y, r, R [m].
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from swarm import kinematics, law
+
+THRESHOLDS = {"off": law.THRESHOLD_OFF, "frozen": law.THRESHOLD_FROZEN, "always": law.THRESHOLD_ALWAYS}
+
+# Cell side = the largest R plus this margin (DESIGN.md section 5): bodies closer than
+# the cell side are "known" to a robot (its 3x3 cells hold all of them).
+CELL_MARGIN = 0.3  # m
+
+
+class ScenarioError(ValueError):
+    """A scenario that cannot run. `where` is the file, `key` the dotted key."""
+
+    def __init__(self, where: str, key: str, reason: str):
+        self.where, self.key, self.reason = where, key, reason
+        super().__init__(f"{where}: {key}: {reason}" if key else f"{where}: {reason}")
+
+
+@dataclass(frozen=True)
+class Control:
+    """Gains and rules of the law (the [control] table)."""
+
+    k1: float = 0.5
+    k2: float = 0.5
+    k3: float = 1.0
+    tu: float = 1.0  # s
+    vt: float = 0.05  # m/s
+    threshold: str = "frozen"
+    governor: bool = False
+
+    def __post_init__(self) -> None:
+        for name in ("k1", "k2", "k3", "tu"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"control.{name} must be a finite number > 0, got {value!r}")
+        if not (math.isfinite(self.vt) and self.vt >= 0):
+            raise ValueError(f"control.vt must be a finite number >= 0, got {self.vt!r}")
+        if self.threshold not in THRESHOLDS:
+            raise ValueError(f"control.threshold must be one of {sorted(THRESHOLDS)}, got {self.threshold!r}")
+
+    def vector(self, dt: float, sense: float) -> np.ndarray:
+        """The law's parameter vector (swarm.law P_* layout)."""
+        p = np.zeros(law.P_SIZE)
+        p[law.P_K1], p[law.P_K2], p[law.P_K3] = self.k1, self.k2, self.k3
+        p[law.P_TU], p[law.P_VT] = self.tu, self.vt
+        p[law.P_THRESHOLD] = THRESHOLDS[self.threshold]
+        p[law.P_GOVERNOR] = 1.0 if self.governor else 0.0
+        p[law.P_DT], p[law.P_SENSE] = dt, sense
+        return p
+
+
+@dataclass(frozen=True)
+class Segment:
+    duration: float  # s
+    v: float  # m/s
+    w: float  # rad/s, > 0 turns left
+
+
+@dataclass(frozen=True)
+class Leader:
+    """The virtual leader: a start pose and piecewise-constant (v, w) segments."""
+
+    start: tuple[float, float, float]
+    segments: tuple[Segment, ...]
+
+    def table(self) -> np.ndarray:
+        """The (S, 6) segment table of swarm.kinematics (start poses chained exactly)."""
+        table = np.zeros((len(self.segments), 6))
+        t, (x, y, th) = 0.0, self.start
+        for k, seg in enumerate(self.segments):
+            table[k] = (t, x, y, th, seg.v, seg.w)
+            dx, dy, dth = kinematics.arc_displacement(th, seg.v, seg.w, seg.duration)
+            x, y, th, t = x + dx, y + dy, th + dth, t + seg.duration
+        return table
+
+    def state(self, t: float) -> tuple[float, float, float, float, float]:
+        """(x, y, theta, v, w) at time t [s]."""
+        return kinematics.leader_state(self.table(), t)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """Everything a run needs, resolved. Build with swarm.scenario_file.load()."""
+
+    name: str
+    duration: float  # s
+    dt: float  # s, control period (and integration step in lock-step)
+    seed: int
+    control: Control
+    r: float  # m, robots' radius
+    R: float  # m, robots' avoidance radius
+    leader: Leader
+    offsets: np.ndarray = field(repr=False)  # (N, 2), offsets[i] is robot i's slot
+    poses: np.ndarray = field(repr=False)  # (N, 3) initial poses
+    obstacles: np.ndarray = field(repr=False)  # (M, 4) x, y, r, R
+
+    @property
+    def n(self) -> int:
+        return int(self.poses.shape[0])
+
+    @property
+    def steps(self) -> int:
+        """Number of control steps; the run ends at steps * dt >= duration."""
+        return int(math.ceil(self.duration / self.dt - 1e-9))
+
+    @property
+    def cell_side(self) -> float:
+        """Side of a neighbourhood cell [m]: the largest R plus a margin."""
+        big_r = max([self.R] + [float(R) for R in self.obstacles[:, 3]])
+        return big_r + CELL_MARGIN
+
+    def params(self) -> np.ndarray:
+        return self.control.vector(self.dt, self.cell_side)
+
+    def replace(self, **changes) -> "Scenario":
+        from dataclasses import replace
+
+        return replace(self, **changes)

@@ -1,0 +1,219 @@
+"""The in-process simulator: a whole swarm in one process, as fast as it can go.
+
+    sim = Simulation(scenario)
+    result = sim.run(progress=callback)     # -> Result(metrics dict, Recording)
+
+The compiled kernel (swarm.kernel) does the work in chunks so a caller can show
+progress or stop early; this module owns the arrays, the sample recording and the
+metrics of DESIGN.md section 7.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from swarm import grid as grid_py
+from swarm import law
+from swarm.scenario import Scenario
+
+# Samples kept for plots and recordings: one every RECORD_PERIOD_S of simulated time.
+RECORD_PERIOD_S = 0.05
+
+
+@dataclass
+class Recording:
+    """Samples of a run, row-per-sample: t (S,), q (S, N, 3) poses, err (S, N, 3) p_x, p_y, e_theta
+    against the live reference, cmd (S, N, 2) v, w, frozen (S, N) bool, leader (S, 3) x, y, theta."""
+
+    t: np.ndarray
+    q: np.ndarray
+    err: np.ndarray
+    cmd: np.ndarray
+    frozen: np.ndarray
+    leader: np.ndarray
+
+
+@dataclass
+class Progress:
+    """What a progress display needs after a chunk."""
+
+    t: float  # s, simulated time reached
+    duration: float
+    robots: int
+    converged: int
+    frozen: int
+    min_distance: float | None  # m, smallest robot-robot distance so far
+
+
+@dataclass
+class Result:
+    metrics: dict
+    recording: Recording
+
+
+class SimulationError(RuntimeError):
+    """The run could not go on (a non-finite state)."""
+
+
+class Simulation:
+    """All robots of one scenario, stepped by the compiled kernel."""
+
+    def __init__(self, scn: Scenario, record_period: float = RECORD_PERIOD_S):
+        from swarm import kernel  # compiles (or loads from cache) on first use
+
+        self.k = kernel
+        self.scn = scn
+        n, m = scn.n, len(scn.obstacles)
+        self.n_steps = scn.steps
+        self.p = scn.params()
+        self.sense = float(self.p[law.P_SENSE])
+        self.q = np.array(scn.poses, float)
+        self.comp = np.zeros((n, 3))
+        self.mem = np.zeros((n, law.M_SIZE))
+        self.mem[:, law.M_SCALE] = 1.0
+        self.cmd = np.zeros((n, 2))
+        self.offsets = np.ascontiguousarray(scn.offsets, float)
+        self.radius = np.tile([scn.r, scn.R], (n, 1))
+        self.obstacles = np.ascontiguousarray(scn.obstacles, float).reshape(-1, 4)
+        self.ocells = np.zeros((m, 2), np.int64)
+        self.ohead = np.zeros(grid_py.table_size(m) + 1, np.int64)
+        self.oorder = np.zeros(m, np.int64)
+        if m:
+            grid_py.build(self.obstacles[:, 0], self.obstacles[:, 1], m, self.sense, self.ocells, self.ohead,
+                          self.oorder)
+        self.cells = np.zeros((n, 2), np.int64)
+        self.head = np.zeros(grid_py.table_size(n) + 1, np.int64)
+        self.order = np.zeros(n, np.int64)
+        self.table = scn.leader.table()
+        self.acc, self.iacc = kernel.new_accumulators()
+        self.pairs = np.zeros((8 * (n + m) + 16, 2), np.int64)
+        self.last_frozen = np.full(n, -1, np.int64)
+        size = n + m
+        self.buf = np.zeros(size, np.int64)
+        self.nx, self.ny, self.nr, self.nR = (np.zeros(size) for _ in range(4))
+        self.nk = np.zeros(size, np.int64)
+        self.rec_every = max(1, int(round(record_period / scn.dt)))
+        s = self.n_steps // self.rec_every + 2
+        self.rec = Recording(np.zeros(s), np.zeros((s, n, 3)), np.zeros((s, n, 3)), np.zeros((s, n, 2)),
+                             np.zeros((s, n), np.bool_), np.zeros((s, 3)))
+        self.next_k = 0
+
+    @property
+    def done(self) -> bool:
+        return self.next_k > self.n_steps
+
+    def advance(self, k_end: int) -> None:
+        """Evaluate steps up to (not including) k_end, capped at the last step."""
+        k_end = min(k_end, self.n_steps + 1)
+        if k_end <= self.next_k:
+            return
+        r = self.rec
+        self.next_k = self.k.run_steps(
+            self.next_k, k_end, self.n_steps, self.q, self.comp, self.mem, self.cmd, self.offsets, self.radius,
+            self.obstacles, self.ocells, self.ohead, self.oorder, self.cells, self.head, self.order, self.table,
+            self.p, self.acc, self.iacc, self.pairs, self.last_frozen, self.buf, self.nx, self.ny, self.nr, self.nR,
+            self.nk, self.rec_every, r.t, r.q, r.err, r.cmd, r.frozen, r.leader,
+        )
+        bad = int(self.iacc[self.k.I_NONFINITE])
+        if bad:
+            raise SimulationError(f"robot {bad - 1} reached a non-finite state at t = {(self.next_k - 1) * self.scn.dt:g} s")
+
+    def progress(self) -> Progress:
+        d = float(self.acc[self.k.A_MIN_RR])
+        return Progress(t=max(0, self.next_k - 1) * self.scn.dt, duration=self.n_steps * self.scn.dt,
+                        robots=self.scn.n, converged=int(self.iacc[self.k.I_CONVERGED_NOW]),
+                        frozen=int(self.iacc[self.k.I_FROZEN_NOW]), min_distance=d if math.isfinite(d) else None)
+
+    def run(self, progress: Callable[[Progress], None] | None = None, chunk_s: float = 0.25,
+            should_stop: Callable[[], bool] | None = None, started: float | None = None) -> Result:
+        """Run to the end (or until should_stop() is true) and return metrics and samples.
+
+        The loop runs in chunks of about chunk_s seconds of wall time so that a progress
+        callback can be called between them. `started` is the command's start
+        (time.perf_counter()) for the metrics' wall_s.
+        """
+        started = time.perf_counter() if started is None else started
+        chunk = max(1, int(round(1.0 / self.scn.dt)))  # first chunk: 1 s of simulated time
+        interrupted = False
+        while not self.done:
+            if should_stop is not None and should_stop():
+                interrupted = True
+                break
+            t0 = time.perf_counter()
+            self.advance(self.next_k + chunk)
+            spent = time.perf_counter() - t0
+            if spent > 0:
+                chunk = max(1, min(int(chunk * chunk_s / spent), 10 * chunk))
+            if progress is not None:
+                progress(self.progress())
+        return Result(self.metrics(time.perf_counter() - started, interrupted), self.recording())
+
+    def recording(self) -> Recording:
+        s = int(self.iacc[self.k.I_RECORDED])
+        r = self.rec
+        return Recording(r.t[:s], r.q[:s], r.err[:s], r.cmd[:s], r.frozen[:s], r.leader[:s])
+
+    def metrics(self, wall_s: float, interrupted: bool = False) -> dict:
+        """The metrics of DESIGN.md section 7 (plus a few extra keys) for the steps run so far."""
+        scn, k = self.scn, self.k
+        last = self.next_k - 1  # the last evaluated step
+        last_bad = int(self.iacc[k.I_LAST_BAD])
+        converged_at = None
+        if last >= 0 and last_bad < last:
+            converged_at = (last_bad + 1) * scn.dt
+        last_frozen = int(self.iacc[k.I_LAST_FROZEN])
+        min_rr = float(self.acc[k.A_MIN_RR])
+        min_ro = float(self.acc[k.A_MIN_RO])
+        if not math.isfinite(min_rr) and scn.n >= 2:
+            min_rr = _min_pair_distance(self.recording().q)  # nobody ever came within the cell side
+        if not math.isfinite(min_ro) and len(scn.obstacles) and scn.n:
+            min_ro = _min_obstacle_distance(self.recording().q, scn.obstacles)
+        return {
+            "robots": scn.n,
+            "obstacles": len(scn.obstacles),
+            "duration_s": max(last, 0) * scn.dt,
+            "dt": scn.dt,
+            "seed": scn.seed,
+            "converged_at_s": converged_at,
+            "final_position_error_max_m": float(self.acc[k.A_PMAX]),
+            "final_orientation_error_max_rad": float(self.acc[k.A_EMAX]),
+            "min_robot_distance_m": min_rr if scn.n >= 2 else None,
+            "min_obstacle_distance_m": min_ro if (len(scn.obstacles) and scn.n) else None,
+            "collisions": int(self.iacc[k.I_COLLISIONS]),
+            "last_freeze_end_s": None if last_frozen < 0 else last_frozen * scn.dt,
+            "wall_s": wall_s,
+            "messages_dropped": 0,
+            "cmd_misses": 0,
+            "bad_messages": 0,
+            "interrupted": interrupted,
+            # extra keys
+            "scenario": scn.name,
+            "mode": "sim",
+            "governor": scn.control.governor,
+            "freeze_intervals": int(self.iacc[k.I_FREEZE_INTERVALS]),
+            "governed_robot_steps": int(self.iacc[k.I_GOVERNED]),
+            "steps": max(last, 0),
+        }
+
+
+def _min_pair_distance(q: np.ndarray) -> float:
+    """Smallest robot-robot distance over recorded samples (used only when no pair ever came near)."""
+    best = math.inf
+    for frame in q:
+        d = np.sqrt(np.sum((frame[:, None, :2] - frame[None, :, :2]) ** 2, axis=2))
+        np.fill_diagonal(d, np.inf)
+        best = min(best, float(d.min()))
+    return best
+
+
+def _min_obstacle_distance(q: np.ndarray, obstacles: np.ndarray) -> float:
+    best = math.inf
+    for frame in q:
+        d = np.sqrt(np.sum((frame[:, None, :2] - obstacles[None, :, :2]) ** 2, axis=2))
+        best = min(best, float(d.min()))
+    return best
