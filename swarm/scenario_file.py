@@ -403,3 +403,30 @@ def read_spec(source: str) -> Spec:
 def load(source: str, overrides: Overrides = Overrides()) -> Scenario:
     """Read, check and resolve a scenario (a built-in name or a TOML path)."""
     return resolve(read_spec(source), overrides)
+
+
+def to_toml(scn: Scenario) -> str:
+    """The resolved scenario as a TOML file with explicit lists (loads back to the same numbers)."""
+
+    def num(x: float) -> str:
+        return repr(float(x))
+
+    def vec(v) -> str:
+        return "[" + ", ".join(num(x) for x in v) + "]"
+
+    c = scn.control
+    lines = [
+        f"# scenario '{scn.name}': {scn.n} robots, {len(scn.obstacles)} obstacles (written by swarm scenario show)",
+        "[run]", f"duration = {num(scn.duration)}", f"dt = {num(scn.dt)}", f"seed = {scn.seed}", "",
+        "[control]", f"k1 = {num(c.k1)}", f"k2 = {num(c.k2)}", f"k3 = {num(c.k3)}", f"tu = {num(c.tu)}",
+        f"vt = {num(c.vt)}", f'threshold = "{c.threshold}"', f"governor = {'true' if c.governor else 'false'}", "",
+        "[bodies]", f"r = {num(scn.r)}", f"R = {num(scn.R)}", "",
+        "[leader]", f"start = {vec(scn.leader.start)}", "segments = [",
+        *[f"  {{ duration = {num(s.duration)}, v = {num(s.v)}, w = {num(s.w)} }}," for s in scn.leader.segments],
+        "]", "",
+        "[formation]", 'assignment = "ordered"', "offsets = [", *[f"  {vec(o)}," for o in scn.offsets], "]", "",
+        "[robots]", "poses = [", *[f"  {vec(q)}," for q in scn.poses], "]",
+    ]
+    for x, y, r, R in scn.obstacles:
+        lines += ["", "[[obstacles]]", f"center = {vec((x, y))}", f"r = {num(r)}", f"R = {num(R)}"]
+    return "\n".join(lines) + "\n"

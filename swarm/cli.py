@@ -1,0 +1,262 @@
+"""The `swarm` command line.
+
+    swarm sim [--scenario paper|FILE.toml] [--robots N] [--seed S] [--duration T] [--dt DT]
+              [--governor/--no-governor] [--metrics out.json] [--plots DIR] [--quiet]
+    swarm scenario show NAME|FILE [--robots N] [--seed S]
+    swarm scenario check FILE...
+
+Exit codes (every command): 0 done, 1 runtime failure, 2 bad input, 130 interrupted.
+A command-line flag beats the scenario file, which beats the built-in default.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Sequence
+
+EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
+class BadInput(Exception):
+    """A user error: printed as one line, exit code 2."""
+
+
+# --------------------------------------------------------------------------- argument types
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return value
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {text!r}")
+    return value
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
+    return value
+
+
+def _add_scenario_flags(p: argparse.ArgumentParser, default: str) -> None:
+    g = p.add_argument_group("scenario (a flag beats the file, which beats the built-in default)")
+    g.add_argument("--scenario", default=default, metavar="NAME|FILE",
+                   help=f"built-in name (paper, paper-50hz) or a TOML file (default: {default})")
+    g.add_argument("--robots", type=_count, metavar="N",
+                   help="number of robots (resizes built-in and generated scenarios)")
+    g.add_argument("--seed", type=_seed, metavar="S", help="random seed for starts and slot assignment")
+    g.add_argument("--duration", type=_positive_float, metavar="T", help="simulated seconds to run")
+    g.add_argument("--dt", type=_positive_float, metavar="DT", help="control period [s]")
+    g.add_argument("--governor", action=argparse.BooleanOptionalAction, default=None,
+                   help="the discrete-time safety governor (default: the scenario's control.governor)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="swarm",
+        description="Decentralized formation control of differential-drive robots (Eclipse Zenoh, meshcat).",
+        epilog="Exit codes: 0 done, 1 runtime failure, 2 bad input, 130 interrupted. "
+               "Docs: README.md and docs/ in the repository.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    sim = sub.add_parser(
+        "sim", help="run a scenario in one process, as fast as it can",
+        description="Run a whole swarm in one process with the compiled simulator. The built-in 'paper' "
+                    "scenario is the paper's 37-robot experiment at dt = 0.001 s; 'paper-50hz' is the same "
+                    "at dt = 0.02 s with the safety governor on.",
+        epilog="Example: swarm sim --scenario paper --seed 3 --metrics m.json --plots fig2/",
+    )
+    _add_scenario_flags(sim, "paper")
+    out = sim.add_argument_group("output")
+    out.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (DESIGN.md section 7)")
+    out.add_argument("--plots", type=Path, metavar="DIR", help="write the panels of the paper's Fig. 2 as PNG")
+    out.add_argument("--quiet", action="store_true", help="no progress bar and no summary table")
+    sim.set_defaults(func=cmd_sim)
+
+    scn = sub.add_parser("scenario", help="show or check scenario files",
+                         description="Print a scenario as explicit TOML, or check files against the contract.")
+    scn_sub = scn.add_subparsers(dest="action", metavar="ACTION", required=True)
+    show = scn_sub.add_parser("show", help="print a scenario (built-in or file) as TOML with explicit lists",
+                              description="Print the resolved scenario as a TOML file with explicit lists "
+                                          "(offsets already assigned, so assignment = \"ordered\").")
+    show.add_argument("source", metavar="NAME|FILE")
+    show.add_argument("--robots", type=_count, metavar="N")
+    show.add_argument("--seed", type=_seed, metavar="S")
+    show.set_defaults(func=cmd_scenario_show)
+    check = scn_sub.add_parser("check", help="check scenario files; exit 2 at the first bad one")
+    check.add_argument("files", nargs="+", metavar="FILE")
+    check.set_defaults(func=cmd_scenario_check)
+    return parser
+
+
+# --------------------------------------------------------------------------- commands
+
+
+def _overrides(args: argparse.Namespace):
+    from swarm.scenario_file import Overrides
+
+    return Overrides(robots=getattr(args, "robots", None), seed=getattr(args, "seed", None),
+                     duration=getattr(args, "duration", None), dt=getattr(args, "dt", None),
+                     governor=getattr(args, "governor", None))
+
+
+class _StopFlag:
+    """Turns SIGINT and SIGTERM into a flag the run loop polls between chunks."""
+
+    def __init__(self) -> None:
+        self.signal: int | None = None
+        self._old: dict[int, object] = {}
+
+    def __enter__(self) -> "_StopFlag":
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum, frame) -> None:
+        if self.signal is not None:  # a second Ctrl-C: stop now
+            raise KeyboardInterrupt
+        self.signal = signum
+
+    def __exit__(self, *exc) -> None:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+    def __call__(self) -> bool:
+        return self.signal is not None
+
+
+def cmd_sim(args: argparse.Namespace, started: float) -> int:
+    from swarm import console, scenario_file
+    from swarm.sim import Simulation
+
+    scn = scenario_file.load(args.scenario, _overrides(args))
+    for path in (args.metrics,):
+        if path is not None and path.parent and not path.parent.exists():
+            raise BadInput(f"--metrics {path}: directory {path.parent} does not exist")
+    status = console.StatusLine(enabled=not args.quiet)
+    if not args.quiet and not _kernel_cached():
+        print("compiling the simulation kernel (first run after install only, ~5-10 s)...", file=sys.stderr)
+    sim = Simulation(scn)
+
+    def show(p) -> None:
+        dist = "-" if p.min_distance is None else f"{p.min_distance:.3f} m"
+        status.update(f"{console.bar(p.t / p.duration if p.duration else 1)} t {p.t:7.2f}/{p.duration:.1f} s"
+                      f"  converged {p.converged}/{p.robots}  frozen {p.frozen}  min distance {dist}")
+
+    with _StopFlag() as stop:
+        result = sim.run(progress=show, should_stop=stop, started=started)
+    status.close()
+    m = result.metrics
+    if args.metrics is not None:
+        args.metrics.write_text(json.dumps(m, indent=2, allow_nan=False) + "\n")
+    if args.plots is not None:
+        from swarm.plots import write_panels
+
+        write_panels(result.recording, scn, args.plots)
+    if not args.quiet:
+        print(summary(m, scn.name))
+        if args.metrics is not None:
+            print(f"metrics: {args.metrics}")
+        if args.plots is not None:
+            print(f"plots:   {args.plots}/")
+    return EXIT_INTERRUPTED if m["interrupted"] else EXIT_OK
+
+
+def summary(m: dict, name: str) -> str:
+    from swarm.console import fmt, table
+
+    conv = m["converged_at_s"]
+    rows = [
+        ("scenario", f"{name}  ({m['robots']} robots, {m['obstacles']} obstacles, seed {m['seed']}, dt {m['dt']:g} s"
+                     f"{', governor on' if m.get('governor') else ''})"),
+        ("simulated", fmt(m["duration_s"], "s") + ("  (interrupted)" if m["interrupted"] else "")),
+        ("converged at", "not converged" if conv is None else fmt(conv, "s")),
+        ("final errors", f"position {fmt(m['final_position_error_max_m'], 'm', 3)}, "
+                         f"orientation {fmt(m['final_orientation_error_max_rad'], 'rad', 3)}"),
+        ("min distance", f"robot-robot {fmt(m['min_robot_distance_m'], 'm')}, "
+                         f"robot-obstacle {fmt(m['min_obstacle_distance_m'], 'm')}"),
+        ("collisions", str(m["collisions"])),
+        ("last freeze end", fmt(m["last_freeze_end_s"], "s")),
+        ("wall time", fmt(m["wall_s"], "s", 3)),
+    ]
+    return table(rows, "summary")
+
+
+def cmd_scenario_show(args: argparse.Namespace, started: float) -> int:
+    from swarm import scenario_file
+
+    scn = scenario_file.load(args.source, _overrides(args))
+    sys.stdout.write(scenario_file.to_toml(scn))
+    return EXIT_OK
+
+
+def cmd_scenario_check(args: argparse.Namespace, started: float) -> int:
+    from swarm import scenario_file
+
+    for f in args.files:
+        scn = scenario_file.load(f)
+        print(f"{f}: ok ({scn.n} robots, {len(scn.obstacles)} obstacles, {scn.steps} steps of {scn.dt:g} s)")
+    return EXIT_OK
+
+
+def _kernel_cached() -> bool:
+    from swarm import jit
+
+    d = jit.cache_dir()
+    return d.is_dir() and any(d.rglob("*.nbi"))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    started = time.perf_counter()
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return EXIT_BAD_INPUT
+    from swarm.scenario import ScenarioError
+
+    try:
+        return args.func(args, started)
+    except (ScenarioError, BadInput) as e:
+        print(f"swarm {args.command}: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f"swarm {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_OK
+    except Exception as e:  # a runtime failure: one line, plus the traceback on request
+        if os.environ.get("SWARM_DEBUG"):
+            raise
+        print(f"swarm {args.command}: failed: {type(e).__name__}: {e} (set SWARM_DEBUG=1 for a traceback)",
+              file=sys.stderr)
+        return EXIT_FAILURE
+
+
+if __name__ == "__main__":
+    sys.exit(main())

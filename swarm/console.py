@@ -1,0 +1,76 @@
+"""Terminal output: a one-line progress bar (only on a terminal) and summary tables."""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import time
+from typing import IO, Sequence
+
+
+class StatusLine:
+    """A single status line redrawn in place on a terminal, or plain log lines otherwise.
+
+    On a terminal it redraws at most `hz` times a second; elsewhere (a pipe, a CI log)
+    it prints a plain line at most every `log_every` seconds, so logs stay readable.
+    """
+
+    def __init__(self, stream: IO[str] | None = None, hz: float = 10.0, log_every: float = 10.0,
+                 enabled: bool = True):
+        self.stream = stream or sys.stderr
+        self.tty = enabled and hasattr(self.stream, "isatty") and self.stream.isatty()
+        self.enabled = enabled
+        self.min_gap = 1.0 / hz if self.tty else log_every
+        self.last = -1e9
+        self.width = 0
+
+    def update(self, text: str, force: bool = False) -> None:
+        if not self.enabled:
+            return
+        now = time.monotonic()
+        if not force and now - self.last < self.min_gap:
+            return
+        self.last = now
+        if self.tty:
+            cols = shutil.get_terminal_size((100, 20)).columns
+            text = text[: cols - 1]
+            pad = max(0, self.width - len(text))
+            self.stream.write("\r" + text + " " * pad)
+            self.width = len(text)
+        else:
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        """End the line (on a terminal) so later output starts on a fresh line."""
+        if self.enabled and self.tty and self.width:
+            self.stream.write("\n")
+            self.stream.flush()
+            self.width = 0
+
+
+def bar(fraction: float, width: int = 24) -> str:
+    fraction = min(max(fraction, 0.0), 1.0)
+    full = int(round(fraction * width))
+    return "[" + "#" * full + "." * (width - full) + "]"
+
+
+def table(rows: Sequence[tuple[str, str]], title: str | None = None) -> str:
+    """Two aligned columns; returns the text (with a trailing newline)."""
+    key_w = max((len(k) for k, _ in rows), default=0)
+    lines = [title] if title else []
+    lines += [f"  {k.ljust(key_w)}  {v}" for k, v in rows]
+    return "\n".join(lines) + "\n"
+
+
+def fmt(value: object, unit: str = "", digits: int = 4) -> str:
+    """A metric for humans: None as '-', floats with `digits` significant digits."""
+    if value is None:
+        return "-"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        text = f"{value:.{digits}g}"
+    else:
+        text = str(value)
+    return f"{text} {unit}".rstrip()
