@@ -85,10 +85,21 @@ def run_steps(k0, k1, n_steps, q, comp, mem, cmd, offsets, radius, obstacles,
     merge_steps = FREEZE_MERGE_S / dt
     cap = pairs.shape[0]
     cur = np.empty((cap, 2), np.int64)
+    xs = q[:, 0]
+    ys = q[:, 1]
+    oxs = obstacles[:, 0]
+    oys = obstacles[:, 1]
+    # bounding box of the obstacles grown by the sense range: robots outside skip the obstacle grid
+    bx0, bx1, by0, by1 = math.inf, -math.inf, math.inf, -math.inf
+    for o in range(m):
+        bx0 = min(bx0, oxs[o] - sense)
+        bx1 = max(bx1, oxs[o] + sense)
+        by0 = min(by0, oys[o] - sense)
+        by1 = max(by1, oys[o] + sense)
     for k in range(k0, k1):
         t = k * dt
         xl, yl, thl, vl, wl = _leader_state(table, t)
-        _build(q[:, 0], q[:, 1], n, sense, cells, head, order)
+        _build(xs, ys, n, sense, cells, head, order)
         n_cur = 0
         converged = 0
         frozen_now = 0
@@ -98,7 +109,7 @@ def run_steps(k0, k1, n_steps, q, comp, mem, cmd, offsets, radius, obstacles,
             x = q[i, 0]
             y = q[i, 1]
             th = q[i, 2]
-            cnt = _near(x, y, sense, q[:, 0], q[:, 1], cells, head, order, sense, i, buf)
+            cnt = _near(x, y, sense, xs, ys, cells, head, order, sense, i, buf)
             for a in range(cnt):
                 j = buf[a]
                 nx[a] = q[j, 0]
@@ -114,9 +125,8 @@ def run_steps(k0, k1, n_steps, q, comp, mem, cmd, offsets, radius, obstacles,
                         cur[n_cur, 0] = i
                         cur[n_cur, 1] = j
                         n_cur += 1
-            if m > 0:
-                c2 = _near(x, y, sense, obstacles[:, 0], obstacles[:, 1], ocells, ohead, oorder, sense, -1,
-                           buf[cnt:])
+            if m > 0 and bx0 < x < bx1 and by0 < y < by1:
+                c2 = _near(x, y, sense, oxs, oys, ocells, ohead, oorder, sense, -1, buf[cnt:])
                 for a in range(cnt, cnt + c2):
                     o = buf[a]
                     nx[a] = obstacles[o, 0]

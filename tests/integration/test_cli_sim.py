@@ -1,0 +1,139 @@
+"""`swarm sim` through the real command line: the metrics contract, bad input, interruption."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.integration
+
+CONTRACT_KEYS = {
+    "robots": int, "obstacles": int, "duration_s": float, "dt": float, "seed": int,
+    "converged_at_s": (float, type(None)), "final_position_error_max_m": float,
+    "final_orientation_error_max_rad": float, "min_robot_distance_m": (float, type(None)),
+    "min_obstacle_distance_m": (float, type(None)), "collisions": int, "last_freeze_end_s": (float, type(None)),
+    "wall_s": float, "messages_dropped": int, "cmd_misses": int, "bad_messages": int, "interrupted": bool,
+}
+
+
+def swarm_cmd() -> list[str]:
+    """The installed `swarm` console script next to this interpreter, else `python -m swarm.cli`."""
+    exe = Path(sys.executable).with_name("swarm")
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "swarm.cli"]
+
+
+def run(args: list[str], timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run(swarm_cmd() + args, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.timeout(180)
+def test_paper_seed_through_cli_writes_contract_metrics(tmp_path):
+    out = tmp_path / "m.json"
+    plots = tmp_path / "fig2"
+    p = run(["sim", "--scenario", "paper", "--seed", "4", "--metrics", str(out), "--plots", str(plots)])
+    assert p.returncode == 0, p.stderr
+    m = json.loads(out.read_text())
+    for key, kind in CONTRACT_KEYS.items():
+        assert key in m, key
+        assert isinstance(m[key], kind) or (kind is float and isinstance(m[key], int)), (key, m[key])
+    assert m["robots"] == 37 and m["obstacles"] == 26 and m["seed"] == 4
+    assert m["dt"] == 0.001 and m["duration_s"] == pytest.approx(120.0)
+    assert m["collisions"] == 0
+    assert m["min_robot_distance_m"] > 0.4
+    assert m["converged_at_s"] is not None and m["converged_at_s"] <= 60.0
+    assert m["final_position_error_max_m"] < 1e-9 and m["final_orientation_error_max_rad"] < 1e-9
+    assert m["interrupted"] is False
+    assert m["messages_dropped"] == m["cmd_misses"] == m["bad_messages"] == 0
+    assert (plots / "fig2.png").stat().st_size > 10_000
+    assert "summary" in p.stdout and "converged at" in p.stdout
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["sim", "--robots", "0"], "--robots"),
+        (["sim", "--dt", "nan"], "--dt"),
+        (["sim", "--seed", "-1"], "--seed"),
+        (["sim", "--scenario", "no-such-scenario"], "no such file"),
+        (["sim", "--duration", "abc"], "--duration"),
+    ],
+)
+def test_bad_command_line_exits_2_with_a_clear_message(args, needle):
+    p = run(args)
+    assert p.returncode == 2
+    assert needle in p.stderr
+    assert "Traceback" not in p.stderr
+
+
+def test_broken_scenario_file_names_file_key_and_reason(tmp_path):
+    f = tmp_path / "bad.toml"
+    f.write_text('[run]\nduration = "long"\n[leader]\nstart=[0,0,0]\nsegments=[{duration=1,v=0,w=0}]\n'
+                 '[formation]\noffsets=[[0,0]]\n[robots]\nposes=[[1,1,0]]\n')
+    p = run(["sim", "--scenario", str(f)])
+    assert p.returncode == 2
+    assert str(f) in p.stderr and "run.duration" in p.stderr and "must be a number" in p.stderr
+    assert "Traceback" not in p.stderr
+
+
+def test_explicit_scenario_round_trips_through_show(tmp_path):
+    """`swarm scenario show` writes a file that runs exactly like the built-in it came from."""
+    f = tmp_path / "p7.toml"
+    p = run(["scenario", "show", "paper-50hz", "--robots", "7", "--seed", "2"])
+    assert p.returncode == 0, p.stderr
+    f.write_text(p.stdout)
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    assert run(["sim", "--scenario", str(f), "--duration", "20", "--quiet", "--metrics", str(a)]).returncode == 0
+    assert run(["sim", "--scenario", "paper-50hz", "--robots", "7", "--seed", "2", "--duration", "20", "--quiet",
+                "--metrics", str(b)]).returncode == 0
+    ma, mb = json.loads(a.read_text()), json.loads(b.read_text())
+    for key in ("converged_at_s", "final_position_error_max_m", "min_robot_distance_m", "collisions"):
+        assert ma[key] == mb[key], key
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_interrupt_writes_metrics_and_exits_130(tmp_path, sig):
+    out = tmp_path / "m.json"
+    proc = subprocess.Popen(swarm_cmd() + ["sim", "--duration", "100000", "--metrics", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60
+        line = ""
+        while " t " not in line:  # the first progress line: the run is under way
+            assert time.monotonic() < deadline, "no progress line within 60 s"
+            line = proc.stderr.readline()
+            assert line or proc.poll() is None, "swarm sim exited early"
+        proc.send_signal(sig)
+        rc = proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert rc == 130
+    m = json.loads(out.read_text())
+    assert m["interrupted"] is True
+    assert 0 < m["duration_s"] < 100000
+    assert math.isfinite(m["wall_s"])
+
+
+def test_help_lists_commands_and_exit_codes():
+    p = run(["--help"])
+    assert p.returncode == 0
+    assert "sim" in p.stdout and "scenario" in p.stdout and "130 interrupted" in p.stdout
+    p = run(["sim", "--help"])
+    assert "--governor" in p.stdout and "--plots" in p.stdout
+
+
+@pytest.mark.skipif(shutil.which("swarm") is None and not Path(sys.executable).with_name("swarm").exists(),
+                    reason="the console script is not installed (pip install -e .)")
+def test_console_script_is_installed():
+    assert run(["scenario", "check", "--help"]).returncode == 0
