@@ -1,0 +1,126 @@
+"""The zenoh key space of DESIGN.md section 5: the one place that builds and parses keys.
+
+    keys.robot_cmd("default", 7)   -> "swarm/default/robot/7/cmd"
+    keys.parse("swarm/default/cell/-3/2/7") -> Key(fleet="default", kind="cell", id=7, cx=-3, cy=2)
+    keys.parse("anything else")   -> None
+
+Cells: cx = floor(x / side), cy = floor(y / side), decimal ints (negative allowed).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+
+PREFIX = "swarm"
+ROLES = ("router", "world", "leader", "robot", "viz", "recorder", "launcher")
+_FLEET = re.compile(r"^[A-Za-z0-9_\-]{1,64}$")
+_INT = re.compile(r"^(0|[1-9][0-9]{0,9})$")
+_SIGNED = re.compile(r"^(0|-?[1-9][0-9]{0,9})$")
+
+
+class KeyError_(ValueError):
+    """A fleet name or id that cannot be put in a key."""
+
+
+def check_fleet(fleet: str) -> str:
+    if not isinstance(fleet, str) or not _FLEET.match(fleet):
+        raise KeyError_(f"fleet name must be 1-64 characters of letters, digits, '_' or '-', got {fleet!r}")
+    return fleet
+
+
+def _id(i: int) -> int:
+    if isinstance(i, bool) or not isinstance(i, int) or i < 0:
+        raise KeyError_(f"an id must be an int >= 0, got {i!r}")
+    return i
+
+
+def base(fleet: str) -> str:
+    return f"{PREFIX}/{check_fleet(fleet)}"
+
+
+def leader_ref(fleet: str) -> str:
+    return f"{base(fleet)}/leader/ref"
+
+
+def robot_pose(fleet: str, i: int) -> str:
+    return f"{base(fleet)}/robot/{_id(i)}/pose"
+
+
+def robot_cmd(fleet: str, i: int) -> str:
+    return f"{base(fleet)}/robot/{_id(i)}/cmd"
+
+
+def robot_status(fleet: str, i: int) -> str:
+    return f"{base(fleet)}/robot/{_id(i)}/status"
+
+
+def cell(fleet: str, cx: int, cy: int, i: int) -> str:
+    return f"{base(fleet)}/cell/{int(cx)}/{int(cy)}/{_id(i)}"
+
+
+def cell_any(fleet: str, cx: int, cy: int) -> str:
+    """Key expression for every robot's state in cell (cx, cy)."""
+    return f"{base(fleet)}/cell/{int(cx)}/{int(cy)}/*"
+
+
+def world_obstacles(fleet: str) -> str:
+    return f"{base(fleet)}/world/obstacles"
+
+
+def world_snapshot(fleet: str) -> str:
+    return f"{base(fleet)}/world/snapshot"
+
+
+def alive(fleet: str, role: str, i: int = 0) -> str:
+    if role not in ROLES:
+        raise KeyError_(f"role must be one of {', '.join(ROLES)}, got {role!r}")
+    return f"{base(fleet)}/alive/{role}/{_id(i)}"
+
+
+def alive_any(fleet: str, role: str | None = None) -> str:
+    return f"{base(fleet)}/alive/{role or '*'}/*"
+
+
+def robot_any(fleet: str, what: str) -> str:
+    """Key expression for one kind of per-robot key of every robot, e.g. robot_any(f, "cmd")."""
+    return f"{base(fleet)}/robot/*/{what}"
+
+
+def cell_of(x: float, y: float, side: float) -> tuple[int, int]:
+    return int(math.floor(x / side)), int(math.floor(y / side))
+
+
+@dataclass(frozen=True)
+class Key:
+    fleet: str
+    kind: str  # "ref", "pose", "cmd", "status", "cell", "obstacles", "snapshot", "alive"
+    id: int | None = None
+    cx: int | None = None
+    cy: int | None = None
+    role: str | None = None
+
+
+def parse(key: str) -> Key | None:
+    """The parts of a swarm key, or None if it is not one (never raises)."""
+    if not isinstance(key, str):
+        return None
+    p = key.split("/")
+    if len(p) < 3 or p[0] != PREFIX or not _FLEET.match(p[1]):
+        return None
+    fleet, rest = p[1], p[2:]
+    if rest == ["leader", "ref"]:
+        return Key(fleet, "ref")
+    if rest == ["world", "obstacles"]:
+        return Key(fleet, "obstacles")
+    if rest == ["world", "snapshot"]:
+        return Key(fleet, "snapshot")
+    if len(rest) == 3 and rest[0] == "robot" and _INT.match(rest[1]) and rest[2] in ("pose", "cmd", "status"):
+        return Key(fleet, rest[2], id=int(rest[1]))
+    if len(rest) == 4 and rest[0] == "cell" and _SIGNED.match(rest[1]) and _SIGNED.match(rest[2]) \
+            and _INT.match(rest[3]):
+        return Key(fleet, "cell", id=int(rest[3]), cx=int(rest[1]), cy=int(rest[2]))
+    if len(rest) == 3 and rest[0] == "alive" and rest[1] in ROLES and _INT.match(rest[2]):
+        return Key(fleet, "alive", id=int(rest[2]), role=rest[1])
+    return None

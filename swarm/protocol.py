@@ -1,0 +1,308 @@
+"""Messages of DESIGN.md section 5 and their one versioned msgpack codec.
+
+    payload = encode(Cmd(t=1.0, seq=50, v=0.4, w=-0.1))
+    msg = decode(payload, kind="cmd", key_id=7)      # raises ProtocolError if anything is off
+
+Every payload is a msgpack map {"v": 1, "kind": ..., fields}. decode() validates at the
+boundary: size, msgpack, version, kind, the exact set of fields, types (bool is not a
+number), finite numbers, ranges (ids and seq >= 0, 0 < r < R), and the id in the key
+equal to the id in the payload. Anything wrong raises ProtocolError with a reason; a
+process drops and counts such a message (swarm.protocol.BadMessages) and goes on.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, fields
+
+import msgpack
+
+VERSION = 1
+MAX_PAYLOAD = 1 << 20  # bytes: a snapshot of ~10 000 robots; anything larger is refused unread
+MAX_ROBOTS = 100_000
+
+
+class ProtocolError(ValueError):
+    """A message that must not reach the law: the reason says what was wrong."""
+
+
+@dataclass(frozen=True)
+class Ref:
+    """The leader's live reference (leader -> agents)."""
+
+    t: float
+    seq: int
+    x: float
+    y: float
+    theta: float
+    v: float
+    w: float
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A robot's pose (world or localization -> agent)."""
+
+    t: float
+    seq: int
+    x: float
+    y: float
+    theta: float
+
+
+@dataclass(frozen=True)
+class Cmd:
+    """A robot's command (agent -> world or drive)."""
+
+    t: float
+    seq: int
+    v: float
+    w: float
+
+
+@dataclass(frozen=True)
+class State:
+    """A robot's state on its cell key (agent -> agents nearby)."""
+
+    id: int
+    t: float
+    seq: int
+    x: float
+    y: float
+    theta: float
+    r: float
+    R: float
+    frozen: bool
+
+
+@dataclass(frozen=True)
+class Status:
+    """A robot's status (agent -> viewers, recorder)."""
+
+    t: float
+    ex: float
+    ey: float
+    etheta: float
+    frozen: bool
+    neighbours: int
+    stale: int
+    bad: int
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    x: float
+    y: float
+    r: float
+    R: float
+
+
+@dataclass(frozen=True)
+class Obstacles:
+    """The world's static obstacles (reply of the obstacles queryable)."""
+
+    obstacles: tuple[Obstacle, ...]
+
+
+@dataclass(frozen=True)
+class RobotSnap:
+    id: int
+    x: float
+    y: float
+    theta: float
+    v: float
+    w: float
+    stopped: bool
+    alive: bool
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """Every robot at one tick (world -> viewers, recorder)."""
+
+    t: float
+    seq: int
+    robots: tuple[RobotSnap, ...]
+
+
+KINDS: dict[str, type] = {"ref": Ref, "pose": Pose, "cmd": Cmd, "state": State, "status": Status,
+                          "obstacles": Obstacles, "snapshot": Snapshot}
+_KIND_OF = {cls: kind for kind, cls in KINDS.items()}
+
+
+# --------------------------------------------------------------------------- encoding
+
+
+def encode(msg) -> bytes:
+    """msgpack bytes of a message (no validation: messages are built by this process)."""
+    kind = _KIND_OF.get(type(msg))
+    if kind is None:
+        raise TypeError(f"not a protocol message: {type(msg).__name__}")
+    d: dict = {"v": VERSION, "kind": kind}
+    if kind == "obstacles":
+        d["obstacles"] = [{"x": o.x, "y": o.y, "r": o.r, "R": o.R} for o in msg.obstacles]
+    elif kind == "snapshot":
+        d.update(t=msg.t, seq=msg.seq,
+                 robots=[{f: getattr(s, f) for f in _SNAP_FIELDS} for s in msg.robots])
+    else:
+        for f in fields(msg):
+            d[_WIRE.get(f.name, f.name)] = getattr(msg, f.name)
+    return msgpack.packb(d, use_bin_type=True)
+
+
+# --------------------------------------------------------------------------- decoding
+
+
+def _num(d: dict, name: str) -> float:
+    x = d[name]
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        raise ProtocolError(f"field {name!r} must be a number, got {type(x).__name__}")
+    x = float(x)
+    if not math.isfinite(x):
+        raise ProtocolError(f"field {name!r} must be finite, got {x}")
+    return x
+
+
+def _int(d: dict, name: str, limit: int = 2**53) -> int:
+    x = d[name]
+    if isinstance(x, bool) or not isinstance(x, int):
+        raise ProtocolError(f"field {name!r} must be an integer, got {type(x).__name__}")
+    if not 0 <= x <= limit:
+        raise ProtocolError(f"field {name!r} must be in [0, {limit}], got {x}")
+    return x
+
+
+def _bool(d: dict, name: str) -> bool:
+    x = d[name]
+    if not isinstance(x, bool):
+        raise ProtocolError(f"field {name!r} must be true or false, got {type(x).__name__}")
+    return x
+
+
+def _radii(r: float, R: float) -> None:
+    if not (0 < r < R):
+        raise ProtocolError(f"radii must satisfy 0 < r < R, got r = {r}, R = {R}")
+
+
+def _fields(d: dict, names: tuple[str, ...]) -> None:
+    missing = [n for n in names if n not in d]
+    if missing:
+        raise ProtocolError(f"missing field(s) {', '.join(missing)}")
+    extra = [str(n) for n in d if n not in names and n not in ("v", "kind")]
+    if extra:
+        raise ProtocolError(f"unknown field(s) {', '.join(sorted(extra))[:80]}")
+
+
+_SPEC: dict[str, tuple[tuple[str, str], ...]] = {
+    "ref": (("t", "n"), ("seq", "i"), ("x", "n"), ("y", "n"), ("theta", "n"), ("vel", "n"), ("w", "n")),
+    "pose": (("t", "n"), ("seq", "i"), ("x", "n"), ("y", "n"), ("theta", "n")),
+    "cmd": (("t", "n"), ("seq", "i"), ("vel", "n"), ("w", "n")),
+    "state": (("id", "id"), ("t", "n"), ("seq", "i"), ("x", "n"), ("y", "n"), ("theta", "n"), ("r", "n"),
+              ("R", "n"), ("frozen", "b")),
+    "status": (("t", "n"), ("ex", "n"), ("ey", "n"), ("etheta", "n"), ("frozen", "b"), ("neighbours", "i"),
+               ("stale", "i"), ("bad", "i")),
+}
+# DESIGN.md section 5 names both the protocol version and the linear velocity of ref and cmd
+# "v"; one map cannot hold both. "v" stays the version (a decoder needs it before the kind);
+# on the wire the linear velocity is "vel" (docs/protocol.md). In Python it is still .v.
+_WIRE = {"v": "vel"}
+_FIELD = {"vel": "v"}
+_READ = {"n": _num, "i": _int, "b": _bool, "id": lambda d, n: _int(d, n, MAX_ROBOTS - 1)}
+
+
+def decode(payload: bytes, kind: str | None = None, key_id: int | None = None):
+    """Validate and decode a payload; `kind` is the expected kind, `key_id` the id in its key."""
+    if not isinstance(payload, (bytes, bytearray, memoryview)):
+        raise ProtocolError(f"payload must be bytes, got {type(payload).__name__}")
+    if len(payload) > MAX_PAYLOAD:
+        raise ProtocolError(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD}")
+    try:
+        d = msgpack.unpackb(bytes(payload), raw=False, strict_map_key=True)
+    except Exception as e:  # msgpack raises several types for garbage
+        raise ProtocolError(f"not msgpack: {type(e).__name__}") from None
+    if not isinstance(d, dict):
+        raise ProtocolError(f"payload must be a map, got {type(d).__name__}")
+    if d.get("v") != VERSION or isinstance(d.get("v"), bool):
+        raise ProtocolError(f"unsupported protocol version {d.get('v')!r} (this side speaks {VERSION})")
+    k = d.get("kind")
+    if k not in KINDS:
+        raise ProtocolError(f"unknown kind {k!r}")
+    if kind is not None and k != kind:
+        raise ProtocolError(f"expected kind {kind!r}, got {k!r}")
+    if k == "obstacles":
+        msg = _obstacles(d)
+    elif k == "snapshot":
+        msg = _snapshot(d)
+    else:
+        spec = _SPEC[k]
+        _fields(d, tuple(n for n, _ in spec))
+        msg = KINDS[k](**{_FIELD.get(n, n): _READ[t](d, n) for n, t in spec})
+        if k == "state":
+            _radii(msg.r, msg.R)
+    if key_id is not None and k == "state" and msg.id != key_id:
+        raise ProtocolError(f"id {msg.id} in the payload does not match id {key_id} in the key")
+    return msg
+
+
+_SNAP_FIELDS = ("id", "x", "y", "theta", "v", "w", "stopped", "alive")
+
+
+def _item(row, where: str, names: tuple[str, ...]) -> dict:
+    if not isinstance(row, dict):
+        raise ProtocolError(f"{where} must be a map of {', '.join(names)}")
+    try:
+        _fields(row, names)
+    except ProtocolError as e:
+        raise ProtocolError(f"{where}: {e}") from None
+    return row
+
+
+def _obstacles(d: dict) -> Obstacles:
+    _fields(d, ("obstacles",))
+    rows = d["obstacles"]
+    if not isinstance(rows, list) or len(rows) > MAX_ROBOTS:
+        raise ProtocolError("field 'obstacles' must be a list of {x, y, r, R}")
+    out = []
+    for i, row in enumerate(rows):
+        o = _item(row, f"obstacles[{i}]", ("x", "y", "r", "R"))
+        ob = Obstacle(_num(o, "x"), _num(o, "y"), _num(o, "r"), _num(o, "R"))
+        _radii(ob.r, ob.R)
+        out.append(ob)
+    return Obstacles(tuple(out))
+
+
+def _snapshot(d: dict) -> Snapshot:
+    _fields(d, ("t", "seq", "robots"))
+    rows = d["robots"]
+    if not isinstance(rows, list) or len(rows) > MAX_ROBOTS:
+        raise ProtocolError("field 'robots' must be a list")
+    out = []
+    for i, row in enumerate(rows):
+        r = _item(row, f"robots[{i}]", _SNAP_FIELDS)
+        out.append(RobotSnap(_int(r, "id", MAX_ROBOTS - 1), _num(r, "x"), _num(r, "y"), _num(r, "theta"),
+                             _num(r, "v"), _num(r, "w"), _bool(r, "stopped"), _bool(r, "alive")))
+    return Snapshot(_num(d, "t"), _int(d, "seq"), tuple(out))
+
+
+class BadMessages:
+    """Counts rejected messages and logs them, at most one line per `every` seconds."""
+
+    def __init__(self, log: logging.Logger, every: float = 5.0):
+        self.log = log
+        self.every = every
+        self.count = 0
+        self._last = -math.inf
+        self._quiet = 0
+
+    def reject(self, key: str, err: Exception) -> None:
+        self.count += 1
+        now = time.monotonic()
+        if now - self._last >= self.every:
+            more = f" ({self._quiet} more since the last report)" if self._quiet else ""
+            self.log.warning("dropped a bad message on %s: %s%s", key, err, more)
+            self._last = now
+            self._quiet = 0
+        else:
+            self._quiet += 1
