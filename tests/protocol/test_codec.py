@@ -1,0 +1,141 @@
+"""The msgpack codec: round trips, a table of rejected messages, fuzzing."""
+
+from __future__ import annotations
+
+import math
+
+import msgpack
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from swarm import protocol as p
+
+MESSAGES = [
+    p.Ref(t=1.5, seq=75, x=1.0, y=-2.0, theta=0.3, v=0.5, w=0.0982),
+    p.Pose(t=0.0, seq=0, x=-1e3, y=2.5, theta=-3.14),
+    p.Cmd(t=2.0, seq=100, v=-0.05, w=1.2),
+    p.State(id=7, t=2.0, seq=100, x=1.0, y=2.0, theta=0.1, r=0.3, R=1.2, frozen=True),
+    p.Status(t=2.0, ex=0.1, ey=-0.2, etheta=0.05, frozen=False, neighbours=3, stale=1, bad=0),
+    p.Obstacles(obstacles=(p.Obstacle(1.0, 2.0, 0.3, 1.2), p.Obstacle(-1.0, 0.0, 0.5, 2.0))),
+    p.Obstacles(obstacles=()),
+    p.Snapshot(t=3.0, seq=150, robots=(p.RobotSnap(0, 1.0, 2.0, 0.3, 0.5, 0.1, False, True),
+                                        p.RobotSnap(4, 0.0, 0.0, 0.0, 0.0, 0.0, True, False))),
+]
+
+
+@pytest.mark.parametrize("msg", MESSAGES, ids=lambda m: type(m).__name__)
+def test_round_trip(msg):
+    assert p.decode(p.encode(msg)) == msg
+
+
+def test_every_payload_has_version_and_kind():
+    for msg in MESSAGES:
+        d = msgpack.unpackb(p.encode(msg))
+        assert d["v"] == 1 and d["kind"] in p.KINDS
+
+
+def test_snapshot_and_obstacles_are_maps_per_item():
+    d = msgpack.unpackb(p.encode(MESSAGES[-1]))
+    assert set(d["robots"][0]) == {"id", "x", "y", "theta", "v", "w", "stopped", "alive"}
+    d = msgpack.unpackb(p.encode(MESSAGES[5]))
+    assert set(d["obstacles"][0]) == {"x", "y", "r", "R"}
+
+
+def _cmd(**changes):
+    d = {"v": 1, "kind": "cmd", "t": 1.0, "seq": 3, "vel": 0.1, "w": 0.2}
+    d.update(changes)
+    return {k: v for k, v in d.items() if v is not _DROP}
+
+
+def _state(**changes):
+    d = {"v": 1, "kind": "state", "id": 4, "t": 1.0, "seq": 3, "x": 0.0, "y": 0.0, "theta": 0.0, "r": 0.3,
+         "R": 1.2, "frozen": False}
+    d.update(changes)
+    return {k: v for k, v in d.items() if v is not _DROP}
+
+
+_DROP = object()
+
+REJECTED = [
+    ("empty", b"", "not msgpack"),
+    ("garbage", b"\xc1\xff\x00", "not msgpack"),
+    ("truncated", msgpack.packb(_cmd())[:-3], "not msgpack"),
+    ("a list", msgpack.packb([1, 2, 3]), "must be a map"),
+    ("a string", msgpack.packb("cmd"), "must be a map"),
+    ("no version", msgpack.packb(_cmd(v=_DROP)), "version"),
+    ("version 2", msgpack.packb(_cmd(v=2)), "version"),
+    ("version true", msgpack.packb(_cmd(v=True)), "version"),
+    ("unknown kind", msgpack.packb(_cmd(kind="teleport")), "unknown kind"),
+    ("missing field", msgpack.packb(_cmd(w=_DROP)), "missing field"),
+    ("extra field", msgpack.packb(_cmd(boost=9.0)), "unknown field"),
+    ("nan", msgpack.packb(_cmd(vel=math.nan)), "finite"),
+    ("inf", msgpack.packb(_cmd(t=math.inf)), "finite"),
+    ("string number", msgpack.packb(_cmd(vel="0.1")), "must be a number"),
+    ("bool number", msgpack.packb(_cmd(vel=True)), "must be a number"),
+    ("float seq", msgpack.packb(_cmd(seq=1.5)), "integer"),
+    ("negative seq", msgpack.packb(_cmd(seq=-1)), "must be in"),
+    ("negative id", msgpack.packb(_state(id=-1)), "must be in"),
+    ("huge id", msgpack.packb(_state(id=10**9)), "must be in"),
+    ("r >= R", msgpack.packb(_state(r=1.5)), "0 < r < R"),
+    ("r = 0", msgpack.packb(_state(r=0.0)), "0 < r < R"),
+    ("frozen not bool", msgpack.packb(_state(frozen=1)), "true or false"),
+    ("int map key", msgpack.packb({1: 2}), "not msgpack"),
+    ("obstacle list item", msgpack.packb({"v": 1, "kind": "obstacles", "obstacles": [[1, 2, 0.3, 1.2]]}), "map"),
+    ("snapshot bad robot", msgpack.packb({"v": 1, "kind": "snapshot", "t": 0.0, "seq": 0,
+                                          "robots": [{"id": 0}]}), "missing"),
+    ("too large", b"\x00" * (p.MAX_PAYLOAD + 1), "exceeds"),
+]
+
+
+@pytest.mark.parametrize("name, payload, reason", REJECTED, ids=[r[0] for r in REJECTED])
+def test_rejected(name, payload, reason):
+    with pytest.raises(p.ProtocolError, match=reason):
+        p.decode(payload)
+
+
+def test_wrong_kind_for_the_key():
+    with pytest.raises(p.ProtocolError, match="expected kind 'pose'"):
+        p.decode(p.encode(MESSAGES[2]), kind="pose")
+
+
+def test_key_id_must_match_payload_id():
+    payload = p.encode(MESSAGES[3])  # id 7
+    assert p.decode(payload, kind="state", key_id=7).id == 7
+    with pytest.raises(p.ProtocolError, match="does not match id 8"):
+        p.decode(payload, kind="state", key_id=8)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=200))
+def test_fuzz_bytes_never_crash(data):
+    try:
+        p.decode(data)
+    except p.ProtocolError:
+        pass
+
+
+_scalars = st.one_of(st.none(), st.booleans(), st.integers(-2**63, 2**64 - 1), st.floats(), st.text(max_size=5),
+                     st.binary(max_size=5))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.dictionaries(st.sampled_from(["v", "kind", "t", "seq", "vel", "w", "x", "y", "theta", "id", "r", "R",
+                                        "frozen", "robots", "obstacles"]),
+                       st.one_of(_scalars, st.sampled_from(list(p.KINDS)), st.lists(_scalars, max_size=3))))
+def test_fuzz_structured_maps_never_crash(d):
+    try:
+        msg = p.decode(msgpack.packb(d, use_bin_type=True))
+    except p.ProtocolError:
+        return
+    assert p.decode(p.encode(msg)) == msg  # anything accepted is a valid message
+
+
+def test_bad_message_counter_rate_limits(caplog):
+    import logging
+
+    bad = p.BadMessages(logging.getLogger("test"), every=60.0)
+    for _ in range(5):
+        bad.reject("swarm/x/robot/1/cmd", p.ProtocolError("boom"))
+    assert bad.count == 5
+    assert len([r for r in caplog.records if "dropped a bad message" in r.getMessage()]) == 1
