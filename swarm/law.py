@@ -66,11 +66,9 @@ def wrap_angle(a):
     """Wrap an angle [rad] into (-pi, pi]."""
     if -PI < a <= PI:
         return a  # exact: no rounding for angles already in range
-    w = a - TWO_PI * math.floor((a + PI) / TWO_PI)
+    w = a % TWO_PI  # Python's float modulo is exact: [0, 2 pi) for every finite a
     if w > PI:
         w -= TWO_PI
-    elif w <= -PI:
-        w += TWO_PI
     return w
 
 
@@ -115,7 +113,7 @@ def repulsion_gradient(xi, yi, xj, yj, r, R):
         return 0.0, 0.0
     s = potential_slope(l, r, R)
     if l < 1e-12:
-        return -s, 0.0
+        return s, 0.0  # s < 0: the gradient points along -x, the correction P = p - grad along +x
     return s * dx / l, s * dy / l
 
 

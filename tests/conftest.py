@@ -1,0 +1,83 @@
+"""Shared helpers of the unit tests: scenario documents and a small TOML writer.
+
+The standard library reads TOML (tomllib) but cannot write it; the scenario tests need
+to write many slightly broken files, so `toml_text` turns the dictionaries they edit
+into TOML text (tables, arrays of tables, inline tables, nan/inf literals).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+from typing import Any, Callable
+
+import pytest
+
+
+def _value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, list):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k} = {_value(x)}" for k, x in v.items()) + "}"
+    raise TypeError(f"cannot write {type(v).__name__} as TOML")
+
+
+def toml_text(doc: dict) -> str:
+    """TOML text for a scenario-shaped document: scalars first, then [tables], then [[arrays]]."""
+    lines = []
+    for k, v in doc.items():
+        if not isinstance(v, dict) and not (isinstance(v, list) and v and all(isinstance(x, dict) for x in v)):
+            lines.append(f"{k} = {_value(v)}")
+    for k, v in doc.items():
+        if isinstance(v, dict):
+            lines.append(f"\n[{k}]")
+            lines.extend(f"{kk} = {_value(vv)}" for kk, vv in v.items())
+    for k, v in doc.items():
+        if isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+            for item in v:
+                lines.append(f"\n[[{k}]]")
+                lines.extend(f"{kk} = {_value(vv)}" for kk, vv in item.items())
+    return "\n".join(lines) + "\n"
+
+
+# A small valid scenario (two robots, one obstacle) in the shape of DESIGN.md section 6.
+BASE_DOC = {
+    "run": {"duration": 20.0, "dt": 0.01, "seed": 0},
+    "control": {"k1": 0.5, "k2": 0.5, "k3": 1.0, "tu": 1.0, "vt": 0.05, "threshold": "frozen", "governor": False},
+    "bodies": {"r": 0.3, "R": 1.2},
+    "leader": {"start": [0.0, 0.0, 0.0], "segments": [{"duration": 10.0, "v": 0.5, "w": 0.0}]},
+    "formation": {"offsets": [[0.0, 0.0], [1.5, 0.0]], "assignment": "ordered"},
+    "robots": {"poses": [[-8.0, 1.0, 0.3], [-9.0, -2.0, 1.2]]},
+    "obstacles": [{"center": [-3.0, 0.0], "r": 0.3, "R": 1.2}],
+}
+
+
+@pytest.fixture
+def base_doc() -> dict:
+    """A fresh deep copy of BASE_DOC for a test to edit."""
+    return copy.deepcopy(BASE_DOC)
+
+
+@pytest.fixture
+def write_scenario(tmp_path: Path) -> Callable[..., str]:
+    """write_scenario(doc_or_text, name="scenario.toml") -> the file's path as a str."""
+
+    def write(doc: dict | str, name: str = "scenario.toml") -> str:
+        path = tmp_path / name
+        path.write_text(doc if isinstance(doc, str) else toml_text(doc), encoding="utf-8")
+        return str(path)
+
+    return write

@@ -1,0 +1,569 @@
+"""Scenario files (DESIGN.md section 6): strict refusals, generators, precedence, built-ins."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from swarm import generators
+from swarm import scenario_file as sf
+from swarm.scenario import ScenarioError
+
+# The example of DESIGN.md section 6, verbatim.
+DESIGN_EXAMPLE = """
+[run]
+duration = 120.0      # s
+dt = 0.001            # s: control period (and integration step in lock-step)
+seed = 0
+
+[control]
+k1 = 0.5
+k2 = 0.5
+k3 = 1.0
+tu = 1.0              # s, reference refresh period while frozen
+vt = 0.05             # m/s, threshold of Assumption 3
+threshold = "frozen"  # when Assumption 3 applies: "frozen" | "always" | "off"
+governor = false      # the discrete-time safety governor (see the core issue)
+
+[bodies]              # default radii of every robot and obstacle
+r = 0.3
+R = 1.2
+
+[leader]
+start = [0.0, 0.0, 0.0]                   # x, y, theta at t = 0
+segments = [                              # piecewise-constant leader controls
+  { duration = 10.0, v = 0.5, w = 0.0 },  # straight for 10 s at 0.5 m/s
+  { duration = 16.0, v = 0.5, w = 0.0982 },  # left arc (w > 0 turns left)
+]                                         # after the last segment the leader keeps its v, w
+
+[formation]
+offsets = [[0.0, 0.0], [1.5, 0.0]]        # d_i, one per robot
+assignment = "random"                     # or "ordered": robot i gets offsets[i]
+
+[robots]
+poses = [[-8.0, 1.0, 0.3], [-9.0, -2.0, 1.2]]   # initial x, y, theta
+
+[[obstacles]]
+center = [-3.0, 0.0]
+r = 0.3                                   # optional, defaults from [bodies]
+R = 1.2                                   # optional, defaults from [bodies]
+"""
+
+
+def refused(path, overrides=sf.Overrides()):
+    with pytest.raises(ScenarioError) as info:
+        sf.load(path, overrides)
+    return info.value
+
+
+def check_refusal(e, where, key, *fragments):
+    assert e.where == where
+    assert e.key == key
+    for f in fragments:
+        assert f.lower() in e.reason.lower(), f"{f!r} not in {e.reason!r}"
+    assert where in str(e) and e.reason in str(e) and (key in str(e))
+
+
+# --------------------------------------------------------------------------- refusals
+
+def _set(path, value):
+    """An edit that sets doc[a][b]... = value (ints index lists); value DELETE removes the key."""
+
+    def edit(doc):
+        node = doc
+        for k in path[:-1]:
+            node = node[k]
+        if value is DELETE:
+            del node[path[-1]]
+        else:
+            node[path[-1]] = value
+
+    return edit
+
+
+DELETE = object()
+NAN, INF = float("nan"), float("inf")
+
+REFUSALS = [
+    # unknown keys
+    ("unknown top-level key", _set(("colour",), "red"), "colour", "unknown key"),
+    ("unknown run key", _set(("run", "speed"), 1.0), "run.speed", "unknown key"),
+    ("unknown control key", _set(("control", "k4"), 1.0), "control.k4", "unknown key"),
+    ("unknown segment key", _set(("leader", "segments", 0, "omega"), 0.1), "leader.segments[0].omega", "unknown key"),
+    ("unknown obstacle key", _set(("obstacles", 0, "radius"), 0.1), "obstacles[0].radius", "unknown key"),
+    ("unknown bodies key", _set(("bodies", "rr"), 0.1), "bodies.rr", "unknown key"),
+    ("unknown hex key", _set(("formation",), {"hex": {"count": 2, "spacing": 1.5, "rings": 1}}),
+     "formation.hex.rings", "unknown key"),
+    ("unknown random key", _set(("robots",), {"random": {"count": 2, "region": [0.0, 5.0, 0.0, 5.0], "spread": 1}}),
+     "robots.random.spread", "unknown key"),
+    ("unknown row key", _set(("obstacles", 0), {"row": {"start": [0.0, 5.0], "end": [5.0, 5.0], "pitch": 1.0,
+                                                        "count": 3}}), "obstacles[0].row.count", "unknown key"),
+    # missing required keys
+    ("missing run", _set(("run",), DELETE), "run", "missing"),
+    ("missing run.duration", _set(("run", "duration"), DELETE), "run.duration", "missing"),
+    ("missing leader.start", _set(("leader", "start"), DELETE), "leader.start", "missing"),
+    ("missing leader.segments", _set(("leader", "segments"), DELETE), "leader.segments", "missing"),
+    ("missing segment v", _set(("leader", "segments", 0, "v"), DELETE), "leader.segments[0].v", "missing"),
+    ("missing formation", _set(("formation",), DELETE), "formation", "missing"),
+    ("missing robots", _set(("robots",), DELETE), "robots", "missing"),
+    ("missing obstacle center", _set(("obstacles", 0, "center"), DELETE), "obstacles[0]", "exactly one"),
+    # wrong types
+    ("string for a number", _set(("run", "duration"), "20"), "run.duration", "must be a number", "string"),
+    ("bool for a number", _set(("run", "dt"), True), "run.dt", "must be a number", "boolean"),
+    ("bool for a gain", _set(("control", "k1"), False), "control.k1", "must be a number"),
+    ("string in a vector", _set(("leader", "start", 1), "north"), "leader.start[1]", "must be a number"),
+    ("string for a segment v", _set(("leader", "segments", 0, "v"), "fast"), "leader.segments[0].v", "number"),
+    ("float for the seed", _set(("run", "seed"), 1.5), "run.seed", "integer"),
+    ("bool for the seed", _set(("run", "seed"), True), "run.seed", "integer"),
+    ("negative seed", _set(("run", "seed"), -1), "run.seed", ">= 0"),
+    ("int for the governor", _set(("control", "governor"), 1), "control.governor", "true or false"),
+    ("bad threshold", _set(("control", "threshold"), "sometimes"), "control.threshold", "must be one of", "sometimes"),
+    ("bad assignment", _set(("formation", "assignment"), "sorted"), "formation.assignment", "must be one of"),
+    ("table expected", _set(("run",), 5), "run", "must be a table"),
+    ("short start", _set(("leader", "start"), [0.0, 0.0]), "leader.start", "list of 3"),
+    ("start not a list", _set(("leader", "start"), "origin"), "leader.start", "list of 3"),
+    ("3-vector offset", _set(("formation", "offsets", 1), [1.5, 0.0, 0.0]), "formation.offsets[1]", "list of 2"),
+    ("2-vector pose", _set(("robots", "poses", 0), [1.0, 2.0]), "robots.poses[0]", "list of 3"),
+    ("poses not a list", _set(("robots", "poses"), "here"), "robots.poses", "list"),
+    ("obstacles as a table", _set(("obstacles",), {"center": [1.0, 1.0]}), "obstacles", "array of tables"),
+    ("short obstacle center", _set(("obstacles", 0, "center"), [1.0]), "obstacles[0].center", "list of 2"),
+    ("segment not a table", _set(("leader", "segments"), [1.0]), "leader.segments[0]", "must be a table"),
+    ("zero row pitch", _set(("obstacles", 0), {"row": {"start": [0.0, 5.0], "end": [5.0, 5.0], "pitch": 0.0}}),
+     "obstacles[0].row.pitch", "> 0"),
+    ("segments not a list", _set(("leader", "segments"), {"duration": 1.0, "v": 0.5, "w": 0.0}),
+     "leader.segments", "non-empty list"),
+    # non-finite numbers
+    ("nan duration", _set(("run", "duration"), NAN), "run.duration", "finite", "nan"),
+    ("inf dt", _set(("run", "dt"), INF), "run.dt", "finite", "inf"),
+    ("-inf gain", _set(("control", "k1"), -INF), "control.k1", "finite"),
+    ("nan in start", _set(("leader", "start", 2), NAN), "leader.start[2]", "finite"),
+    ("inf in offsets", _set(("formation", "offsets", 1, 0), INF), "formation.offsets[1][0]", "finite"),
+    ("nan in poses", _set(("robots", "poses", 1, 1), NAN), "robots.poses[1][1]", "finite"),
+    ("inf obstacle", _set(("obstacles", 0, "center", 0), -INF), "obstacles[0].center[0]", "finite"),
+    ("nan segment w", _set(("leader", "segments", 0, "w"), NAN), "leader.segments[0].w", "finite"),
+    ("nan r", _set(("bodies", "r"), NAN), "bodies.r", "finite"),
+    # zero or negative durations, periods and gains
+    ("zero duration", _set(("run", "duration"), 0.0), "run.duration", "> 0"),
+    ("negative duration", _set(("run", "duration"), -5.0), "run.duration", "> 0"),
+    ("zero dt", _set(("run", "dt"), 0.0), "run.dt", "> 0"),
+    ("negative dt", _set(("run", "dt"), -0.01), "run.dt", "> 0"),
+    ("zero int dt", _set(("run", "dt"), 0), "run.dt", "> 0"),
+    ("zero segment duration", _set(("leader", "segments", 0, "duration"), 0.0), "leader.segments[0].duration", "> 0"),
+    ("negative segment duration", _set(("leader", "segments", 0, "duration"), -1.0),
+     "leader.segments[0].duration", "> 0"),
+    ("zero tu", _set(("control", "tu"), 0.0), "control.tu", "> 0"),
+    ("negative k2", _set(("control", "k2"), -0.5), "control.k2", "> 0"),
+    ("negative vt", _set(("control", "vt"), -0.01), "control.vt", ">= 0"),
+    ("zero r", _set(("bodies", "r"), 0.0), "bodies.r", "> 0"),
+    # radii
+    ("r equal to R", _set(("bodies", "r"), 1.2), "bodies.R", "larger"),
+    ("r above R", _set(("bodies", "R"), 0.2), "bodies.R", "larger"),
+    ("obstacle r above R", _set(("obstacles", 0, "r"), 1.5), "obstacles[0].R", "larger"),
+    # Assumption 1 and start separations
+    ("offsets exactly R apart", _set(("formation", "offsets"), [[0.0, 0.0], [1.2, 0.0]]), "formation.offsets",
+     "Assumption 1", "R = 1.2"),
+    ("offsets exactly R apart diagonally", _set(("formation", "offsets"), [[0.0, 0.0], [0.72, -0.96]]),
+     "formation.offsets", "Assumption 1"),
+    ("offsets closer than R", _set(("formation", "offsets"), [[0.0, 0.0], [0.5, 0.5]]), "formation.offsets",
+     "Assumption 1"),
+    ("duplicate offsets", _set(("formation", "offsets"), [[1.0, 1.0], [1.0, 1.0]]), "formation.offsets",
+     "Assumption 1"),
+    ("robots closer than r", _set(("robots", "poses"), [[0.0, 0.0, 0.0], [0.0, 0.2999, 1.0]]), "robots.poses",
+     "closer than r"),
+    ("robots on top of each other", _set(("robots", "poses"), [[5.0, 5.0, 0.0], [5.0, 5.0, 0.0]]), "robots.poses",
+     "closer than r"),
+    ("robot inside an obstacle", _set(("robots", "poses", 1), [-3.0, 0.25, 0.0]), "robots.poses", "obstacle"),
+    ("robot on an obstacle centre", _set(("robots", "poses", 0), [-3.0, 0.0, 0.0]), "robots.poses", "obstacle"),
+    # list lengths and generator choices
+    ("more poses than offsets", _set(("robots", "poses"), [[-8.0, 1.0, 0.3], [-9.0, -2.0, 1.2], [-9.0, 4.0, 0.0]]),
+     "robots", "3 robot poses but 2"),
+    ("fewer poses than offsets", _set(("robots", "poses"), [[-8.0, 1.0, 0.3]]), "robots", "1 robot poses but 2"),
+    ("hex count against poses", _set(("formation",), {"hex": {"count": 7, "spacing": 1.5}}), "robots",
+     "2 robot poses but 7"),
+    ("empty segments", _set(("leader", "segments"), []), "leader.segments", "non-empty"),
+    ("empty offsets", _set(("formation", "offsets"), []), "formation.offsets", "non-empty"),
+    ("both offsets and hex", _set(("formation", "hex"), {"count": 2, "spacing": 1.5}), "formation", "exactly one"),
+    ("neither offsets nor hex", _set(("formation", "offsets"), DELETE), "formation", "exactly one"),
+    ("both poses and random", _set(("robots", "random"), {"count": 2, "region": [0.0, 5.0, 0.0, 5.0]}), "robots",
+     "exactly one"),
+    ("neither poses nor random", _set(("robots", "poses"), DELETE), "robots", "exactly one"),
+    ("hex spacing within R", _set(("formation",), {"hex": {"count": 2, "spacing": 1.2}}), "formation.hex",
+     "Assumption 1"),
+    ("hex count zero", _set(("formation",), {"hex": {"count": 0, "spacing": 1.5}}), "formation.hex.count", ">= 1"),
+    ("random region empty", _set(("robots",), {"random": {"count": 2, "region": [5.0, 0.0, 0.0, 5.0]}}),
+     "robots.random.region", "xmin < xmax"),
+    ("random region too small", _set(("robots",), {"random": {"count": 2, "region": [10.0, 10.1, 0.0, 0.1],
+                                                              "min_separation": 1.0}}), "robots.random", "larger"),
+]
+
+
+@pytest.mark.parametrize("name, edit, key, fragments", [(c[0], c[1], c[2], c[3:]) for c in REFUSALS],
+                         ids=[c[0] for c in REFUSALS])
+def test_bad_scenario_file_is_refused_naming_file_key_and_reason(name, edit, key, fragments, base_doc,
+                                                                 write_scenario):
+    edit(base_doc)
+    path = write_scenario(base_doc)
+    check_refusal(refused(path), path, key, *fragments)
+    # read_spec alone refuses what does not need the generators to run
+    if key not in ("robots", "robots.poses", "robots.random", "formation.offsets", "formation.hex"):
+        with pytest.raises(ScenarioError):
+            sf.read_spec(path)
+
+
+def test_the_base_document_of_the_refusal_table_is_valid(base_doc, write_scenario):
+    scn = sf.load(write_scenario(base_doc))
+    assert scn.n == 2 and len(scn.obstacles) == 1
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        _set(("formation", "offsets"), [[0.0, 0.0], [1.2000001, 0.0]]),  # just beyond R
+        _set(("robots", "poses"), [[0.0, 0.0, 0.0], [0.0, 0.3, 1.0]]),  # exactly r apart
+        _set(("robots", "poses", 1), [-3.0, 0.5, 0.0]),  # outside the obstacle's r, inside its R
+        _set(("control", "vt"), 0.0),
+        _set(("run", "seed"), 2**40),
+    ],
+)
+def test_values_at_the_limits_are_accepted(edit, base_doc, write_scenario):
+    edit(base_doc)
+    sf.load(write_scenario(base_doc))
+
+
+def test_obstacle_radius_of_its_own_counts_for_the_start_check(base_doc, write_scenario):
+    base_doc["obstacles"][0].update({"r": 0.6, "R": 1.5})
+    base_doc["robots"]["poses"][1] = [-3.0, 0.5, 0.0]
+    path = write_scenario(base_doc)
+    check_refusal(refused(path), path, "robots.poses", "obstacle 0", "r = 0.6")
+
+
+def test_int_is_accepted_where_a_float_is_expected(base_doc, write_scenario):
+    base_doc["run"].update({"duration": 20, "dt": 1})
+    base_doc["bodies"].update({"r": 1, "R": 2})
+    base_doc["control"]["k1"] = 2
+    base_doc["formation"]["offsets"] = [[0, 0], [3, 0]]
+    base_doc["robots"]["poses"] = [[-10, 5, 0], [-10, 8, 1]]
+    scn = sf.load(write_scenario(base_doc))
+    assert (scn.duration, scn.dt, scn.r, scn.R, scn.control.k1) == (20.0, 1.0, 1.0, 2.0, 2.0)
+    assert all(isinstance(v, float) for v in (scn.duration, scn.dt, scn.r, scn.R, scn.control.k1))
+    assert scn.offsets.dtype == np.float64 and scn.poses.dtype == np.float64
+
+
+def test_invalid_toml_is_refused(write_scenario):
+    path = write_scenario("[run]\nduration = = 3\n")
+    check_refusal(refused(path), path, "", "not valid TOML", "line 2")
+
+
+def test_unreadable_file_is_refused(tmp_path):
+    path = tmp_path / "latin1.toml"
+    path.write_bytes(b"[run]\nduration = 1.0 # \xe9t\xe9\n")
+    check_refusal(refused(str(path)), str(path), "", "cannot read")
+
+
+def test_toml_nan_and_inf_literals_are_refused(write_scenario):
+    for literal in ("nan", "+inf", "-inf", "inf"):
+        text = DESIGN_EXAMPLE.replace("duration = 120.0", f"duration = {literal}")
+        path = write_scenario(text, f"x{literal}.toml")
+        check_refusal(refused(path), path, "run.duration", "finite")
+
+
+def test_missing_file_is_refused(tmp_path):
+    path = str(tmp_path / "nowhere.toml")
+    check_refusal(refused(path), path, "", "no such file")
+    e = refused(str(tmp_path / "nowhere"))
+    assert "paper" in e.reason  # names the built-ins when it may have been meant as one
+
+
+def test_directory_is_not_a_scenario(tmp_path):
+    check_refusal(refused(str(tmp_path)), str(tmp_path), "", "no such file")
+
+
+def test_robots_flag_with_explicit_lists_of_another_length(base_doc, write_scenario):
+    path = write_scenario(base_doc)
+    check_refusal(refused(path, sf.Overrides(robots=3)), path, "formation.offsets", "--robots 3", "2 offsets")
+    assert sf.load(path, sf.Overrides(robots=2)).n == 2  # the same length is fine
+    base_doc["formation"] = {"hex": {"count": 2, "spacing": 1.5}}
+    path = write_scenario(base_doc, "hex.toml")
+    check_refusal(refused(path, sf.Overrides(robots=3)), path, "robots.poses", "--robots 3", "2 poses")
+
+
+@pytest.mark.parametrize(
+    "overrides, key",
+    [
+        (sf.Overrides(robots=0), "--robots"),
+        (sf.Overrides(robots=-2), "--robots"),
+        (sf.Overrides(seed=-1), "--seed"),
+        (sf.Overrides(duration=0.0), "--duration"),
+        (sf.Overrides(duration=-3.0), "--duration"),
+        (sf.Overrides(dt=0.0), "--dt"),
+        (sf.Overrides(dt=NAN), "--dt"),
+        (sf.Overrides(duration=INF), "--duration"),
+    ],
+)
+def test_bad_command_line_values_are_refused(overrides, key, base_doc, write_scenario):
+    path = write_scenario(base_doc)
+    e = refused(path, overrides)
+    assert e.where == "command line" and e.key == key
+    e = refused("paper", overrides)
+    assert e.where == "command line" and e.key == key
+
+
+def test_unknown_builtin_is_refused():
+    e = refused("papers")
+    assert e.key == "" and "no such file" in e.reason and "paper-50hz" in e.reason
+
+
+# --------------------------------------------------------------------------- valid files
+
+
+def test_design_example_loads(write_scenario):
+    path = write_scenario(DESIGN_EXAMPLE, "example.toml")
+    spec = sf.read_spec(path)
+    assert spec.where == path and spec.name == "example"
+    scn = sf.load(path)
+    assert (scn.duration, scn.dt, scn.seed, scn.r, scn.R) == (120.0, 0.001, 0, 0.3, 1.2)
+    c = scn.control
+    assert (c.k1, c.k2, c.k3, c.tu, c.vt, c.threshold, c.governor) == (0.5, 0.5, 1.0, 1.0, 0.05, "frozen", False)
+    assert scn.leader.start == (0.0, 0.0, 0.0)
+    assert [(s.duration, s.v, s.w) for s in scn.leader.segments] == [(10.0, 0.5, 0.0), (16.0, 0.5, 0.0982)]
+    assert_allclose(scn.poses, [[-8.0, 1.0, 0.3], [-9.0, -2.0, 1.2]])
+    # assignment = "random": the same slots, in some order
+    assert sorted(map(tuple, scn.offsets)) == [(0.0, 0.0), (1.5, 0.0)]
+    assert_allclose(scn.obstacles, [[-3.0, 0.0, 0.3, 1.2]])
+    assert scn.steps == 120_000
+    assert scn.cell_side == pytest.approx(1.5)
+
+
+def test_defaults_fill_what_the_file_leaves_out(write_scenario):
+    path = write_scenario("""
+[run]
+duration = 5
+[leader]
+start = [0.0, 0.0, 0.0]
+segments = [{duration = 1.0, v = 0.5, w = 0.0}]
+[formation]
+offsets = [[0.0, 0.0]]
+[robots]
+poses = [[-1.0, 0.0, 0.0]]
+""")
+    scn = sf.load(path)
+    assert (scn.dt, scn.seed, scn.r, scn.R) == (0.001, 0, 0.3, 1.2)
+    c = scn.control
+    assert (c.k1, c.k2, c.k3, c.tu, c.vt, c.threshold, c.governor) == (0.5, 0.5, 1.0, 1.0, 0.05, "frozen", False)
+    assert len(scn.obstacles) == 0 and scn.obstacles.shape == (0, 4)
+
+
+def test_file_beats_defaults_and_flags_beat_the_file(base_doc, write_scenario):
+    base_doc["run"].update({"duration": 7.0, "dt": 0.02, "seed": 5})
+    base_doc["control"].update({"k1": 0.7, "tu": 2.0, "vt": 0.1, "threshold": "always", "governor": True})
+    base_doc["bodies"].update({"r": 0.25, "R": 1.0})
+    base_doc["obstacles"] = [{"center": [-3.0, 0.0]}, {"center": [-3.0, 5.0], "r": 0.4, "R": 2.0}]
+    path = write_scenario(base_doc)
+    scn = sf.load(path)
+    assert (scn.duration, scn.dt, scn.seed, scn.r, scn.R) == (7.0, 0.02, 5, 0.25, 1.0)
+    c = scn.control
+    assert (c.k1, c.tu, c.vt, c.threshold, c.governor) == (0.7, 2.0, 0.1, "always", True)
+    assert_allclose(scn.obstacles, [[-3.0, 0.0, 0.25, 1.0], [-3.0, 5.0, 0.4, 2.0]])  # [bodies] defaults
+    assert scn.cell_side == pytest.approx(2.3)
+
+    scn = sf.load(path, sf.Overrides(seed=9, duration=3.0, dt=0.005, governor=False))
+    assert (scn.duration, scn.dt, scn.seed, scn.control.governor) == (3.0, 0.005, 9, False)
+    assert scn.control.k1 == 0.7  # untouched by the flags
+    p = scn.params()
+    from swarm import law
+
+    assert p[law.P_DT] == 0.005 and p[law.P_GOVERNOR] == 0.0 and p[law.P_THRESHOLD] == law.THRESHOLD_ALWAYS
+    assert sf.load(path, sf.Overrides(governor=True)).control.governor is True
+    base_doc["control"]["governor"] = False
+    assert sf.load(write_scenario(base_doc, "g.toml"), sf.Overrides(governor=True)).control.governor is True
+
+
+GENERATED = """
+[run]
+duration = 10.0
+seed = {seed}
+
+[formation]
+hex = {{count = {n}, spacing = 1.5}}
+assignment = "random"
+
+[robots]
+random = {{count = {n}, region = [-10.0, 10.0, -30.0, -15.0], min_separation = 0.8}}
+
+[leader]
+start = [0.0, 0.0, 0.0]
+segments = [{{duration = 1.0, v = 0.5, w = 0.0}}]
+
+[[obstacles]]
+row = {{start = [-12.0, -10.0], end = [12.0, -10.0], pitch = 1.6}}
+r = 0.35
+
+[[obstacles]]
+center = [0.0, -22.0]
+"""
+
+
+def test_generators_in_a_file(write_scenario):
+    path = write_scenario(GENERATED.format(seed=4, n=19))
+    scn = sf.load(path)
+    assert scn.n == 19
+    assert sorted(map(tuple, np.round(scn.offsets, 12))) == sorted(map(tuple, np.round(generators.hex_patch(19, 1.5), 12)))
+    assert (scn.poses[:, 0] >= -10).all() and (scn.poses[:, 0] <= 10).all()
+    assert (scn.poses[:, 1] >= -30).all() and (scn.poses[:, 1] <= -15).all()
+    d = np.hypot(*(scn.poses[:, None, :2] - scn.poses[None, :, :2]).transpose(2, 0, 1))
+    d[np.diag_indices(19)] = np.inf
+    assert d.min() >= 0.8
+    row = scn.obstacles[:-1]
+    assert len(row) == 16 and (row[:, 1] == -10.0).all() and (row[:, 2] == 0.35).all() and (row[:, 3] == 1.2).all()
+    assert_allclose(row[[0, -1], 0], [-12.0, 12.0])
+    assert_allclose(scn.obstacles[-1], [0.0, -22.0, 0.3, 1.2])
+    # obstacle clearance (default R) holds for the random starts
+    assert np.hypot(scn.poses[:, 0], scn.poses[:, 1] + 22.0).min() >= 1.2
+    # --robots resizes a generated file
+    scn = sf.load(path, sf.Overrides(robots=7))
+    assert scn.n == 7 and scn.offsets.shape == (7, 2)
+
+
+def test_seeds_are_reproducible(write_scenario):
+    path = write_scenario(GENERATED.format(seed=4, n=19))
+    a, b = sf.load(path), sf.load(path)
+    assert (a.poses == b.poses).all() and (a.offsets == b.offsets).all()
+    c = sf.load(path, sf.Overrides(seed=5))
+    assert not np.allclose(a.poses, c.poses) and not (a.offsets == c.offsets).all()
+    d = sf.load(write_scenario(GENERATED.format(seed=5, n=19), "five.toml"))
+    assert (c.poses == d.poses).all() and (c.offsets == d.offsets).all()
+    for name in sf.BUILTINS:
+        x, y = sf.load(name, sf.Overrides(seed=3)), sf.load(name, sf.Overrides(seed=3))
+        assert (x.poses == y.poses).all() and (x.offsets == y.offsets).all()
+        assert not np.allclose(x.poses, sf.load(name, sf.Overrides(seed=4)).poses)
+
+
+# --------------------------------------------------------------------------- built-ins
+
+
+def test_builtins_share_one_geometry():
+    paper, fast = sf.load("paper"), sf.load("paper-50hz")
+    assert paper.n == fast.n == 37
+    assert (paper.dt, paper.control.governor) == (0.001, False)
+    assert (fast.dt, fast.control.governor) == (0.02, True)
+    assert (paper.poses == fast.poses).all() and (paper.offsets == fast.offsets).all()
+    assert (paper.obstacles == fast.obstacles).all()
+    assert paper.duration == fast.duration == 120.0
+    assert (paper.control.k1, paper.control.k2, paper.control.k3, paper.control.tu) == (0.5, 0.5, 1.0, 1.0)
+    assert (paper.r, paper.R) == (0.3, 1.2)
+
+
+@pytest.mark.parametrize("name", sf.BUILTINS)
+@pytest.mark.parametrize("n", [1, 7, 19, 37, 61, 10])
+def test_builtins_resize_with_robots(name, n):
+    scn = sf.load(name, sf.Overrides(robots=n, seed=1))
+    assert scn.n == n and scn.offsets.shape == (n, 2)
+    hexagon = generators.hex_patch(n, 1.5)
+    assert sorted(map(tuple, np.round(scn.offsets, 12))) == sorted(map(tuple, np.round(hexagon, 12)))
+    # the barrier: one row 2.6 m below the lowest slot, 1.6 m pitch
+    lowest = scn.offsets[:, 1].min()
+    assert_allclose(scn.obstacles[:, 1], lowest - 2.6, atol=1e-12)
+    assert_allclose(np.diff(scn.obstacles[:, 0]), 1.6, rtol=1e-9)
+    assert_allclose(scn.obstacles[:, 0].mean(), 4.7, atol=1e-9)
+    # starts: a 9 m^2-per-robot rectangle, aspect 2.8:1, centred on x = 5, top 1.5 m below the barrier
+    width = math.sqrt(9.0 * n * 2.8)
+    height = 9.0 * n / width
+    top = lowest - 2.6 - 1.5
+    assert (np.abs(scn.poses[:, 0] - 5.0) <= width / 2).all()
+    assert (scn.poses[:, 1] <= top).all() and (scn.poses[:, 1] >= top - height).all()
+    xmin, xmax, ymin, ymax = sf.builtin_document(name, n)["robots"]["random"]["region"]
+    assert_allclose((xmax - xmin) * (ymax - ymin), 9.0 * n, rtol=1e-12)
+    assert_allclose([xmin, xmax, ymax], [5.0 - width / 2, 5.0 + width / 2, top], atol=1e-12)
+    # the barrier spans the start rectangle with room on both sides
+    assert scn.obstacles[:, 0].min() < xmin - 3.5 and scn.obstacles[:, 0].max() > xmax + 3.5
+    assert (np.abs(scn.poses[:, 2]) <= math.pi).all()
+
+
+def test_paper_default_has_37_robots_and_a_barrier():
+    scn = sf.load("paper")
+    assert scn.n == 37
+    assert_allclose(scn.obstacles[:, 1], scn.offsets[:, 1].min() - 2.6, atol=1e-12)
+    assert (scn.poses[:, 1] < scn.obstacles[0, 1]).all()
+
+
+# --------------------------------------------------------------------------- generators
+
+
+@pytest.mark.parametrize("count, rings", [(1, 0), (7, 1), (19, 2), (37, 3), (61, 4), (91, 5)])
+@pytest.mark.parametrize("spacing", [1.5, 2.0])
+def test_hex_patch_full_rings(count, rings, spacing):
+    pts = generators.hex_patch(count, spacing)
+    assert pts.shape == (count, 2)
+    assert tuple(pts[0]) == (0.0, 0.0)
+    assert_allclose(pts.mean(axis=0), [0.0, 0.0], atol=1e-12)
+    assert_allclose(np.hypot(pts[:, 0], pts[:, 1]).max(), rings * spacing, rtol=1e-12)
+    if count > 1:
+        d = np.hypot(*(pts[:, None] - pts[None, :]).transpose(2, 0, 1))
+        d[np.diag_indices(count)] = np.inf
+        assert_allclose(d.min(), spacing, rtol=1e-12)
+        # every point has its nearest neighbour at exactly one spacing: a lattice patch
+        assert_allclose(d.min(axis=1), spacing, rtol=1e-12)
+        # horizontal rows
+        rows = np.round(pts[:, 1] / (spacing * math.sqrt(3) / 2), 9)
+        assert_allclose(rows, np.round(rows), atol=1e-9)
+
+
+@pytest.mark.parametrize("count", [2, 5, 10, 20, 40])
+def test_hex_patch_partial_rings_are_distinct_and_spaced(count):
+    pts = generators.hex_patch(count, 1.5)
+    assert pts.shape == (count, 2)
+    full = generators.hex_patch(91, 1.5)
+    assert (pts == full[:count]).all()  # grows point by point
+    d = np.hypot(*(pts[:, None] - pts[None, :]).transpose(2, 0, 1))
+    d[np.diag_indices(count)] = np.inf
+    assert_allclose(d.min(), 1.5, rtol=1e-12)
+
+
+def test_hex_patch_refuses_zero():
+    with pytest.raises(generators.GeneratorError):
+        generators.hex_patch(0, 1.5)
+
+
+@pytest.mark.parametrize(
+    "start, end, pitch, count",
+    [((0.0, 0.0), (10.0, 0.0), 3.0, 4), ((0.0, 0.0), (9.6, 0.0), 1.6, 7), ((-5.0, 2.0), (5.0, -2.0), 1.0, 12),
+     ((1.0, 1.0), (1.0, 1.0), 1.0, 1), ((0.0, 0.0), (0.5, 0.0), 2.0, 2)],
+)
+def test_obstacle_row(start, end, pitch, count):
+    pts = generators.obstacle_row(start, end, pitch)
+    assert pts.shape == (count, 2)
+    assert_allclose(pts[0], start, atol=1e-12)
+    assert_allclose(pts[-1], end, atol=1e-12)
+    if count > 1:
+        steps = np.hypot(*np.diff(pts, axis=0).T)
+        assert_allclose(steps, steps[0], rtol=1e-9)
+        length = math.dist(start, end)
+        assert abs(steps[0] - pitch) <= pitch / 2 or length < pitch
+
+
+def test_random_poses_respect_region_separation_and_clearance():
+    obstacles = np.array([[0.0, 0.0, 0.3, 1.2], [3.0, 3.0, 0.3, 1.2]])
+    region = (-5.0, 5.0, -4.0, 6.0)
+    poses = generators.random_poses(np.random.default_rng(17), 30, region, 0.9, obstacles, 1.2)
+    assert poses.shape == (30, 3)
+    assert (poses[:, 0] >= -5).all() and (poses[:, 0] <= 5).all()
+    assert (poses[:, 1] >= -4).all() and (poses[:, 1] <= 6).all()
+    assert (poses[:, 2] > -math.pi).all() and (poses[:, 2] <= math.pi).all()
+    d = np.hypot(*(poses[:, None, :2] - poses[None, :, :2]).transpose(2, 0, 1))
+    d[np.diag_indices(30)] = np.inf
+    assert d.min() >= 0.9
+    do = np.hypot(*(poses[:, None, :2] - obstacles[None, :, :2]).transpose(2, 0, 1))
+    assert do.min() >= 1.2
+    again = generators.random_poses(np.random.default_rng(17), 30, region, 0.9, obstacles, 1.2)
+    assert (again == poses).all()
+    other = generators.random_poses(np.random.default_rng(18), 30, region, 0.9, obstacles, 1.2)
+    assert not np.allclose(other, poses)
+
+
+def test_random_poses_gives_up_when_there_is_no_room():
+    with pytest.raises(generators.GeneratorError, match="larger"):
+        generators.random_poses(np.random.default_rng(19), 50, (0.0, 1.0, 0.0, 1.0), 0.8, np.empty((0, 4)), 1.2,
+                                max_tries=5000)
