@@ -165,7 +165,7 @@ class Simulation:
         last_bad = int(self.iacc[k.I_LAST_BAD])
         converged_at = None
         if last >= 0 and last_bad < last:
-            converged_at = (last_bad + 1) * scn.dt
+            converged_at = _step_time(last_bad + 1, scn.dt)
         last_frozen = int(self.iacc[k.I_LAST_FROZEN])
         min_rr = float(self.acc[k.A_MIN_RR])
         min_ro = float(self.acc[k.A_MIN_RO])
@@ -176,7 +176,7 @@ class Simulation:
         return {
             "robots": scn.n,
             "obstacles": len(scn.obstacles),
-            "duration_s": max(last, 0) * scn.dt,
+            "duration_s": _step_time(max(last, 0), scn.dt),
             "dt": scn.dt,
             "seed": scn.seed,
             "converged_at_s": converged_at,
@@ -185,7 +185,7 @@ class Simulation:
             "min_robot_distance_m": min_rr if scn.n >= 2 else None,
             "min_obstacle_distance_m": min_ro if (len(scn.obstacles) and scn.n) else None,
             "collisions": int(self.iacc[k.I_COLLISIONS]),
-            "last_freeze_end_s": None if last_frozen < 0 else last_frozen * scn.dt,
+            "last_freeze_end_s": None if last_frozen < 0 else _step_time(last_frozen, scn.dt),
             "wall_s": wall_s,
             "messages_dropped": 0,
             "cmd_misses": 0,
@@ -199,6 +199,11 @@ class Simulation:
             "governed_robot_steps": int(self.iacc[k.I_GOVERNED]),
             "steps": max(last, 0),
         }
+
+
+def _step_time(k: int, dt: float) -> float:
+    """t_k = k dt, rounded to 1e-9 s so that 15030 * 0.001 reads 15.03, not 15.030000000000001."""
+    return round(k * dt, 9)
 
 
 def _min_pair_distance(q: np.ndarray) -> float:
