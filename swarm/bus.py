@@ -1,0 +1,253 @@
+"""The small bus every process talks through: the one place that touches zenoh.
+
+    bus.put(key, payload, reliable=False)      # reliable: congestion control BLOCK
+    sub = bus.subscribe(key_expr, fn)           # fn(key: str, payload: bytes), on a bus thread
+    tok = bus.token(key)                        # a liveliness token; tok.close() withdraws it
+    sub = bus.watch_alive(key_expr, fn)         # fn(key: str, alive: bool); current tokens first
+    sub = bus.serve(key_expr, fn)               # a queryable: fn(key: str) -> bytes
+    replies = bus.query(key_expr, timeout_s)    # [(key, payload), ...]
+    bus.close()
+
+Two implementations behind the same narrow interface: ZenohBus (a zenoh session: client of a
+router, or the router itself) and MemoryBus (a process-local network for unit tests:
+several MemoryBus objects on one MemoryNet behave like processes on one router). The
+interface is narrow on purpose so that a fault-injecting wrapper can stand around it.
+Key expressions follow zenoh: `*` is one chunk, `**` any number of chunks.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Callable, Protocol
+
+Handler = Callable[[str, bytes], None]
+AliveHandler = Callable[[str, bool], None]
+
+
+class Closable(Protocol):
+    def close(self) -> None: ...
+
+
+class Bus(Protocol):
+    def put(self, key: str, payload: bytes, reliable: bool = False) -> None: ...
+    def subscribe(self, key_expr: str, fn: Handler) -> Closable: ...
+    def token(self, key: str) -> Closable: ...
+    def watch_alive(self, key_expr: str, fn: AliveHandler) -> Closable: ...
+    def serve(self, key_expr: str, fn: Callable[[str], bytes]) -> Closable: ...
+    def query(self, key_expr: str, timeout_s: float = 2.0) -> list[tuple[str, bytes]]: ...
+    def close(self) -> None: ...
+
+
+def matches(expr: str, key: str) -> bool:
+    """Does zenoh key expression `expr` (with * and **) match the concrete `key`?"""
+    e, k = expr.split("/"), key.split("/")
+
+    def go(i: int, j: int) -> bool:
+        if i == len(e):
+            return j == len(k)
+        if e[i] == "**":
+            return any(go(i + 1, jj) for jj in range(j, len(k) + 1))
+        if j == len(k):
+            return False
+        return (e[i] == "*" or e[i] == k[j]) and go(i + 1, j + 1)
+
+    return go(0, 0)
+
+
+# --------------------------------------------------------------------------- in memory
+
+
+class _Handle:
+    def __init__(self, on_close: Callable[[], None]):
+        self._on_close = on_close
+        self._closed = False
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._on_close()
+
+
+class MemoryNet:
+    """A process-local 'router': delivers synchronously, in order, to every matching subscriber."""
+
+    def __init__(self) -> None:
+        self.lock = threading.RLock()
+        self.subs: list[tuple[str, Handler]] = []
+        self.tokens: dict[str, int] = {}
+        self.watchers: list[tuple[str, AliveHandler]] = []
+        self.queryables: list[tuple[str, Callable[[str], bytes]]] = []
+        self.delivered = 0  # messages handed to subscribers (for traffic assertions)
+
+
+class MemoryBus:
+    """One 'process' on a MemoryNet."""
+
+    def __init__(self, net: MemoryNet):
+        self.net = net
+        self._handles: list[_Handle] = []
+
+    def put(self, key: str, payload: bytes, reliable: bool = False) -> None:
+        with self.net.lock:
+            targets = [fn for expr, fn in self.net.subs if matches(expr, key)]
+            self.net.delivered += len(targets)
+        for fn in targets:
+            fn(key, bytes(payload))
+
+    def _keep(self, lst: list, item) -> _Handle:
+        with self.net.lock:
+            lst.append(item)
+
+        def remove() -> None:
+            with self.net.lock:
+                if item in lst:
+                    lst.remove(item)
+
+        h = _Handle(remove)
+        self._handles.append(h)
+        return h
+
+    def subscribe(self, key_expr: str, fn: Handler) -> Closable:
+        return self._keep(self.net.subs, (key_expr, fn))
+
+    def token(self, key: str) -> Closable:
+        with self.net.lock:
+            self.net.tokens[key] = self.net.tokens.get(key, 0) + 1
+            first = self.net.tokens[key] == 1
+            watchers = [fn for expr, fn in self.net.watchers if matches(expr, key)]
+        if first:
+            for fn in watchers:
+                fn(key, True)
+
+        def withdraw() -> None:
+            with self.net.lock:
+                self.net.tokens[key] -= 1
+                gone = self.net.tokens[key] == 0
+                if gone:
+                    del self.net.tokens[key]
+                ws = [fn for expr, fn in self.net.watchers if matches(expr, key)]
+            if gone:
+                for fn in ws:
+                    fn(key, False)
+
+        h = _Handle(withdraw)
+        self._handles.append(h)
+        return h
+
+    def watch_alive(self, key_expr: str, fn: AliveHandler) -> Closable:
+        with self.net.lock:
+            current = [k for k in self.net.tokens if matches(key_expr, k)]
+        for k in sorted(current):
+            fn(k, True)
+        return self._keep(self.net.watchers, (key_expr, fn))
+
+    def serve(self, key_expr: str, fn: Callable[[str], bytes]) -> Closable:
+        return self._keep(self.net.queryables, (key_expr, fn))
+
+    def query(self, key_expr: str, timeout_s: float = 2.0) -> list[tuple[str, bytes]]:
+        with self.net.lock:
+            qs = [(expr, fn) for expr, fn in self.net.queryables if matches(key_expr, expr) or matches(expr, key_expr)]
+        return [(expr, fn(key_expr)) for expr, fn in qs]
+
+    def close(self) -> None:
+        for h in reversed(self._handles):
+            h.close()
+        self._handles.clear()
+
+
+# --------------------------------------------------------------------------- zenoh
+
+
+def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen: list[str] | None = None,
+                 config_file: str | None = None, lease_ms: int = 1000, multicast: bool = False):
+    """A zenoh.Config for our topology (docs and ../shared/recipes/zenoh.md): explicit endpoints,
+    multicast scouting off unless asked, a short lease so a hung process is noticed in about 1 s."""
+    import json
+
+    import zenoh
+
+    conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("scouting/multicast/enabled", "true" if multicast else "false")
+    conf.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps(connect))
+    if listen is not None:
+        conf.insert_json5("listen/endpoints", json.dumps(listen))
+    return conf
+
+
+class ZenohBus:
+    """A Bus over one zenoh session. Close it (or use `with`): an open session with callback
+    subscribers hangs the interpreter at exit. Never fork after creating one."""
+
+    def __init__(self, conf) -> None:
+        import zenoh
+
+        self._z = zenoh
+        self.session = zenoh.open(conf)
+        self._handles: list[Closable] = []
+        self._closed = False
+
+    def __enter__(self) -> "ZenohBus":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def put(self, key: str, payload: bytes, reliable: bool = False) -> None:
+        cc = self._z.CongestionControl.BLOCK if reliable else self._z.CongestionControl.DROP
+        self.session.put(key, payload, congestion_control=cc)
+
+    def _keep(self, h):
+        self._handles.append(h)
+        return h
+
+    def subscribe(self, key_expr: str, fn: Handler) -> Closable:
+        def cb(sample) -> None:
+            fn(str(sample.key_expr), sample.payload.to_bytes())
+
+        return self._keep(_Undeclare(self.session.declare_subscriber(key_expr, cb)))
+
+    def token(self, key: str) -> Closable:
+        return self._keep(_Undeclare(self.session.liveliness().declare_token(key)))
+
+    def watch_alive(self, key_expr: str, fn: AliveHandler) -> Closable:
+        put_kind = self._z.SampleKind.PUT
+
+        def cb(sample) -> None:
+            fn(str(sample.key_expr), sample.kind == put_kind)
+
+        return self._keep(_Undeclare(self.session.liveliness().declare_subscriber(key_expr, cb, history=True)))
+
+    def serve(self, key_expr: str, fn: Callable[[str], bytes]) -> Closable:
+        def cb(query) -> None:
+            query.reply(key_expr, fn(str(query.key_expr)))
+
+        return self._keep(_Undeclare(self.session.declare_queryable(key_expr, cb)))
+
+    def query(self, key_expr: str, timeout_s: float = 2.0) -> list[tuple[str, bytes]]:
+        out = []
+        for reply in self.session.get(key_expr, timeout=timeout_s):
+            if reply.ok is not None:
+                out.append((str(reply.ok.key_expr), reply.ok.payload.to_bytes()))
+        return out
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        for h in reversed(self._handles):
+            try:
+                h.close()
+            except Exception:  # already gone with the session: nothing left to release
+                pass
+        self.session.close()
+
+
+class _Undeclare:
+    def __init__(self, entity) -> None:
+        self.entity = entity
+
+    def close(self) -> None:
+        self.entity.undeclare()

@@ -1,0 +1,114 @@
+"""The bus: key-expression matching, the in-memory bus, and the zenoh bus on a real router."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+import pytest
+
+from swarm import bus as busmod
+
+
+class Events:
+    """State shared with bus callbacks; waits are woken by the callbacks, never by sleeping."""
+
+    def __init__(self) -> None:
+        self.cond = threading.Condition()
+
+    def wait_until(self, pred, timeout_s: float, what: str) -> None:
+        with self.cond:
+            if not self.cond.wait_for(pred, timeout=timeout_s):
+                raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+
+
+@pytest.mark.parametrize(
+    "expr, key, ok",
+    [
+        ("a/b/c", "a/b/c", True), ("a/*/c", "a/b/c", True), ("a/*", "a/b/c", False), ("a/**", "a/b/c", True),
+        ("a/**/c", "a/c", True), ("**", "a", True), ("a/b", "a/b/c", False), ("a/*/*/7", "a/-1/2/7", True),
+        ("a/*/*/7", "a/-1/2/8", False),
+    ],
+)
+def test_matches(expr, key, ok):
+    assert busmod.matches(expr, key) is ok
+
+
+def test_memory_bus_pubsub_tokens_and_queries():
+    net = busmod.MemoryNet()
+    a, b = busmod.MemoryBus(net), busmod.MemoryBus(net)
+    got, alive = [], []
+    sub = b.subscribe("swarm/f/robot/*/cmd", lambda k, p: got.append((k, p)))
+    a.put("swarm/f/robot/3/cmd", b"x")
+    a.put("swarm/f/robot/3/pose", b"y")
+    assert got == [("swarm/f/robot/3/cmd", b"x")]
+    sub.close()
+    a.put("swarm/f/robot/3/cmd", b"z")
+    assert len(got) == 1
+    tok = a.token("swarm/f/alive/robot/3")
+    b.watch_alive("swarm/f/alive/**", lambda k, up: alive.append((k, up)))  # history: sees the token
+    tok.close()
+    assert alive == [("swarm/f/alive/robot/3", True), ("swarm/f/alive/robot/3", False)]
+    a.serve("swarm/f/world/obstacles", lambda k: b"obs")
+    assert b.query("swarm/f/world/obstacles") == [("swarm/f/world/obstacles", b"obs")]
+    a.close()
+    assert b.query("swarm/f/world/obstacles") == []
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.timeout(60)
+def test_zenoh_bus_through_a_router():
+    """Two clients of a router in this process: pub/sub, BLOCK puts, liveliness, queryable."""
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    router = busmod.ZenohBus(busmod.zenoh_config("router", listen=[endpoint]))
+    try:
+        with busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint])) as a, \
+                busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint])) as b:
+            got: list[tuple[str, bytes]] = []
+            alive: dict[str, bool] = {}
+            ev = Events()
+
+            def on(k, p):
+                with ev.cond:
+                    got.append((k, p))
+                    ev.cond.notify_all()
+
+            def on_alive(k, up):
+                with ev.cond:
+                    alive[k] = up
+                    ev.cond.notify_all()
+
+            b.subscribe("swarm/t/robot/*/cmd", on)
+            b.watch_alive("swarm/t/alive/**", on_alive)
+            tok = a.token("swarm/t/alive/robot/1")
+            ev.wait_until(lambda: alive.get("swarm/t/alive/robot/1") is True, 10, "the token to appear")
+            # the subscription reaches the router asynchronously: repeat the first put until one arrives
+            deadline = time.monotonic() + 10
+            while True:
+                a.put("swarm/t/robot/1/cmd", b"hello", reliable=True)
+                with ev.cond:
+                    if ev.cond.wait_for(lambda: bool(got), timeout=0.05):
+                        break
+                assert time.monotonic() < deadline, "no message through the router"
+            with ev.cond:
+                got.clear()
+            for i in range(200):
+                a.put("swarm/t/robot/1/cmd", i.to_bytes(2, "big"), reliable=True)
+            ev.wait_until(lambda: len(got) >= 200, 10, "200 reliable messages")
+            assert [int.from_bytes(p, "big") for _, p in got[:200]] == list(range(200))
+            a.serve("swarm/t/world/obstacles", lambda k: b"obstacles!")
+            replies = []
+            deadline = time.monotonic() + 10
+            while not replies and time.monotonic() < deadline:
+                replies = b.query("swarm/t/world/obstacles", timeout_s=1.0)
+            assert replies == [("swarm/t/world/obstacles", b"obstacles!")]
+            tok.close()
+            ev.wait_until(lambda: alive.get("swarm/t/alive/robot/1") is False, 10, "the token to go")
+    finally:
+        router.close()
