@@ -126,3 +126,8 @@ class Scenario:
 
     def params(self) -> np.ndarray:
         return self.control.vector(self.dt, self.cell_side)
+
+    def replace(self, **changes) -> "Scenario":
+        from dataclasses import replace
+
+        return replace(self, **changes)
