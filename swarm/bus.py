@@ -4,7 +4,7 @@
     sub = bus.subscribe(key_expr, fn)           # fn(key: str, payload: bytes), on a bus thread
     tok = bus.token(key)                        # a liveliness token; tok.close() withdraws it
     sub = bus.watch_alive(key_expr, fn)         # fn(key: str, alive: bool); current tokens first
-    sub = bus.serve(key_expr, fn)               # a queryable: fn(key: str) -> bytes
+    sub = bus.serve(key_expr, fn)               # a queryable: fn(key: str) -> bytes, or None: no reply
     replies = bus.query(key_expr, timeout_s)    # [(key, payload), ...]
     bus.close()
 
@@ -33,7 +33,7 @@ class Bus(Protocol):
     def subscribe(self, key_expr: str, fn: Handler) -> Closable: ...
     def token(self, key: str) -> Closable: ...
     def watch_alive(self, key_expr: str, fn: AliveHandler) -> Closable: ...
-    def serve(self, key_expr: str, fn: Callable[[str], bytes]) -> Closable: ...
+    def serve(self, key_expr: str, fn: Callable[[str], bytes | None]) -> Closable: ...
     def query(self, key_expr: str, timeout_s: float = 2.0) -> list[tuple[str, bytes]]: ...
     def close(self) -> None: ...
 
@@ -147,7 +147,12 @@ class MemoryBus:
     def query(self, key_expr: str, timeout_s: float = 2.0) -> list[tuple[str, bytes]]:
         with self.net.lock:
             qs = [(expr, fn) for expr, fn in self.net.queryables if matches(key_expr, expr) or matches(expr, key_expr)]
-        return [(expr, fn(key_expr)) for expr, fn in qs]
+        out = []
+        for expr, fn in qs:
+            reply = fn(key_expr)
+            if reply is not None:
+                out.append((key_expr if "*" not in key_expr else expr, reply))
+        return out
 
     def close(self) -> None:
         for h in reversed(self._handles):
@@ -170,6 +175,9 @@ def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen:
     conf.insert_json5("mode", json.dumps(mode))
     conf.insert_json5("scouting/multicast/enabled", "true" if multicast else "false")
     conf.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
+    # small batches: lock-step traffic is many ~100-byte messages (+8-30 % ticks/s, recipes/zenoh.md)
+    conf.insert_json5("transport/link/tx/batch_size", "4096")
+    conf.insert_json5("transport/link/rx/buffer_size", "4096")
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps(connect))
     if listen is not None:
@@ -177,14 +185,22 @@ def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen:
     return conf
 
 
+# The zenoh runtime setting of recipes/zenoh.md section 8: one worker thread, the other pools
+# handed over to it. Halves the threads and the CPU of 40 processes on 2 cores. It must be in
+# the environment before zenoh starts its runtime, so the launcher sets it for its children.
+ZENOH_RUNTIME = "(app:(worker_threads:1),rx:(handover:app),tx:(handover:app),acc:(handover:app),net:(handover:app))"
+
+
 class ZenohBus:
     """A Bus over one zenoh session. Close it (or use `with`): an open session with callback
     subscribers hangs the interpreter at exit. Never fork after creating one."""
 
-    def __init__(self, conf) -> None:
+    def __init__(self, conf, direct: bool = True) -> None:
         import zenoh
 
         self._z = zenoh
+        self.direct = direct
+        _init_zenoh_log(zenoh)
         self.session = zenoh.open(conf)
         self._handles: list[Closable] = []
         self._closed = False
@@ -207,7 +223,12 @@ class ZenohBus:
         def cb(sample) -> None:
             fn(str(sample.key_expr), sample.payload.to_bytes())
 
-        return self._keep(_Undeclare(self.session.declare_subscriber(key_expr, cb)))
+        return self._keep(_Undeclare(self.session.declare_subscriber(key_expr, self._handler(cb))))
+
+    def _handler(self, cb):
+        # direct: on zenoh's receiving thread, in arrival order (the lock-step protocol relies on
+        # the order of one link); such a callback must only enqueue. Otherwise a Python thread.
+        return self._z.handlers.Callback(cb, indirect=False) if self.direct else cb
 
     def token(self, key: str) -> Closable:
         return self._keep(_Undeclare(self.session.liveliness().declare_token(key)))
@@ -218,11 +239,15 @@ class ZenohBus:
         def cb(sample) -> None:
             fn(str(sample.key_expr), sample.kind == put_kind)
 
-        return self._keep(_Undeclare(self.session.liveliness().declare_subscriber(key_expr, cb, history=True)))
+        return self._keep(_Undeclare(self.session.liveliness().declare_subscriber(key_expr, self._handler(cb),
+                                                                                  history=True)))
 
     def serve(self, key_expr: str, fn: Callable[[str], bytes]) -> Closable:
         def cb(query) -> None:
-            query.reply(key_expr, fn(str(query.key_expr)))
+            asked = str(query.key_expr)
+            reply = fn(asked)
+            if reply is not None:
+                query.reply(asked if "*" not in asked else key_expr, reply)
 
         return self._keep(_Undeclare(self.session.declare_queryable(key_expr, cb)))
 
@@ -243,6 +268,20 @@ class ZenohBus:
             except Exception:  # already gone with the session: nothing left to release
                 pass
         self.session.close()
+
+
+_LOG_READY = False
+
+
+def _init_zenoh_log(zenoh) -> None:
+    """zenoh's own log lines (link closed, lease expired...) on stderr: errors by default, RUST_LOG to see more."""
+    global _LOG_READY
+    if not _LOG_READY:
+        _LOG_READY = True
+        try:
+            zenoh.init_log_from_env_or("error")
+        except Exception:  # already initialised by the embedding program
+            pass
 
 
 class _Undeclare:

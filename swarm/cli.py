@@ -4,6 +4,9 @@
               [--governor/--no-governor] [--metrics out.json] [--plots DIR] [--quiet]
     swarm scenario show NAME|FILE [--robots N] [--seed S]
     swarm scenario check FILE...
+    swarm up [--robots N] [--scenario ...] [--mode lockstep|realtime] [--rate HZ] [--metrics out.json] [--dry-run]
+    swarm router | world | leader | robot --id I     (the processes `swarm up` starts; each runs alone
+                                                     with --connect ENDPOINT, e.g. on another machine)
 
 Exit codes (every command): 0 done, 1 runtime failure, 2 bad input, 130 interrupted.
 A command-line flag beats the scenario file, which beats the built-in default.
@@ -21,11 +24,7 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
-
-
-class BadInput(Exception):
-    """A user error: printed as one line, exit code 2."""
+from swarm.commands import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure
 
 
 # --------------------------------------------------------------------------- argument types
@@ -109,7 +108,115 @@ def build_parser() -> argparse.ArgumentParser:
     check = scn_sub.add_parser("check", help="check scenario files; exit 2 at the first bad one")
     check.add_argument("files", nargs="+", metavar="FILE")
     check.set_defaults(func=cmd_scenario_check)
+    _add_runtime_parsers(sub)
     return parser
+
+
+def _add_net_flags(p: argparse.ArgumentParser, listen: bool = False, connect_help: str | None = None) -> None:
+    g = p.add_argument_group("network (zenoh)")
+    if listen:
+        g.add_argument("--listen", action="append", metavar="ENDPOINT",
+                       help="where the router listens (default tcp/127.0.0.1:7447; tcp/0.0.0.0:7447 "
+                            "accepts other machines); repeatable")
+    g.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help=connect_help or "the router to connect to (default tcp/127.0.0.1:7447)")
+    g.add_argument("--fleet", default="default", metavar="NAME",
+                   help="the swarm's name: key prefix swarm/NAME, so several swarms share a router (default: default)")
+    g.add_argument("--zenoh-config", metavar="FILE",
+                   help="a zenoh JSON5 config file (TLS, authentication); our settings are applied on top")
+    g.add_argument("--multicast", action="store_true", help="turn multicast scouting on (off by default)")
+
+
+def _add_run_flags(p: argparse.ArgumentParser, up: bool = False) -> None:
+    g = p.add_argument_group("run")
+    g.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
+                   help="lockstep: the world owns the clock, deterministic, equal to swarm sim (default); "
+                        "realtime: every process on its own clock")
+    g.add_argument("--rate", type=_positive_float, metavar="HZ",
+                   help="control rate (sets dt = 1/HZ; the built-in paper-50hz runs at 50 Hz)")
+    if up or p.prog.endswith("world"):
+        g.add_argument("--speed", type=_positive_float, default=1.0, metavar="X",
+                       help="real time: simulated seconds per wall second (default 1)")
+        g.add_argument("--watchdog", type=_positive_float, default=0.5, metavar="S",
+                       help="stop a robot whose newest command is older than S seconds (default 0.5)")
+        g.add_argument("--tick-timeout", type=_positive_float, default=1.0, metavar="S",
+                       help="lock-step: wall seconds to wait for a tick's commands before counting misses "
+                            "(default 1)")
+        g.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (DESIGN.md section 7)")
+        g.add_argument("--trace", type=Path, metavar="PATH.npz",
+                       help="write every robot's pose at every sample (numpy .npz: q[k, i] = x, y, theta)")
+    g.add_argument("--start-timeout", type=_positive_float, default=60.0, metavar="S",
+                   help="seconds to wait for the other processes at start (default 60)")
+
+
+def _add_runtime_parsers(sub) -> None:
+    up = sub.add_parser(
+        "up", help="run the swarm: one process per robot over zenoh, plus router, world and leader",
+        description="Start an embedded zenoh router (or join one with --connect), the world, the leader "
+                    "and one process per robot, each in its own process group; wait until all are alive; "
+                    "run with a live status line; write the metrics; stop everything on the way out "
+                    "(also on Ctrl-C and SIGTERM). Without --scenario it runs the built-in paper-50hz "
+                    "scenario (dt = 0.02 s, governor on).",
+        epilog="Examples: swarm up --robots 37 | swarm up --robots 7 --mode realtime --speed 2 | "
+               "swarm up --listen tcp/0.0.0.0:7447 (robots on other machines: see README)")
+    _add_scenario_flags(up, "paper-50hz")
+    _add_run_flags(up, up=True)
+    _add_net_flags(up, listen=True, connect_help="join the router at ENDPOINT instead of starting one")
+    g = up.add_argument_group("launcher")
+    g.add_argument("--dry-run", action="store_true", help="print the launch plan and exit")
+    g.add_argument("--restarts", type=_int_at_least(0), default=3, metavar="N",
+                   help="restart a failed robot process at most N times per window (default 3)")
+    g.add_argument("--restart-window", type=_positive_float, default=60.0, metavar="S",
+                   help="the restart policy's window in seconds (default 60)")
+    g.add_argument("--log-dir", metavar="DIR", help="where the processes' logs go (default: a new temp dir)")
+    g.add_argument("--quiet", action="store_true", help="no status line and no summary")
+    up.set_defaults(func=_lazy("cmd_up"))
+
+    router = sub.add_parser("router", help="a zenoh router (what swarm up embeds)",
+                            description="Run a zenoh router in this process. Routers on several machines "
+                                        "connect to each other with --connect.")
+    _add_net_flags(router, listen=True, connect_help="another router to connect to (across machines)")
+    router.set_defaults(func=_lazy("cmd_router"))
+
+    world = sub.add_parser("world", help="the simulated world: kinematics, obstacles, clock, metrics",
+                           description="Simulate every robot (exact arcs), serve the obstacles and each robot's "
+                                       "configuration, own the clock in lock-step, referee the run.")
+    _add_scenario_flags(world, "paper-50hz")
+    _add_run_flags(world)
+    _add_net_flags(world)
+    world.set_defaults(func=_lazy("cmd_world"))
+
+    leader = sub.add_parser("leader", help="publish the leader's reference",
+                            description="Publish the virtual leader's reference from the scenario's segments.")
+    _add_scenario_flags(leader, "paper-50hz")
+    _add_run_flags(leader)
+    _add_net_flags(leader)
+    leader.set_defaults(func=_lazy("cmd_leader"))
+
+    robot = sub.add_parser("robot", help="one robot's agent (its decentralized controller)",
+                           description="Run robot ID's controller. It takes its slice of the scenario from "
+                                       "--scenario FILE (the same file on every machine) or, without it, from "
+                                       "the world's configuration queryable.")
+    robot.add_argument("--id", type=_int_at_least(0), required=True, metavar="I", help="the robot's id (0-based)")
+    g = robot.add_argument_group("scenario (optional: without it the world's configuration is used)")
+    g.add_argument("--scenario", metavar="NAME|FILE")
+    g.add_argument("--robots", type=_count, metavar="N")
+    g.add_argument("--seed", type=_seed, metavar="S")
+    g.add_argument("--duration", type=_positive_float, metavar="T")
+    g.add_argument("--dt", type=_positive_float, metavar="DT")
+    g.add_argument("--governor", action=argparse.BooleanOptionalAction, default=None)
+    _add_run_flags(robot)
+    _add_net_flags(robot)
+    robot.set_defaults(func=_lazy("cmd_robot"))
+
+
+def _lazy(name: str):
+    def run(args, started):
+        from swarm import commands
+
+        return getattr(commands, name)(args, started)
+
+    return run
 
 
 # --------------------------------------------------------------------------- commands
@@ -243,6 +350,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ScenarioError, BadInput) as e:
         print(f"swarm {args.command}: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except Failure as e:
+        print(f"swarm {args.command}: failed: {e}", file=sys.stderr)
+        return EXIT_FAILURE
     except KeyboardInterrupt:
         print(f"swarm {args.command}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

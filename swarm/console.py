@@ -41,6 +41,17 @@ class StatusLine:
             self.stream.write(text + "\n")
         self.stream.flush()
 
+    def note(self, text: str) -> None:
+        """A line of its own (an event), printed above the status line, which is redrawn next update."""
+        if not self.enabled:
+            return
+        if self.tty and self.width:
+            self.stream.write("\r" + " " * self.width + "\r")
+            self.width = 0
+            self.last = -1e9
+        self.stream.write(text + "\n")
+        self.stream.flush()
+
     def close(self) -> None:
         """End the line (on a terminal) so later output starts on a fresh line."""
         if self.enabled and self.tty and self.width:

@@ -73,6 +73,26 @@ def world_snapshot(fleet: str) -> str:
     return f"{base(fleet)}/world/snapshot"
 
 
+# Extension keys (not in DESIGN.md section 5; same prefix, same codec).
+
+
+def world_clock(fleet: str) -> str:
+    return f"{base(fleet)}/world/clock"
+
+
+def world_progress(fleet: str) -> str:
+    return f"{base(fleet)}/world/progress"
+
+
+def world_config(fleet: str, i: int) -> str:
+    """The world's configuration queryable for robot i (its slice of the scenario)."""
+    return f"{base(fleet)}/world/config/{_id(i)}"
+
+
+def world_config_any(fleet: str) -> str:
+    return f"{base(fleet)}/world/config/*"
+
+
 def alive(fleet: str, role: str, i: int = 0) -> str:
     if role not in ROLES:
         raise KeyError_(f"role must be one of {', '.join(ROLES)}, got {role!r}")
@@ -95,7 +115,7 @@ def cell_of(x: float, y: float, side: float) -> tuple[int, int]:
 @dataclass(frozen=True)
 class Key:
     fleet: str
-    kind: str  # "ref", "pose", "cmd", "status", "cell", "obstacles", "snapshot", "alive"
+    kind: str  # "ref", "pose", "cmd", "status", "cell", "obstacles", "snapshot", "alive", "clock", "progress", "config"
     id: int | None = None
     cx: int | None = None
     cy: int | None = None
@@ -116,6 +136,12 @@ def parse(key: str) -> Key | None:
         return Key(fleet, "obstacles")
     if rest == ["world", "snapshot"]:
         return Key(fleet, "snapshot")
+    if rest == ["world", "clock"]:
+        return Key(fleet, "clock")
+    if rest == ["world", "progress"]:
+        return Key(fleet, "progress")
+    if len(rest) == 3 and rest[:2] == ["world", "config"] and _INT.match(rest[2]):
+        return Key(fleet, "config", id=int(rest[2]))
     if len(rest) == 3 and rest[0] == "robot" and _INT.match(rest[1]) and rest[2] in ("pose", "cmd", "status"):
         return Key(fleet, rest[2], id=int(rest[1]))
     if len(rest) == 4 and rest[0] == "cell" and _SIGNED.match(rest[1]) and _SIGNED.match(rest[2]) \

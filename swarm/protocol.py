@@ -127,8 +127,62 @@ class Snapshot:
     robots: tuple[RobotSnap, ...]
 
 
+@dataclass(frozen=True)
+class Clock:
+    """The world's clock (world -> leader, agents; an extension key). Lock-step: tick seq at time t
+    (clock 0 also says every robot's first state has been delivered). Real time: t = (unix time -
+    epoch) * speed, so every process can run the same simulated clock from its own wall clock."""
+
+    t: float
+    seq: int
+    epoch: float  # unix time [s] of t = 0 in real time; 0.0 in lock-step
+    speed: float  # simulated seconds per wall second (> 0)
+
+
+@dataclass(frozen=True)
+class Config:
+    """One robot's slice of the scenario (reply of the world's config queryable): its id, start
+    pose, formation offset, radii, gains and timing; never another robot's state."""
+
+    id: int
+    x: float  # start pose
+    y: float
+    theta: float
+    dx: float  # formation offset d_i
+    dy: float
+    r: float
+    R: float
+    k1: float
+    k2: float
+    k3: float
+    tu: float
+    vt: float
+    threshold: int  # swarm.law.THRESHOLD_*
+    governor: bool
+    dt: float  # control period [s]
+    sense: float  # cell side = sensing range [m]
+    lockstep: bool
+
+
+@dataclass(frozen=True)
+class Progress:
+    """A run's progress (world -> launcher, viewers; an extension key). min_distance < 0: none yet."""
+
+    t: float
+    seq: int
+    duration: float
+    robots: int
+    alive: int
+    converged: int
+    frozen: int
+    min_distance: float
+    misses: int
+    bad: int
+
+
 KINDS: dict[str, type] = {"ref": Ref, "pose": Pose, "cmd": Cmd, "state": State, "status": Status,
-                          "obstacles": Obstacles, "snapshot": Snapshot}
+                          "obstacles": Obstacles, "snapshot": Snapshot, "clock": Clock, "config": Config,
+                          "progress": Progress}
 _KIND_OF = {cls: kind for kind, cls in KINDS.items()}
 
 
@@ -203,6 +257,12 @@ _SPEC: dict[str, tuple[tuple[str, str], ...]] = {
               ("R", "n"), ("frozen", "b")),
     "status": (("t", "n"), ("ex", "n"), ("ey", "n"), ("etheta", "n"), ("frozen", "b"), ("neighbours", "i"),
                ("stale", "i"), ("bad", "i")),
+    "clock": (("t", "n"), ("seq", "i"), ("epoch", "n"), ("speed", "n")),
+    "config": (("id", "id"), ("x", "n"), ("y", "n"), ("theta", "n"), ("dx", "n"), ("dy", "n"), ("r", "n"),
+               ("R", "n"), ("k1", "n"), ("k2", "n"), ("k3", "n"), ("tu", "n"), ("vt", "n"), ("threshold", "i"),
+               ("governor", "b"), ("dt", "n"), ("sense", "n"), ("lockstep", "b")),
+    "progress": (("t", "n"), ("seq", "i"), ("duration", "n"), ("robots", "i"), ("alive", "i"),
+                 ("converged", "i"), ("frozen", "i"), ("min_distance", "n"), ("misses", "i"), ("bad", "i")),
 }
 # DESIGN.md section 5 names both the protocol version and the linear velocity of ref and cmd
 # "v"; one map cannot hold both. "v" stays the version (a decoder needs it before the kind);
@@ -239,12 +299,39 @@ def decode(payload: bytes, kind: str | None = None, key_id: int | None = None):
         spec = _SPEC[k]
         _fields(d, tuple(n for n, _ in spec))
         msg = KINDS[k](**{_FIELD.get(n, n): _READ[t](d, n) for n, t in spec})
-        if k == "state":
-            _radii(msg.r, msg.R)
-    if key_id is not None and k == "state" and msg.id != key_id:
+        _CHECK.get(k, lambda m: None)(msg)
+    if key_id is not None and k in ("state", "config") and msg.id != key_id:
         raise ProtocolError(f"id {msg.id} in the payload does not match id {key_id} in the key")
     return msg
 
+
+def _positive(msg, *names: str) -> None:
+    for name in names:
+        if not getattr(msg, name) > 0:
+            raise ProtocolError(f"field {name!r} must be > 0, got {getattr(msg, name)}")
+
+
+def _nonnegative(msg, *names: str) -> None:
+    for name in names:
+        if not getattr(msg, name) >= 0:
+            raise ProtocolError(f"field {name!r} must be >= 0, got {getattr(msg, name)}")
+
+
+def _check_config(c: Config) -> None:
+    _radii(c.r, c.R)
+    _positive(c, "k1", "k2", "k3", "tu", "dt", "sense")
+    _nonnegative(c, "vt")
+    if c.threshold not in (0, 1, 2):
+        raise ProtocolError(f"field 'threshold' must be 0, 1 or 2, got {c.threshold}")
+    if c.sense < c.R:
+        raise ProtocolError(f"field 'sense' ({c.sense}) must be >= R ({c.R})")
+
+
+_CHECK = {
+    "state": lambda m: _radii(m.r, m.R),
+    "config": _check_config,
+    "clock": lambda m: (_positive(m, "speed"), _nonnegative(m, "epoch")),
+}
 
 _SNAP_FIELDS = ("id", "x", "y", "theta", "v", "w", "stopped", "alive")
 

@@ -127,6 +127,18 @@ class Scenario:
     def params(self) -> np.ndarray:
         return self.control.vector(self.dt, self.cell_side)
 
+    def robot_config(self, i: int, lockstep: bool = True):
+        """Robot i's slice of the scenario (what its agent is given; never the others' state)."""
+        from swarm.protocol import Config
+
+        if not 0 <= i < self.n:
+            raise ScenarioError(self.name, "--id", f"robot {i} is not in the scenario (it has {self.n} robots: 0..{self.n - 1})")
+        c, x, y, th = self.control, *map(float, self.poses[i])
+        return Config(id=i, x=x, y=y, theta=th, dx=float(self.offsets[i, 0]), dy=float(self.offsets[i, 1]),
+                      r=float(self.r), R=float(self.R), k1=c.k1, k2=c.k2, k3=c.k3, tu=c.tu, vt=c.vt,
+                      threshold=THRESHOLDS[c.threshold], governor=c.governor, dt=float(self.dt),
+                      sense=float(self.cell_side), lockstep=lockstep)
+
     def replace(self, **changes) -> "Scenario":
         from dataclasses import replace
 

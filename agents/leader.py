@@ -1,0 +1,87 @@
+"""The leader: publishes the virtual leader's reference from the scenario's segments.
+
+Lock-step: on world clock k it publishes ref_(k+1) (and any earlier ref it has not sent yet,
+ref_0 and ref_1 on clock_0), one tick ahead so the reference is never on the critical path.
+Real time: it publishes the reference at its own rate from the world's epoch.
+The reference at tick k is the leader's exact state at t_k = k dt (swarm.kinematics), the
+same number the simulator uses.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+
+from swarm import keys, kinematics, protocol
+from swarm.protocol import ProtocolError, Ref
+
+log = logging.getLogger("swarm.leader")
+
+
+class Leader:
+    def __init__(self, bus, table, dt: float, fleet: str = "default", lockstep: bool = True, rate_hz: float | None = None):
+        self.bus, self.table, self.dt, self.fleet, self.lockstep = bus, table, dt, fleet, lockstep
+        self.period = 1.0 / rate_hz if rate_hz else dt  # simulated seconds between real-time refs
+        self.inbox: queue.SimpleQueue = queue.SimpleQueue()
+        self.next_seq = 0
+        self.bad = protocol.BadMessages(log)
+        self.epoch: float | None = None
+        self.speed = 1.0
+        self.sent = 0
+        self._handles: list = []
+
+    def start(self) -> None:
+        self._handles.append(self.bus.subscribe(keys.world_clock(self.fleet),
+                                                lambda k, b: self.inbox.put((k, b))))
+        self._handles.append(self.bus.token(keys.alive(self.fleet, "leader")))
+
+    def close(self) -> None:
+        for h in self._handles[::-1]:
+            h.close()
+        self._handles.clear()
+
+    def publish(self, t: float, seq: int) -> None:
+        x, y, th, v, w = kinematics.leader_state(self.table, t)
+        self.bus.put(keys.leader_ref(self.fleet), protocol.encode(Ref(t=t, seq=seq, x=x, y=y, theta=th, v=v, w=w)),
+                     reliable=True)
+        self.sent += 1
+
+    def on_clock(self, key: str, data: bytes) -> None:
+        try:
+            c = protocol.decode(data, "clock")
+        except ProtocolError as e:
+            self.bad.reject(key, e)
+            return
+        if self.lockstep:
+            if self.next_seq < c.seq:  # started (or restarted) mid-run: catch up from now
+                self.next_seq = c.seq
+            while self.next_seq <= c.seq + 1:
+                self.publish(self.next_seq * self.dt, self.next_seq)
+                self.next_seq += 1
+        elif c.epoch > 0:
+            self.epoch, self.speed = c.epoch, c.speed
+
+    def run(self, stop: threading.Event) -> None:
+        while not stop.is_set():
+            if self.lockstep or self.epoch is None:
+                try:
+                    self.on_clock(*self.inbox.get(timeout=0.2))
+                except queue.Empty:
+                    pass
+                continue
+            # real time: publish every period of simulated time, on the world's clock
+            now = time.time()
+            t = (now - self.epoch) * self.speed
+            self.publish(t, self.next_seq)
+            self.next_seq += 1
+            wake = self.epoch + (t // self.period + 1) * self.period / self.speed
+            while not stop.is_set():
+                left = wake - time.time()
+                if left <= 0:
+                    break
+                try:
+                    self.on_clock(*self.inbox.get(timeout=left))
+                except queue.Empty:
+                    break

@@ -1,0 +1,488 @@
+"""The robot agent: one robot's decentralized controller, run as its own process.
+
+It knows only what it hears on the bus:
+  robot/<id>/pose     its own pose (from the world now, from localization on a real robot)
+  leader/ref          the leader's reference
+  cell/<cx>/<cy>/*    the states of the robots in the 3x3 cells around its own
+  world/obstacles     the static obstacles (queried once; those within range are used)
+  world/clock         the clock (lock-step ticks, or the real-time epoch)
+  alive/robot/*       liveliness: a robot that disappears stays a static body at its last pose
+and publishes its state on its cell key, its command on robot/<id>/cmd (reliable) and a status.
+The law is swarm.law.robot_command, the very function `swarm sim` compiles, run here as plain
+Python (no numpy, no compiler: a robot process starts fast and stays small). This module
+imports nothing of the world: the same agent drives a simulated or a real robot.
+
+Lock-step tick k (the world owns the clock; DESIGN.md section 3):
+  1. pose_k arrives: move the cell subscriptions (the old block is kept one more tick) and
+     publish state_k on the cell key.
+  2. Wait for state_k of every live robot whose state_(k-1) was within R + 2L, where
+     L = (side - R) / 3 is the largest step the protocol assumes (a robot that can matter
+     at k, closer than R, was that close at k-1; one that was that close is still inside
+     the cells subscribed at k-1, so its state_k is sure to arrive), for ref_k and for
+     clock_k (clock_0 is the world's start barrier: every state_0 has been delivered).
+     After `wait_timeout` seconds it goes on with what it has and counts the missing as stale.
+  3. Compute cmd_k from the bodies closer than the cell side in ascending id order (the
+     simulator's order: robots by id, then obstacles, then dead robots as static bodies) and
+     publish it.
+Real time: every control period it takes the newest pose, reference (advanced exactly along
+the leader's arc to now) and neighbour states, and publishes state and command.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+from swarm import keys, kinematics, law, protocol
+from swarm.protocol import Cmd, Config, ProtocolError, State, Status
+
+log = logging.getLogger("swarm.robot")
+
+WAIT_TIMEOUT_S = 1.0  # lock-step: wall seconds to wait for a tick's inputs before going on without them
+STATUS_PERIOD_S = 0.1  # simulated seconds between status messages
+STALE_AFTER_S = 0.5  # real time: a neighbour state older than this (simulated s) counts as stale
+FORGET_AFTER_S = 2.0  # real time: a live neighbour not heard for this long is dropped
+
+
+@dataclass
+class Neighbour:
+    """What this robot knows of another robot (from its last state message)."""
+
+    x: float
+    y: float
+    theta: float
+    r: float
+    R: float
+    t: float
+    seq: int
+    frozen: bool
+    alive: bool = True
+
+
+def block(cx: int, cy: int) -> set[tuple[int, int]]:
+    """The 3x3 cells around cell (cx, cy)."""
+    return {(cx + a, cy + b) for a in (-1, 0, 1) for b in (-1, 0, 1)}
+
+
+class Agent:
+    """One robot's controller on a bus. Feed it bus events with handle(); it publishes on its own.
+
+    Thread model: bus callbacks run event() on the bus's receiving thread: it validates the
+    message and updates what the agent knows under `lock`, and sets `wake` when the loop thread
+    has something to do (a new tick, or a tick whose inputs are complete). The loop thread does
+    every bus call (publish, move subscriptions): callbacks never call the bus. One wake-up a
+    tick or two instead of one per message: on 2 cores that is most of the agent's CPU.
+    """
+
+    def __init__(self, bus, cfg: Config, fleet: str = "default", wait_timeout: float = WAIT_TIMEOUT_S,
+                 clock=time.monotonic):
+        self.bus, self.cfg, self.fleet = bus, cfg, fleet
+        self.id = cfg.id
+        self.clock = clock
+        self.wait_timeout = wait_timeout
+        self.p = [0.0] * law.P_SIZE
+        self.p[law.P_K1], self.p[law.P_K2], self.p[law.P_K3] = cfg.k1, cfg.k2, cfg.k3
+        self.p[law.P_TU], self.p[law.P_VT], self.p[law.P_THRESHOLD] = cfg.tu, cfg.vt, float(cfg.threshold)
+        self.p[law.P_GOVERNOR] = 1.0 if cfg.governor else 0.0
+        self.p[law.P_DT], self.p[law.P_SENSE] = cfg.dt, cfg.sense
+        self.mem = [0.0] * law.M_SIZE
+        self.mem[law.M_SCALE] = 1.0
+        self.side = cfg.sense
+        self.lock = threading.Lock()
+        self.wake = threading.Event()
+        self.table: dict[int, Neighbour] = {}
+        self.dead: set[int] = set()
+        self.obstacles: list[tuple[float, float, float, float]] = []
+        self._ocells: dict[tuple[int, int], list[int]] = {}
+        self.pose: protocol.Pose | None = None
+        self.refs: dict[int, protocol.Ref] = {}  # lock-step: by seq
+        self.ref: protocol.Ref | None = None  # newest
+        self.clock_seq = -1
+        self.epoch: float | None = None
+        self.speed = 1.0
+        self.bad = protocol.BadMessages(log)
+        # lock-step tick state
+        self.k_done = -1
+        self.k_started = -1
+        self.waiting: set[int] = set()
+        self.deadline = 0.0
+        self.prev_xy: tuple[float, float] | None = None
+        # counters
+        self.states_received = 0
+        self.ticks = 0
+        self.skipped = 0
+        self.stale_total = 0
+        self.seq = 0
+        self._last_status_t = -math.inf
+        self._cells: dict[tuple[int, int], object] = {}
+        self._block_prev: set[tuple[int, int]] = set()
+        self._handles: list = []
+        self._clock_sub = None
+        self.last_cmd: Cmd | None = None
+        self.neighbours = 0
+        self.stale = 0
+
+    # ------------------------------------------------------------------ wiring
+
+    def start(self, obstacles: list[protocol.Obstacle] | None = None) -> None:
+        """Subscribe (own pose, reference, clock, liveliness, the cells around the start pose),
+        then declare this robot's liveliness token: whoever sees the token can count on them."""
+        f, ev = self.fleet, self.event
+        self.set_obstacles(obstacles or [])
+        self._handles.append(self.bus.subscribe(keys.robot_pose(f, self.id), lambda k, b: ev(("pose", k, b))))
+        self._handles.append(self.bus.subscribe(keys.leader_ref(f), lambda k, b: ev(("ref", k, b))))
+        self._clock_sub = self.bus.subscribe(keys.world_clock(f), lambda k, b: ev(("clock", k, b)))
+        self._handles.append(self.bus.watch_alive(keys.alive_any(f, "robot"), lambda k, up: ev(("alive", k, up))))
+        self._move_cells(self.cfg.x, self.cfg.y)
+        self._handles.append(self.bus.token(keys.alive(f, "robot", self.id)))
+
+    def set_obstacles(self, obstacles: list[protocol.Obstacle]) -> None:
+        """Keep the obstacles, indexed by cell so a tick looks only at the 3x3 cells around it."""
+        self.obstacles = [(o.x, o.y, o.r, o.R) for o in obstacles]
+        self._ocells = {}
+        for m, (x, y, _r, _R) in enumerate(self.obstacles):
+            self._ocells.setdefault(keys.cell_of(x, y, self.side), []).append(m)
+
+    def close(self) -> None:
+        if self._clock_sub is not None:
+            self._clock_sub.close()
+            self._clock_sub = None
+        for h in list(self._cells.values()) + self._handles[::-1]:
+            h.close()
+        self._cells.clear()
+        self._handles.clear()
+
+    def _move_cells(self, x: float, y: float) -> None:
+        """Subscribe to the 3x3 cells around (x, y), keeping the previous block one more tick."""
+        now = block(*keys.cell_of(x, y, self.side))
+        want = now | self._block_prev
+        for c in want - self._cells.keys():
+            self._cells[c] = self.bus.subscribe(keys.cell_any(self.fleet, *c),
+                                                lambda k, b: self.event(("cell", k, b)))
+        for c in self._cells.keys() - want:
+            self._cells.pop(c).close()
+        self._block_prev = now
+
+    @property
+    def subscribed_cells(self) -> set[tuple[int, int]]:
+        return set(self._cells)
+
+    # ------------------------------------------------------------------ events
+
+    def event(self, item) -> None:
+        """A bus event, on the bus's thread: update under the lock, wake the loop if it has work."""
+        with self.lock:
+            self.handle(item)
+            due = self._due()
+        if due:
+            self.wake.set()
+
+    def _due(self) -> bool:
+        if not self.cfg.lockstep or self.pose is None:
+            return False
+        if self.pose.seq > self.k_started:
+            return True  # a new tick to start
+        return self.k_started > self.k_done and self._inputs_complete(self.k_started)
+
+    def _inputs_complete(self, k: int) -> bool:
+        return k in self.refs and self.clock_seq >= min(k, self._clock_needed) and not self.waiting
+
+    _clock_needed = 0  # lock-step: clock_0 is the start barrier; later ticks need no clock message
+
+    def handle(self, item) -> None:
+        """One bus event: validate, then update what the agent knows. Bad messages are dropped and counted."""
+        tag, key, data = item
+        try:
+            if tag == "cell":
+                parsed = keys.parse(key)
+                if parsed is None or parsed.kind != "cell":
+                    raise ProtocolError(f"not a cell key: {key!r}")
+                self._on_state(protocol.decode(data, "state", parsed.id))
+            elif tag == "pose":
+                self._on_pose(protocol.decode(data, "pose"))
+            elif tag == "ref":
+                self._on_ref(protocol.decode(data, "ref"))
+            elif tag == "clock":
+                c = protocol.decode(data, "clock")
+                self.clock_seq = max(self.clock_seq, c.seq)
+                if c.epoch > 0:
+                    self.epoch, self.speed = c.epoch, c.speed
+            elif tag == "alive":
+                parsed = keys.parse(key)
+                if parsed is not None and parsed.kind == "alive" and parsed.id != self.id:
+                    self._on_alive(parsed.id, data)
+        except ProtocolError as e:
+            self.bad.reject(key, e)
+
+    def _on_state(self, s: State) -> None:
+        if s.id == self.id:
+            return
+        self.states_received += 1
+        old = self.table.get(s.id)
+        if old is not None and (s.t, s.seq) <= (old.t, old.seq) and old.alive:
+            return  # a duplicate (old and new cell during a move) or an older message
+        self.table[s.id] = Neighbour(s.x, s.y, s.theta, s.r, s.R, s.t, s.seq, s.frozen, s.id not in self.dead)
+        if self.cfg.lockstep and s.seq == self.k_started:
+            self.waiting.discard(s.id)
+
+    def _on_alive(self, j: int, up: bool) -> None:
+        if up:
+            self.dead.discard(j)
+        else:
+            self.dead.add(j)
+            self.waiting.discard(j)
+        nb = self.table.get(j)
+        if nb is not None:
+            nb.alive = up
+
+    def _on_ref(self, ref: protocol.Ref) -> None:
+        if self.ref is None or (ref.t, ref.seq) >= (self.ref.t, self.ref.seq):
+            self.ref = ref
+        if self.cfg.lockstep:
+            self.refs[ref.seq] = ref
+
+    def _on_pose(self, pose: protocol.Pose) -> None:
+        if self.pose is not None and (pose.t, pose.seq) <= (self.pose.t, self.pose.seq):
+            return
+        self.pose = pose
+
+    def _start_tick(self, pose) -> None:
+        """Lock-step tick k starts (loop thread): publish state_k, decide whose state_k to wait for."""
+        k = pose.seq
+        self._move_cells(pose.x, pose.y)
+        self._publish_state(pose, k)
+        with self.lock:
+            px, py = self.prev_xy if self.prev_xy is not None else (pose.x, pose.y)
+            self.waiting = set()
+            for j, nb in self.table.items():
+                if nb.alive and nb.seq == k - 1:
+                    reach = nb.R + 2.0 * (self.side - max(self.cfg.R, nb.R)) / 3.0
+                    if (px - nb.x) ** 2 + (py - nb.y) ** 2 < reach * reach:
+                        self.waiting.add(j)
+            self.deadline = self.clock() + self.wait_timeout
+            self.k_started = k
+
+    # ------------------------------------------------------------------ control
+
+    def _publish_state(self, pose, seq: int) -> None:
+        cx, cy = keys.cell_of(pose.x, pose.y, self.side)
+        frozen = self.mem[law.M_FROZEN] != 0.0
+        s = protocol.encode(State(id=self.id, t=pose.t, seq=seq, x=pose.x, y=pose.y, theta=pose.theta,
+                                  r=self.cfg.r, R=self.cfg.R, frozen=frozen))
+        self.bus.put(keys.cell(self.fleet, cx, cy, self.id), s)
+
+    def bodies(self, x: float, y: float, seq: int | None, t: float | None = None):
+        """The known bodies closer than the cell side, in summation order: live robots by id, the
+        obstacles by index, dead robots by id (static bodies). Lock-step (seq given): a live robot
+        counts with its state of this tick, or, when it was awaited and did not come, its last one
+        (stale). Real time (t given): every live robot heard within FORGET_AFTER_S.
+        Returns lists nx, ny, nr, nR, nk and the numbers of robots and stale robots used."""
+        r2 = self.side * self.side
+        nx, ny, nr, nR, nk = [], [], [], [], []
+        robots = stale = 0
+        for j in sorted(self.table):
+            nb = self.table[j]
+            if not nb.alive:
+                continue
+            if seq is not None:
+                if nb.seq != seq and j not in self.waiting:
+                    continue
+                is_stale = nb.seq != seq
+            else:
+                age = t - nb.t
+                if age > FORGET_AFTER_S:
+                    continue
+                is_stale = age > STALE_AFTER_S
+            dx = x - nb.x
+            dy = y - nb.y
+            if dx * dx + dy * dy < r2:
+                nx.append(nb.x), ny.append(nb.y), nr.append(nb.r), nR.append(nb.R), nk.append(law.KIND_ROBOT)
+                robots += 1
+                stale += is_stale
+        cx, cy = keys.cell_of(x, y, self.side)
+        near = sorted(m for c in block(cx, cy) for m in self._ocells.get(c, ()))
+        for m in near:
+            ox, oy, orr, oR = self.obstacles[m]
+            dx = x - ox
+            dy = y - oy
+            if dx * dx + dy * dy < r2:
+                nx.append(ox), ny.append(oy), nr.append(orr), nR.append(oR), nk.append(law.KIND_OBSTACLE)
+        for j in sorted(self.table):
+            nb = self.table[j]
+            if nb.alive:
+                continue
+            dx = x - nb.x
+            dy = y - nb.y
+            if dx * dx + dy * dy < r2:
+                nx.append(nb.x), ny.append(nb.y), nr.append(nb.r), nR.append(nb.R), nk.append(law.KIND_OBSTACLE)
+        return nx, ny, nr, nR, nk, robots, stale
+
+    def command(self, t: float, x: float, y: float, th: float, ref: tuple, seq: int | None) -> tuple[float, float]:
+        """The law for this robot at time t with pose (x, y, th) and live reference ref = (xl, yl, thl, vl, wl)."""
+        nx, ny, nr, nR, nk, robots, stale = self.bodies(x, y, seq, t)
+        xl, yl, thl, vl, wl = ref
+        v, w = law.robot_command(x, y, th, self.cfg.dx, self.cfg.dy, self.cfg.r, t, xl, yl, thl, vl, wl,
+                                 nx, ny, nr, nR, nk, len(nx), self.mem, self.p)
+        self.neighbours, self.stale = robots, stale
+        self.stale_total += stale
+        return v, w
+
+    def _publish(self, t: float, seq: int, v: float, w: float, ref: tuple, pose) -> None:
+        cmd = Cmd(t=t, seq=seq, v=v, w=w)
+        self.bus.put(keys.robot_cmd(self.fleet, self.id), protocol.encode(cmd), reliable=True)
+        self.last_cmd = cmd
+        self.ticks += 1
+        if t - self._last_status_t >= STATUS_PERIOD_S * (1 - 1e-9):
+            self._last_status_t = t
+            xl, yl, thl = ref[0], ref[1], ref[2]
+            st = Status(t=t, ex=xl + self.cfg.dx - pose.x, ey=yl + self.cfg.dy - pose.y,
+                        etheta=law.wrap_angle(thl - pose.theta), frozen=self.mem[law.M_FROZEN] != 0.0,
+                        neighbours=self.neighbours, stale=self.stale, bad=self.bad.count)
+            self.bus.put(keys.robot_status(self.fleet, self.id), protocol.encode(st))
+
+    def tick_lockstep(self) -> bool:
+        """Loop thread: start a new tick if its pose came, and compute it once its inputs are complete
+        (or overdue). True if a command (or a skip) was issued."""
+        with self.lock:
+            pose = self.pose
+        if pose is None or pose.seq <= self.k_done:
+            return False
+        if pose.seq > self.k_started:
+            self._start_tick(pose)
+            if self._clock_sub is not None and pose.seq > 0 and self.clock_seq >= 0:
+                self._clock_sub.close()  # past the start barrier: the clock is not needed any more
+                self._clock_sub = None
+        with self.lock:
+            k = self.k_started
+            pose = self.pose if self.pose.seq == k else pose
+            overdue = self.clock() >= self.deadline
+            if not self._inputs_complete(k) and not overdue:
+                return False
+            ref = self.refs.get(k)
+            self.k_done = k
+            self.prev_xy = (pose.x, pose.y)
+            for old in [s for s in self.refs if s <= k]:
+                del self.refs[old]
+            if ref is None:
+                self.skipped += 1  # no reference for this tick (a restart mid-run): no command, the world holds
+                log.warning("robot %d: no reference for tick %d, no command", self.id, k)
+                return True
+            r = (ref.x, ref.y, ref.theta, ref.v, ref.w)
+            v, w = self.command(pose.t, pose.x, pose.y, pose.theta, r, k)
+        self._publish(pose.t, k, v, w, r, pose)
+        return True
+
+    def next_wakeup(self) -> float:
+        """Seconds until tick_lockstep() may act by timeout (a bound for the loop's wait)."""
+        with self.lock:
+            if self.pose is None or self.pose.seq <= self.k_done:
+                return 0.5
+            if self.pose.seq > self.k_started:
+                return 0.0
+            return max(0.0, self.deadline - self.clock())
+
+    def sim_time(self, wall: float) -> float | None:
+        """Real time: the simulated time at unix time `wall` (None before the world's clock is known)."""
+        if self.epoch is None:
+            return None
+        return (wall - self.epoch) * self.speed
+
+    def tick_realtime(self, t: float) -> bool:
+        """Real time: one control step at simulated time t with the newest data. True if it acted."""
+        with self.lock:
+            pose, ref = self.pose, self.ref
+        if pose is None or ref is None:
+            return False
+        self._move_cells(pose.x, pose.y)
+        self.seq += 1
+        self._publish_state(pose, self.seq)
+        # the reference advanced exactly along the leader's arc to now (its v, w are constant between messages)
+        dx, dy, dth = kinematics.arc_displacement(ref.theta, ref.v, ref.w, t - ref.t)
+        r = (ref.x + dx, ref.y + dy, ref.theta + dth, ref.v, ref.w)
+        with self.lock:
+            v, w = self.command(t, pose.x, pose.y, pose.theta, r, None)
+        self._publish(t, self.seq, v, w, r, pose)
+        return True
+
+
+# ---------------------------------------------------------------------- process level
+
+
+def fetch_config(bus, fleet: str, robot_id: int, timeout_s: float, stop: threading.Event | None = None) -> Config:
+    """Ask the world's configuration queryable for this robot's slice, retrying until timeout_s."""
+    key = keys.world_config(fleet, robot_id)
+    return _query_until(bus, key, "config", robot_id, timeout_s, stop, what=f"the configuration of robot {robot_id}")
+
+
+def fetch_obstacles(bus, fleet: str, timeout_s: float, stop: threading.Event | None = None) -> list[protocol.Obstacle]:
+    msg = _query_until(bus, keys.world_obstacles(fleet), "obstacles", None, timeout_s, stop, what="the obstacles")
+    return list(msg.obstacles)
+
+
+class NoAnswer(RuntimeError):
+    """Nobody answered a query in time."""
+
+
+def _query_until(bus, key: str, kind: str, key_id, timeout_s: float, stop, what: str):
+    end = time.monotonic() + timeout_s
+    last_error = "no reply"
+    while True:
+        left = end - time.monotonic()
+        for rkey, payload in bus.query(key, timeout_s=max(0.05, min(1.0, left))):
+            try:
+                return protocol.decode(payload, kind, key_id)
+            except ProtocolError as e:
+                last_error = f"bad reply on {rkey}: {e}"
+        if time.monotonic() >= end or (stop is not None and stop.is_set()):
+            raise NoAnswer(f"no answer for {what} on {key} within {timeout_s:g} s ({last_error}); "
+                           "is the world running on this fleet and router?")
+        time.sleep(0.1)
+
+
+def run(bus, cfg: Config, fleet: str = "default", stop: threading.Event | None = None,
+        obstacles: list[protocol.Obstacle] | None = None, wait_timeout: float = WAIT_TIMEOUT_S,
+        wall=time.time) -> Agent:
+    """Run one robot until `stop` is set; returns the agent (its counters) after closing it."""
+    stop = stop or threading.Event()
+    agent = Agent(bus, cfg, fleet, wait_timeout=wait_timeout)
+    agent.start(obstacles)
+    try:
+        if cfg.lockstep:
+            _loop_lockstep(agent, stop)
+        else:
+            _loop_realtime(agent, stop, wall)
+    finally:
+        agent.close()
+    return agent
+
+
+def _loop_lockstep(agent: Agent, stop: threading.Event) -> None:
+    while not stop.is_set():
+        agent.wake.wait(min(0.2, agent.next_wakeup()))
+        agent.wake.clear()
+        while agent.tick_lockstep():  # a tick done; the next pose may already be here
+            pass
+
+
+def _loop_realtime(agent: Agent, stop: threading.Event, wall) -> None:
+    period = agent.cfg.dt
+    next_tick = None
+    while not stop.is_set():
+        now = wall()
+        with agent.lock:
+            epoch, speed = agent.epoch, agent.speed
+        if epoch is None:
+            stop.wait(0.05)
+            continue
+        if next_tick is None:
+            next_tick = epoch + math.ceil((now - epoch) * speed / period) * period / speed
+        if now >= next_tick:
+            agent.tick_realtime((now - epoch) * speed)
+            next_tick += period / speed
+            if next_tick < now:  # fell behind (a stall): skip the missed periods
+                next_tick = now + period / speed
+            continue
+        stop.wait(next_tick - now)

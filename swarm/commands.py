@@ -1,0 +1,436 @@
+"""The runtime's commands: `swarm router | world | leader | robot | up` (argument parsing is in swarm.cli).
+
+Each process opens one zenoh session (a client of a router; the router itself for `swarm
+router`), closes it on every way out, and turns SIGINT/SIGTERM into a clean stop (exit 130).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import os
+import signal
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+from swarm import keys
+from swarm.bus import ZENOH_RUNTIME
+from swarm.launch import DEFAULT_LISTEN
+
+EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+log = logging.getLogger("swarm")
+
+
+class BadInput(Exception):
+    """A user error: printed as one line, exit code 2."""
+
+
+class Failure(Exception):
+    """A runtime failure: printed as one line, exit code 1."""
+
+
+# --------------------------------------------------------------------------- shared pieces
+
+
+class StopEvent:
+    """SIGINT and SIGTERM set a threading.Event that the process's loop polls."""
+
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        self.signal: int | None = None
+
+    def __enter__(self) -> threading.Event:
+        self._old = {s: signal.signal(s, self._handle) for s in (signal.SIGINT, signal.SIGTERM)}
+        return self.event
+
+    def _handle(self, signum, frame) -> None:
+        if self.event.is_set() and signum == signal.SIGINT:  # a second Ctrl-C: stop now
+            raise KeyboardInterrupt
+        self.signal = signum
+        self.event.set()
+
+    def __exit__(self, *exc) -> None:
+        for s, old in self._old.items():
+            signal.signal(s, old)
+
+
+def fleet_of(args) -> str:
+    try:
+        return keys.check_fleet(args.fleet)
+    except keys.KeyError_ as e:
+        raise BadInput(f"--fleet: {e}") from None
+
+
+def _check_endpoint(flag: str, ep: str) -> str:
+    proto, sep, rest = ep.partition("/")
+    if not sep or not proto or ":" not in rest:
+        raise BadInput(f"{flag} {ep!r}: expected an endpoint like tcp/127.0.0.1:7447")
+    return ep
+
+
+def open_bus(args, mode: str = "client", listen: list[str] | None = None, timeout_s: float = 10.0,
+             stop: threading.Event | None = None, lean: bool = False):
+    """A ZenohBus for this process; a client retries until its router answers or timeout_s passes.
+
+    lean: zenoh's single-worker runtime (recipes/zenoh.md section 8), for the many small robot
+    processes. Not for the world: there one worker thread both receives (running our callbacks,
+    which need the GIL) and sends, and a burst of reliable puts from the main thread (which holds
+    the GIL while it waits for room in the send queue) stalled it until the router closed the
+    link after 5 s ("Unable to push non droppable network message"), once per ~2000 ticks at N = 37.
+    """
+    if lean:
+        os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)  # before zenoh starts its runtime
+    from swarm.bus import ZenohBus, zenoh_config
+
+    connect = [_check_endpoint("--connect", c) for c in (args.connect or [])]
+    if mode == "client" and not connect:
+        connect = [DEFAULT_LISTEN]
+    cfg_file = getattr(args, "zenoh_config", None)
+    if cfg_file is not None and not Path(cfg_file).is_file():
+        raise BadInput(f"--zenoh-config {cfg_file}: no such file")
+    end = time.monotonic() + timeout_s
+    while True:
+        try:
+            conf = zenoh_config(mode, connect=connect, listen=listen, config_file=cfg_file,
+                                multicast=getattr(args, "multicast", False))
+        except Exception as e:
+            raise BadInput(f"zenoh configuration: {e}") from None
+        try:
+            return ZenohBus(conf)
+        except Exception as e:
+            if mode != "client" or time.monotonic() >= end or (stop is not None and stop.is_set()):
+                where = ", ".join(listen or []) if mode == "router" else ", ".join(connect)
+                raise Failure(f"cannot open a zenoh {mode} session on {where}: {e}") from None
+            time.sleep(0.1)
+
+
+def _load(args):
+    from swarm import scenario_file
+    from swarm.scenario_file import Overrides
+
+    dt = getattr(args, "dt", None)
+    rate = getattr(args, "rate", None)
+    if rate is not None:
+        if dt is not None:
+            raise BadInput("give --dt or --rate, not both")
+        dt = 1.0 / rate
+    ov = Overrides(robots=getattr(args, "robots", None), seed=getattr(args, "seed", None),
+                   duration=getattr(args, "duration", None), dt=dt, governor=getattr(args, "governor", None))
+    return scenario_file.load(args.scenario, ov)
+
+
+def scenario_args(args) -> tuple[str, ...]:
+    """The scenario flags as given, to pass on to child processes (they resolve the same scenario)."""
+    out = ["--scenario", args.scenario]
+    for flag, value in (("--robots", args.robots), ("--seed", args.seed), ("--duration", args.duration)):
+        if value is not None:
+            out += [flag, str(value) if isinstance(value, int) else repr(value)]
+    if getattr(args, "rate", None) is not None:
+        out += ["--dt", repr(1.0 / args.rate)]
+    elif args.dt is not None:
+        out += ["--dt", repr(args.dt)]
+    if args.governor is not None:
+        out.append("--governor" if args.governor else "--no-governor")
+    return tuple(out)
+
+
+def _setup_logging(quiet: bool = False) -> None:
+    logging.basicConfig(level=logging.WARNING if quiet else logging.INFO, stream=sys.stderr,
+                        format="%(asctime)s %(name)s %(levelname)s: %(message)s")
+
+
+def _write_json(path: Path, obj: dict) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=2, allow_nan=False) + "\n")
+    tmp.replace(path)
+
+
+def _check_out_dir(flag: str, path: Path | None) -> None:
+    if path is not None and not path.parent.exists():
+        raise BadInput(f"{flag} {path}: directory {path.parent} does not exist")
+
+
+# --------------------------------------------------------------------------- processes
+
+
+def cmd_router(args, started: float) -> int:
+    from swarm.launch import die_with_parent
+
+    die_with_parent()
+    _setup_logging()
+    listen = [_check_endpoint("--listen", ep) for ep in (args.listen or [DEFAULT_LISTEN])]
+    with StopEvent() as stop:
+        bus = open_bus(args, mode="router", listen=listen)
+        try:
+            bus.token(keys.alive(fleet_of(args), "router"))
+            log.info("router listening on %s", ", ".join(listen))
+            while not stop.wait(0.5):
+                pass
+        finally:
+            bus.close()
+    return EXIT_INTERRUPTED
+
+
+def cmd_robot(args, started: float) -> int:
+    from agents import robot
+    from swarm.launch import die_with_parent
+
+    die_with_parent()
+    _setup_logging()
+    fleet = fleet_of(args)
+    cfg = None
+    if args.scenario is not None:
+        scn = _load(args)
+        cfg = scn.robot_config(args.id, lockstep=args.mode == "lockstep")
+    with StopEvent() as stop:
+        bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, lean=True)
+        try:
+            if cfg is None:
+                cfg = robot.fetch_config(bus, fleet, args.id, args.start_timeout, stop)
+            obstacles = robot.fetch_obstacles(bus, fleet, args.start_timeout, stop)
+            agent = robot.run(bus, cfg, fleet, stop, obstacles)
+        except robot.NoAnswer as e:
+            if stop.is_set():
+                return EXIT_INTERRUPTED
+            raise Failure(str(e)) from None
+        finally:
+            bus.close()
+    log.info("robot %d: %d ticks, %d skipped, %d states received, %d bad messages", args.id, agent.ticks,
+             agent.skipped, agent.states_received, agent.bad.count)
+    return EXIT_INTERRUPTED
+
+
+def cmd_leader(args, started: float) -> int:
+    from agents.leader import Leader
+    from swarm.launch import die_with_parent
+
+    die_with_parent()
+    _setup_logging()
+    scn = _load(args)
+    fleet = fleet_of(args)
+    with StopEvent() as stop:
+        bus = open_bus(args, stop=stop, lean=True)
+        try:
+            lead = Leader(bus, scn.leader.table(), scn.dt, fleet, lockstep=args.mode == "lockstep")
+            lead.start()
+            try:
+                lead.run(stop)
+            finally:
+                lead.close()
+        finally:
+            bus.close()
+    return EXIT_INTERRUPTED
+
+
+def cmd_world(args, started: float) -> int:
+    from swarm.launch import die_with_parent
+    from world.world import NotReady, World
+
+    die_with_parent()
+    _setup_logging()
+    scn = _load(args)
+    fleet = fleet_of(args)
+    _check_out_dir("--metrics", args.metrics)
+    _check_out_dir("--trace", args.trace)
+    with StopEvent() as stop:
+        bus = open_bus(args, stop=stop)
+        try:
+            world = World(bus, scn, fleet, lockstep=args.mode == "lockstep", speed=args.speed,
+                          watchdog=args.watchdog, tick_timeout=args.tick_timeout, trace=args.trace is not None)
+            world.start()
+            try:
+                log.info("world: %d robots, %d obstacles, %s, waiting for robots and leader", scn.n,
+                         len(scn.obstacles), args.mode)
+                try:
+                    world.wait_ready(args.start_timeout, stop)
+                except NotReady as e:
+                    raise Failure(str(e)) from None
+                except InterruptedError:
+                    pass
+                metrics = world.run(stop, started) if not stop.is_set() else \
+                    world.referee.metrics(time.perf_counter() - started, True, args.mode)
+            finally:
+                world.close()
+        finally:
+            bus.close()
+    metrics["interrupted"] = bool(metrics["interrupted"] or stop.is_set())
+    if args.metrics is not None:
+        _write_json(args.metrics, metrics)
+    if args.trace is not None and world.trace is not None:
+        import numpy as np
+
+        np.savez_compressed(args.trace, q=np.array(world.trace).reshape(-1, scn.n, 3), dt=scn.dt)
+    log.info("world: done at t = %s s, converged at %s s, %d collisions, %d misses",
+             metrics["duration_s"], metrics["converged_at_s"], metrics["collisions"], metrics["cmd_misses"])
+    return EXIT_INTERRUPTED if metrics["interrupted"] else EXIT_OK
+
+
+# --------------------------------------------------------------------------- swarm up
+
+
+def cmd_up(args, started: float) -> int:
+    from swarm import console, launch, protocol
+    from swarm.launch import RestartPolicy, Supervisor, UpOptions
+
+    scn = _load(args)  # bad input is refused here, before anything starts
+    fleet = fleet_of(args)
+    if args.connect and args.listen:
+        raise BadInput("give --listen (start a router) or --connect (join one), not both")
+    for ep in args.listen or []:
+        _check_endpoint("--listen", ep)
+    for ep in args.connect or []:
+        _check_endpoint("--connect", ep)
+    _check_out_dir("--metrics", args.metrics)
+    _check_out_dir("--trace", args.trace)
+    if args.zenoh_config is not None and not Path(args.zenoh_config).is_file():
+        raise BadInput(f"--zenoh-config {args.zenoh_config}: no such file")
+    log_dir = Path(args.log_dir or os.path.join(tempfile.gettempdir(), f"swarm-{fleet}-{os.getpid()}"))
+    metrics_path = (args.metrics or log_dir / "metrics.json").absolute()
+    opts = UpOptions(
+        robots=scn.n, scenario_args=scenario_args(args), mode=args.mode, speed=args.speed, fleet=fleet,
+        listen=None if args.connect else (args.listen[0] if args.listen else DEFAULT_LISTEN),
+        connect=args.connect[0] if args.connect else None,
+        zenoh_config=str(Path(args.zenoh_config).absolute()) if args.zenoh_config else None,
+        multicast=args.multicast, metrics=str(metrics_path),
+        trace=str(Path(args.trace).absolute()) if args.trace else None, start_timeout=args.start_timeout,
+        tick_timeout=args.tick_timeout, watchdog=args.watchdog,
+        restart=RestartPolicy(args.restarts, args.restart_window))
+    plan = launch.make_plan(opts)
+    if args.dry_run:
+        print(plan.describe())
+        return EXIT_OK
+    log_dir.mkdir(parents=True, exist_ok=True)
+    status = console.StatusLine(enabled=not args.quiet)
+    say = (lambda text: None) if args.quiet else (lambda text: status.note(text))
+    interrupted = False
+    failure: str | None = None
+    launched_s = None
+    say(f"swarm up: {scn.n} robots, scenario {scn.name}, {args.mode}, dt {scn.dt:g} s, "
+        f"{'governor on' if scn.control.governor else 'governor off'}; logs in {log_dir}")
+    with StopEvent() as stop, Supervisor(plan, log_dir) as sup:
+        bus = None
+        try:
+            if plan.router is not None:
+                sup.start(plan.router)
+            bus = open_bus(argparse.Namespace(connect=[plan.endpoint], zenoh_config=opts.zenoh_config,
+                                              multicast=opts.multicast), timeout_s=15.0, stop=stop)
+            alive: set[str] = set()
+            progress: list = [None]
+            bus.watch_alive(keys.alive_any(fleet), lambda k, up: alive.add(k) if up else alive.discard(k))
+            bus.subscribe(keys.world_progress(fleet), lambda k, b: progress.__setitem__(0, b))
+            sup.start(plan.world)
+            sup.start(plan.leader)
+            for spec in plan.robots:
+                sup.start(spec)
+            want = {keys.alive(fleet, "world"), keys.alive(fleet, "leader")} | \
+                   {keys.alive(fleet, "robot", i) for i in range(scn.n)}
+            t0 = time.monotonic()
+            end = t0 + args.start_timeout
+            while not want <= alive and not stop.is_set():
+                if time.monotonic() > end:
+                    missing = sorted(want - alive, key=lambda k: (len(k), k))
+                    names = [k.split("/alive/")[1].replace("/", " ") for k in missing]
+                    raise launch_failure(f"not alive after {args.start_timeout:g} s: "
+                                         f"{', '.join(names[:12])}{' ...' if len(names) > 12 else ''}", sup)
+                if sup.children["world"].proc.poll() is not None:
+                    raise launch_failure("the world process exited during start-up", sup, "world")
+                status.update(f"starting: {len(alive & want)}/{len(want)} processes alive", force=False)
+                time.sleep(0.02)
+            launched_s = time.monotonic() - t0
+            if not stop.is_set():
+                say(f"all {len(want)} processes alive after {launched_s:.2f} s; router at {plan.endpoint}")
+            world = sup.children["world"]
+            while world.proc.poll() is None:
+                if stop.is_set():
+                    interrupted = True
+                    sup.signal("world", signal.SIGTERM)  # the world writes metrics with interrupted: true
+                    sup.wait("world", 3.0)
+                    break
+                for note in sup.check_robots():
+                    say(note)
+                if progress[0] is not None:
+                    try:
+                        p = protocol.decode(progress[0], "progress")
+                        status.update(_progress_line(p))
+                    except protocol.ProtocolError:
+                        pass
+                stop.wait(0.1)
+            if not interrupted and world.proc.returncode not in (0, EXIT_INTERRUPTED):
+                failure = f"the world process failed ({launch._rc(world.proc.returncode)}); see {world.log}"
+        except Failure as e:
+            failure = str(e)
+        finally:
+            if bus is not None:
+                bus.close()
+            sup.shutdown(first=("world",))
+    status.close()
+    interrupted = interrupted or stop_signalled(stop)
+    metrics = _read_metrics(metrics_path)
+    if metrics is None:
+        metrics = _empty_metrics(scn, args.mode)
+        if failure is None and not interrupted:
+            failure = f"the world wrote no metrics; see {log_dir}/world.log"
+    metrics["wall_s"] = time.perf_counter() - started
+    metrics["interrupted"] = bool(interrupted or metrics.get("interrupted"))
+    metrics["launch_s"] = launched_s
+    metrics["processes"] = len(plan.processes)
+    metrics["robot_restarts"] = sup.restarted
+    _write_json(metrics_path, metrics)
+    if not args.quiet:
+        from swarm.cli import summary
+
+        print(summary(metrics, scn.name))
+        print(f"metrics: {metrics_path}")
+    if failure is not None:
+        print(f"swarm up: failed: {failure}", file=sys.stderr)
+        return EXIT_INTERRUPTED if interrupted else EXIT_FAILURE
+    return EXIT_INTERRUPTED if metrics["interrupted"] else EXIT_OK
+
+
+def stop_signalled(stop: threading.Event) -> bool:
+    return stop.is_set()
+
+
+def launch_failure(text: str, sup, name: str | None = None) -> Failure:
+    if name is not None and name in sup.children:
+        tail = sup.children[name].log.read_text(errors="replace").strip().splitlines()[-5:]
+        if tail:
+            text += "\n  " + "\n  ".join(tail)
+    return Failure(text)
+
+
+def _progress_line(p) -> str:
+    from swarm import console
+
+    dist = "-" if p.min_distance < 0 else f"{p.min_distance:.3f} m"
+    return (f"{console.bar(p.t / p.duration if p.duration else 1)} t {p.t:7.2f}/{p.duration:.1f} s"
+            f"  alive {p.alive}/{p.robots}  converged {p.converged}  frozen {p.frozen}  min distance {dist}"
+            f"  misses {p.misses}  bad {p.bad}")
+
+
+def _read_metrics(path: Path) -> dict | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _empty_metrics(scn, mode: str) -> dict:
+    from world.referee import Referee
+
+    return Referee(scn).metrics(0.0, True, mode)
+
+
+def positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return value

@@ -1,0 +1,167 @@
+"""`swarm up` end to end: real processes over a zenoh router on loopback (bounded waits, killed by PID)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+import pytest
+
+from swarm import scenario_file
+from swarm.scenario_file import Overrides
+from swarm.sim import Simulation
+
+pytestmark = pytest.mark.integration
+
+METRIC_KEYS = ("robots", "obstacles", "duration_s", "dt", "seed", "converged_at_s", "final_position_error_max_m",
+               "final_orientation_error_max_rad", "min_robot_distance_m", "min_obstacle_distance_m", "collisions",
+               "last_freeze_end_s")
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def up(tmp_path: Path, *args: str, fleet: str = "t") -> tuple[list[str], Path]:
+    metrics = tmp_path / "metrics.json"
+    cmd = [sys.executable, "-m", "swarm.cli", "up", "--listen", f"tcp/127.0.0.1:{free_port()}", "--fleet", fleet,
+           "--metrics", str(metrics), "--log-dir", str(tmp_path / "logs"), "--start-timeout", "60", *args]
+    return cmd, metrics
+
+
+def descendants(pid: int) -> list[psutil.Process]:
+    try:
+        return psutil.Process(pid).children(recursive=True)
+    except psutil.NoSuchProcess:
+        return []
+
+
+def kill_all(procs) -> None:
+    for p in procs:
+        try:
+            p.kill()
+        except psutil.NoSuchProcess:
+            pass
+
+
+def test_up_lockstep_equals_sim_step_for_step(tmp_path):
+    cmd, metrics = up(tmp_path, "--robots", "7", "--duration", "6", "--trace", str(tmp_path / "trace.npz"),
+                      "--quiet")
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
+    assert out.returncode == 0, out.stderr + "".join(p.read_text() for p in (tmp_path / "logs").glob("*.log"))
+    m = json.loads(metrics.read_text())
+    scn = scenario_file.load("paper-50hz", Overrides(robots=7, duration=6.0))
+    sim = Simulation(scn, record_period=scn.dt).run()
+    q = np.load(tmp_path / "trace.npz")["q"]
+    assert q.shape == sim.recording.q.shape == (301, 7, 3)
+    assert np.abs(q - sim.recording.q).max() <= 1e-9
+    assert {k: m[k] for k in METRIC_KEYS} == {k: sim.metrics[k] for k in METRIC_KEYS}
+    assert m["mode"] == "lockstep" and m["cmd_misses"] == 0 and m["bad_messages"] == 0
+    assert m["interrupted"] is False and m["processes"] == 10 and m["launch_s"] > 0
+
+
+def test_sigint_mid_run_stops_everything_and_writes_interrupted_metrics(tmp_path):
+    cmd, metrics = up(tmp_path, "--robots", "5", "--duration", "300")
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    children: list[psutil.Process] = []
+    try:
+        # wait (bounded) until every process is up and the world is waiting for or running the robots
+        deadline = time.monotonic() + 90
+        while time.monotonic() < deadline:
+            children = descendants(proc.pid)
+            log = tmp_path / "logs" / "world.log"
+            if log.exists() and "waiting for robots" in log.read_text() and len(children) >= 8:
+                break
+            assert proc.poll() is None, proc.communicate()[1]
+            time.sleep(0.1)
+        time.sleep(2.0)  # let it tick
+        children = descendants(proc.pid)
+        assert len(children) >= 8  # router, world, leader, 5 robots
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=15)
+        assert proc.returncode == 130, err
+        gone, alive = psutil.wait_procs(children, timeout=5)
+        assert not alive, f"left behind: {[p.pid for p in alive]}"
+        m = json.loads(metrics.read_text())
+        assert m["interrupted"] is True
+        assert 0 < m["duration_s"] < 300
+    finally:
+        kill_all(descendants(proc.pid) + children)
+        if proc.poll() is None:
+            proc.kill()
+
+
+def test_a_killed_robot_is_restarted_and_the_run_completes(tmp_path):
+    cmd, metrics = up(tmp_path, "--robots", "4", "--duration", "12", "--quiet")
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 90
+        victim = None
+        while victim is None and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.communicate()[1]
+            for p in descendants(proc.pid):
+                try:
+                    line = p.cmdline()
+                except psutil.NoSuchProcess:
+                    continue
+                if "robot" in line and line[line.index("--id") + 1] == "2":
+                    log = tmp_path / "logs" / "world.log"
+                    if log.exists() and "waiting" in log.read_text():
+                        victim = p
+            time.sleep(0.1)
+        assert victim is not None
+        time.sleep(3.0)
+        victim.kill()
+        _, err = proc.communicate(timeout=120)
+        assert proc.returncode == 0, err
+        m = json.loads(metrics.read_text())
+        assert m["robot_restarts"] >= 1
+        assert m["duration_s"] == 12.0 and m["collisions"] == 0
+    finally:
+        kill_all(descendants(proc.pid))
+        if proc.poll() is None:
+            proc.kill()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--robots", "0"], "must be >= 1"),
+    (["--scenario", "/nonexistent/x.toml"], "x.toml"),
+    (["--listen", "garbage"], "--listen"),
+    (["--rate", "50", "--dt", "0.02"], "--dt or --rate"),
+    (["--fleet", "a/b"], "--fleet"),
+    (["--rate", "nan"], "--rate"),
+    (["--listen", "tcp/127.0.0.1:7447", "--connect", "tcp/127.0.0.1:7447"], "not both"),
+])
+def test_bad_input_is_refused_before_anything_starts(args, message):
+    out = subprocess.run([sys.executable, "-m", "swarm.cli", "up", *args], capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 2
+    assert message in out.stderr
+
+
+def test_robot_without_a_world_says_what_it_waited_for(tmp_path):
+    port = free_port()
+    router = subprocess.Popen([sys.executable, "-m", "swarm.cli", "router", "--listen", f"tcp/127.0.0.1:{port}"],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        out = subprocess.run([sys.executable, "-m", "swarm.cli", "robot", "--id", "0", "--connect",
+                              f"tcp/127.0.0.1:{port}", "--start-timeout", "2", "--fleet", "lonely"],
+                             capture_output=True, text=True, timeout=60)
+        assert out.returncode == 1
+        assert "configuration of robot 0" in out.stderr and "world" in out.stderr
+    finally:
+        router.send_signal(signal.SIGTERM)
+        try:
+            router.wait(10)
+        except subprocess.TimeoutExpired:
+            router.kill()
+    assert router.returncode in (130, -signal.SIGTERM, -signal.SIGKILL)

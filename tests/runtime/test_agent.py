@@ -1,0 +1,178 @@
+"""The robot agent on the in-memory bus: its command is the core law, its traffic follows its cells."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import pytest
+
+from agents import robot
+from swarm import keys, law, protocol
+from swarm.bus import MemoryBus, MemoryNet
+from swarm.protocol import Clock, Config, Pose, Ref, State
+
+F = "t"
+CFG = Config(id=3, x=0.0, y=0.0, theta=0.0, dx=1.5, dy=-0.5, r=0.3, R=1.2, k1=0.5, k2=0.5, k3=1.0, tu=1.0,
+             vt=0.05, threshold=law.THRESHOLD_FROZEN, governor=True, dt=0.02, sense=1.5, lockstep=True)
+
+
+class Wire:
+    """An agent on a MemoryNet plus a probe bus that records what it publishes."""
+
+    def __init__(self, cfg=CFG, obstacles=()):
+        self.net = MemoryNet()
+        self.agent = robot.Agent(MemoryBus(self.net), cfg, F, wait_timeout=60.0)
+        self.agent.start([protocol.Obstacle(*o) for o in obstacles])
+        self.probe = MemoryBus(self.net)
+        self.cmds: list[protocol.Cmd] = []
+        self.states: list[protocol.State] = []
+        self.statuses: list[protocol.Status] = []
+        self.probe.subscribe(keys.robot_cmd(F, cfg.id), lambda k, b: self.cmds.append(protocol.decode(b, "cmd")))
+        self.probe.subscribe(f"swarm/{F}/cell/*/*/{cfg.id}", lambda k, b: self.states.append(protocol.decode(b, "state")))
+        self.probe.subscribe(keys.robot_status(F, cfg.id),
+                             lambda k, b: self.statuses.append(protocol.decode(b, "status")))
+
+    def put(self, key, msg):
+        self.probe.put(key, protocol.encode(msg))
+
+    def tick(self, k, pose, ref, neighbours=()):
+        """One lock-step tick in the world's order: ref (a tick ahead), pose, the neighbours'
+        states, and at k = 0 the clock (the world's start barrier)."""
+        t = k * CFG.dt
+        self.put(keys.leader_ref(F), Ref(t=t, seq=k, x=ref[0], y=ref[1], theta=ref[2], v=ref[3], w=ref[4]))
+        self.put(keys.robot_pose(F, CFG.id), Pose(t=t, seq=k, x=pose[0], y=pose[1], theta=pose[2]))
+        acted = self.agent.tick_lockstep()  # starts the tick: publishes its state, decides whom to wait for
+        for j, (x, y, th) in neighbours:
+            cx, cy = keys.cell_of(x, y, CFG.sense)
+            self.put(keys.cell(F, cx, cy, j), State(id=j, t=t, seq=k, x=x, y=y, theta=th, r=0.3, R=1.2, frozen=False))
+        if k == 0:
+            assert not acted, "tick 0 must wait for the start barrier"
+            self.put(keys.world_clock(F), Clock(t=t, seq=k, epoch=0.0, speed=1.0))
+        return acted or self.agent.tick_lockstep()
+
+
+def law_command(pose, ref, t, bodies, mem=None, cfg=CFG):
+    """The core law called directly with the same inputs."""
+    mem = mem if mem is not None else [0.0] * law.M_SIZE
+    p = [0.0] * law.P_SIZE
+    p[law.P_K1], p[law.P_K2], p[law.P_K3], p[law.P_TU], p[law.P_VT] = cfg.k1, cfg.k2, cfg.k3, cfg.tu, cfg.vt
+    p[law.P_THRESHOLD], p[law.P_GOVERNOR], p[law.P_DT], p[law.P_SENSE] = cfg.threshold, 1.0, cfg.dt, cfg.sense
+    nx, ny, nr, nR, nk = ([b[i] for b in bodies] for i in range(5))
+    return law.robot_command(pose[0], pose[1], pose[2], cfg.dx, cfg.dy, cfg.r, t, *ref, nx, ny, nr, nR, nk,
+                             len(bodies), mem, p)
+
+
+def test_command_is_the_core_law_with_neighbours_and_an_obstacle():
+    w = Wire(obstacles=[(0.9, 0.8, 0.3, 1.2)])
+    pose, ref = (0.2, 0.1, 0.4), (1.0, 0.5, 0.2, 0.5, 0.05)
+    nbs = [(7, (1.1, -0.3, 0.0)), (1, (-0.8, 0.2, 1.0)), (9, (5.0, 5.0, 0.0))]  # 9 is out of range
+    assert w.tick(0, pose, ref, nbs)
+    assert len(w.cmds) == 1 and w.cmds[0].seq == 0
+    # summation order: robots by ascending id (1, 7), then the obstacle
+    bodies = [(-0.8, 0.2, 0.3, 1.2, law.KIND_ROBOT), (1.1, -0.3, 0.3, 1.2, law.KIND_ROBOT),
+              (0.9, 0.8, 0.3, 1.2, law.KIND_OBSTACLE)]
+    v, om = law_command(pose, ref, 0.0, bodies)
+    assert (w.cmds[0].v, w.cmds[0].w) == (v, om)  # bit for bit
+    assert w.agent.neighbours == 2
+    assert w.statuses and w.statuses[0].neighbours == 2 and w.statuses[0].frozen
+
+
+def test_freeze_memory_carries_over_ticks_like_the_law():
+    w = Wire()
+    mem = [0.0] * law.M_SIZE
+    mem[law.M_SCALE] = 1.0
+    for k in range(5):
+        pose, ref = (0.01 * k, 0.0, 0.0), (0.02 * k, 0.0, 0.0, 0.5, 0.0)
+        nb = (0.8, 0.1, 0.0)
+        w.tick(k, pose, ref, [(4, nb)])
+        expected = law_command(pose, ref, k * CFG.dt, [(*nb[:2], 0.3, 1.2, law.KIND_ROBOT)], mem)
+        assert (w.cmds[-1].v, w.cmds[-1].w) == expected
+
+
+def test_waits_for_neighbours_known_at_the_previous_tick():
+    w = Wire()
+    ref = (0.0, 0.0, 0.0, 0.5, 0.0)
+    w.tick(0, (0.0, 0.0, 0.0), ref, [(5, (1.0, 0.0, 0.0))])
+    assert len(w.cmds) == 1
+    # tick 1: robot 5 was within R + 2L at tick 0, so the agent waits for its state_1
+    w.put(keys.leader_ref(F), Ref(t=0.02, seq=1, x=0.0, y=0.0, theta=0.0, v=0.5, w=0.0))
+    w.put(keys.robot_pose(F, CFG.id), Pose(t=0.02, seq=1, x=0.0, y=0.0, theta=0.0))
+    assert not w.agent.tick_lockstep()
+    assert w.agent.waiting == {5}
+    w.put(keys.cell(F, 0, 0, 5), State(id=5, t=0.02, seq=1, x=1.0, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False))
+    assert w.agent.tick_lockstep()
+    assert len(w.cmds) == 2
+
+
+def test_a_robot_whose_token_goes_is_a_static_obstacle_and_not_awaited():
+    w = Wire()
+    tok = w.probe.token(keys.alive(F, "robot", 5))
+    ref = (0.0, 0.0, 0.0, 0.5, 0.0)
+    w.tick(0, (0.0, 0.0, 0.0), ref, [(5, (1.0, 0.2, 0.0))])
+    tok.close()  # robot 5 dies
+    assert w.tick(1, (0.0, 0.0, 0.0), ref, [])
+    mem = [0.0] * law.M_SIZE
+    mem[law.M_SCALE] = 1.0
+    law_command((0.0, 0.0, 0.0), ref, 0.0, [(1.0, 0.2, 0.3, 1.2, law.KIND_ROBOT)], mem)
+    expected = law_command((0.0, 0.0, 0.0), ref, CFG.dt, [(1.0, 0.2, 0.3, 1.2, law.KIND_OBSTACLE)], mem)
+    assert (w.cmds[1].v, w.cmds[1].w) == expected
+    assert w.agent.neighbours == 0  # robots counted; the dead one is a body, not a neighbour
+
+
+def test_subscriptions_follow_the_cell_and_keep_the_old_block_one_tick():
+    w = Wire()
+    ref = (0.0, 0.0, 0.0, 0.5, 0.0)
+    w.tick(0, (0.1, 0.1, 0.0), ref)
+    assert w.agent.subscribed_cells == robot.block(0, 0)
+    w.tick(1, (1.6, 0.1, 0.0), ref)  # moved into cell (1, 0)
+    assert w.agent.subscribed_cells == robot.block(0, 0) | robot.block(1, 0)
+    assert w.states[-1].seq == 1  # and published its state on the new cell
+    w.tick(2, (1.7, 0.1, 0.0), ref)
+    assert w.agent.subscribed_cells == robot.block(1, 0)
+
+
+def test_bad_messages_are_dropped_counted_and_never_reach_the_law():
+    w = Wire()
+    ref = (0.0, 0.0, 0.0, 0.5, 0.0)
+    w.tick(0, (0.0, 0.0, 0.0), ref)
+    bad = [
+        (keys.robot_pose(F, CFG.id), b"\xc1garbage"),
+        (keys.leader_ref(F), protocol.encode(Pose(t=0.0, seq=1, x=0.0, y=0.0, theta=0.0))),  # wrong kind
+        (keys.cell(F, 0, 0, 8), protocol.encode(State(id=9, t=0.02, seq=1, x=0.5, y=0.0, theta=0.0, r=0.3, R=1.2,
+                                                      frozen=False))),  # id in key != id in payload
+        (keys.cell(F, 0, 0, 8), b"\x81\xa1v\x01"),  # a map without kind
+    ]
+    for key, payload in bad:
+        w.probe.put(key, payload)
+    import msgpack
+
+    nan_pose = msgpack.packb({"v": 1, "kind": "pose", "t": 0.02, "seq": 1, "x": math.nan, "y": 0.0, "theta": 0.0})
+    w.probe.put(keys.robot_pose(F, CFG.id), nan_pose)
+    assert w.agent.bad.count == 5
+    assert 8 not in w.agent.table and 9 not in w.agent.table
+    assert w.agent.pose.seq == 0  # the NaN pose was refused
+    assert w.tick(1, (0.0, 0.0, 0.0), ref)  # and the agent goes on
+    assert w.statuses[-1].bad == 5 or w.agent.bad.count == 5
+
+
+def test_real_time_tick_uses_the_newest_data_and_advances_the_reference():
+    cfg = Config(**{**CFG.__dict__, "lockstep": False})
+    w = Wire(cfg)
+    w.put(keys.leader_ref(F), Ref(t=1.0, seq=50, x=0.0, y=0.0, theta=0.0, v=0.5, w=0.0))
+    w.put(keys.robot_pose(F, cfg.id), Pose(t=1.0, seq=50, x=-1.0, y=0.0, theta=0.0))
+    assert w.agent.tick_realtime(1.1)
+    # the leader moved 0.05 m along its heading since its last message
+    v, om = law_command((-1.0, 0.0, 0.0), (0.05, 0.0, 0.0, 0.5, 0.0), 1.1, [], cfg=cfg)
+    assert w.cmds[-1].v == pytest.approx(v, abs=1e-15) and w.cmds[-1].w == pytest.approx(om, abs=1e-15)
+
+
+def test_agent_module_imports_nothing_of_the_world_nor_numpy():
+    code = ("import sys, agents.robot; bad = [m for m in sys.modules if m.split('.')[0] in "
+            "('world', 'numpy', 'numba', 'zenoh')]; print(','.join(bad))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    assert out.stdout.strip() == ""
+    src = open(robot.__file__).read()
+    assert "world" not in [line.split()[1].split(".")[0] for line in src.splitlines()
+                           if line.startswith(("import ", "from "))]

@@ -1,0 +1,59 @@
+"""The launch plan of `swarm up`: a pure function of the options."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from swarm.launch import RestartPolicy, UpOptions, make_plan
+
+
+def opts(**kw):
+    base = dict(robots=3, scenario_args=("--scenario", "paper-50hz", "--robots", "3"))
+    base.update(kw)
+    return UpOptions(**base)
+
+
+def test_plan_starts_router_world_leader_and_one_process_per_robot():
+    plan = make_plan(opts(), python="py")
+    names = [p.name for p in plan.processes]
+    assert names == ["router", "world", "leader", "robot 0", "robot 1", "robot 2"]
+    assert plan.endpoint == "tcp/127.0.0.1:7447"
+    assert plan.router.argv == ("py", "-m", "swarm.cli", "router", "--listen", "tcp/127.0.0.1:7447")
+    for p in plan.processes[1:]:
+        a = list(p.argv)
+        assert a[a.index("--connect") + 1] == "tcp/127.0.0.1:7447" and a[a.index("--fleet") + 1] == "default"
+    assert plan.robots[2].argv[3:6] == ("robot", "--id", "2")
+    assert "--scenario" not in plan.robots[0].argv  # robots take their slice from the world's queryable
+    assert ("--scenario", "paper-50hz") == plan.world.argv[4:6] == plan.leader.argv[4:6]
+
+
+def test_plan_is_pure_and_deterministic():
+    assert make_plan(opts(), python="py") == make_plan(opts(), python="py")
+
+
+def test_connect_joins_an_existing_router_and_listen_any_is_reached_on_loopback():
+    plan = make_plan(opts(connect="tcp/10.0.0.5:7447", listen=None), python="py")
+    assert plan.router is None and plan.endpoint == "tcp/10.0.0.5:7447"
+    plan = make_plan(opts(listen="tcp/0.0.0.0:7500"), python="py")
+    assert plan.router.argv[-1] == "tcp/0.0.0.0:7500" and plan.endpoint == "tcp/127.0.0.1:7500"
+
+
+def test_options_reach_every_process():
+    plan = make_plan(opts(fleet="blue", zenoh_config="/etc/z.json5", multicast=True, mode="realtime", speed=2.0,
+                          metrics="/tmp/m.json", restart=RestartPolicy(5, 10.0)), python="py")
+    for p in plan.processes:
+        a = list(p.argv)
+        assert "--multicast" in a and a[a.index("--zenoh-config") + 1] == "/etc/z.json5"
+    w = list(plan.world.argv)
+    assert w[w.index("--mode") + 1] == "realtime" and w[w.index("--speed") + 1] == "2.0"
+    assert w[w.index("--metrics") + 1] == "/tmp/m.json"
+    assert plan.restart == RestartPolicy(5, 10.0)
+    assert "at most 5 times in 10 s" in plan.describe()
+
+
+def test_dry_run_prints_the_plan_and_starts_nothing():
+    out = subprocess.run([sys.executable, "-m", "swarm.cli", "up", "--robots", "4", "--dry-run", "--fleet", "x"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert "4 robots" in out.stdout and out.stdout.count(" robot --id ") == 4

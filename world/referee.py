@@ -1,0 +1,142 @@
+"""The referee: the metrics of DESIGN.md section 7 from ground truth, one sample at a time.
+
+The world calls sample() at every control step (every tick in lock-step) with the true poses,
+which robots are alive and the live leader reference. The definitions are those of the
+in-process simulator (swarm.kernel), so a lock-step run and `swarm sim` report the same
+numbers: errors against the live reference, a robot is frozen while it is inside R_j of another
+(live) robot, a collision is a pair going from >= r to < r between consecutive samples.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from swarm import law
+from swarm.scenario import Scenario
+
+CONVERGED_POSITION_M = 0.05
+CONVERGED_ANGLE_RAD = 0.05
+FREEZE_MERGE_S = 0.1
+_BLOCK = 256  # rows of the pairwise distance matrix computed at once
+
+
+def step_time(t: float) -> float:
+    """A sample time rounded to 1e-9 s (as swarm.sim reports step times)."""
+    return round(t, 9)
+
+
+class Referee:
+    def __init__(self, scn: Scenario):
+        self.scn = scn
+        self.n = scn.n
+        self.offsets = np.asarray(scn.offsets, float)
+        self.r = np.full(self.n, float(scn.r))
+        self.R = np.full(self.n, float(scn.R))
+        self.obstacles = np.asarray(scn.obstacles, float).reshape(-1, 4)
+        self.samples = 0
+        self.last_t: float | None = None
+        self.good_since: float | None = None  # first sample of the current run with every live robot converged
+        self.last_frozen_t: float | None = None
+        self.freeze_intervals = 0
+        self._frozen_until = np.full(self.n, -math.inf)  # last sample time each robot was frozen
+        self.min_rr = math.inf
+        self.min_ro = math.inf
+        self.collisions = 0
+        self._inside: set[tuple[int, int]] = set()
+        self.pmax = 0.0
+        self.emax = 0.0
+        self.converged_now = 0
+        self.frozen_now = 0
+        self.alive_now = 0
+        self.frozen = np.zeros(self.n, bool)
+
+    def sample(self, t: float, q: np.ndarray, alive: np.ndarray, leader: tuple[float, float, float]) -> None:
+        """Account for the state at time t: q (N, 3) true poses, alive (N,) bool, leader (x, y, theta)."""
+        xl, yl, thl = leader
+        x, y, th = q[:, 0], q[:, 1], q[:, 2]
+        px = xl + self.offsets[:, 0] - x
+        py = yl + self.offsets[:, 1] - y
+        pe = np.sqrt(px * px + py * py)
+        ee = np.array([abs(law.wrap_angle(thl - a)) for a in th.tolist()])
+        live = alive.astype(bool)
+        ok = (pe < CONVERGED_POSITION_M) & (ee < CONVERGED_ANGLE_RAD)
+        self.converged_now = int(np.count_nonzero(ok & live))
+        self.alive_now = int(np.count_nonzero(live))
+        if self.converged_now < self.alive_now:
+            self.good_since = None
+        elif self.good_since is None:
+            self.good_since = t
+        self.pmax = float(pe[live].max()) if self.alive_now else 0.0
+        self.emax = float(ee[live].max()) if self.alive_now else 0.0
+        self.last_t = t
+        self.samples += 1
+        inside = set()
+        frozen = np.zeros(self.n, bool)
+        for a in range(0, self.n, _BLOCK):
+            b = min(self.n, a + _BLOCK)
+            dx = x[a:b, None] - x[None, :]
+            dy = y[a:b, None] - y[None, :]
+            d = np.sqrt(dx * dx + dy * dy)
+            rows = np.arange(a, b)
+            d[rows - a, rows] = np.inf
+            upper = np.where(np.arange(self.n)[None, :] > rows[:, None], d, np.inf)
+            if self.n >= 2:
+                self.min_rr = min(self.min_rr, float(upper.min()))
+            rmax = np.maximum(self.r[a:b, None], self.r[None, :])
+            for i, j in zip(*np.nonzero(upper < rmax)):
+                inside.add((int(a + i), int(j)))
+            # frozen: inside R_j of another live robot j (the law's freeze rule)
+            near = (dx * dx + dy * dy < (self.R * self.R)[None, :]) & live[None, :]
+            near[rows - a, rows] = False
+            frozen[a:b] = near.any(axis=1) & live[a:b]
+        if len(self.obstacles) and self.n:
+            ox, oy, orr = self.obstacles[:, 0], self.obstacles[:, 1], self.obstacles[:, 2]
+            for a in range(0, self.n, _BLOCK):
+                b = min(self.n, a + _BLOCK)
+                d = np.sqrt((x[a:b, None] - ox[None, :]) ** 2 + (y[a:b, None] - oy[None, :]) ** 2)
+                self.min_ro = min(self.min_ro, float(d.min()))
+                for i, m in zip(*np.nonzero(d < orr[None, :])):
+                    inside.add((int(a + i), self.n + int(m)))
+        self.collisions += len(inside - self._inside)
+        self._inside = inside
+        self.frozen = frozen
+        self.frozen_now = int(np.count_nonzero(frozen))
+        if self.frozen_now:
+            self.last_frozen_t = t
+            starts = frozen & (t - self._frozen_until > FREEZE_MERGE_S + 0.5 * self.scn.dt)
+            self.freeze_intervals += int(np.count_nonzero(starts))
+            self._frozen_until[frozen] = t
+
+    def converged_at(self) -> float | None:
+        """The first sample time from which every later sample had every live robot converged."""
+        return None if self.good_since is None else step_time(self.good_since)
+
+    def metrics(self, wall_s: float, interrupted: bool, mode: str, **extra) -> dict:
+        scn = self.scn
+        return {
+            "robots": scn.n,
+            "obstacles": len(self.obstacles),
+            "duration_s": step_time(self.last_t or 0.0),
+            "dt": scn.dt,
+            "seed": scn.seed,
+            "converged_at_s": self.converged_at(),
+            "final_position_error_max_m": self.pmax,
+            "final_orientation_error_max_rad": self.emax,
+            "min_robot_distance_m": self.min_rr if (scn.n >= 2 and math.isfinite(self.min_rr)) else None,
+            "min_obstacle_distance_m": self.min_ro if (len(self.obstacles) and math.isfinite(self.min_ro)) else None,
+            "collisions": self.collisions,
+            "last_freeze_end_s": None if self.last_frozen_t is None else step_time(self.last_frozen_t),
+            "wall_s": wall_s,
+            "messages_dropped": 0,
+            "cmd_misses": 0,
+            "bad_messages": 0,
+            "interrupted": interrupted,
+            "scenario": scn.name,
+            "mode": mode,
+            "governor": scn.control.governor,
+            "freeze_intervals": self.freeze_intervals,
+            "samples": self.samples,
+            **extra,
+        }

@@ -1,0 +1,370 @@
+"""The simulated world: every robot's exact-arc kinematics, the obstacles, the clock, the referee.
+
+    world = World(bus, scenario, fleet, lockstep=True)
+    world.start()                       # queryables, subscriptions, liveliness token
+    world.wait_ready(timeout_s=30)      # every robot and the leader alive (or NotReady naming the missing)
+    metrics = world.run(stop_event)     # the run; metrics of DESIGN.md section 7 from ground truth
+
+It serves world/obstacles and world/config/<id> (each robot's slice of the scenario),
+publishes robot/<id>/pose, world/snapshot, world/clock and world/progress, and takes
+robot/<id>/cmd. Watchdog: a robot whose newest command is older than `watchdog` seconds is
+stopped (v = w = 0) until a new command comes.
+
+Lock-step (the world owns the clock): publish pose_0 of every robot, wait until every robot's
+state_0 has been delivered (the start barrier), publish clock_0; then per tick k: wait for
+cmd_k of every live robot (or `tick_timeout` wall seconds: then the missing robots hold their
+last command and a miss is counted), sample the metrics, move every robot one exact arc of dt,
+publish clock_(k+1) and pose_(k+1). Deterministic: equal to `swarm sim` step for step.
+Real time: the world integrates with a fine step (default 1 ms of simulated time) holding the
+newest command, and publishes poses, clock and snapshot every control period; `speed` sets
+simulated seconds per wall second.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+
+import numpy as np
+
+from swarm import keys, kinematics, protocol
+from swarm.protocol import Clock, Obstacle, Obstacles, Pose, ProtocolError, RobotSnap, Snapshot
+from swarm.scenario import Scenario
+from world.referee import Referee
+
+log = logging.getLogger("swarm.world")
+
+WATCHDOG_S = 0.5
+TICK_TIMEOUT_S = 1.0
+FINE_DT_S = 0.001
+PROGRESS_PERIOD_S = 0.25  # wall seconds between progress messages
+
+
+class NotReady(RuntimeError):
+    """Some processes did not come up in time; `missing` names them."""
+
+    def __init__(self, missing: list[str], timeout_s: float):
+        self.missing = missing
+        shown = ", ".join(missing[:12]) + (f" and {len(missing) - 12} more" if len(missing) > 12 else "")
+        super().__init__(f"not alive after {timeout_s:g} s: {shown}")
+
+
+class World:
+    def __init__(self, bus, scn: Scenario, fleet: str = "default", lockstep: bool = True, speed: float = 1.0,
+                 watchdog: float = WATCHDOG_S, tick_timeout: float = TICK_TIMEOUT_S, fine_dt: float = FINE_DT_S,
+                 trace: bool = False, progress=None):
+        self.bus, self.scn, self.fleet = bus, scn, fleet
+        self.lockstep, self.speed = lockstep, speed
+        self.watchdog, self.tick_timeout, self.fine_dt = watchdog, tick_timeout, fine_dt
+        self.on_progress = progress  # optional callable(protocol.Progress), for a local display
+        n = scn.n
+        self.n = n
+        self.q = [list(map(float, row)) for row in scn.poses]
+        self.comp = [[0.0, 0.0, 0.0] for _ in range(n)]
+        self.cmd = [(0.0, 0.0)] * n  # the command being applied
+        self.cmd_seq = [-1] * n  # lock-step: tick of the newest command
+        self.cmd_time = [-math.inf] * n  # sim time (lock-step) or monotonic wall time (real time) of the newest command
+        self.stopped = [True] * n
+        self.alive = np.zeros(n, bool)
+        self.leader_alive = False
+        self.table = scn.leader.table()
+        self.referee = Referee(scn)
+        self.lock = threading.Lock()
+        self.wake = threading.Event()  # set by a bus event the run loop waits for
+        self._await = -1  # lock-step: the tick whose commands are awaited
+        self._pending: dict[int, tuple[float, float]] = {}
+        self.bad = protocol.BadMessages(log)
+        self.robot_bad: dict[int, int] = {}
+        self.misses = 0
+        self.k = 0
+        self.t = 0.0
+        self.trace: list[np.ndarray] | None = [] if trace else None
+        self._handles: list = []
+        self._state0: set[int] = set()
+        self._prime = None
+        self._last_progress = -math.inf
+        self._obstacles = protocol.encode(Obstacles(tuple(Obstacle(*map(float, o)) for o in scn.obstacles)))
+
+    # ------------------------------------------------------------------ wiring
+
+    def start(self) -> None:
+        f, ev = self.fleet, self.event
+        self._handles.append(self.bus.serve(keys.world_obstacles(f), lambda key: self._obstacles))
+        self._handles.append(self.bus.serve(keys.world_config_any(f), self._config))
+        self._handles.append(self.bus.subscribe(keys.robot_any(f, "cmd"), lambda k, b: ev(("cmd", k, b))))
+        self._handles.append(self.bus.subscribe(keys.robot_any(f, "status"), lambda k, b: ev(("status", k, b))))
+        self._handles.append(self.bus.watch_alive(keys.alive_any(f, "robot"), lambda k, up: ev(("alive", k, up))))
+        self._handles.append(self.bus.watch_alive(keys.alive_any(f, "leader"), lambda k, up: ev(("leader", k, up))))
+        if self.lockstep:  # the start barrier: every robot's state_0 (unsubscribed once passed)
+            self._prime = self.bus.subscribe(f"{keys.base(f)}/cell/**", lambda k, b: ev(("state", k, b)))
+        self._handles.append(self.bus.token(keys.alive(f, "world")))
+
+    def close(self) -> None:
+        if self._prime is not None:
+            self._prime.close()
+            self._prime = None
+        for h in self._handles[::-1]:
+            h.close()
+        self._handles.clear()
+
+    def _config(self, key: str) -> bytes | None:
+        parsed = keys.parse(key)
+        if parsed is None or parsed.kind != "config" or parsed.id >= self.n:
+            return None
+        return protocol.encode(self.scn.robot_config(parsed.id, lockstep=self.lockstep))
+
+    # ------------------------------------------------------------------ events
+
+    def event(self, item) -> None:
+        """A bus event, on the bus's thread: update under the lock; wake the run loop when the
+        awaited tick's commands are complete (or a robot came or went)."""
+        with self.lock:
+            self._handle(item)
+            due = item[0] in ("alive", "leader", "state") or (self._await >= 0 and not self._missing())
+        if due:
+            self.wake.set()
+
+    def _missing(self) -> list[int]:
+        """Live robots whose command for the awaited tick has not come (call under the lock)."""
+        k = self._await
+        return [i for i in range(self.n) if self.alive[i] and self.cmd_seq[i] < k]
+
+    def _handle(self, item) -> None:
+        tag, key, data = item
+        try:
+            if tag in ("alive", "leader"):
+                parsed = keys.parse(key)
+                if parsed is None or parsed.kind != "alive":
+                    return
+                if tag == "leader":
+                    self.leader_alive = data
+                elif parsed.id < self.n:
+                    self.alive[parsed.id] = data
+                return
+            parsed = keys.parse(key)
+            if parsed is None or parsed.id is None or parsed.id >= self.n:
+                raise ProtocolError(f"not a robot of this world: {key!r}")
+            i = parsed.id
+            if tag == "cmd":
+                c = protocol.decode(data, "cmd")
+                if self.lockstep:
+                    if c.seq > self.cmd_seq[i]:
+                        self.cmd_seq[i] = c.seq
+                        self._pending[i] = (c.v, c.w)
+                else:
+                    self.cmd[i] = (c.v, c.w)
+                    self.cmd_time[i] = time.monotonic()
+                    self.stopped[i] = False
+            elif tag == "status":
+                self.robot_bad[i] = protocol.decode(data, "status").bad
+            elif tag == "state":
+                if protocol.decode(data, "state", i).seq == 0:
+                    self._state0.add(i)
+        except ProtocolError as e:
+            self.bad.reject(key, e)
+
+    def wait_ready(self, timeout_s: float, stop: threading.Event | None = None) -> None:
+        """Wait until every robot and the leader are alive; NotReady names the missing ones."""
+        end = time.monotonic() + timeout_s
+        while True:
+            with self.lock:
+                if self.alive.all() and self.leader_alive:
+                    return
+                missing = ([] if self.leader_alive else ["leader"]) + \
+                          [f"robot {i}" for i in np.flatnonzero(~self.alive)]
+            if stop is not None and stop.is_set():
+                raise InterruptedError
+            left = end - time.monotonic()
+            if left <= 0:
+                raise NotReady(missing, timeout_s)
+            self.wake.wait(min(left, 0.2))
+            self.wake.clear()
+
+    # ------------------------------------------------------------------ publishing
+
+    def _publish_tick(self, t: float, seq: int, epoch: float = 0.0) -> None:
+        f = self.fleet
+        self.bus.put(keys.world_clock(f), protocol.encode(Clock(t=t, seq=seq, epoch=epoch, speed=self.speed)),
+                     reliable=True)
+        self._publish_poses(t, seq)
+
+    def _publish_poses(self, t: float, seq: int) -> None:
+        f = self.fleet
+        for i, (x, y, th) in enumerate(self.q):
+            self.bus.put(keys.robot_pose(f, i), protocol.encode(Pose(t=t, seq=seq, x=x, y=y, theta=th)),
+                         reliable=True)
+        snap = Snapshot(t=t, seq=seq, robots=tuple(
+            RobotSnap(i, x, y, th, self.cmd[i][0], self.cmd[i][1], self.stopped[i], bool(self.alive[i]))
+            for i, (x, y, th) in enumerate(self.q)))
+        self.bus.put(keys.world_snapshot(f), protocol.encode(snap))
+
+    def _sample(self, t: float) -> None:
+        q = np.array(self.q)
+        if self.trace is not None:
+            self.trace.append(q)
+        xl, yl, thl, _v, _w = kinematics.leader_state(self.table, t)
+        self.referee.sample(t, q, self.alive, (xl, yl, thl))
+
+    def progress(self) -> protocol.Progress:
+        ref = self.referee
+        d = ref.min_rr
+        return protocol.Progress(t=self.t, seq=self.k, duration=self.scn.duration, robots=self.n,
+                                 alive=int(self.alive.sum()), converged=ref.converged_now, frozen=ref.frozen_now,
+                                 min_distance=d if math.isfinite(d) else -1.0, misses=self.misses,
+                                 bad=self.bad_total())
+
+    def bad_total(self) -> int:
+        return self.bad.count + sum(self.robot_bad.values())
+
+    def _report(self, force: bool = False) -> None:
+        now = time.monotonic()
+        if force or now - self._last_progress >= PROGRESS_PERIOD_S:
+            self._last_progress = now
+            p = self.progress()
+            self.bus.put(keys.world_progress(self.fleet), protocol.encode(p))
+            if self.on_progress is not None:
+                self.on_progress(p)
+
+    # ------------------------------------------------------------------ the run
+
+    def run(self, stop: threading.Event | None = None, started: float | None = None) -> dict:
+        """Run to the scenario's duration (or until stop is set); returns the metrics."""
+        stop = stop or threading.Event()
+        started = time.perf_counter() if started is None else started
+        interrupted = False
+        try:
+            if self.lockstep:
+                interrupted = self._run_lockstep(stop)
+            else:
+                interrupted = self._run_realtime(stop)
+        finally:
+            self._report(force=True)
+        return self.referee.metrics(
+            time.perf_counter() - started, interrupted, "lockstep" if self.lockstep else "realtime",
+            cmd_misses=self.misses, bad_messages=self.bad_total(), steps=self.k,
+            robots_alive_at_end=int(self.alive.sum()))
+
+    def _run_lockstep(self, stop: threading.Event) -> bool:
+        scn, dt = self.scn, self.scn.dt
+        n_steps = scn.steps
+        # start barrier: pose_0 to everyone, then wait until every live robot's state_0 is delivered
+        self._publish_poses(0.0, 0)
+        end = time.monotonic() + max(5.0, 5 * self.tick_timeout)
+        while not stop.is_set() and time.monotonic() < end:
+            with self.lock:
+                if all(i in self._state0 for i in np.flatnonzero(self.alive)):
+                    break
+            self.wake.wait(0.05)
+            self.wake.clear()
+        if self._prime is not None:
+            self._prime.close()
+            self._prime = None
+        self.bus.put(keys.world_clock(self.fleet), protocol.encode(Clock(t=0.0, seq=0, epoch=0.0, speed=1.0)),
+                     reliable=True)
+        for k in range(n_steps + 1):
+            self.k, self.t = k, k * dt
+            t = self.t
+            if k > 0:
+                self._publish_tick(t, k)
+            self._sample(t)
+            self._report()
+            if k == n_steps:
+                break
+            # wait for cmd_k of every live robot
+            deadline = time.monotonic() + self.tick_timeout
+            with self.lock:
+                self._await = k
+            while True:
+                if stop.is_set():
+                    return True
+                with self.lock:
+                    waiting = self._missing()
+                    if not waiting:
+                        self._await = -1
+                        pending, self._pending = self._pending, {}
+                        break
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        self.misses += len(waiting)
+                        self._await = -1
+                        pending, self._pending = self._pending, {}
+                        break
+                self.wake.wait(min(left, 0.5))
+                self.wake.clear()
+            for i in range(self.n):
+                if i in pending:
+                    self.cmd[i] = pending.pop(i)
+                    self.cmd_time[i] = t
+                    self.stopped[i] = False
+                elif t - self.cmd_time[i] > self.watchdog + 1e-9:  # watchdog: stop a silent robot
+                    self.cmd[i] = (0.0, 0.0)
+                    self.stopped[i] = True
+                v, w = self.cmd[i]
+                kinematics.step_pose(self.q[i], self.comp[i], v, w, dt)
+                if not all(math.isfinite(a) for a in self.q[i]):
+                    raise RuntimeError(f"robot {i} reached a non-finite pose at t = {t + dt:g} s")
+        return stop.is_set()
+
+    def _run_realtime(self, stop: threading.Event) -> bool:
+        scn = self.scn
+        period = scn.dt  # publish (and sample) every control period
+        epoch = time.time() + 0.2  # a little lead so every process hears the clock before t = 0
+        self.epoch = epoch
+        q = np.array(self.q)
+        seq = 0
+        t_pub = 0.0
+        end_t = scn.duration
+        self.t = 0.0
+        self._publish_clock_rt(epoch)
+        while not stop.is_set():
+            now = time.time()
+            t_now = (now - epoch) * self.speed
+            mono = time.monotonic()
+            with self.lock:
+                for i in range(self.n):  # watchdog (wall time: what a real drive does)
+                    if mono - self.cmd_time[i] > self.watchdog:
+                        self.cmd[i] = (0.0, 0.0)
+                        self.stopped[i] = True
+                cmd = np.array(self.cmd)
+            target = min(t_now, end_t)
+            steps = int(math.floor((target - self.t) / self.fine_dt + 1e-9))
+            if steps > 0:
+                for _ in range(steps):
+                    step_all(q, cmd, self.fine_dt)
+                self.t += steps * self.fine_dt
+                self.q = q.tolist()
+            if self.t >= t_pub - 1e-9:
+                self.k = seq
+                self._publish_clock_rt(epoch)
+                self._publish_poses(self.t, seq)
+                self._sample(self.t)
+                self._report()
+                seq += 1
+                t_pub += period
+            if self.t >= end_t - 1e-9:
+                return False
+            wake = epoch + min(t_pub, self.t + self.fine_dt) / self.speed
+            left = wake - time.time()
+            if left > 0:
+                stop.wait(left)
+        return True
+
+    def _publish_clock_rt(self, epoch: float) -> None:
+        self.bus.put(keys.world_clock(self.fleet),
+                     protocol.encode(Clock(t=self.t, seq=self.k, epoch=epoch, speed=self.speed)), reliable=True)
+
+
+def step_all(q: np.ndarray, cmd: np.ndarray, dt: float) -> None:
+    """Every robot one exact arc of dt (vectorized; real-time mode's fine step). q (N, 3), cmd (N, 2)."""
+    v, w = cmd[:, 0], cmd[:, 1]
+    half = 0.5 * w * dt
+    small = np.abs(half) < 1e-3
+    safe = np.where(small, 1.0, half)
+    sinc = np.where(small, 1.0 - half * half / 6.0, np.sin(safe) / safe)
+    d = v * dt * sinc
+    h = q[:, 2] + half
+    q[:, 0] += d * np.cos(h)
+    q[:, 1] += d * np.sin(h)
+    q[:, 2] += w * dt
