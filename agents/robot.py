@@ -24,8 +24,10 @@ Lock-step tick k (the world owns the clock; DESIGN.md section 3):
   3. Compute cmd_k from the bodies closer than the cell side in ascending id order (the
      simulator's order: robots by id, then obstacles, then dead robots as static bodies) and
      publish it.
-Real time: every control period it takes the newest pose, reference (advanced exactly along
-the leader's arc to now) and neighbour states, and publishes state and command.
+Real time: for every new pose it takes the newest reference (advanced exactly along the
+leader's arc to now on its own clock) and neighbour states (with their age: older than
+STALE_AFTER_S counts as stale, older than FORGET_AFTER_S is dropped), and publishes state and
+command; the command carries the time of the pose it was computed from.
 """
 
 from __future__ import annotations
@@ -181,8 +183,10 @@ class Agent:
             self.wake.set()
 
     def _due(self) -> bool:
-        if not self.cfg.lockstep or self.pose is None:
+        if self.pose is None:
             return False
+        if not self.cfg.lockstep:
+            return self.pose.seq != self._rt_seq  # real time: a new pose, a new command
         if self.pose.seq > self.k_started:
             return True  # a new tick to start
         return self.k_started > self.k_done and self._inputs_complete(self.k_started)
@@ -190,7 +194,8 @@ class Agent:
     def _inputs_complete(self, k: int) -> bool:
         return k in self.refs and self.clock_seq >= min(k, self._clock_needed) and not self.waiting
 
-    _clock_needed = 0  # lock-step: clock_0 is the start barrier; later ticks need no clock message
+    _clock_needed = 0
+    _rt_seq = -1  # real time: seq of the pose the last command was computed from  # lock-step: clock_0 is the start barrier; later ticks need no clock message
 
     def handle(self, item) -> None:
         """One bus event: validate, then update what the agent knows. Bad messages are dropped and counted."""
@@ -396,6 +401,7 @@ class Agent:
             pose, ref = self.pose, self.ref
         if pose is None or ref is None:
             return False
+        self._rt_seq = pose.seq
         self._move_cells(pose.x, pose.y)
         self.seq += 1
         self._publish_state(pose, self.seq)
@@ -404,7 +410,8 @@ class Agent:
         r = (ref.x + dx, ref.y + dy, ref.theta + dth, ref.v, ref.w)
         with self.lock:
             v, w = self.command(t, pose.x, pose.y, pose.theta, r, None)
-        self._publish(t, self.seq, v, w, r, pose)
+        # stamped with its pose's time: a drive (or the world) sees how old the command's input is
+        self._publish(pose.t, self.seq, v, w, r, pose)
         return True
 
 
@@ -468,21 +475,15 @@ def _loop_lockstep(agent: Agent, stop: threading.Event) -> None:
 
 
 def _loop_realtime(agent: Agent, stop: threading.Event, wall) -> None:
-    period = agent.cfg.dt
-    next_tick = None
+    """Real time: a command for every new pose (the pose stream sets the control rate: the world's
+    control period now, localization's rate on a real robot), at the agent's own clock's time.
+    No new pose, no command: the drive's watchdog then stops the robot."""
     while not stop.is_set():
-        now = wall()
+        if not agent.wake.wait(0.2):
+            continue
+        agent.wake.clear()
         with agent.lock:
-            epoch, speed = agent.epoch, agent.speed
-        if epoch is None:
-            stop.wait(0.05)
+            epoch, speed, fresh = agent.epoch, agent.speed, agent._due()
+        if epoch is None or not fresh:
             continue
-        if next_tick is None:
-            next_tick = epoch + math.ceil((now - epoch) * speed / period) * period / speed
-        if now >= next_tick:
-            agent.tick_realtime((now - epoch) * speed)
-            next_tick += period / speed
-            if next_tick < now:  # fell behind (a stall): skip the missed periods
-                next_tick = now + period / speed
-            continue
-        stop.wait(next_tick - now)
+        agent.tick_realtime((wall() - epoch) * speed)

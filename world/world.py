@@ -78,6 +78,8 @@ class World:
         self.bad = protocol.BadMessages(log)
         self.robot_bad: dict[int, int] = {}
         self.misses = 0
+        self.round_trips: list[float] = []  # real time: s from publishing a pose to the command computed from it
+        self._pose_sent: dict[float, float] = {}
         self.k = 0
         self.t = 0.0
         self.trace: list[np.ndarray] | None = [] if trace else None
@@ -154,9 +156,13 @@ class World:
                         self.cmd_seq[i] = c.seq
                         self._pending[i] = (c.v, c.w)
                 else:
+                    now = time.monotonic()
                     self.cmd[i] = (c.v, c.w)
-                    self.cmd_time[i] = time.monotonic()
+                    self.cmd_time[i] = now
                     self.stopped[i] = False
+                    sent = self._pose_sent.get(c.t)
+                    if sent is not None and len(self.round_trips) < 1_000_000:
+                        self.round_trips.append(now - sent)
             elif tag == "status":
                 self.robot_bad[i] = protocol.decode(data, "status").bad
             elif tag == "state":
@@ -233,6 +239,7 @@ class World:
         """Run to the scenario's duration (or until stop is set); returns the metrics."""
         stop = stop or threading.Event()
         started = time.perf_counter() if started is None else started
+        self._run_started = time.perf_counter()
         interrupted = False
         try:
             if self.lockstep:
@@ -244,7 +251,15 @@ class World:
         return self.referee.metrics(
             time.perf_counter() - started, interrupted, "lockstep" if self.lockstep else "realtime",
             cmd_misses=self.misses, bad_messages=self.bad_total(), steps=self.k,
-            robots_alive_at_end=int(self.alive.sum()))
+            robots_alive_at_end=int(self.alive.sum()), run_wall_s=time.perf_counter() - self._run_started,
+            **self._latency())
+
+    def _latency(self) -> dict:
+        if not self.round_trips:
+            return {}
+        rt = np.array(self.round_trips) * 1e3
+        return {"round_trip_ms_median": float(np.median(rt)), "round_trip_ms_p99": float(np.percentile(rt, 99)),
+                "round_trips": int(rt.size)}
 
     def _run_lockstep(self, stop: threading.Event) -> bool:
         scn, dt = self.scn, self.scn.dt
@@ -316,6 +331,7 @@ class World:
         seq = 0
         t_pub = 0.0
         end_t = scn.duration
+        fine_k, end_k = 0, int(math.ceil(end_t / self.fine_dt - 1e-9))  # integer steps: no drift in t
         self.t = 0.0
         self._publish_clock_rt(epoch)
         while not stop.is_set():
@@ -328,22 +344,26 @@ class World:
                         self.cmd[i] = (0.0, 0.0)
                         self.stopped[i] = True
                 cmd = np.array(self.cmd)
-            target = min(t_now, end_t)
-            steps = int(math.floor((target - self.t) / self.fine_dt + 1e-9))
+            steps = min(end_k, int(math.floor(t_now / self.fine_dt + 1e-9))) - fine_k
             if steps > 0:
                 for _ in range(steps):
                     step_all(q, cmd, self.fine_dt)
-                self.t += steps * self.fine_dt
+                fine_k += steps
+                self.t = round(fine_k * self.fine_dt, 9)
                 self.q = q.tolist()
             if self.t >= t_pub - 1e-9:
                 self.k = seq
                 self._publish_clock_rt(epoch)
+                with self.lock:
+                    self._pose_sent[self.t] = time.monotonic()
+                    if len(self._pose_sent) > 64:
+                        self._pose_sent.pop(next(iter(self._pose_sent)))
                 self._publish_poses(self.t, seq)
                 self._sample(self.t)
                 self._report()
                 seq += 1
-                t_pub += period
-            if self.t >= end_t - 1e-9:
+                t_pub = seq * period
+            if fine_k >= end_k:
                 return False
             wake = epoch + min(t_pub, self.t + self.fine_dt) / self.speed
             left = wake - time.time()
