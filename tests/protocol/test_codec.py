@@ -21,6 +21,11 @@ MESSAGES = [
     p.Obstacles(obstacles=()),
     p.Snapshot(t=3.0, seq=150, robots=(p.RobotSnap(0, 1.0, 2.0, 0.3, 0.5, 0.1, False, True),
                                         p.RobotSnap(4, 0.0, 0.0, 0.0, 0.0, 0.0, True, False))),
+    p.Clock(t=1.0, seq=50, epoch=1.7e9, speed=2.0),
+    p.Config(id=3, x=1.0, y=2.0, theta=0.1, dx=1.5, dy=0.0, r=0.3, R=1.2, k1=0.5, k2=0.5, k3=1.0, tu=1.0, vt=0.05,
+             threshold=1, governor=True, dt=0.02, sense=1.5, lockstep=True),
+    p.Progress(t=1.0, seq=50, duration=120.0, robots=37, alive=37, converged=3, frozen=2, min_distance=-1.0,
+               misses=0, bad=0),
 ]
 
 
@@ -139,3 +144,24 @@ def test_bad_message_counter_rate_limits(caplog):
         bad.reject("swarm/x/robot/1/cmd", p.ProtocolError("boom"))
     assert bad.count == 5
     assert len([r for r in caplog.records if "dropped a bad message" in r.getMessage()]) == 1
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"speed": 0.0}, "'speed' must be > 0"),
+    ({"epoch": -1.0}, "'epoch' must be >= 0"),
+])
+def test_clock_ranges(change, message):
+    d = {"v": 1, "kind": "clock", "t": 0.0, "seq": 0, "epoch": 0.0, "speed": 1.0, **change}
+    with pytest.raises(p.ProtocolError, match=message):
+        p.decode(msgpack.packb(d))
+
+
+def test_config_ranges_and_key_id():
+    good = p.encode(MESSAGES[-2])
+    assert p.decode(good, "config", 3).id == 3
+    with pytest.raises(p.ProtocolError, match="does not match"):
+        p.decode(good, "config", 4)
+    d = msgpack.unpackb(good)
+    for change, message in (({"threshold": 5}, "threshold"), ({"sense": 1.0}, "sense"), ({"k1": 0.0}, "k1")):
+        with pytest.raises(p.ProtocolError, match=message):
+            p.decode(msgpack.packb({**d, **change}))
