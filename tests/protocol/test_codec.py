@@ -41,7 +41,7 @@ def test_every_payload_has_version_and_kind():
 
 
 def test_snapshot_and_obstacles_are_maps_per_item():
-    d = msgpack.unpackb(p.encode(MESSAGES[-1]))
+    d = msgpack.unpackb(p.encode(next(m for m in MESSAGES if isinstance(m, p.Snapshot))))
     assert set(d["robots"][0]) == {"id", "x", "y", "theta", "v", "w", "stopped", "alive"}
     d = msgpack.unpackb(p.encode(MESSAGES[5]))
     assert set(d["obstacles"][0]) == {"x", "y", "r", "R"}
