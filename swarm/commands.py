@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import math
 import os
 import signal
 import sys
@@ -369,7 +368,7 @@ def cmd_up(args, started: float) -> int:
                 bus.close()
             sup.shutdown(first=("world",))
     status.close()
-    interrupted = interrupted or stop_signalled(stop)
+    interrupted = interrupted or stop.is_set()
     metrics = _read_metrics(metrics_path)
     if metrics is None:
         metrics = _empty_metrics(scn, args.mode)
@@ -390,10 +389,6 @@ def cmd_up(args, started: float) -> int:
         print(f"swarm up: failed: {failure}", file=sys.stderr)
         return EXIT_INTERRUPTED if interrupted else EXIT_FAILURE
     return EXIT_INTERRUPTED if metrics["interrupted"] else EXIT_OK
-
-
-def stop_signalled(stop: threading.Event) -> bool:
-    return stop.is_set()
 
 
 def launch_failure(text: str, sup, name: str | None = None) -> Failure:
@@ -424,13 +419,3 @@ def _empty_metrics(scn, mode: str) -> dict:
     from world.referee import Referee
 
     return Referee(scn).metrics(0.0, True, mode)
-
-
-def positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
-    return value
