@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from swarm import grid as grid_py
-from swarm import law
+from swarm import law, metrics
 from swarm.scenario import Scenario
 
 # Samples kept for plots and recordings: one every RECORD_PERIOD_S of simulated time.
@@ -173,37 +173,18 @@ class Simulation:
             min_rr = _min_pair_distance(self.recording().q)  # nobody ever came within the cell side
         if not math.isfinite(min_ro) and len(scn.obstacles) and scn.n:
             min_ro = _min_obstacle_distance(self.recording().q, scn.obstacles)
-        return {
-            "robots": scn.n,
-            "obstacles": len(scn.obstacles),
-            "duration_s": _step_time(max(last, 0), scn.dt),
-            "dt": scn.dt,
-            "seed": scn.seed,
-            "converged_at_s": converged_at,
-            "final_position_error_max_m": float(self.acc[k.A_PMAX]),
-            "final_orientation_error_max_rad": float(self.acc[k.A_EMAX]),
-            "min_robot_distance_m": min_rr if scn.n >= 2 else None,
-            "min_obstacle_distance_m": min_ro if (len(scn.obstacles) and scn.n) else None,
-            "collisions": int(self.iacc[k.I_COLLISIONS]),
-            "last_freeze_end_s": None if last_frozen < 0 else _step_time(last_frozen, scn.dt),
-            "wall_s": wall_s,
-            "messages_dropped": 0,
-            "cmd_misses": 0,
-            "bad_messages": 0,
-            "interrupted": interrupted,
-            # extra keys
-            "scenario": scn.name,
-            "mode": "sim",
-            "governor": scn.control.governor,
-            "freeze_intervals": int(self.iacc[k.I_FREEZE_INTERVALS]),
-            "governed_robot_steps": int(self.iacc[k.I_GOVERNED]),
-            "steps": max(last, 0),
-        }
+        return metrics.record(
+            scn, duration_s=_step_time(max(last, 0), scn.dt), converged_at_s=converged_at,
+            position_error_max=self.acc[k.A_PMAX], orientation_error_max=self.acc[k.A_EMAX],
+            min_robot_distance=min_rr, min_obstacle_distance=min_ro, collisions=self.iacc[k.I_COLLISIONS],
+            last_freeze_end_s=None if last_frozen < 0 else _step_time(last_frozen, scn.dt), wall_s=wall_s,
+            interrupted=interrupted, mode="sim", freeze_intervals=int(self.iacc[k.I_FREEZE_INTERVALS]),
+            governed_robot_steps=int(self.iacc[k.I_GOVERNED]), steps=max(last, 0))
 
 
 def _step_time(k: int, dt: float) -> float:
     """t_k = k dt, rounded to 1e-9 s so that 15030 * 0.001 reads 15.03, not 15.030000000000001."""
-    return round(k * dt, 9)
+    return metrics.step_time(k * dt)
 
 
 def _min_pair_distance(q: np.ndarray) -> float:

@@ -13,18 +13,14 @@ import math
 
 import numpy as np
 
-from swarm import law
+from swarm import law, metrics
+from swarm.metrics import step_time
 from swarm.scenario import Scenario
 
 CONVERGED_POSITION_M = 0.05
 CONVERGED_ANGLE_RAD = 0.05
 FREEZE_MERGE_S = 0.1
 _BLOCK = 256  # rows of the pairwise distance matrix computed at once
-
-
-def step_time(t: float) -> float:
-    """A sample time rounded to 1e-9 s (as swarm.sim reports step times)."""
-    return round(t, 9)
 
 
 class Referee:
@@ -114,29 +110,9 @@ class Referee:
         return None if self.good_since is None else step_time(self.good_since)
 
     def metrics(self, wall_s: float, interrupted: bool, mode: str, **extra) -> dict:
-        scn = self.scn
-        return {
-            "robots": scn.n,
-            "obstacles": len(self.obstacles),
-            "duration_s": step_time(self.last_t or 0.0),
-            "dt": scn.dt,
-            "seed": scn.seed,
-            "converged_at_s": self.converged_at(),
-            "final_position_error_max_m": self.pmax,
-            "final_orientation_error_max_rad": self.emax,
-            "min_robot_distance_m": self.min_rr if (scn.n >= 2 and math.isfinite(self.min_rr)) else None,
-            "min_obstacle_distance_m": self.min_ro if (len(self.obstacles) and math.isfinite(self.min_ro)) else None,
-            "collisions": self.collisions,
-            "last_freeze_end_s": None if self.last_frozen_t is None else step_time(self.last_frozen_t),
-            "wall_s": wall_s,
-            "messages_dropped": 0,
-            "cmd_misses": 0,
-            "bad_messages": 0,
-            "interrupted": interrupted,
-            "scenario": scn.name,
-            "mode": mode,
-            "governor": scn.control.governor,
-            "freeze_intervals": self.freeze_intervals,
-            "samples": self.samples,
-            **extra,
-        }
+        return metrics.record(
+            self.scn, duration_s=self.last_t or 0.0, converged_at_s=self.converged_at(), position_error_max=self.pmax,
+            orientation_error_max=self.emax, min_robot_distance=self.min_rr, min_obstacle_distance=self.min_ro,
+            collisions=self.collisions, last_freeze_end_s=self.last_frozen_t, wall_s=wall_s,
+            interrupted=interrupted, mode=mode, freeze_intervals=self.freeze_intervals, samples=self.samples,
+            **extra)

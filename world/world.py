@@ -16,8 +16,8 @@ cmd_k of every live robot (or `tick_timeout` wall seconds: then the missing robo
 last command and a miss is counted), sample the metrics, move every robot one exact arc of dt,
 publish clock_(k+1) and pose_(k+1). Deterministic: equal to `swarm sim` step for step.
 Real time: the world integrates with a fine step (default 1 ms of simulated time) holding the
-newest command, and publishes poses, clock and snapshot every control period; `speed` sets
-simulated seconds per wall second.
+newest command, publishes each robot's pose once per control period (staggered over the period),
+and clock and snapshot every period; `speed` sets simulated seconds per wall second.
 """
 
 from __future__ import annotations
@@ -197,14 +197,23 @@ class World:
         self._publish_poses(t, seq)
 
     def _publish_poses(self, t: float, seq: int) -> None:
-        f = self.fleet
-        for i, (x, y, th) in enumerate(self.q):
-            self.bus.put(keys.robot_pose(f, i), protocol.encode(Pose(t=t, seq=seq, x=x, y=y, theta=th)),
-                         reliable=True)
+        for i in range(self.n):
+            self._publish_pose(i, t, seq)
+        self._publish_snapshot(t, seq)
+
+    def _publish_pose(self, i: int, t: float, seq: int) -> None:
+        x, y, th = self.q[i]
+        self.bus.put(keys.robot_pose(self.fleet, i), protocol.encode(Pose(t=t, seq=seq, x=x, y=y, theta=th)),
+                     reliable=True)
+
+    def _publish_snapshot(self, t: float, seq: int) -> None:
+        key = keys.world_snapshot(self.fleet)
+        if not self.bus.wanted(key):  # nobody watches or records: skip building it (the world is on every tick's path)
+            return
         snap = Snapshot(t=t, seq=seq, robots=tuple(
             RobotSnap(i, x, y, th, self.cmd[i][0], self.cmd[i][1], self.stopped[i], bool(self.alive[i]))
             for i, (x, y, th) in enumerate(self.q)))
-        self.bus.put(keys.world_snapshot(f), protocol.encode(snap))
+        self.bus.put(key, protocol.encode(snap))
 
     def _sample(self, t: float) -> None:
         q = np.array(self.q)
@@ -323,13 +332,20 @@ class World:
         return stop.is_set()
 
     def _run_realtime(self, stop: threading.Event) -> bool:
-        scn = self.scn
-        period = scn.dt  # publish (and sample) every control period
+        """Real time. Robot i's pose goes out once per control period at phase i/N of it (staggered,
+        as unsynchronized localization would be: N robots do not all wake at the same instant and
+        queue behind each other on a few cores); clock, snapshot, metrics sample and progress at
+        the period boundaries."""
+        scn, n = self.scn, self.n
+        period = scn.dt
         epoch = time.time() + 0.2  # a little lead so every process hears the clock before t = 0
         self.epoch = epoch
         q = np.array(self.q)
         seq = 0
         t_pub = 0.0
+        pose_seq = [0] * n
+        phase = [i * period / n for i in range(n)]
+        next_pose = list(phase)
         end_t = scn.duration
         fine_k, end_k = 0, int(math.ceil(end_t / self.fine_dt - 1e-9))  # integer steps: no drift in t
         self.t = 0.0
@@ -339,7 +355,7 @@ class World:
             t_now = (now - epoch) * self.speed
             mono = time.monotonic()
             with self.lock:
-                for i in range(self.n):  # watchdog (wall time: what a real drive does)
+                for i in range(n):  # watchdog (wall time: what a real drive does)
                     if mono - self.cmd_time[i] > self.watchdog:
                         self.cmd[i] = (0.0, 0.0)
                         self.stopped[i] = True
@@ -351,21 +367,27 @@ class World:
                 fine_k += steps
                 self.t = round(fine_k * self.fine_dt, 9)
                 self.q = q.tolist()
+            due = [i for i in range(n) if next_pose[i] <= self.t + 1e-9]
+            if due:
+                with self.lock:
+                    self._pose_sent[self.t] = time.monotonic()
+                    if len(self._pose_sent) > 4 * n + 64:
+                        self._pose_sent.pop(next(iter(self._pose_sent)))
+                for i in due:
+                    self._publish_pose(i, self.t, pose_seq[i])
+                    pose_seq[i] += 1
+                    next_pose[i] = pose_seq[i] * period + phase[i]
             if self.t >= t_pub - 1e-9:
                 self.k = seq
                 self._publish_clock_rt(epoch)
-                with self.lock:
-                    self._pose_sent[self.t] = time.monotonic()
-                    if len(self._pose_sent) > 64:
-                        self._pose_sent.pop(next(iter(self._pose_sent)))
-                self._publish_poses(self.t, seq)
+                self._publish_snapshot(self.t, seq)
                 self._sample(self.t)
                 self._report()
                 seq += 1
                 t_pub = seq * period
             if fine_k >= end_k:
                 return False
-            wake = epoch + min(t_pub, self.t + self.fine_dt) / self.speed
+            wake = epoch + min(t_pub, min(next_pose), self.t + self.fine_dt) / self.speed
             left = wake - time.time()
             if left > 0:
                 stop.wait(left)

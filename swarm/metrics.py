@@ -1,0 +1,50 @@
+"""The metrics record of DESIGN.md section 7, built in one place for `swarm sim` and the world's referee.
+
+Both compute the same quantities from their own accumulators (the compiled kernel's, or the
+referee's per-tick samples) and hand them here, so the two reports cannot drift apart in keys,
+order, rounding or the rule for null values.
+"""
+
+from __future__ import annotations
+
+import math
+
+
+def step_time(t: float) -> float:
+    """A step time rounded to 1e-9 s: 15030 * 0.001 reads 15.03, not 15.030000000000001."""
+    return round(t, 9)
+
+
+def record(scn, *, duration_s: float, converged_at_s: float | None, position_error_max: float,
+           orientation_error_max: float, min_robot_distance: float, min_obstacle_distance: float,
+           collisions: int, last_freeze_end_s: float | None, wall_s: float, interrupted: bool, mode: str,
+           **extra) -> dict:
+    """The contract's keys in the contract's order, then the extra keys (scenario, mode, governor, ...).
+    A smallest distance is null when there is no such pair (fewer than two robots, no obstacle) or
+    when it was never measured (infinite)."""
+    n_obstacles = len(scn.obstacles)
+    return {
+        "robots": scn.n,
+        "obstacles": n_obstacles,
+        "duration_s": step_time(duration_s),
+        "dt": scn.dt,
+        "seed": scn.seed,
+        "converged_at_s": None if converged_at_s is None else step_time(converged_at_s),
+        "final_position_error_max_m": float(position_error_max),
+        "final_orientation_error_max_rad": float(orientation_error_max),
+        "min_robot_distance_m": float(min_robot_distance)
+        if scn.n >= 2 and math.isfinite(min_robot_distance) else None,
+        "min_obstacle_distance_m": float(min_obstacle_distance)
+        if n_obstacles and scn.n and math.isfinite(min_obstacle_distance) else None,
+        "collisions": int(collisions),
+        "last_freeze_end_s": None if last_freeze_end_s is None else step_time(last_freeze_end_s),
+        "wall_s": wall_s,
+        "messages_dropped": 0,
+        "cmd_misses": 0,
+        "bad_messages": 0,
+        "interrupted": bool(interrupted),
+        "scenario": scn.name,
+        "mode": mode,
+        "governor": scn.control.governor,
+        **extra,
+    }
