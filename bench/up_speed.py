@@ -38,7 +38,7 @@ def run(n: int, duration: float, mode: str, out: Path) -> tuple[dict, dict]:
     metrics = out / f"m-{mode}-{n}.json"
     cmd = [sys.executable, "-m", "swarm.cli", "up", "--robots", str(n), "--duration", str(duration), "--mode", mode,
            "--listen", f"tcp/127.0.0.1:{free_port()}", "--fleet", f"bench{n}", "--metrics", str(metrics),
-           "--log-dir", str(out / f"logs-{mode}-{n}"), "--quiet"]
+           "--log-dir", str(out / f"logs-{mode}-{n}"), "--no-viz", "--quiet"]
     proc = subprocess.Popen(cmd)
     samples: dict[int, list] = {}
     done = threading.Event()

@@ -2,9 +2,12 @@
 
     swarm sim [--scenario paper|FILE.toml] [--robots N] [--seed S] [--duration T] [--dt DT]
               [--governor/--no-governor] [--metrics out.json] [--plots DIR] [--quiet]
+              [--viz [--speed X] [--viz-host H] [--viz-port P] [--viz-rings]]
     swarm scenario show NAME|FILE [--robots N] [--seed S]
     swarm scenario check FILE...
     swarm up [--robots N] [--scenario ...] [--mode lockstep|realtime] [--rate HZ] [--metrics out.json] [--dry-run]
+             [--no-viz | --viz-host H --viz-port P --viz-rings]
+    swarm viz --connect ENDPOINT [--fleet NAME] [--scenario ...] [--viz-host H] [--viz-port P]
     swarm router | world | leader | robot --id I     (the processes `swarm up` starts; each runs alone
                                                      with --connect ENDPOINT, e.g. on another machine)
 
@@ -19,6 +22,7 @@ import json
 import math
 import os
 import signal
+import socket
 import sys
 import time
 from pathlib import Path
@@ -59,6 +63,55 @@ _count = _int_at_least(1)
 _seed = _int_at_least(0)
 
 
+def _port(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"must be a port in 0..65535 (0: a free one), got {text!r}")
+    return value
+
+
+def _local_host(text: str) -> str:
+    """An argparse type: a host name or address of this machine (where a server can listen)."""
+    try:
+        infos = socket.getaddrinfo(text, 0, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except (socket.gaierror, UnicodeError) as e:
+        raise argparse.ArgumentTypeError(f"unknown host {text!r} ({getattr(e, 'strerror', None) or e})") from None
+    last: OSError | None = None
+    for family, kind, proto, _, addr in infos:
+        try:
+            with socket.socket(family, kind, proto) as s:
+                s.bind(addr)
+            return text
+        except OSError as e:
+            last = e
+    raise argparse.ArgumentTypeError(f"{text!r} is not an address of this machine "
+                                     f"({last.strerror if last else 'no address'})")
+
+
+def _add_viz_flags(p: argparse.ArgumentParser, switch: str | None) -> None:
+    """The viewer's flags; `switch` is "--viz" (sim: off unless asked), "--no-viz" (up: on unless
+    refused) or None (viz: always on)."""
+    from swarm.launch import VIZ_HOST
+
+    g = p.add_argument_group("viewer (meshcat, in a browser)")
+    if switch == "--viz":
+        g.add_argument("--viz", action="store_true",
+                       help="play the run in the browser viewer at --speed times real time; the viewer stays "
+                            "up after the run until Ctrl-C")
+        g.add_argument("--speed", type=_positive_float, metavar="X",
+                       help="with --viz: simulated seconds per wall second (default 1)")
+    elif switch == "--no-viz":
+        g.add_argument("--no-viz", action="store_true", help="do not start the viewer")
+    g.add_argument("--viz-host", type=_local_host, metavar="H",
+                   help=f"where the viewer's web server listens (default {VIZ_HOST}: this machine only; "
+                        "0.0.0.0: every interface)")
+    g.add_argument("--viz-port", type=_port, metavar="P", help="the viewer's web port (default: a free one)")
+    g.add_argument("--viz-rings", action="store_true", help="draw every robot's avoidance ring R")
+
+
 def _add_scenario_flags(p: argparse.ArgumentParser, default: str) -> None:
     g = p.add_argument_group("scenario (a flag beats the file, which beats the built-in default)")
     g.add_argument("--scenario", default=default, metavar="NAME|FILE",
@@ -86,13 +139,15 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run a whole swarm in one process with the compiled simulator. The built-in 'paper' "
                     "scenario is the paper's 37-robot experiment at dt = 0.001 s; 'paper-50hz' is the same "
                     "at dt = 0.02 s with the safety governor on.",
-        epilog="Example: swarm sim --scenario paper --seed 3 --metrics m.json --plots fig2/",
+        epilog="Examples: swarm sim --scenario paper --seed 3 --metrics m.json --plots fig2/ | "
+               "swarm sim --viz --speed 2",
     )
     _add_scenario_flags(sim, "paper")
     out = sim.add_argument_group("output")
     out.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (DESIGN.md section 7)")
     out.add_argument("--plots", type=Path, metavar="DIR", help="write the panels of the paper's Fig. 2 as PNG")
     out.add_argument("--quiet", action="store_true", help="no progress bar and no summary table")
+    _add_viz_flags(sim, "--viz")
     sim.set_defaults(func=cmd_sim)
 
     scn = sub.add_parser("scenario", help="show or check scenario files",
@@ -154,9 +209,9 @@ def _add_runtime_parsers(sub) -> None:
         "up", help="run the swarm: one process per robot over zenoh, plus router, world and leader",
         description="Start an embedded zenoh router (or join one with --connect), the world, the leader "
                     "and one process per robot, each in its own process group; wait until all are alive; "
-                    "run with a live status line; write the metrics; stop everything on the way out "
-                    "(also on Ctrl-C and SIGTERM). Without --scenario it runs the built-in paper-50hz "
-                    "scenario (dt = 0.02 s, governor on).",
+                    "run with a live status line and the browser viewer (it prints the URL); write the "
+                    "metrics; stop everything on the way out (also on Ctrl-C and SIGTERM). Without "
+                    "--scenario it runs the built-in paper-50hz scenario (dt = 0.02 s, governor on).",
         epilog="Examples: swarm up --robots 37 | swarm up --robots 7 --mode realtime --speed 2 | "
                "swarm up --listen tcp/0.0.0.0:7447 (robots on other machines: see README)")
     _add_scenario_flags(up, "paper-50hz")
@@ -170,6 +225,7 @@ def _add_runtime_parsers(sub) -> None:
                    help="the restart policy's window in seconds (default 60)")
     g.add_argument("--log-dir", metavar="DIR", help="where the processes' logs go (default: a new temp dir)")
     g.add_argument("--quiet", action="store_true", help="no status line and no summary")
+    _add_viz_flags(up, "--no-viz")
     up.set_defaults(func=_lazy("cmd_up"))
 
     router = sub.add_parser("router", help="a zenoh router (what swarm up embeds)",
@@ -208,6 +264,27 @@ def _add_runtime_parsers(sub) -> None:
     _add_run_flags(robot)
     _add_net_flags(robot)
     robot.set_defaults(func=_lazy("cmd_robot"))
+
+    viz = sub.add_parser("viz", help="watch a running swarm in a browser (meshcat)",
+                         description="Start a meshcat web server, print its URL, and draw the swarm of --fleet "
+                                     "on --connect's router: robots coloured by state, obstacles, the leader and "
+                                     "the formation's slots, trails. It only listens: it never slows the swarm. "
+                                     "Without --scenario it asks the world for the obstacles and the slots.",
+                         epilog="Example: swarm viz --connect tcp/192.168.1.10:7447 --viz-host 0.0.0.0 --viz-port 7000")
+    g = viz.add_argument_group("scenario (optional: without it the world's queryables are used)")
+    g.add_argument("--scenario", metavar="NAME|FILE")
+    g.add_argument("--robots", type=_count, metavar="N")
+    g.add_argument("--seed", type=_seed, metavar="S")
+    g.add_argument("--duration", type=_positive_float, metavar="T")
+    g.add_argument("--dt", type=_positive_float, metavar="DT")
+    g.add_argument("--governor", action=argparse.BooleanOptionalAction, default=None)
+    _add_viz_flags(viz, None)
+    viz.add_argument("--server-log", type=Path, metavar="PATH",
+                     help="append the meshcat server's own log (connections) to PATH (default: discarded)")
+    viz.add_argument("--start-timeout", type=_positive_float, default=60.0, metavar="S",
+                     help="seconds to wait for the router at start (default 60)")
+    _add_net_flags(viz)
+    viz.set_defaults(func=_lazy("cmd_viz"))
 
 
 def _lazy(name: str):
@@ -257,12 +334,16 @@ class _StopFlag:
 
 def cmd_sim(args: argparse.Namespace, started: float) -> int:
     from swarm import console, scenario_file
+    from swarm.commands import check_viz_port, viz_options
     from swarm.sim import Simulation
 
     scn = scenario_file.load(args.scenario, _overrides(args))
     for path in (args.metrics,):
         if path is not None and path.parent and not path.parent.exists():
             raise BadInput(f"--metrics {path}: directory {path.parent} does not exist")
+    viz = viz_options(args, args.viz, "needs --viz", extra=(("--speed", args.speed),))
+    if viz is not None:
+        check_viz_port(viz)
     status = console.StatusLine(enabled=not args.quiet)
     if not args.quiet and not _kernel_cached():
         print("compiling the simulation kernel (first run after install only, ~5-10 s)...", file=sys.stderr)
@@ -273,9 +354,15 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
         status.update(f"{console.bar(p.t / p.duration if p.duration else 1)} t {p.t:7.2f}/{p.duration:.1f} s"
                       f"  converged {p.converged}/{p.robots}  frozen {p.frozen}  min distance {dist}")
 
+    if viz is not None:
+        return _sim_in_viewer(args, viz, scn, sim, show, status, started)
     with _StopFlag() as stop:
         result = sim.run(progress=show, should_stop=stop, started=started)
     status.close()
+    return _sim_report(args, scn, result)
+
+
+def _sim_report(args: argparse.Namespace, scn, result) -> int:
     m = result.metrics
     if args.metrics is not None:
         args.metrics.write_text(json.dumps(m, indent=2, allow_nan=False) + "\n")
@@ -290,6 +377,37 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
         if args.plots is not None:
             print(f"plots:   {args.plots}/")
     return EXIT_INTERRUPTED if m["interrupted"] else EXIT_OK
+
+
+def _sim_in_viewer(args: argparse.Namespace, viz, scn, sim, show, status, started: float) -> int:
+    """`swarm sim --viz`: the run paced at --speed in the viewer, then the viewer stays up until Ctrl-C."""
+    import threading
+
+    from swarm.meshcat_server import MeshcatServer, ServerError
+    from swarm.sim import Result
+    from swarm.viz import SceneInfo, Viewer
+    from swarm.watch import play_simulation
+
+    server = MeshcatServer(viz.host, viz.port)
+    try:
+        server.start()
+        print(f"viewer: {server.web_url}", flush=True)
+        viewer = Viewer(server, SceneInfo.from_scenario(scn), rings=viz.rings)
+        with _StopFlag() as stop:
+            interrupted = play_simulation(sim, viewer, args.speed or 1.0, should_stop=stop, progress=show)
+            result = Result(sim.metrics(time.perf_counter() - started, interrupted), sim.recording())
+            status.close()
+            code = _sim_report(args, scn, result)
+            if not interrupted:
+                print(f"viewer: the run is over; the viewer stays at {server.web_url} until Ctrl-C", flush=True)
+                idle = threading.Event()
+                while not stop():
+                    idle.wait(0.25)
+    except ServerError as e:
+        raise Failure(f"viewer: {e}") from None
+    finally:
+        server.stop()
+    return code
 
 
 def summary(m: dict, name: str) -> str:

@@ -1,4 +1,4 @@
-"""The runtime's commands: `swarm router | world | leader | robot | up` (argument parsing is in swarm.cli).
+"""The runtime's commands: `swarm router | world | leader | robot | viz | up` (argument parsing is in swarm.cli).
 
 Each process opens one zenoh session (a client of a router; the router itself for `swarm
 router`), closes it on every way out, and turns SIGINT/SIGTERM into a clean stop (exit 130).
@@ -10,7 +10,9 @@ import argparse
 import json
 import logging
 import os
+import re
 import signal
+import socket
 import sys
 import tempfile
 import threading
@@ -19,7 +21,7 @@ from pathlib import Path
 
 from swarm import keys
 from swarm.bus import ZENOH_RUNTIME
-from swarm.launch import DEFAULT_LISTEN
+from swarm.launch import DEFAULT_LISTEN, VIZ_HOST, VizOptions
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 log = logging.getLogger("swarm")
@@ -154,6 +156,34 @@ def _check_out_dir(flag: str, path: Path | None) -> None:
         raise BadInput(f"{flag} {path}: directory {path.parent} does not exist")
 
 
+def viz_options(args, enabled: bool, otherwise: str, extra: tuple[tuple[str, object], ...] = ()) -> VizOptions | None:
+    """The viewer's options from --viz-host/--viz-port/--viz-rings (types already checked by the
+    parser); None when the viewer is off, and then any of those flags is bad input ("--viz-port
+    `otherwise`")."""
+    given = (("--viz-host", args.viz_host), ("--viz-port", args.viz_port), ("--viz-rings", args.viz_rings or None),
+             *extra)
+    if not enabled:
+        for flag, value in given:
+            if value is not None:
+                raise BadInput(f"{flag} {otherwise}")
+        return None
+    return VizOptions(host=args.viz_host or VIZ_HOST, port=args.viz_port or 0, rings=bool(args.viz_rings))
+
+
+def check_viz_port(v: VizOptions) -> None:
+    """A fixed --viz-port must be free now (a clear exit 2 rather than a viewer that fails later)."""
+    if not v.port:
+        return
+    for family, kind, proto, _, addr in socket.getaddrinfo(v.host, v.port, type=socket.SOCK_STREAM,
+                                                           flags=socket.AI_PASSIVE):
+        with socket.socket(family, kind, proto) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server's own bind
+            try:
+                s.bind(addr)
+            except OSError as e:
+                raise BadInput(f"--viz-port {v.port}: cannot listen on {v.host}:{v.port} ({e.strerror})") from None
+
+
 # --------------------------------------------------------------------------- processes
 
 
@@ -269,6 +299,93 @@ def cmd_world(args, started: float) -> int:
     return EXIT_INTERRUPTED if metrics["interrupted"] else EXIT_OK
 
 
+def cmd_viz(args, started: float) -> int:
+    from swarm.launch import die_with_parent
+    from swarm.meshcat_server import MeshcatServer, ServerError
+    from swarm.viz import SceneInfo, Viewer
+    from swarm.watch import SwarmWatcher
+
+    die_with_parent()
+    _setup_logging()
+    fleet = fleet_of(args)
+    scene = SceneInfo.from_scenario(_load(args)) if args.scenario is not None else None
+    v = viz_options(args, True, "")
+    check_viz_port(v)
+    _check_out_dir("--server-log", args.server_log)
+    connect = [_check_endpoint("--connect", c) for c in (args.connect or [DEFAULT_LISTEN])]
+    with StopEvent() as stop:
+        # the server first: fork before zenoh starts its threads, and from this (main) thread, which
+        # its PR_SET_PDEATHSIG follows
+        server = MeshcatServer(v.host, v.port, log=args.server_log)
+        try:
+            server.start()
+            print(f"viewer: {server.web_url}", flush=True)
+            log.info("viz: fleet %s on %s, %s", fleet, ", ".join(connect),
+                     f"scenario {scene.name}" if scene else "scene from the world")
+            bus = open_bus(args, timeout_s=args.start_timeout, stop=stop)
+            try:
+                watcher = SwarmWatcher(bus, fleet, Viewer(server, scene, rings=v.rings), scene=scene)
+                watcher.start()
+                bus.token(keys.alive(fleet, "viz"))
+                while watcher.running and not stop.wait(0.5):
+                    pass
+                watcher.close()
+            finally:
+                bus.close()
+        except ServerError as e:
+            raise Failure(f"viewer: {e}") from None
+        finally:
+            server.stop()
+    log.info("viz: %d snapshots, %d drawn, %d skipped, %d bad messages", watcher.received, watcher.drawn,
+             watcher.skipped, watcher.bad.count)
+    if watcher.error is not None:
+        raise Failure(f"the viewer stopped: {watcher.error}")
+    return EXIT_INTERRUPTED
+
+
+class ViewerUrl:
+    """`swarm up`: the URL the viz child prints (`viewer: URL`) in its log, read without blocking;
+    then whether the viz child exits early (the swarm runs on without it)."""
+
+    PATTERN = re.compile(r"^viewer: (\S+)$", re.M)
+
+    def __init__(self, child, timeout_s: float, offset: int = 0):
+        self.child = child
+        self.offset = offset  # where this run's lines start in the log
+        self.end = time.monotonic() + timeout_s
+        self.url: str | None = None
+        self.done = False
+
+    def poll(self) -> str | None:
+        """A line to show when something happened (the URL, or the viewer's end), else None."""
+        from swarm import launch
+
+        if self.done:
+            return None
+        rc = self.child.proc.poll()
+        if self.url is None:
+            m = self.PATTERN.search(self._text())
+            if m:
+                self.url = m.group(1)
+                return f"viewer: {self.url}"
+            if rc is None and time.monotonic() > self.end:
+                self.done = True
+                return f"viewer: no URL after the start timeout; see {self.child.log}"
+        if rc is None:
+            return None
+        self.done = True
+        tail = " | ".join(self._text().strip().splitlines()[-2:])
+        return f"viewer: the viz process exited ({launch._rc(rc)}); the swarm goes on without it: {tail}"
+
+    def _text(self) -> str:
+        try:
+            with open(self.child.log, "rb") as f:
+                f.seek(self.offset)
+                return f.read().decode(errors="replace")
+        except OSError:
+            return ""
+
+
 # --------------------------------------------------------------------------- swarm up
 
 
@@ -290,6 +407,9 @@ def cmd_up(args, started: float) -> int:
         raise BadInput(f"--zenoh-config {args.zenoh_config}: no such file")
     log_dir = Path(args.log_dir or os.path.join(tempfile.gettempdir(), f"swarm-{fleet}-{os.getpid()}"))
     metrics_path = (args.metrics or log_dir / "metrics.json").absolute()
+    viz = viz_options(args, not args.no_viz, "has no effect with --no-viz")
+    if viz is not None:
+        viz = VizOptions(viz.host, viz.port, viz.rings, str((log_dir / "viz-server.log").absolute()))
     opts = UpOptions(
         robots=scn.n, scenario_args=scenario_args(args), mode=args.mode, speed=args.speed, fleet=fleet,
         listen=None if args.connect else (args.listen[0] if args.listen else DEFAULT_LISTEN),
@@ -298,14 +418,24 @@ def cmd_up(args, started: float) -> int:
         multicast=args.multicast, metrics=str(metrics_path),
         trace=str(Path(args.trace).absolute()) if args.trace else None, start_timeout=args.start_timeout,
         tick_timeout=args.tick_timeout, watchdog=args.watchdog,
-        restart=RestartPolicy(args.restarts, args.restart_window))
+        restart=RestartPolicy(args.restarts, args.restart_window), viz=viz)
     plan = launch.make_plan(opts)
     if args.dry_run:
         print(plan.describe())
         return EXIT_OK
+    if viz is not None:
+        check_viz_port(viz)
     log_dir.mkdir(parents=True, exist_ok=True)
     status = console.StatusLine(enabled=not args.quiet)
     say = (lambda text: None) if args.quiet else (lambda text: status.note(text))
+    viewer: list[ViewerUrl] = []
+
+    def watch_viewer() -> None:
+        """The viewer's URL (on stdout, even with --quiet: it is what the user opens), or why not."""
+        note = viewer[0].poll() if viewer else None
+        if note is not None:
+            status.clear()
+            print(note, flush=True)
     interrupted = False
     failure: str | None = None
     launched_s = None
@@ -316,6 +446,10 @@ def cmd_up(args, started: float) -> int:
         try:
             if plan.router is not None:
                 sup.start(plan.router)
+            if plan.viz is not None:
+                viz_log = sup.log_of(plan.viz)
+                offset = viz_log.stat().st_size if viz_log.exists() else 0
+                viewer.append(ViewerUrl(sup.start(plan.viz), args.start_timeout, offset))
             bus = open_bus(argparse.Namespace(connect=[plan.endpoint], zenoh_config=opts.zenoh_config,
                                               multicast=opts.multicast), timeout_s=15.0, stop=stop)
             alive: set[str] = set()
@@ -339,6 +473,7 @@ def cmd_up(args, started: float) -> int:
                 if sup.children["world"].proc.poll() is not None:
                     raise launch_failure("the world process exited during start-up", sup, "world")
                 status.update(f"starting: {len(alive & want)}/{len(want)} processes alive", force=False)
+                watch_viewer()
                 time.sleep(0.02)
             launched_s = time.monotonic() - t0
             if not stop.is_set():
@@ -352,6 +487,7 @@ def cmd_up(args, started: float) -> int:
                     break
                 for note in sup.check_robots():
                     say(note)
+                watch_viewer()
                 if progress[0] is not None:
                     try:
                         p = protocol.decode(progress[0], "progress")

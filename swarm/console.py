@@ -52,6 +52,15 @@ class StatusLine:
         self.stream.write(text + "\n")
         self.stream.flush()
 
+    def clear(self) -> None:
+        """Erase the status line (on a terminal), so another stream can print a line of its own;
+        the status line is redrawn at the next update."""
+        if self.enabled and self.tty and self.width:
+            self.stream.write("\r" + " " * self.width + "\r")
+            self.stream.flush()
+            self.width = 0
+            self.last = -1e9
+
     def close(self) -> None:
         """End the line (on a terminal) so later output starts on a fresh line."""
         if self.enabled and self.tty and self.width:

@@ -26,6 +26,7 @@ from pathlib import Path
 
 PARENT_ENV = "SWARM_PARENT_PID"
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+VIZ_HOST = "127.0.0.1"  # the viewer's web server: this machine only unless asked
 
 
 @dataclass(frozen=True)
@@ -35,6 +36,16 @@ class RestartPolicy:
 
     max_restarts: int = 3
     window_s: float = 60.0
+
+
+@dataclass(frozen=True)
+class VizOptions:
+    """The browser viewer of `swarm up` (a `swarm viz` child; see swarm.watch)."""
+
+    host: str = VIZ_HOST  # where its web server listens
+    port: int = 0  # 0: a free one
+    rings: bool = False
+    server_log: str | None = None  # the meshcat server's own log
 
 
 @dataclass(frozen=True)
@@ -56,11 +67,12 @@ class UpOptions:
     tick_timeout: float = 1.0
     watchdog: float = 0.5
     restart: RestartPolicy = RestartPolicy()
+    viz: VizOptions | None = None  # None: no viewer
 
 
 @dataclass(frozen=True)
 class ProcSpec:
-    name: str  # "router", "world", "leader", "robot 7"
+    name: str  # "router", "viz", "world", "leader", "robot 7"
     role: str
     id: int
     argv: tuple[str, ...]
@@ -76,10 +88,12 @@ class Plan:
     robots: tuple[ProcSpec, ...]
     env: tuple[tuple[str, str], ...] = field(default=())
     restart: RestartPolicy = RestartPolicy()
+    viz: ProcSpec | None = None  # the viewer: an observer, never restarted, stopped with the rest
 
     @property
     def processes(self) -> tuple[ProcSpec, ...]:
-        return ((self.router,) if self.router else ()) + (self.world, self.leader) + self.robots
+        return ((self.router,) if self.router else ()) + ((self.viz,) if self.viz else ()) + \
+            (self.world, self.leader) + self.robots
 
     def describe(self) -> str:
         lines = [f"launch plan: fleet '{self.fleet}', {len(self.robots)} robots, clients connect to {self.endpoint}",
@@ -95,7 +109,8 @@ def _quote(a: str) -> str:
 
 
 def make_plan(o: UpOptions, python: str = sys.executable) -> Plan:
-    """The processes `swarm up` starts, in start order. Pure: no side effect, no I/O."""
+    """The processes `swarm up` starts, in start order (the viewer right after the router, so its URL
+    is known early). Pure: no side effect, no I/O."""
     endpoint = o.connect or _client_endpoint(o.listen or DEFAULT_LISTEN)
     net = ["--fleet", o.fleet, "--connect", endpoint]
     if o.zenoh_config:
@@ -123,7 +138,16 @@ def make_plan(o: UpOptions, python: str = sys.executable) -> Plan:
     robots = tuple(ProcSpec(f"robot {i}", "robot", i,
                             (*base, "robot", "--id", str(i), "--start-timeout", repr(o.start_timeout), *net))
                    for i in range(o.robots))
-    return Plan(endpoint, o.fleet, router, world, leader, robots, (), o.restart)
+    viz = None
+    if o.viz is not None:
+        v_argv = [*base, "viz", *o.scenario_args, "--viz-host", o.viz.host, "--viz-port", str(o.viz.port),
+                  "--start-timeout", repr(o.start_timeout), *net]
+        if o.viz.rings:
+            v_argv.append("--viz-rings")
+        if o.viz.server_log:
+            v_argv += ["--server-log", o.viz.server_log]
+        viz = ProcSpec("viz", "viz", 0, tuple(v_argv))
+    return Plan(endpoint, o.fleet, router, world, leader, robots, (), o.restart, viz)
 
 
 def _client_endpoint(listen: str) -> str:
@@ -180,8 +204,12 @@ class Supervisor:
     def __exit__(self, *exc) -> None:
         self.shutdown()
 
+    def log_of(self, spec: ProcSpec) -> Path:
+        """The child's log file (appended to: a reused --log-dir keeps earlier runs' lines)."""
+        return self.log_dir / (spec.name.replace(" ", "-") + ".log")
+
     def start(self, spec: ProcSpec) -> Child:
-        log = self.log_dir / (spec.name.replace(" ", "-") + ".log")
+        log = self.log_of(spec)
         with open(log, "ab") as out:
             proc = subprocess.Popen(spec.argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
                                     env=self.env, process_group=0)

@@ -34,7 +34,7 @@ def free_port() -> int:
 def up(tmp_path: Path, *args: str, fleet: str = "t") -> tuple[list[str], Path]:
     metrics = tmp_path / "metrics.json"
     cmd = [sys.executable, "-m", "swarm.cli", "up", "--listen", f"tcp/127.0.0.1:{free_port()}", "--fleet", fleet,
-           "--metrics", str(metrics), "--log-dir", str(tmp_path / "logs"), "--start-timeout", "60", *args]
+           "--metrics", str(metrics), "--log-dir", str(tmp_path / "logs"), "--start-timeout", "60", "--no-viz", *args]
     return cmd, metrics
 
 

@@ -57,3 +57,28 @@ def test_dry_run_prints_the_plan_and_starts_nothing():
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert "4 robots" in out.stdout and out.stdout.count(" robot --id ") == 4
+
+
+def test_the_viewer_is_a_viz_process_right_after_the_router():
+    from swarm.launch import VizOptions
+
+    plan = make_plan(opts(viz=VizOptions(host="0.0.0.0", port=7000, rings=True, server_log="/tmp/v.log")),
+                     python="py")
+    assert [p.name for p in plan.processes][:3] == ["router", "viz", "world"]
+    a = list(plan.viz.argv)
+    assert a[3] == "viz" and plan.viz.role == "viz"  # not "robot": never restarted
+    assert a[a.index("--viz-host") + 1] == "0.0.0.0" and a[a.index("--viz-port") + 1] == "7000"
+    assert "--viz-rings" in a and a[a.index("--server-log") + 1] == "/tmp/v.log"
+    assert a[a.index("--connect") + 1] == plan.endpoint and a[a.index("--fleet") + 1] == "default"
+    assert ("--scenario", "paper-50hz") == plan.viz.argv[4:6]  # exact leader and slots, no queries needed
+    assert make_plan(opts(), python="py").viz is None
+
+
+def test_dry_run_shows_the_viewer_unless_no_viz():
+    base = [sys.executable, "-m", "swarm.cli", "up", "--robots", "2", "--dry-run", "--viz-port", "7123"]
+    out = subprocess.run(base, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    viz = [line for line in out.stdout.splitlines() if line.strip().startswith("viz ")]
+    assert len(viz) == 1 and "--viz-host 127.0.0.1 --viz-port 7123" in viz[0]
+    out = subprocess.run(base[:-2] + ["--no-viz"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and " viz " not in out.stdout

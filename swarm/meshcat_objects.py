@@ -1,0 +1,178 @@
+"""three.js objects as meshcat messages, built directly (no meshcat classes on the hot path).
+
+    geo = geometry(positions (K, 3), index (T*3,), colours (K, 3))      # a BufferGeometry
+    obj = instanced(geo, material(vertex_colors=True), "name", matrices (N, 16), colours (N, 3))
+    sink.send(Command({"type": "set_object", "path": "/swarm/robots", "object": obj}))
+
+Arrays go as msgpack extension types (0x17 Float32Array, 0x16 Uint32Array), as meshcat's own
+geometry does. An InstancedMesh is what three.js r129 (bundled with meshcat 0.3.2) loads from
+`count`, `instanceMatrix` (column-major 4x4 per instance) and `instanceColor`; frustum culling is
+off because three.js r129 bounds an InstancedMesh by its one geometry, not by its instances.
+A sink is anything with send(command): meshcat's ViewerWindow, swarm.meshcat_server.MeshcatClient,
+or CommandLog (packs and counts, sends nothing: tests and cost measurements).
+"""
+
+from __future__ import annotations
+
+import math
+import uuid
+
+import numpy as np
+
+
+# --------------------------------------------------------------------------- messages
+
+
+class Command:
+    """A lowered meshcat command (what meshcat's own command classes produce)."""
+
+    __slots__ = ("data",)
+
+    def __init__(self, data: dict):
+        self.data = data
+
+    def lower(self) -> dict:
+        return self.data
+
+
+def f32(a: np.ndarray, item: int) -> dict:
+    import umsgpack
+
+    a = np.ascontiguousarray(a, np.float32)
+    return {"itemSize": item, "type": "Float32Array", "normalized": False, "array": umsgpack.Ext(0x17, a.tobytes())}
+
+
+def u32(a: np.ndarray) -> dict:
+    import umsgpack
+
+    a = np.ascontiguousarray(a, np.uint32)
+    return {"itemSize": 1, "type": "Uint32Array", "normalized": False, "array": umsgpack.Ext(0x16, a.tobytes())}
+
+
+def geometry(pos: np.ndarray, index: np.ndarray | None = None, color: np.ndarray | None = None) -> dict:
+    attrs = {"position": f32(pos, 3)}
+    if color is not None:
+        attrs["color"] = f32(color, 3)
+    data: dict = {"attributes": attrs}
+    if index is not None:
+        data["index"] = u32(index)
+    return {"uuid": str(uuid.uuid4()), "type": "BufferGeometry", "data": data}
+
+
+def material(kind: str = "MeshBasicMaterial", color: int = 0xFFFFFF, opacity: float = 1.0,
+              vertex_colors: bool = False, depth_write: bool = True) -> dict:
+    return {"uuid": str(uuid.uuid4()), "type": kind, "color": color, "side": 2, "opacity": opacity,
+            "transparent": opacity < 1.0, "depthWrite": depth_write, "vertexColors": vertex_colors}
+
+
+def mesh_object(kind: str, geometry: dict, material: dict, name: str, **extra) -> dict:
+    obj = {"uuid": str(uuid.uuid4()), "type": kind, "geometry": geometry["uuid"], "material": material["uuid"],
+           "matrix": [1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0], "name": name, **extra}
+    return {"metadata": {"version": 4.5, "type": "Object"}, "geometries": [geometry], "materials": [material],
+            "object": obj}
+
+
+def instanced(geometry: dict, material: dict, name: str, matrices: np.ndarray, colors: np.ndarray | None) -> dict:
+    """An InstancedMesh of len(matrices) copies; matrices (K, 16) column-major, colors (K, 3) or None."""
+    extra = {"count": int(len(matrices)), "instanceMatrix": f32(matrices, 16), "frustumCulled": False}
+    if colors is not None:
+        extra["instanceColor"] = f32(colors, 3)
+    return mesh_object("InstancedMesh", geometry, material, name, **extra)
+
+
+def poses_to_matrices(q: np.ndarray, scale: np.ndarray | float = 1.0, z: float = 0.0) -> np.ndarray:
+    """(N, 16) float32 column-major transforms: rotation theta about z, then (x, y, z); uniform scale."""
+    q = np.asarray(q, float).reshape(-1, 3)
+    c, s = np.cos(q[:, 2]) * scale, np.sin(q[:, 2]) * scale
+    m = np.zeros((len(q), 16), np.float32)
+    m[:, 0], m[:, 1], m[:, 4], m[:, 5] = c, s, -s, c
+    m[:, 10] = scale
+    m[:, 12], m[:, 13], m[:, 14], m[:, 15] = q[:, 0], q[:, 1], z, 1.0
+    return m
+
+
+def translation(x: float, y: float, z: float = 0.0, theta: float = 0.0) -> list[float]:
+    c, s = math.cos(theta), math.sin(theta)
+    return [c, s, 0.0, 0.0, -s, c, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, x, y, z, 1.0]
+
+
+# --------------------------------------------------------------------------- shapes
+
+
+def disc(radius: float, z: float, segments: int = 24) -> tuple[np.ndarray, np.ndarray]:
+    a = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    pos = np.vstack([[0.0, 0.0, z], np.c_[radius * np.cos(a), radius * np.sin(a), np.full(segments, z)]])
+    idx = np.array([[0, 1 + k, 1 + (k + 1) % segments] for k in range(segments)]).ravel()
+    return pos, idx
+
+
+def annulus(r_in: float, r_out: float, z: float, segments: int = 48) -> tuple[np.ndarray, np.ndarray]:
+    a = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    ring = lambda r: np.c_[r * np.cos(a), r * np.sin(a), np.full(segments, z)]  # noqa: E731
+    pos = np.vstack([ring(r_in), ring(r_out)])
+    idx = []
+    for k in range(segments):
+        j = (k + 1) % segments
+        idx += [k, segments + k, segments + j, k, segments + j, j]
+    return pos, np.array(idx)
+
+
+def cylinder_side(radius: float, height: float, segments: int = 24) -> tuple[np.ndarray, np.ndarray]:
+    a = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    lo = np.c_[radius * np.cos(a), radius * np.sin(a), np.zeros(segments)]
+    hi = lo + [0.0, 0.0, height]
+    idx = []
+    for k in range(segments):
+        j = (k + 1) % segments
+        idx += [k, j, segments + j, k, segments + j, segments + k]
+    return np.vstack([lo, hi]), np.array(idx)
+
+
+def arrow(length: float, width: float, z: float) -> tuple[np.ndarray, np.ndarray]:
+    """A flat arrow head pointing along +x, its tip at `length`."""
+    pos = np.array([[length, 0.0, z], [-0.45 * length, 0.5 * width, z], [-0.2 * length, 0.0, z],
+                    [-0.45 * length, -0.5 * width, z]])
+    return pos, np.array([0, 1, 2, 0, 2, 3])
+
+
+def merge(parts: list[tuple[np.ndarray, np.ndarray, float]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Merge (pos, index, grey) parts into one indexed mesh with per-vertex grey colours."""
+    pos, idx, col, base = [], [], [], 0
+    for p, i, grey in parts:
+        pos.append(p)
+        idx.append(i + base)
+        col.append(np.full((len(p), 3), grey))
+        base += len(p)
+    return np.vstack(pos), np.concatenate(idx), np.vstack(col)
+
+
+# --------------------------------------------------------------------------- sinks
+
+
+class CommandLog:
+    """A sink that packs every command as the real client does and keeps (kind, path, bytes), but
+    sends nothing: for tests and for measuring the drawing's own cost without a server."""
+
+    def __init__(self) -> None:
+        self.commands: list[tuple[str, str, int]] = []
+        self.last: dict[str, dict] = {}
+
+    def send(self, command) -> None:
+        import umsgpack
+
+        data = command.lower()
+        packed = umsgpack.packb(data)
+        self.commands.append((data["type"], data.get("path", ""), len(packed)))
+        self.last[data.get("path", "")] = data
+
+
+def sink_of(target):
+    """The object with send(command): a MeshcatServer's client, a meshcat Visualizer's window, or itself."""
+    if hasattr(target, "client") and hasattr(target, "web_url"):
+        return target.client
+    if hasattr(target, "window") and hasattr(target.window, "send"):
+        return target.window
+    if not hasattr(target, "send"):
+        raise TypeError(f"cannot draw into {type(target).__name__}: expected a MeshcatServer, a meshcat "
+                        "Visualizer or an object with send(command)")
+    return target

@@ -1,0 +1,309 @@
+"""Feeding a Viewer: from a live swarm over the bus (SwarmWatcher), or from the in-process simulator.
+
+    watcher = SwarmWatcher(bus, fleet, viewer)       # scene: a SceneInfo, or None to ask the world
+    watcher.start()                                 # subscribes; a draw thread paced at <= max_hz
+    ...
+    watcher.close()
+
+An observer must never slow the swarm: the bus callbacks only store the newest bytes (the
+snapshot in one slot, each robot's status in a dict) and wake the draw thread; decoding,
+validation and drawing happen on the draw thread. A draw thread that falls behind skips frames:
+it always takes the newest snapshot and drops the ones in between (counted in `skipped`). A bad
+message is dropped and counted (`bad`), never raised.
+
+Robot states: the world's snapshot says alive and stopped; each robot's status says frozen; a
+robot whose newest status is older than `stale_after_s` wall seconds is stale (swarm.viz.state_codes).
+Without a scenario, the scene (offsets, radii, obstacles) comes from the world's queryables and the
+leader's pose from its reference stream, advanced exactly along its arc to the snapshot's time.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from typing import Callable
+
+import numpy as np
+
+from swarm import keys, kinematics, protocol
+from swarm.protocol import ProtocolError
+from swarm.viz import STALE_AFTER_S, SceneInfo, Viewer, state_codes
+
+log = logging.getLogger("swarm.viz")
+
+MAX_HZ = 30.0
+REFRESH_S = 0.5  # wall seconds between redraws when no snapshot comes (statuses going stale)
+SCENE_RETRY_S = 5.0  # wall seconds between attempts to fetch the scene from the world
+QUERY_TIMEOUT_S = 1.0
+
+
+class SwarmWatcher:
+    """Subscribes to a fleet's snapshot, statuses and leader reference and draws them in `viewer`."""
+
+    def __init__(self, bus, fleet: str, viewer: Viewer, scene: SceneInfo | None = None, max_hz: float = MAX_HZ,
+                 stale_after_s: float = STALE_AFTER_S, wall: Callable[[], float] = time.monotonic):
+        if not max_hz > 0:
+            raise ValueError(f"max_hz must be > 0, got {max_hz!r}")
+        self.bus, self.fleet, self.viewer = bus, keys.check_fleet(fleet), viewer
+        self.scene = scene  # None: fetched from the world on the first snapshot
+        self.period = 1.0 / max_hz
+        self.stale_after_s = stale_after_s
+        self.wall = wall
+        self.bad = protocol.BadMessages(log)
+        self.received = 0  # snapshots that arrived
+        self.taken = 0  # snapshots the draw thread took (the others were skipped)
+        self.drawn = 0  # frames drawn
+        self.error: Exception | None = None  # what stopped the draw thread, if anything
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._snap: bytes | None = None
+        self._statuses: dict[str, tuple[bytes, float]] = {}
+        self._ref: bytes | None = None
+        self._handles: list = []
+        self._thread: threading.Thread | None = None
+        # draw-thread state
+        self._frozen: dict[int, bool] = {}
+        self._status_at: dict[int, float] = {}
+        self._last: protocol.Snapshot | None = None
+        self._last_ref: protocol.Ref | None = None
+        self._codes: np.ndarray | None = None
+        self._started = wall()
+        self._scene_n = -1
+        self._scene_tried = -math.inf
+
+    @property
+    def skipped(self) -> int:
+        return self.received - self.taken
+
+    # ------------------------------------------------------------------ bus callbacks: store only
+
+    def _on_snapshot(self, key: str, payload: bytes) -> None:
+        with self._lock:
+            self._snap = payload
+            self.received += 1
+        self._wake.set()
+
+    def _on_status(self, key: str, payload: bytes) -> None:
+        at = self.wall()
+        with self._lock:
+            self._statuses[key] = (payload, at)
+
+    def _on_ref(self, key: str, payload: bytes) -> None:
+        with self._lock:
+            self._ref = payload
+
+    # ------------------------------------------------------------------ life cycle
+
+    def start(self, draw_thread: bool = True) -> None:
+        """Subscribe, and start the draw thread (without it, a test calls step() itself)."""
+        f = self.fleet
+        self._handles.append(self.bus.subscribe(keys.world_snapshot(f), self._on_snapshot))
+        self._handles.append(self.bus.subscribe(keys.robot_any(f, "status"), self._on_status))
+        self._handles.append(self.bus.subscribe(keys.leader_ref(f), self._on_ref))
+        if draw_thread:
+            self._thread = threading.Thread(target=self._run, name="viz-draw", daemon=True)
+            self._thread.start()
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        for h in self._handles[::-1]:
+            h.close()
+        self._handles.clear()
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    # ------------------------------------------------------------------ the draw thread
+
+    def _run(self) -> None:
+        try:
+            next_frame = 0.0
+            while not self._stop.is_set():
+                self._wake.wait(REFRESH_S)
+                self._wake.clear()
+                delay = next_frame - self.wall()
+                if delay > 0 and self._stop.wait(delay):  # pacing: at most max_hz frames a second
+                    break
+                if self._stop.is_set():
+                    break
+                if self.step():
+                    next_frame = self.wall() + self.period
+        except Exception as e:  # the server went away, most likely: say so and stop drawing
+            self.error = e
+            log.error("viewer stopped: %s", e)
+
+    def step(self) -> bool:
+        """Take the newest data and draw one frame if there is something new; True if it drew."""
+        with self._lock:
+            payload, self._snap = self._snap, None
+            statuses, self._statuses = self._statuses, {}
+            ref = self._ref
+            if payload is not None:
+                self.taken += 1
+        self._take_statuses(statuses)
+        fresh = False
+        if payload is not None:
+            try:
+                snap = protocol.decode(payload, "snapshot")
+            except ProtocolError as e:
+                self.bad.reject(keys.world_snapshot(self.fleet), e)
+            else:
+                if self._last is not None and snap.seq < self._last.seq:  # a new run: new scene, new trails
+                    self._scene_n = -1
+                    self._scene_tried = -math.inf
+                self._last = snap
+                fresh = True
+        snap = self._last
+        if snap is None:
+            return False
+        ids = np.array([r.id for r in snap.robots], np.int64)
+        now = self.wall()
+        age = np.array([now - self._status_at.get(i, self._started) for i in ids.tolist()])
+        codes = state_codes(np.array([r.alive for r in snap.robots], bool),
+                            np.array([r.stopped for r in snap.robots], bool),
+                            np.array([self._frozen.get(i, False) for i in ids.tolist()], bool), age,
+                            self.stale_after_s)
+        if not fresh and self.drawn and np.array_equal(codes, self._codes):
+            return False  # nothing new to show
+        self._ensure_scene(len(ids))
+        q = np.array([(r.x, r.y, r.theta) for r in snap.robots], float).reshape(-1, 3)
+        self.viewer.draw(snap.t, q, codes, self._leader(snap.t, ref))
+        self._codes = codes
+        self.drawn += 1
+        return True
+
+    def _take_statuses(self, statuses: dict[str, tuple[bytes, float]]) -> None:
+        for key, (payload, at) in statuses.items():
+            k = keys.parse(key)
+            if k is None or k.kind != "status":
+                self.bad.reject(key, ProtocolError("not a robot status key"))
+                continue
+            try:
+                st = protocol.decode(payload, "status")
+            except ProtocolError as e:
+                self.bad.reject(key, e)
+                continue
+            self._frozen[k.id] = st.frozen
+            self._status_at[k.id] = at
+
+    def _leader(self, t: float, ref_payload: bytes | None) -> tuple[float, float, float] | None:
+        """The leader's pose at t: exact from the scene's segment table, else from its newest
+        reference advanced along its arc (exact within a segment)."""
+        if self.scene is not None and self.scene.leader_table is not None:
+            return self.scene.leader_pose(t)
+        if ref_payload is not None:
+            try:
+                self._last_ref = protocol.decode(ref_payload, "ref")
+            except ProtocolError as e:
+                self.bad.reject(keys.leader_ref(self.fleet), e)
+        r = self._last_ref
+        if r is None:
+            return None
+        dx, dy, dth = kinematics.arc_displacement(r.theta, r.v, r.w, t - r.t)
+        return r.x + dx, r.y + dy, r.theta + dth
+
+    # ------------------------------------------------------------------ the scene
+
+    def _ensure_scene(self, n: int) -> None:
+        """Give the viewer its scene: the one we were given, or the world's (asked again when the
+        number of robots changes or a new run starts; at most every SCENE_RETRY_S on failure)."""
+        if self._scene_n == n:
+            return
+        if self.scene is not None and (self.scene.offsets is None or len(self.scene.offsets) == n):
+            self.viewer.set_scene(self.scene)
+            self._scene_n = n
+            return
+        now = self.wall()
+        if now - self._scene_tried < SCENE_RETRY_S:
+            return
+        self._scene_tried = now
+        found = fetch_scene(self.bus, self.fleet, n, self.bad)
+        if found is not None:
+            self.scene = found
+            self.viewer.set_scene(found)
+            self._scene_n = n
+
+
+def _query(bus, key: str, kind: str, key_id: int | None, bad: protocol.BadMessages):
+    for rkey, payload in bus.query(key, timeout_s=QUERY_TIMEOUT_S):
+        try:
+            return protocol.decode(payload, kind, key_id)
+        except ProtocolError as e:
+            bad.reject(rkey, e)
+    return None
+
+
+def fetch_scene(bus, fleet: str, n: int, bad: protocol.BadMessages | None = None) -> SceneInfo | None:
+    """The scene of a running swarm from the world's queryables: obstacles, and each robot's radii
+    and offset from its configuration. None if the world does not answer for all of them."""
+    bad = bad or protocol.BadMessages(log)
+    obstacles = _query(bus, keys.world_obstacles(fleet), "obstacles", None, bad)
+    if obstacles is None:
+        log.info("viewer: the world does not answer on %s yet", keys.world_obstacles(fleet))
+        return None
+    configs = []
+    for i in range(n):
+        cfg = _query(bus, keys.world_config(fleet, i), "config", i, bad)
+        if cfg is None:
+            log.info("viewer: no configuration for robot %d yet", i)
+            return None
+        configs.append(cfg)
+    obs = np.array([(o.x, o.y, o.r, o.R) for o in obstacles.obstacles], float).reshape(-1, 4)
+    r = configs[0].r if configs else 0.3
+    big_r = configs[0].R if configs else 1.2
+    return SceneInfo(r=r, R=big_r, offsets=np.array([(c.dx, c.dy) for c in configs], float).reshape(-1, 2),
+                     obstacles=obs)
+
+
+# --------------------------------------------------------------------------- the in-process simulator
+
+
+def play_simulation(sim, viewer: Viewer, speed: float = 1.0, should_stop: Callable[[], bool] | None = None,
+                    progress: Callable | None = None, max_hz: float = MAX_HZ,
+                    wait: Callable[[float], object] | None = None) -> bool:
+    """Run `sim` (a swarm.sim.Simulation) to its end at `speed` simulated seconds per wall second
+    (or as fast as it can, if slower), drawing its newest recorded sample at most max_hz times a
+    second. Returns True if should_stop() ended it early.
+
+    The simulator advances in chunks that take about 50 ms each, so frames keep coming even when
+    the simulation is slower than asked. `wait(seconds)` paces frames (default: an Event's wait)."""
+    from swarm.viz import FROZEN, TRACKING
+
+    if not speed > 0:
+        raise ValueError(f"speed must be > 0, got {speed!r}")
+    wait = wait or threading.Event().wait
+    dt = sim.scn.dt
+    limit = max(1, int(round(0.05 / dt)))  # steps per chunk, adapted to take ~50 ms
+    t0 = time.monotonic()
+    period = 1.0 / max_hz
+    while True:
+        frame_start = time.monotonic()
+        if should_stop is not None and should_stop():
+            return True
+        if not sim.done:
+            want = min(sim.n_steps, int(math.floor(speed * (frame_start - t0) / dt + 1e-9))) + 1
+            k_end = min(want, sim.next_k + limit)
+            if k_end > sim.next_k:
+                steps = k_end - sim.next_k
+                sim.advance(k_end)
+                spent = time.monotonic() - frame_start
+                if spent > 0:
+                    limit = max(1, min(int(steps * 0.05 / spent), 10 * limit))
+        rec = sim.recording()
+        if len(rec.t):
+            codes = np.where(rec.frozen[-1], FROZEN, TRACKING)
+            viewer.draw(float(rec.t[-1]), rec.q[-1], codes, tuple(map(float, rec.leader[-1])))
+        if progress is not None:
+            progress(sim.progress())
+        if sim.done:
+            return False
+        left = period - (time.monotonic() - frame_start)
+        if left > 0:
+            wait(left)

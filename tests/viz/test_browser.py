@@ -1,0 +1,142 @@
+"""The viewer in a real browser (headless Chromium, software WebGL): robots in the scene and on
+screen, a frozen robot changes colour, the shader program survives set_object (the twin), and the
+real `swarm up` and `swarm viz --connect` paths, killed with SIGKILL, leave nothing behind.
+
+Screenshots go to $SWARM_SCREENSHOT (a file, or a directory for all of them) or the test's tmp dir;
+docs/viewer.png is the 37-robot one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from swarm import scenario_file
+from swarm.meshcat_server import MeshcatServer
+from swarm.scenario_file import Overrides
+from swarm.sim import Simulation
+from swarm.viz import DEAD, FROZEN, STALE, STOPPED, TRACKING, SceneInfo, Viewer
+from tests.viz.helpers import (URL_LINE, Child, assert_all_gone, browser_page, chromium_processes, colour_of,
+                               count_pixels, free_port, instance_colours, listening, meshcat_server_of,
+                               needs_chromium, robots_js, screenshot_path, settle, wait_until)
+
+pytestmark = [pytest.mark.integration, pytest.mark.browser, needs_chromium]
+
+PROGRAMS_JS = "() => viewer.renderer.info.programs.map(p => p.id).join(',')"
+
+
+def test_37_robots_on_screen_and_a_frozen_robot_turns_orange(tmp_path):
+    """In process: the first 10 s of the paper-50hz run drawn from the simulator (trails, frozen
+    robots among the slots), then one more robot marked frozen. Its screenshot is docs/viewer.png."""
+    before_chromium = chromium_processes()
+    scn = scenario_file.load("paper-50hz", Overrides(robots=37))
+    sim = Simulation(scn)
+    sim.advance(int(round(10.0 / scn.dt)) + 1)
+    rec = sim.recording()
+    every = int(round(0.2 / (rec.t[1] - rec.t[0])))
+    with MeshcatServer() as server:
+        viewer = Viewer(server, SceneInfo.from_scenario(scn))
+        for k in range(0, len(rec.t), every):  # the run so far, for the trails
+            viewer.draw(rec.t[k], rec.q[k], np.where(rec.frozen[k], FROZEN, TRACKING), tuple(rec.leader[k]))
+        q, t, leader = rec.q[-1], rec.t[-1], tuple(rec.leader[-1])
+        codes = np.where(rec.frozen[-1], FROZEN, TRACKING)
+        tracking = np.flatnonzero(codes == TRACKING)
+        assert 5 <= len(tracking) <= 32  # both colours on screen
+        viewer.reframe()
+        viewer.draw(t, q, codes, leader)
+        viewer.send_trails()
+        with browser_page(server.web_url) as page:
+            page.wait_for_function(robots_js(37))
+            settle(page)
+            np.testing.assert_array_equal(instance_colours(page), [colour_of(c) for c in codes])
+            programs = page.evaluate(PROGRAMS_JS)
+            for _ in range(5):  # set_object every frame must not recompile the shader (the static twin)
+                viewer.draw(t, q, codes, leader)
+                settle(page)
+            assert page.evaluate(PROGRAMS_JS) == programs
+            first = screenshot_path(tmp_path, "viewer-37.png")
+            page.screenshot(path=str(first))
+            green, orange = count_pixels(first, TRACKING), count_pixels(first, FROZEN)
+            assert green >= 25 * len(tracking), f"{green} green pixels for {len(tracking)} tracking robots"
+            assert orange >= 25 * (37 - len(tracking)), f"{orange} orange pixels for {37 - len(tracking)} frozen"
+
+            k = int(tracking[0])
+            codes[k] = FROZEN
+            viewer.draw(t, q, codes, leader)
+            page.wait_for_function("() => { const c = viewer.scene.getObjectByName('swarm_robots').instanceColor;"
+                                   f" return Math.abs(c.array[{3 * k}] - {colour_of(FROZEN)[0] / 255}) < 1e-3; }}")
+            settle(page)
+            second = screenshot_path(tmp_path, "viewer-37-one-more-frozen.png")
+            page.screenshot(path=str(second))
+            assert count_pixels(second, FROZEN) >= orange + 20, "the newly frozen robot is not orange on screen"
+            assert count_pixels(second, TRACKING) <= green - 20
+            assert page.errors == []
+    wait_until(lambda: chromium_processes() <= before_chromium, 10, "Chromium to exit after browser.close()")
+
+
+def test_swarm_up_draws_the_live_swarm_and_a_sigkill_leaves_nothing_behind(tmp_path):
+    """The real path: `swarm up` with its viewer child; then SIGKILL `swarm up` alone."""
+    child = Child(["up", "--robots", "7", "--duration", "120", "--listen", f"tcp/127.0.0.1:{free_port()}",
+                   "--fleet", "vizup", "--log-dir", str(tmp_path / "logs"), "--quiet"], tmp_path / "up.err")
+    try:
+        url = child.expect(URL_LINE, 60).group(1)
+        assert url.startswith("http://127.0.0.1:")
+        server = meshcat_server_of(child)
+        assert {ip for ip, _ in listening(server)} == {"127.0.0.1"}
+        with browser_page(url) as page:
+            page.wait_for_function(robots_js(7), timeout=60_000)
+            live = {tuple(colour_of(s)) for s in (TRACKING, FROZEN)}
+            # the run is going: every robot tracking or frozen (not stopped or stale), and moving
+            page.wait_for_function("() => { const o = viewer.scene.getObjectByName('swarm_robots');"
+                                   " const c = o.instanceColor.array; for (let i = 0; i < 7; i++) {"
+                                   f" const r = Math.round(c[3*i] * 255); if (!{sorted(int(c[0]) for c in live)}"
+                                   ".includes(r)) return false; } return true; }", timeout=60_000)
+            x0 = page.evaluate("() => viewer.scene.getObjectByName('swarm_robots').instanceMatrix.array[12]")
+            page.wait_for_function("x0 => viewer.scene.getObjectByName('swarm_robots').instanceMatrix.array[12]"
+                                   " !== x0", arg=x0, timeout=30_000)
+            settle(page)
+            png = screenshot_path(tmp_path, "viewer-up-7.png")
+            page.screenshot(path=str(png))
+            shown = count_pixels(png, TRACKING) + count_pixels(png, FROZEN)
+            assert shown >= 7 * 15, f"only {shown} robot pixels for 7 robots"
+            assert count_pixels(png, STOPPED) + count_pixels(png, STALE) + count_pixels(png, DEAD, 4) < 7 * 15
+            assert page.errors == []
+        tree = child.tree()
+        names = [" ".join(p.cmdline()) for p in tree]
+        assert sum(" robot --id " in n for n in names) == 7 and sum(" viz " in n for n in names) == 1
+        child.proc.kill()  # SIGKILL the launcher only: its children must follow by themselves
+        assert_all_gone(tree, 15, "swarm up killed with SIGKILL")
+    finally:
+        child.close()
+
+
+def test_swarm_viz_connect_takes_the_scene_from_the_world_and_dies_with_a_sigkill(tmp_path):
+    """`swarm viz --connect` with no scenario flag: obstacles and slots from the world's queryables,
+    the leader from its reference."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    swarm = Child(["up", "--no-viz", "--robots", "3", "--duration", "600", "--listen", endpoint, "--fleet", "vizc",
+                   "--log-dir", str(tmp_path / "logs"), "--quiet"], tmp_path / "up.err")
+    viz = None
+    try:
+        viz = Child(["viz", "--connect", endpoint, "--fleet", "vizc"], tmp_path / "viz.err")
+        url = viz.expect(URL_LINE, 60).group(1)
+        scn = scenario_file.load("paper-50hz", Overrides(robots=3))
+        with browser_page(url) as page:
+            page.wait_for_function(robots_js(3), timeout=60_000)
+            page.wait_for_function("n => { const s = viewer.scene.getObjectByName('swarm_slots');"
+                                   " const o = viewer.scene.getObjectByName('swarm_obstacles');"
+                                   " return !!s && s.count === n[0] && !!o && o.count === n[1]; }",
+                                   arg=[3, len(scn.obstacles)], timeout=60_000)
+            slots = page.evaluate("() => Array.from(viewer.scene.getObjectByName('swarm_slots').instanceMatrix.array)")
+            np.testing.assert_allclose(np.array(slots).reshape(3, 16)[:, 12:14], scn.offsets, atol=1e-5)
+            page.wait_for_function("() => { const f = viewer.scene.getObjectByName('formation');"
+                                   " return !!f && f.visible && f.position.x !== 0; }", timeout=30_000)
+            assert page.errors == []
+        server = meshcat_server_of(viz)
+        viz.proc.kill()
+        assert_all_gone([server], 10, "the server of a SIGKILLed swarm viz")
+        assert swarm.proc.poll() is None  # the swarm did not notice
+    finally:
+        if viz is not None:
+            viz.close()
+        swarm.close()
