@@ -1,0 +1,762 @@
+"""Recording a run into one MCAP file (JSON messages with JSON schemas: Foxglove opens it as is).
+
+    rec = Recorder("run.mcap", scenario, record_hz=20.0, source="lockstep")
+    br = BusRecorder(bus, fleet, rec)           # live: subscribes, decodes, derives events
+    ...
+    br.close(metrics)                           # writes the metrics, finishes the file
+
+    record_simulation("run.mcap", scenario, result, record_hz=20.0)   # the same file from `swarm sim`
+
+Channels (docs/recording.md): /scenario (once, first), /world/snapshot, /leader/ref, /robot/cmd,
+/robot/status, /events, /metrics (once, last). Time base: every message's log_time and publish_time
+are nanoseconds of *simulated* time since the run's t = 0 (not wall-clock time); the scenario
+message is at 0, the metrics at the last recorded time.
+
+record_hz decimates snapshots, references, commands and statuses in simulated time: with
+every = max(1, round(1 / (record_hz * dt))) control steps, a message is kept at the first time at or
+after each multiple of every * dt (per robot for commands and statuses), which in lock-step is
+exactly the steps the in-process simulator samples (k % every == 0); the first message, the final
+step and the last snapshot are always kept. record_hz 0 or None keeps every message. Events are
+derived from every message received, never from the decimated ones only.
+
+Cost: a bus callback only appends the raw payload to a deque; one worker thread decodes
+(swarm.protocol.decode), derives the events and writes (bench/record_cost.py measures it).
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from swarm import keys, kinematics, protocol
+from swarm.protocol import Cmd, ProtocolError, Ref, Snapshot, Status
+from swarm.scenario import Scenario
+
+log = logging.getLogger("swarm.record")
+
+DEFAULT_RECORD_HZ = 20.0
+STATUS_PERIOD_S = 0.1  # record_simulation writes statuses at the agents' status rate (agents/robot.py)
+MAX_BAD_EVENTS = 100  # bad messages beyond this are counted, not written one by one
+MAX_PENDING = 200_000  # BusRecorder: received messages not yet written; a callback waits beyond this
+POLL_S = 0.02  # BusRecorder: the worker's wake-up period [wall s]
+
+TOPIC_SCENARIO = "/scenario"
+TOPIC_SNAPSHOT = "/world/snapshot"
+TOPIC_REF = "/leader/ref"
+TOPIC_CMD = "/robot/cmd"
+TOPIC_STATUS = "/robot/status"
+TOPIC_EVENTS = "/events"
+TOPIC_METRICS = "/metrics"
+
+EVENT_KINDS = ("freeze_start", "freeze_end", "collision", "robot_dead", "robot_alive", "robot_stopped",
+               "robot_resumed", "snapshots_missed", "bad_message")
+
+# Keys of DESIGN.md section 7 that every metrics message carries (extra keys are allowed).
+METRIC_KEYS = ("robots", "obstacles", "duration_s", "dt", "seed", "converged_at_s", "final_position_error_max_m",
+               "final_orientation_error_max_rad", "min_robot_distance_m", "min_obstacle_distance_m", "collisions",
+               "last_freeze_end_s", "wall_s", "messages_dropped", "cmd_misses", "bad_messages", "interrupted")
+
+
+class RecordError(ValueError):
+    """A recording that cannot be written (bad record_hz, a sample grid that does not fit...)."""
+
+
+# --------------------------------------------------------------------------- schemas
+
+_NUM, _INT, _BOOL, _STR = {"type": "number"}, {"type": "integer"}, {"type": "boolean"}, {"type": "string"}
+
+
+def _arr(item: dict) -> dict:
+    return {"type": "array", "items": item}
+
+
+def _schema(title: str, description: str, props: dict, optional: tuple[str, ...] = (), extra: bool = False) -> dict:
+    return {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": title, "description": description,
+            "type": "object", "properties": props, "required": [k for k in props if k not in optional],
+            "additionalProperties": extra}
+
+
+# Metrics that may be null (DESIGN.md section 7): not declared below, since a JSON Schema type list such as
+# ["number", "null"] is valid JSON Schema but Foxglove's schema reader refuses it (one type per field).
+NULLABLE_METRICS = ("converged_at_s", "min_robot_distance_m", "min_obstacle_distance_m", "last_freeze_end_s")
+
+# topic -> (schema name, JSON schema). One "type" per property (what Foxglove reads); a property that can
+# be absent (optional) is left out of the message rather than written as null.
+SCHEMAS: dict[str, tuple[str, dict]] = {
+    TOPIC_SCENARIO: ("swarm.Scenario", _schema("swarm.Scenario", "The run's scenario, once at t = 0: `toml` is the "
+                     "resolved scenario file (swarm.scenario_file.to_toml), enough to rebuild it exactly; `fleet` "
+                     "only for live runs.", {
+                         "name": _STR, "robots": _INT, "obstacles": _INT, "dt": _NUM, "duration": _NUM, "seed": _INT,
+                         "r": _NUM, "R": _NUM, "source": _STR, "record_hz": _NUM, "record_every": _INT,
+                         "fleet": _STR, "toml": _STR}, optional=("fleet",))),
+    TOPIC_SNAPSHOT: ("swarm.Snapshot", _schema("swarm.Snapshot", "Every robot at one step, columns indexed like "
+                     "`id`: pose x, y [m], theta [rad]; v [m/s], w [rad/s] the command the world applies; "
+                     "stopped (watchdog), alive (liveliness), frozen (the robot's newest reported freeze flag).", {
+                         "t": _NUM, "seq": _INT, "id": _arr(_INT), "x": _arr(_NUM), "y": _arr(_NUM),
+                         "theta": _arr(_NUM), "v": _arr(_NUM), "w": _arr(_NUM), "stopped": _arr(_BOOL),
+                         "alive": _arr(_BOOL), "frozen": _arr(_BOOL)})),
+    TOPIC_REF: ("swarm.Ref", _schema("swarm.Ref", "The leader's live reference.", {
+        "t": _NUM, "seq": _INT, "x": _NUM, "y": _NUM, "theta": _NUM, "v": _NUM, "w": _NUM})),
+    TOPIC_CMD: ("swarm.Cmd", _schema("swarm.Cmd", "Robot `id`'s command computed at t: v [m/s], w [rad/s].", {
+        "t": _NUM, "seq": _INT, "id": _INT, "v": _NUM, "w": _NUM})),
+    TOPIC_STATUS: ("swarm.Status", _schema("swarm.Status", "Robot `id`'s status: errors against the live "
+                   "reference, freeze flag, neighbours known, stale neighbours, bad messages it dropped.", {
+                       "t": _NUM, "id": _INT, "ex": _NUM, "ey": _NUM, "etheta": _NUM, "frozen": _BOOL,
+                       "neighbours": _INT, "stale": _INT, "bad": _INT})),
+    TOPIC_EVENTS: ("swarm.Event", _schema("swarm.Event", "Something that happened at t. kind: " + ", ".join(EVENT_KINDS)
+                   + ". robot/other are robot ids, obstacle an obstacle index, distance [m] (collisions); each only "
+                   "when it applies.", {
+                       "t": _NUM, "kind": {"type": "string", "enum": list(EVENT_KINDS)}, "robot": _INT,
+                       "other": _INT, "obstacle": _INT, "distance": _NUM, "detail": _STR},
+                   optional=("robot", "other", "obstacle", "distance"))),
+    TOPIC_METRICS: ("swarm.Metrics", _schema("swarm.Metrics", "The run's metrics (DESIGN.md section 7), exactly "
+                    "the metrics JSON (extra keys included); written once at the end. Also there, as a number or "
+                    "null: " + ", ".join(NULLABLE_METRICS) + ".", {
+                        "robots": _INT, "obstacles": _INT, "duration_s": _NUM, "dt": _NUM, "seed": _INT,
+                        "final_position_error_max_m": _NUM, "final_orientation_error_max_rad": _NUM,
+                        "collisions": _INT, "wall_s": _NUM, "messages_dropped": _INT, "cmd_misses": _INT,
+                        "bad_messages": _INT, "interrupted": _BOOL}, extra=True)),
+}
+TOPICS = tuple(SCHEMAS)
+
+
+# --------------------------------------------------------------------------- decimation
+
+
+def record_every(record_hz: float | None, dt: float) -> int:
+    """Control steps between kept samples for record_hz [Hz] (0 or None: every step)."""
+    if record_hz is None or record_hz == 0:
+        return 1
+    if isinstance(record_hz, bool) or not (math.isfinite(record_hz) and record_hz > 0):
+        raise RecordError(f"record_hz must be a number > 0 (or 0 for every step), got {record_hz!r}")
+    return max(1, int(round(1.0 / (record_hz * dt))))
+
+
+def record_period(record_hz: float | None, dt: float) -> float:
+    """Simulated seconds between kept samples: what to give sim.Simulation(scn, record_period=...)."""
+    return record_every(record_hz, dt) * dt
+
+
+class _Grid:
+    """Keeps a message at the first time at or after each multiple of `period` (None: every message)."""
+
+    __slots__ = ("period", "due", "tol")
+
+    def __init__(self, period: float | None, dt: float):
+        self.period = period
+        self.due = -math.inf
+        self.tol = 1e-6 * dt
+
+    def keep(self, t: float) -> bool:
+        if self.period is None:
+            return True
+        if t < self.due - self.tol:
+            return False
+        self.due = (math.floor(t / self.period + 1e-6) + 1) * self.period
+        return True
+
+
+def _ns(t: float) -> int:
+    """log_time of simulated time t [s]: integer nanoseconds, clamped at 0 (MCAP times are unsigned)."""
+    return max(0, int(round(t * 1e9)))
+
+
+def _jbool(b) -> str:
+    return "true" if b else "false"
+
+
+# --------------------------------------------------------------------------- events
+
+
+@dataclass(frozen=True)
+class Event:
+    """One entry of /events; robot/other are robot ids, obstacle an obstacle index."""
+
+    t: float
+    kind: str
+    robot: int | None = None
+    other: int | None = None
+    obstacle: int | None = None
+    distance: float | None = None
+    detail: str = ""
+
+    def to_dict(self) -> dict:
+        """The /events message: robot, other, obstacle and distance only when they apply (not null)."""
+        d: dict = {"t": self.t, "kind": self.kind}
+        for name in ("robot", "other", "obstacle", "distance"):
+            value = getattr(self, name)
+            if value is not None:
+                d[name] = value
+        d["detail"] = self.detail
+        return d
+
+
+_DENSE_N = 256  # pairwise distances over every pair up to this many robots, sort-and-sweep above
+
+
+def pairs_within(x: np.ndarray, y: np.ndarray, within: float,
+                 upper: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Index pairs i < j of points (x, y) [m] closer than `within` [m], and their distances [m].
+
+    upper: np.triu_indices(len(x), 1), when the caller keeps it (saves its construction per call)."""
+    n = len(x)
+    if n < 2:
+        e = np.zeros(0, np.int64)
+        return e, e, np.zeros(0)
+    if n <= _DENSE_N:
+        i, j = upper if upper is not None else np.triu_indices(n, 1)
+        dx, dy = x[i] - x[j], y[i] - y[j]
+        d2 = dx * dx + dy * dy
+        hit = np.flatnonzero(d2 < within * within)
+        return i[hit], j[hit], np.sqrt(d2[hit])
+    order = np.argsort(x, kind="stable")
+    sx, sy = x[order], y[order]
+    ii, jj, dd = [], [], []
+    for k in range(1, n):
+        dx = sx[k:] - sx[:-k]
+        near = np.flatnonzero(dx < within)
+        if not near.size:
+            break
+        d = np.hypot(dx[near], sy[k:][near] - sy[:-k][near])
+        hit = near[d < within]
+        a, b = order[hit], order[hit + k]
+        ii.append(np.minimum(a, b)), jj.append(np.maximum(a, b)), dd.append(d[d < within])
+    if not ii:
+        e = np.zeros(0, np.int64)
+        return e, e, np.zeros(0)
+    return np.concatenate(ii), np.concatenate(jj), np.concatenate(dd)
+
+
+class EventDeriver:
+    """Derives events from a sequence of snapshots and freeze flags (pure: no I/O, no clock).
+
+    Collisions follow DESIGN.md section 7: an unordered pair whose centre distance goes from >= r to
+    < r between consecutive snapshots (r: the larger of two robots' r, the obstacle's r for a
+    robot-obstacle pair); a pair already inside at the first snapshot counts once. A robot whose
+    pose is not finite (missing from a snapshot) is in no pair.
+    """
+
+    def __init__(self, scn: Scenario):
+        self.n = scn.n
+        self.r = float(scn.r)
+        self.obstacles = np.asarray(scn.obstacles, float).reshape(-1, 4)
+        self._upper = np.triu_indices(self.n, 1) if 2 <= self.n <= _DENSE_N else None
+        self._inside: set[tuple[int, int]] = set()  # (i, j) robots, (i, n + m) robot i and obstacle m
+        self._alive: np.ndarray | None = None
+        self._stopped: np.ndarray | None = None
+        self._was_stopped = np.zeros(self.n, bool)  # a robot_stopped event is open
+        self._frozen: dict[int, bool] = {}
+        self._seq: int | None = None
+
+    def _contacts(self, x: np.ndarray, y: np.ndarray) -> dict[tuple[int, int], float]:
+        """Pairs closer than their r now: {(i, j): distance} with j >= n meaning obstacle j - n."""
+        ok = None
+        if not (np.isfinite(x).all() and np.isfinite(y).all()):
+            ok = np.isfinite(x) & np.isfinite(y)
+            x, y = np.where(ok, x, 0.0), np.where(ok, y, 0.0)
+        i, j, d = pairs_within(x, y, self.r, self._upper)
+        if ok is not None and i.size:
+            keep = ok[i] & ok[j]
+            i, j, d = i[keep], j[keep], d[keep]
+        out = dict(zip(zip(i.tolist(), j.tolist()), d.tolist())) if i.size else {}
+        if len(self.obstacles) and self.n:
+            ox, oy, orr = self.obstacles[:, 0], self.obstacles[:, 1], self.obstacles[:, 2]
+            for a0 in range(0, self.n, 256):
+                dx = x[a0:a0 + 256, None] - ox[None, :]
+                dy = y[a0:a0 + 256, None] - oy[None, :]
+                d2 = dx * dx + dy * dy
+                a, m = np.nonzero(d2 < (orr * orr)[None, :])
+                if a.size:
+                    if ok is not None:
+                        keep = ok[a0 + a]
+                        a, m = a[keep], m[keep]
+                    for aa, mm, dd in zip(a.tolist(), m.tolist(), np.sqrt(d2[a, m]).tolist()):
+                        out[(a0 + aa, self.n + mm)] = dd
+        return out
+
+    def snapshot(self, t: float, seq: int | None, x: np.ndarray, y: np.ndarray, alive: np.ndarray,
+                 stopped: np.ndarray) -> list[Event]:
+        """Events of one snapshot: x, y (N,) [m], alive, stopped (N,) bool, rows indexed by robot id.
+        seq: the snapshot's tick (a gap means snapshots were lost), None for samples of a run."""
+        out: list[Event] = []
+        if seq is not None:
+            if self._seq is not None and seq > self._seq + 1:
+                out.append(Event(t, "snapshots_missed", detail=f"{seq - self._seq - 1} snapshot(s) missing before "
+                                                               f"seq {seq}; collisions between them may be missed"))
+            self._seq = seq if self._seq is None else max(self._seq, seq)
+        now = self._contacts(x, y)
+        if now:
+            for a, b in sorted(now.keys() - self._inside):
+                d = now[(a, b)]
+                if b < self.n:
+                    out.append(Event(t, "collision", robot=a, other=b, distance=d,
+                                     detail=f"robots {a} and {b} at {d:.4g} m < r = {self.r:g} m"))
+                else:
+                    m = b - self.n
+                    out.append(Event(t, "collision", robot=a, obstacle=m, distance=d,
+                                     detail=f"robot {a} and obstacle {m} at {d:.4g} m < r = "
+                                            f"{self.obstacles[m, 2]:g} m"))
+        self._inside = set(now)
+        alive = np.asarray(alive, bool)
+        stopped = np.asarray(stopped, bool)
+        if self._alive is None:
+            if not alive.all():
+                for a in np.flatnonzero(~alive).tolist():
+                    out.append(Event(t, "robot_dead", robot=a, detail=f"robot {a} is not alive at the first snapshot"))
+        elif not np.array_equal(alive, self._alive):
+            for a in np.flatnonzero(self._alive & ~alive).tolist():
+                out.append(Event(t, "robot_dead", robot=a, detail=f"robot {a} lost its liveliness"))
+            for a in np.flatnonzero(~self._alive & alive).tolist():
+                out.append(Event(t, "robot_alive", robot=a, detail=f"robot {a} is alive again"))
+        if self._stopped is not None and not np.array_equal(stopped, self._stopped):
+            for a in np.flatnonzero(~self._stopped & stopped).tolist():
+                self._was_stopped[a] = True
+                out.append(Event(t, "robot_stopped", robot=a,
+                                 detail=f"the world stopped robot {a} (no fresh command: watchdog)"))
+            for a in np.flatnonzero(self._stopped & ~stopped & self._was_stopped).tolist():
+                self._was_stopped[a] = False
+                out.append(Event(t, "robot_resumed", robot=a, detail=f"robot {a} moves again"))
+        self._alive, self._stopped = alive.copy(), stopped.copy()
+        return out
+
+    def frozen(self, t: float, robot: int, flag: bool) -> Event | None:
+        """A freeze_start / freeze_end event if robot's freeze flag changed (the first flag counts from False)."""
+        flag = bool(flag)
+        if self._frozen.get(robot, False) == flag:
+            self._frozen[robot] = flag
+            return None
+        self._frozen[robot] = flag
+        return Event(t, "freeze_start" if flag else "freeze_end", robot=robot,
+                     detail=f"robot {robot} {'enters' if flag else 'leaves'} another robot's avoidance region")
+
+
+# --------------------------------------------------------------------------- the writer
+
+
+class Recorder:
+    """One MCAP file of one run. Thread-safe: every method takes one lock (calls are short).
+
+    path: the file (overwritten); scenario: the run's Scenario (written first, as TOML);
+    record_hz: samples per simulated second (0 or None: every step); source: "sim", "lockstep",
+    "realtime" or "live" (written in /scenario); fleet: the zenoh fleet name, if any;
+    status_period: simulated seconds between kept statuses of a robot (None: as record_hz);
+    presampled: the caller already picked the samples (record_simulation): snapshots, references and
+    commands are all written, record_hz is only noted in /scenario.
+    """
+
+    def __init__(self, path, scenario: Scenario, record_hz: float | None = DEFAULT_RECORD_HZ,
+                 source: str = "live", fleet: str | None = None, status_period: float | None = None,
+                 presampled: bool = False, chunk_size: int = 1 << 20):
+        from mcap.writer import CompressionType, Writer
+
+        from swarm import scenario_file
+
+        self.path = Path(path)
+        self.scenario = scenario
+        self.every = record_every(record_hz, scenario.dt)
+        self.period = None if self.every == 1 else self.every * scenario.dt
+        self.record_hz = float(record_hz or 0.0)
+        self.status_period = self.period if status_period is None else float(status_period)
+        self._final_t = scenario.steps * scenario.dt  # the final step is always kept
+        self._tol = 1e-6 * scenario.dt
+        self._lock = threading.Lock()
+        self._grid_period = None if presampled else self.period
+        self._snap_grid = _Grid(self._grid_period, scenario.dt)
+        self._ref_grid = _Grid(self._grid_period, scenario.dt)
+        self._cmd_grid: dict[int, _Grid] = {}
+        self._status_grid: dict[int, _Grid] = {}
+        self._held: tuple | None = None  # the newest snapshot not written (written at close: always keep the last)
+        self.last_t = 0.0
+        self.counts = {topic: 0 for topic in TOPICS}
+        self.closed = False
+        try:
+            self._file = open(self.path, "wb")
+        except OSError as e:
+            raise RecordError(f"{self.path}: cannot write the recording: {e.strerror or e}") from None
+        try:
+            self._w = Writer(self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+            self._w.start(profile="", library="swarm")
+            self._ch = {}
+            for topic, (name, schema) in SCHEMAS.items():
+                sid = self._w.register_schema(name, "jsonschema", json.dumps(schema).encode())
+                self._ch[topic] = self._w.register_channel(topic, "json", sid)
+            self._w.add_metadata("swarm", {"source": source, "record_hz": repr(self.record_hz),
+                                           "record_every": str(self.every), "fleet": fleet or "",
+                                           "time_base": "log_time = simulated time since t = 0, in ns"})
+            scn = scenario
+            self._put(TOPIC_SCENARIO, 0.0, json.dumps({
+                "name": scn.name, "robots": scn.n, "obstacles": len(scn.obstacles), "dt": scn.dt,
+                "duration": scn.duration, "seed": scn.seed, "r": scn.r, "R": scn.R, "source": source,
+                "record_hz": self.record_hz, "record_every": self.every, **({"fleet": fleet} if fleet else {}),
+                "toml": scenario_file.to_toml(scn)}))
+        except BaseException:
+            self._file.close()
+            raise
+
+    # -- low level
+
+    def _put(self, topic: str, t: float, text: str, seq: int = 0) -> None:
+        ns = _ns(t)
+        self._w.add_message(self._ch[topic], ns, text.encode(), ns, seq)
+        self.counts[topic] += 1
+        if t > self.last_t:
+            self.last_t = t
+
+    def _keep(self, grid: _Grid, t: float) -> bool:
+        return grid.keep(t) or t >= self._final_t - self._tol
+
+    def _check_open(self) -> None:
+        if self.closed:
+            raise RecordError(f"{self.path}: the recording is closed")
+
+    # -- messages
+
+    def snapshot(self, t: float, seq: int, ids, x, y, theta, v, w, stopped, alive, frozen) -> bool:
+        """One world snapshot, columns of plain lists (or arrays) indexed like ids; True if written now."""
+        with self._lock:
+            self._check_open()
+            if not self._keep(self._snap_grid, t):
+                self._held = (t, seq, ids, x, y, theta, v, w, stopped, alive, frozen)
+                return False
+            self._held = None
+            self._write_snapshot(t, seq, ids, x, y, theta, v, w, stopped, alive, frozen)
+            return True
+
+    def _write_snapshot(self, t, seq, ids, x, y, theta, v, w, stopped, alive, frozen) -> None:
+        def col(a) -> list:
+            return a.tolist() if isinstance(a, np.ndarray) else list(a)
+
+        self._put(TOPIC_SNAPSHOT, t, json.dumps(
+            {"t": float(t), "seq": int(seq), "id": col(ids), "x": col(x), "y": col(y), "theta": col(theta),
+             "v": col(v), "w": col(w), "stopped": col(stopped), "alive": col(alive), "frozen": col(frozen)},
+            separators=(",", ":"), allow_nan=False), int(seq))
+
+    def ref(self, r: Ref) -> bool:
+        with self._lock:
+            self._check_open()
+            if not self._keep(self._ref_grid, r.t):
+                return False
+            self._put(TOPIC_REF, r.t, f'{{"t":{r.t!r},"seq":{r.seq},"x":{r.x!r},"y":{r.y!r},"theta":{r.theta!r},'
+                                      f'"v":{r.v!r},"w":{r.w!r}}}', r.seq)
+            return True
+
+    def cmd(self, robot: int, c: Cmd) -> bool:
+        with self._lock:
+            self._check_open()
+            g = self._cmd_grid.get(robot)
+            if g is None:
+                g = self._cmd_grid[robot] = _Grid(self._grid_period, self.scenario.dt)
+            if not self._keep(g, c.t):
+                return False
+            self._put(TOPIC_CMD, c.t, f'{{"t":{c.t!r},"seq":{c.seq},"id":{robot},"v":{c.v!r},"w":{c.w!r}}}', c.seq)
+            return True
+
+    def status(self, robot: int, s: Status) -> bool:
+        with self._lock:
+            self._check_open()
+            g = self._status_grid.get(robot)
+            if g is None:
+                g = self._status_grid[robot] = _Grid(self.status_period, self.scenario.dt)
+            if not self._keep(g, s.t):
+                return False
+            self._put(TOPIC_STATUS, s.t, f'{{"t":{s.t!r},"id":{robot},"ex":{s.ex!r},"ey":{s.ey!r},'
+                                         f'"etheta":{s.etheta!r},"frozen":{_jbool(s.frozen)},'
+                                         f'"neighbours":{s.neighbours},"stale":{s.stale},"bad":{s.bad}}}')
+            return True
+
+    def event(self, ev: Event) -> None:
+        with self._lock:
+            self._check_open()
+            self._put(TOPIC_EVENTS, ev.t, json.dumps(ev.to_dict(), separators=(",", ":"), allow_nan=False))
+
+    def close(self, metrics: dict | None = None) -> None:
+        """Write the held last snapshot and the metrics (the exact dict; None: no metrics), finish the file."""
+        with self._lock:
+            if self.closed:
+                return
+            self.closed = True
+            try:
+                if self._held is not None:
+                    self._write_snapshot(*self._held)
+                    self._held = None
+                if metrics is not None:
+                    try:
+                        text = json.dumps(metrics, allow_nan=False)
+                    except (TypeError, ValueError) as e:
+                        raise RecordError(f"{self.path}: the metrics cannot be written as JSON: {e}") from None
+                    self._put(TOPIC_METRICS, self.last_t, text)
+            finally:
+                self._w.finish()
+                self._file.close()
+
+    def __enter__(self) -> "Recorder":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# --------------------------------------------------------------------------- live: from the bus
+
+
+class BusRecorder:
+    """Records a live run from the bus: snapshots, leader reference, commands and statuses of `fleet`.
+
+    Bus callbacks (on the bus's thread) only append (topic, key, payload) to a deque; a worker thread
+    decodes each payload with swarm.protocol.decode (a bad one is dropped, counted in `bad` and written
+    as a bad_message event; nothing raises into the bus), merges each robot's newest status freeze flag
+    into the snapshots, derives the events (EventDeriver) and writes through the Recorder. Nothing is
+    dropped: when MAX_PENDING messages wait, a callback waits for room. threaded=False: no worker; the
+    owner calls drain() (deterministic tests, benches).
+    """
+
+    def __init__(self, bus, fleet: str, recorder: Recorder, max_pending: int = MAX_PENDING, threaded: bool = True):
+        self.rec = recorder
+        self.fleet = keys.check_fleet(fleet)
+        scn = recorder.scenario
+        self.n = scn.n
+        self.events = EventDeriver(scn)
+        self.bad = 0
+        self.errors = 0  # unexpected failures while writing (logged; the recording goes on)
+        self.received = 0
+        self.snapshots = 0  # snapshots received (valid ones)
+        self.first_seq: int | None = None  # seq of the first one
+        self.snapshots_missed = 0  # gaps in their seq (best-effort messages lost on the way)
+        self._last_seq: int | None = None
+        self._frozen = [False] * self.n
+        self._ids: dict[str, int | None] = {}
+        self._pending: collections.deque = collections.deque()
+        self._max = max_pending
+        self._closing = threading.Event()
+        self._open = True
+        self._worker: threading.Thread | None = None
+        if threaded:  # started before subscribing: a callback may come at once
+            self._worker = threading.Thread(target=self._run, name="swarm-recorder", daemon=True)
+            self._worker.start()
+        # topic -> the bus callback (fn(key, payload)); public for benches that time it alone
+        self.callbacks = {topic: self._on(topic) for topic in (TOPIC_SNAPSHOT, TOPIC_REF, TOPIC_CMD, TOPIC_STATUS)}
+        self._handles = [
+            bus.subscribe(keys.world_snapshot(fleet), self.callbacks[TOPIC_SNAPSHOT]),
+            bus.subscribe(keys.leader_ref(fleet), self.callbacks[TOPIC_REF]),
+            bus.subscribe(keys.robot_any(fleet, "cmd"), self.callbacks[TOPIC_CMD]),
+            bus.subscribe(keys.robot_any(fleet, "status"), self.callbacks[TOPIC_STATUS]),
+        ]
+
+    def _on(self, topic: str):
+        pending, limit, worker = self._pending, self._max, self._worker
+
+        def callback(key: str, payload: bytes) -> None:
+            if not self._open:
+                return
+            pending.append((topic, key, payload))
+            while len(pending) > limit and worker is not None and worker.is_alive():
+                time.sleep(0.001)  # back-pressure instead of a drop
+
+        return callback
+
+    def drain(self) -> int:
+        """Process every message received so far on the caller's thread; returns how many."""
+        done = 0
+        pending = self._pending
+        while pending:
+            self.process(*pending.popleft())
+            done += 1
+        return done
+
+    # -- the worker
+
+    def _run(self) -> None:
+        while True:
+            closing = self._closing.is_set()
+            self.drain()
+            if closing:
+                return
+            self._closing.wait(POLL_S)
+
+    def process(self, topic: str, key: str, payload: bytes) -> None:
+        """Decode and record one received message (the worker calls this; tests and benches may too)."""
+        self.received += 1
+        try:
+            if topic == TOPIC_SNAPSHOT:
+                self._snapshot(key, payload)
+            elif topic == TOPIC_REF:
+                self.rec.ref(protocol.decode(payload, "ref"))
+            else:
+                robot = self._robot(key)
+                if topic == TOPIC_CMD:
+                    self.rec.cmd(robot, protocol.decode(payload, "cmd"))
+                else:
+                    self._status(robot, protocol.decode(payload, "status"))
+        except ProtocolError as e:
+            self._bad(key, str(e))
+        except Exception:  # a bug must not stop the recording (nor reach the bus's thread)
+            if self.rec.closed:
+                return
+            self.errors += 1
+            if self.errors <= 3:
+                log.exception("recorder: failed to record a message on %s", key)
+
+    def _robot(self, key: str) -> int:
+        robot = self._ids.get(key, -1)
+        if robot == -1:
+            k = keys.parse(key)
+            robot = self._ids[key] = k.id if k is not None and k.id is not None and k.id < self.n else None
+        if robot is None:
+            raise ProtocolError(f"key {key!r} does not name a robot of this scenario (0..{self.n - 1})")
+        return robot
+
+    def _bad(self, key: str, reason: str) -> None:
+        self.bad += 1
+        if self.bad <= MAX_BAD_EVENTS:
+            k = keys.parse(key)
+            more = "; later ones are counted, not written" if self.bad == MAX_BAD_EVENTS else ""
+            self.rec.event(Event(self.rec.last_t, "bad_message", robot=k.id if k is not None else None,
+                                 detail=f"{key}: {reason}{more}"))
+
+    def _status(self, robot: int, s: Status) -> None:
+        self._frozen[robot] = s.frozen
+        ev = self.events.frozen(s.t, robot, s.frozen)
+        if ev is not None:
+            self.rec.event(ev)
+        self.rec.status(robot, s)
+
+    def _snapshot(self, key: str, payload: bytes) -> None:
+        s: Snapshot = protocol.decode(payload, "snapshot")
+        self.snapshots += 1
+        if self._last_seq is None:
+            self.first_seq = s.seq
+        elif s.seq > self._last_seq + 1:
+            self.snapshots_missed += s.seq - self._last_seq - 1
+        self._last_seq = s.seq if self._last_seq is None else max(self._last_seq, s.seq)
+        rows = s.robots
+        n = self.n
+        ids = [r.id for r in rows]
+        if len(rows) == n and ids == list(range(n)):
+            x = [r.x for r in rows]
+            y = [r.y for r in rows]
+            theta = [r.theta for r in rows]
+            v = [r.v for r in rows]
+            w = [r.w for r in rows]
+            stopped = [r.stopped for r in rows]
+            alive = [r.alive for r in rows]
+            frozen = list(self._frozen)
+        else:  # robots missing, reordered or unknown: keep the ids of this scenario
+            known = [r for r in rows if r.id < n]
+            if len(known) < len(rows):
+                raise ProtocolError(f"snapshot names robot {max(ids)}; the scenario has {n} (0..{n - 1})")
+            ids = [r.id for r in known]
+            x, y, theta = [r.x for r in known], [r.y for r in known], [r.theta for r in known]
+            v, w = [r.v for r in known], [r.w for r in known]
+            stopped, alive = [r.stopped for r in known], [r.alive for r in known]
+            frozen = [self._frozen[i] for i in ids]
+        full_x, full_y = np.full(n, np.nan), np.full(n, np.nan)
+        full_alive, full_stopped = np.zeros(n, bool), np.ones(n, bool)
+        idx = np.asarray(ids, np.int64)
+        full_x[idx], full_y[idx] = x, y
+        full_alive[idx], full_stopped[idx] = alive, stopped
+        for ev in self.events.snapshot(s.t, s.seq, full_x, full_y, full_alive, full_stopped):
+            self.rec.event(ev)
+        self.rec.snapshot(s.t, s.seq, ids, x, y, theta, v, w, stopped, alive, frozen)
+
+    # -- the end
+
+    @property
+    def pending(self) -> int:
+        return len(self._pending)
+
+    def close(self, metrics: dict | None = None, timeout_s: float = 60.0) -> None:
+        """Unsubscribe, write everything received, then the metrics, and finish the file."""
+        for h in self._handles[::-1]:
+            try:
+                h.close()
+            except Exception:  # the session may already be gone: nothing left to release
+                pass
+        self._handles.clear()
+        self._closing.set()
+        if self._worker is not None:
+            self._worker.join(timeout_s)
+        self._open = False
+        if self._worker is not None and self._worker.is_alive():
+            log.warning("recorder: %d messages still pending after %g s; finishing without them",
+                        len(self._pending), timeout_s)
+        else:  # what arrived after the worker's last drain (or everything, without a worker)
+            self.drain()
+        if self.bad > MAX_BAD_EVENTS:
+            self.rec.event(Event(self.rec.last_t, "bad_message",
+                                 detail=f"{self.bad} bad messages in all ({self.bad - MAX_BAD_EVENTS} not written)"))
+        self.rec.close(metrics)
+
+
+# --------------------------------------------------------------------------- `swarm sim`
+
+
+def record_simulation(path, scenario: Scenario, result, record_hz: float | None = DEFAULT_RECORD_HZ) -> Path:
+    """Write the recording of an in-process run: the same channels a live run has.
+
+    result: a swarm.sim.Result, or a Simulation (run to the end here if it has not run). Its samples
+    must be at least as dense as record_hz asks: build it with Simulation(scn,
+    record_period=record_period(record_hz, scn.dt)) (denser samples are decimated here).
+    Per sample: a snapshot (v, w: the command computed at the sample; stopped false, alive true),
+    the leader reference, every robot's command; statuses every STATUS_PERIOD_S (errors against the
+    live reference as the agents report them, neighbours: robots closer than the cell side). Events
+    come from the samples (freeze changes, collisions between consecutive samples); the metrics count
+    every step, so with a coarse record_hz they may count collisions that no sample shows.
+    """
+    from swarm.sim import Result, Simulation
+
+    if isinstance(result, Simulation):
+        result = result.run()
+    if not isinstance(result, Result):
+        raise TypeError(f"record_simulation needs a swarm.sim.Result or Simulation, got {type(result).__name__}")
+    scn, rec = scenario, result.recording
+    dt = scn.dt
+    every = record_every(record_hz, dt)
+    steps = np.rint(rec.t / dt).astype(np.int64)
+    have = int(np.min(np.diff(steps[:-1]))) if len(steps) > 2 else every
+    if len(steps) > 2 and (every % have or np.any(steps[:-1] % have)):
+        raise RecordError(f"{path}: the simulation sampled every {have} steps; record_hz {record_hz} needs every "
+                          f"{every}: build it with Simulation(scn, record_period=record_period({record_hz}, {dt}))")
+    rows = np.flatnonzero((steps % every == 0) | (np.arange(len(steps)) == len(steps) - 1))
+    table = scn.leader.table()
+    deriver = EventDeriver(scn)
+    sense = scn.cell_side
+    ids = list(range(scn.n))
+    not_stopped, alive = [False] * scn.n, [True] * scn.n
+    all_alive, none_stopped = np.ones(scn.n, bool), np.zeros(scn.n, bool)
+    with Recorder(path, scn, record_hz, source="sim", status_period=max(STATUS_PERIOD_S, every * dt),
+                  presampled=True) as out:
+        for s in rows.tolist():
+            t, k = float(rec.t[s]), int(steps[s])
+            q, cmd, err, frozen = rec.q[s], rec.cmd[s], rec.err[s], rec.frozen[s]
+            if not (np.isfinite(q).all() and np.isfinite(cmd).all()):
+                raise RecordError(f"{path}: sample at t = {t:g} s is not finite")
+            for ev in deriver.snapshot(t, None, q[:, 0], q[:, 1], all_alive, none_stopped):  # samples: gaps are normal
+                out.event(ev)
+            fl = frozen.tolist()
+            for i, f in enumerate(fl):
+                ev = deriver.frozen(t, i, f)
+                if ev is not None:
+                    out.event(ev)
+            out.snapshot(t, k, ids, q[:, 0], q[:, 1], q[:, 2], cmd[:, 0], cmd[:, 1], not_stopped, alive, fl)
+            _x, _y, _th, vl, wl = kinematics.leader_state(table, t)
+            lx, ly, lth = map(float, rec.leader[s])
+            out.ref(Ref(t=t, seq=k, x=lx, y=ly, theta=lth, v=float(vl), w=float(wl)))
+            vs, ws = cmd[:, 0].tolist(), cmd[:, 1].tolist()
+            for i in ids:
+                out.cmd(i, Cmd(t=t, seq=k, v=vs[i], w=ws[i]))
+            pi, pj, _ = pairs_within(q[:, 0], q[:, 1], sense)
+            neighbours = np.bincount(np.concatenate([pi, pj]), minlength=scn.n).tolist()
+            ex, ey, eth = err[:, 0].tolist(), err[:, 1].tolist(), err[:, 2].tolist()
+            for i in ids:
+                out.status(i, Status(t=t, ex=ex[i], ey=ey[i], etheta=eth[i], frozen=fl[i],
+                                     neighbours=neighbours[i], stale=0, bad=0))
+        out.close(result.metrics)
+    return Path(path)

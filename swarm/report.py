@@ -1,0 +1,405 @@
+"""Reading a recording back (swarm.record's MCAP file): samples, frames for replay, a report.
+
+    run = read_recording("run.mcap")      # scenario, sim.Recording, metrics, events
+    for f in pace(iter_frames("run.mcap"), speed=2.0):
+        view.show(f.q, f.alive, f.frozen)  # f.t [s], q (N, 3)
+    write_report("run.mcap", "out/")      # Fig. 2 panels (swarm.plots) + index.html
+
+The same reader serves a live recording (`swarm up --record`) and an in-process one (`swarm sim
+--record`): both have the channels of swarm.record. The samples' errors are recomputed against the
+live leader reference of the stored scenario, exactly as the simulator computes them (swarm.kernel:
+p = (x_l + d_i) - x_i, e_theta = wrap(theta_l - theta_i)), never taken from a frozen snapshot.
+Every failure to read is a ReportError naming the file and the reason.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+import time
+import tomllib
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+
+from swarm import kinematics, law
+from swarm.record import METRIC_KEYS, TOPIC_CMD, TOPIC_EVENTS, TOPIC_METRICS, TOPIC_SCENARIO, TOPIC_SNAPSHOT
+from swarm.scenario import Scenario, ScenarioError
+from swarm.sim import Recording
+
+FIRST_EVENTS = 50  # events listed one by one in index.html
+_MAGIC = b"\x89MCAP0\r\n"  # an MCAP file starts and ends with it
+
+
+class ReportError(ValueError):
+    """A file that cannot be read as a swarm recording; the message names the file and the reason."""
+
+
+@dataclass
+class Run:
+    """A recording read back. recording: samples at the recorded snapshots (swarm.sim.Recording);
+    metrics: the run's metrics dict (None if the run never wrote them); events: /events dicts in time
+    order; info: the /scenario message without its TOML (source, record_hz, fleet, ...)."""
+
+    path: Path
+    scenario: Scenario
+    recording: Recording
+    metrics: dict | None
+    events: list[dict]
+    info: dict
+    counts: dict[str, int]  # messages per topic in the file
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One snapshot for replay: t [s], q (N, 3) x, y [m], theta [rad]; stopped, alive, frozen (N,) bool.
+    Rows are robot ids; a robot missing from the snapshot has NaN pose and alive False."""
+
+    t: float
+    seq: int
+    q: np.ndarray
+    stopped: np.ndarray
+    alive: np.ndarray
+    frozen: np.ndarray
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def _messages(path: Path, topics: list[str] | None = None,
+              counts: dict[str, int] | None = None) -> Iterator[tuple[str, int, dict]]:
+    """(topic, log_time [ns], decoded JSON) of every message of `topics` (None: all), in log-time order;
+    ReportError on any fault. counts, if given, receives the file's message count per topic."""
+    from mcap.reader import make_reader
+
+    try:
+        f = open(path, "rb")
+    except FileNotFoundError:
+        raise ReportError(f"{path}: no such file") from None
+    except OSError as e:
+        raise ReportError(f"{path}: cannot read: {e.strerror or e}") from None
+    with f:
+        head = f.read(len(_MAGIC))
+        if not head:
+            raise ReportError(f"{path}: empty file, not an MCAP recording")
+        if head != _MAGIC:
+            raise ReportError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
+        f.seek(-min(len(_MAGIC), path.stat().st_size), 2)
+        if f.read() != _MAGIC or path.stat().st_size < 2 * len(_MAGIC):
+            raise ReportError(f"{path}: truncated MCAP file (no footer: the recorder did not finish it, "
+                              "was the run killed?)")
+        f.seek(0)
+        try:
+            reader = make_reader(f)
+            summary = reader.get_summary()
+        except Exception as e:  # McapError, or struct/EOF errors on damaged files
+            raise ReportError(f"{path}: corrupt or truncated MCAP file ({type(e).__name__}: {e})") from None
+        if summary is None:
+            raise ReportError(f"{path}: truncated MCAP file (no summary: the recorder did not finish it)")
+        if counts is not None and summary.statistics is not None:
+            for cid, c in summary.statistics.channel_message_counts.items():
+                if cid in summary.channels:
+                    counts[summary.channels[cid].topic] = counts.get(summary.channels[cid].topic, 0) + c
+        try:
+            for _schema, channel, message in reader.iter_messages(topics=topics):
+                try:
+                    data = json.loads(message.data)
+                except ValueError as e:
+                    raise ReportError(f"{path}: {channel.topic} message at log time {message.log_time} ns is "
+                                      f"not JSON: {e}") from None
+                yield channel.topic, message.log_time, data
+        except ReportError:
+            raise
+        except Exception as e:
+            raise ReportError(f"{path}: corrupt or truncated MCAP file ({type(e).__name__}: {e})") from None
+
+
+def _scenario(path: Path, msg: dict | None) -> tuple[Scenario, dict]:
+    from swarm import scenario_file
+
+    if msg is None:
+        raise ReportError(f"{path}: no {TOPIC_SCENARIO} message: not a swarm recording")
+    try:
+        doc = tomllib.loads(msg["toml"])
+        spec = scenario_file.parse(doc, f"{path}:{TOPIC_SCENARIO}", str(msg.get("name", path.stem)))
+        scn = scenario_file.resolve(spec)
+    except (KeyError, TypeError, tomllib.TOMLDecodeError, ScenarioError) as e:
+        raise ReportError(f"{path}: the recorded scenario cannot be rebuilt: {e}") from None
+    info = {k: v for k, v in msg.items() if k != "toml"}
+    return scn, info
+
+
+def read_scenario(path) -> tuple[Scenario, dict]:
+    """The recorded Scenario and the /scenario message's other fields (reads only that channel)."""
+    path = Path(path)
+    for _topic, _t, data in _messages(path, [TOPIC_SCENARIO]):
+        return _scenario(path, data)
+    return _scenario(path, None)
+
+
+def _columns(path: Path, d: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                    np.ndarray, np.ndarray]:
+    """Rows by robot id of one snapshot message: x, y, theta, v, w (N,) floats, stopped, alive, frozen bools."""
+    try:
+        ids = np.asarray(d["id"], np.int64)
+        if ids.size and (ids.min() < 0 or ids.max() >= n):
+            raise ValueError(f"robot id {int(ids.max())} outside the scenario's 0..{n - 1}")
+        cols = [np.full(n, np.nan) for _ in range(5)]
+        for c, name in zip(cols, ("x", "y", "theta", "v", "w")):
+            c[ids] = np.asarray(d[name], float)
+        flags = [np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)]
+        flags[0][:] = True  # a robot missing from the snapshot counts as stopped and not alive
+        for c, name in zip(flags, ("stopped", "alive", "frozen")):
+            c[ids] = np.asarray(d[name], bool)
+    except (KeyError, TypeError, ValueError, IndexError) as e:
+        raise ReportError(f"{path}: bad {TOPIC_SNAPSHOT} message at t = {d.get('t')!r}: {e}") from None
+    return (*cols, *flags)
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    """swarm.law.wrap_angle elementwise, bit for bit (numpy for angles in range, the scalar law otherwise)."""
+    out = np.array(a, float)
+    bad = ~((out > -math.pi) & (out <= math.pi))
+    if bad.any():
+        out[bad] = [law.wrap_angle(v) for v in out[bad].tolist()]
+    return out
+
+
+def live_errors(scn: Scenario, t: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """err (S, N, 3) p_x, p_y [m], e_theta [rad] against the live leader reference, and leader (S, 3),
+    for samples at times t (S,) with poses q (S, N, 3): the simulator's formulas, float for float."""
+    table = scn.leader.table()
+    leader = np.array([kinematics.leader_state(table, float(tk))[:3] for tk in t], float).reshape(-1, 3)
+    off = np.asarray(scn.offsets, float)
+    err = np.empty_like(q)
+    err[:, :, 0] = (leader[:, 0:1] + off[None, :, 0]) - q[:, :, 0]
+    err[:, :, 1] = (leader[:, 1:2] + off[None, :, 1]) - q[:, :, 1]
+    err[:, :, 2] = _wrap(leader[:, 2:3] - q[:, :, 2])
+    return err, leader
+
+
+def read_recording(path) -> Run:
+    """Read a whole recording: the scenario, the samples (one per recorded snapshot), metrics, events.
+
+    Recording.cmd at a sample is robot i's newest recorded command with t <= the sample's t (the one
+    computed at that step when it was recorded), else the snapshot's v, w (the command being applied).
+    """
+    path = Path(path)
+    scn_msg = None
+    snaps: list[dict] = []
+    cmds: dict[int, list[tuple[float, float, float]]] = {}
+    events: list[dict] = []
+    metrics = None
+    counts: dict[str, int] = {}
+    for topic, _t, d in _messages(path, [TOPIC_SCENARIO, TOPIC_SNAPSHOT, TOPIC_CMD, TOPIC_EVENTS, TOPIC_METRICS],
+                                  counts):
+        if topic == TOPIC_SNAPSHOT:
+            snaps.append(d)
+        elif topic == TOPIC_CMD:
+            try:
+                cmds.setdefault(int(d["id"]), []).append((float(d["t"]), float(d["v"]), float(d["w"])))
+            except (KeyError, TypeError, ValueError) as e:
+                raise ReportError(f"{path}: bad {TOPIC_CMD} message {str(d)[:80]}: {e}") from None
+        elif topic == TOPIC_EVENTS:
+            events.append(d)
+        elif topic == TOPIC_METRICS:
+            metrics = d
+        elif topic == TOPIC_SCENARIO and scn_msg is None:
+            scn_msg = d
+    scn, info = _scenario(path, scn_msg)
+    if not snaps:
+        raise ReportError(f"{path}: no {TOPIC_SNAPSHOT} messages: nothing was recorded")
+    n, s = scn.n, len(snaps)
+    t = np.empty(s)
+    q = np.empty((s, n, 3))
+    cmd = np.empty((s, n, 2))
+    frozen = np.zeros((s, n), bool)
+    for k, d in enumerate(snaps):
+        try:
+            t[k] = float(d["t"])
+        except (KeyError, TypeError, ValueError) as e:
+            raise ReportError(f"{path}: bad {TOPIC_SNAPSHOT} message without a time: {e}") from None
+        x, y, th, v, w, _stopped, _alive, fr = _columns(path, d, n)
+        q[k, :, 0], q[k, :, 1], q[k, :, 2] = x, y, th
+        cmd[k, :, 0], cmd[k, :, 1] = v, w
+        frozen[k] = fr
+    tol = 1e-6 * scn.dt
+    for i, rows in cmds.items():
+        if not 0 <= i < n:
+            raise ReportError(f"{path}: {TOPIC_CMD} message for robot {i}; the scenario has 0..{n - 1}")
+        rows.sort(key=lambda r: r[0])
+        ct = np.array([r[0] for r in rows])
+        at = np.searchsorted(ct, t + tol, side="right") - 1
+        has = at >= 0
+        vw = np.array([(r[1], r[2]) for r in rows])
+        cmd[has, i, :] = vw[at[has]]
+    err, leader = live_errors(scn, t, q)
+    events.sort(key=lambda e: e.get("t", 0.0) if isinstance(e.get("t"), (int, float)) else 0.0)
+    return Run(path, scn, Recording(t, q, err, cmd, frozen, leader), metrics, events, info, counts)
+
+
+def iter_frames(path) -> Iterator[Frame]:
+    """Every recorded snapshot of `path`, in time order, as a Frame (numpy arrays, rows by robot id)."""
+    path = Path(path)
+    scn, _info = read_scenario(path)
+    n = scn.n
+    for _topic, _t, d in _messages(path, [TOPIC_SNAPSHOT]):
+        x, y, th, _v, _w, stopped, alive, frozen = _columns(path, d, n)
+        try:
+            t, seq = float(d["t"]), int(d["seq"])
+        except (KeyError, TypeError, ValueError) as e:
+            raise ReportError(f"{path}: bad {TOPIC_SNAPSHOT} message: {e}") from None
+        yield Frame(t, seq, np.stack([x, y, th], axis=1), stopped, alive, frozen)
+
+
+def pace(frames, speed: float = 1.0, max_hz: float | None = None, clock: Callable[[], float] = time.monotonic,
+         sleep: Callable[[float], object] = time.sleep) -> Iterator:
+    """Yield each frame when its time comes: frame.t - t_first simulated seconds take / speed wall seconds.
+
+    max_hz None: every frame, late ones at once (a consumer slower than the frames is never waited
+    for). max_hz given (a viewer): at most max_hz frames per wall second, and a frame whose successor
+    is already due is skipped, so a slow consumer stays on time; the last frame always comes.
+    clock/sleep are injectable (tests; sleep may be an Event's wait to stop promptly).
+    """
+    if isinstance(speed, bool) or not (math.isfinite(speed) and speed > 0):
+        raise ValueError(f"speed must be a number > 0, got {speed!r}")
+    if max_hz is not None and not (math.isfinite(max_hz) and max_hz > 0):
+        raise ValueError(f"max_hz must be a number > 0, got {max_hz!r}")
+    gap = 0.0 if max_hz is None else 1.0 / max_hz
+    it = iter(frames)
+    f = next(it, None)
+    if f is None:
+        return
+    t0, w0 = f.t, clock()
+    shown = -math.inf  # due time of the last frame yielded
+    while f is not None:
+        nxt = next(it, None)
+        due = w0 + (f.t - t0) / speed
+        if max_hz is not None and nxt is not None:
+            if clock() >= w0 + (nxt.t - t0) / speed or due < shown + gap:
+                f = nxt
+                continue
+        left = due - clock()
+        if left > 0:
+            sleep(left)
+        shown = due
+        yield f
+        f = nxt
+
+
+# --------------------------------------------------------------------------- the report
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return str(v)
+
+
+def _table(rows: list[tuple], head: tuple[str, ...]) -> str:
+    out = ["<table>", "<tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"]
+    for row in rows:
+        out.append("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>")
+    out.append("</table>")
+    return "\n".join(out)
+
+
+_CSS = """body{font-family:sans-serif;margin:1.5em;max-width:1400px}
+table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:2px 8px;text-align:left}
+th{background:#f0f0f0}pre{background:#f7f7f7;padding:0.5em;overflow:auto;max-height:30em}
+.panels{display:flex;flex-wrap:wrap;gap:8px}.panels figure{margin:0;width:32%}.panels img{width:100%}
+img.wide{width:100%}figcaption{font-size:small}"""
+
+
+def _html(run: Run, panels: list[Path], extra: list[Path]) -> str:
+    from swarm.plots import TITLES
+
+    scn, rec, m = run.scenario, run.recording, run.metrics
+    esc = html.escape
+    title = f"{scn.name}: {scn.n} robots, {len(scn.obstacles)} obstacles"
+    head = [("file", esc(run.path.name)), ("source", esc(str(run.info.get("source", "?")))),
+            ("fleet", esc(str(run.info.get("fleet") or "–"))), ("dt", f"{scn.dt:g} s"),
+            ("duration", f"{scn.duration:g} s"), ("seed", str(scn.seed)),
+            ("samples", f"{len(rec.t)} from t = {rec.t[0]:g} s to {rec.t[-1]:g} s (record_hz "
+                        f"{esc(_fmt(run.info.get('record_hz')))})"),
+            ("messages", esc(", ".join(f"{k} {v}" for k, v in sorted(run.counts.items()))))]
+    parts = [f"<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>{esc(title)}</title>",
+             f"<style>{_CSS}</style></head><body>", f"<h1>{esc(title)}</h1>", _table(head, ("run", "")),
+             "<h2>Metrics</h2>"]
+    if m is None:
+        parts.append("<p>No metrics: the run ended before it wrote them.</p>")
+    else:
+        rows = [(esc(k), f"<span title='{esc(json.dumps(v))}'>{esc(_fmt(v))}</span>", esc(json.dumps(v)))
+                for k, v in m.items()]
+        parts.append(_table(rows, ("metric", "value", "exact")))
+        missing = [k for k in METRIC_KEYS if k not in m]
+        if missing:
+            parts.append(f"<p>Missing contract keys: {esc(', '.join(missing))}</p>")
+    kinds = Counter(str(e.get("kind")) for e in run.events)
+    parts.append(f"<h2>Events ({len(run.events)})</h2>")
+    if kinds:
+        parts.append(_table([(esc(k), str(c)) for k, c in sorted(kinds.items())], ("kind", "count")))
+        rows = []
+        for e in run.events[:FIRST_EVENTS]:
+            who = [f"robot {e['robot']}" if e.get("robot") is not None else "",
+                   f"robot {e['other']}" if e.get("other") is not None else "",
+                   f"obstacle {e['obstacle']}" if e.get("obstacle") is not None else ""]
+            rows.append((esc(_fmt(e.get("t"))), esc(str(e.get("kind"))), esc(", ".join(w for w in who if w)),
+                         esc(_fmt(e.get("distance"))), esc(str(e.get("detail", "")))))
+        more = f" (the first {FIRST_EVENTS})" if len(run.events) > FIRST_EVENTS else ""
+        parts.append(f"<h3>Events in time order{more}</h3>")
+        parts.append(_table(rows, ("t [s]", "kind", "bodies", "distance [m]", "detail")))
+    else:
+        parts.append("<p>No events.</p>")
+    parts.append("<h2>Fig. 2 panels</h2>")
+    by_name = {p.name: p for p in panels}
+    if "fig2.png" in by_name:
+        parts.append("<figure><img class='wide' src='fig2.png' alt='overview of every panel'></figure>")
+    parts.append("<div class='panels'>")
+    for stem, (caption, _ylabel) in TITLES.items():
+        if f"{stem}.png" in by_name:
+            parts.append(f"<figure><a href='{stem}.png'><img src='{stem}.png' alt='{esc(caption)}'></a>"
+                         f"<figcaption>{esc(caption)}</figcaption></figure>")
+    parts.append("</div>")
+    parts.append("<h2>Scenario</h2><p>" + " · ".join(f"<a href='{p.name}'>{esc(p.name)}</a>" for p in extra)
+                 + "</p>")
+    parts.append(f"<pre>{esc(_toml_of(scn))}</pre>")
+    parts.append("</body></html>\n")
+    return "\n".join(parts)
+
+
+def _toml_of(scn: Scenario) -> str:
+    from swarm import scenario_file
+
+    return scenario_file.to_toml(scn)
+
+
+def write_report(path, out_dir) -> list[Path]:
+    """Write the Fig. 2 panels of a recording (swarm.plots.write_panels, as `swarm sim --plots`), its
+    scenario.toml and metrics.json, and index.html (a one-page summary linking them). Returns the paths
+    written: the panels first, then scenario.toml, metrics.json (if the run has metrics), index.html."""
+    from swarm.plots import write_panels
+
+    run = read_recording(path)
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ReportError(f"{out}: cannot create the report directory: {e.strerror or e}") from None
+    panels = write_panels(run.recording, run.scenario, out)
+    extra = [out / "scenario.toml"]
+    extra[0].write_text(_toml_of(run.scenario), encoding="utf-8")
+    if run.metrics is not None:
+        extra.append(out / "metrics.json")
+        extra[-1].write_text(json.dumps(run.metrics, indent=2) + "\n", encoding="utf-8")
+    index = out / "index.html"
+    index.write_text(_html(run, panels, extra), encoding="utf-8")
+    return [*panels, *extra, index]
