@@ -21,14 +21,13 @@ import argparse
 import json
 import math
 import os
-import signal
 import socket
 import sys
 import time
 from pathlib import Path
 from typing import Sequence
 
-from swarm.commands import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure
+from swarm.commands import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent
 
 
 # --------------------------------------------------------------------------- argument types
@@ -42,6 +41,24 @@ def _positive_float(text: str) -> float:
     if not math.isfinite(value) or value <= 0:
         raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
     return value
+
+
+def _record_hz(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0 (0: every step), got {text!r}")
+    return value
+
+
+def _add_record_flags(g) -> None:
+    g.add_argument("--record", type=Path, metavar="PATH.mcap",
+                   help="record the run into an MCAP file (snapshots, reference, commands, statuses, events, "
+                        "scenario, metrics; Foxglove opens it; swarm report and swarm replay read it)")
+    g.add_argument("--record-hz", type=_record_hz, default=20.0, metavar="HZ",
+                   help="with --record: snapshots per simulated second (default 20; 0: every step)")
 
 
 def _int_at_least(minimum: int):
@@ -147,6 +164,7 @@ def build_parser() -> argparse.ArgumentParser:
     out.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (DESIGN.md section 7)")
     out.add_argument("--plots", type=Path, metavar="DIR", help="write the panels of the paper's Fig. 2 as PNG")
     out.add_argument("--quiet", action="store_true", help="no progress bar and no summary table")
+    _add_record_flags(out)
     _add_viz_flags(sim, "--viz")
     sim.set_defaults(func=cmd_sim)
 
@@ -200,6 +218,8 @@ def _add_run_flags(p: argparse.ArgumentParser, up: bool = False) -> None:
         g.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (DESIGN.md section 7)")
         g.add_argument("--trace", type=Path, metavar="PATH.npz",
                        help="write every robot's pose at every sample (numpy .npz: q[k, i] = x, y, theta)")
+        if up:
+            _add_record_flags(g)
     g.add_argument("--start-timeout", type=_positive_float, default=60.0, metavar="S",
                    help="seconds to wait for the other processes at start (default 60)")
 
@@ -286,12 +306,33 @@ def _add_runtime_parsers(sub) -> None:
     _add_net_flags(viz)
     viz.set_defaults(func=_lazy("cmd_viz"))
 
+    replay = sub.add_parser("replay", help="play a recording (swarm sim/up --record) in the browser viewer",
+                            description="Play the snapshots of an MCAP recording in the viewer at --speed times "
+                                        "real time (the recorded poses exactly, at most 30 frames a second), "
+                                        "then keep the viewer up until Ctrl-C.",
+                            epilog="Example: swarm replay run.mcap --speed 4")
+    replay.add_argument("recording", type=Path, metavar="FILE.mcap")
+    replay.add_argument("--speed", type=_positive_float, default=1.0, metavar="X",
+                        help="simulated seconds per wall second (default 1)")
+    replay.add_argument("--exit", action="store_true", help="exit when the replay ends instead of waiting for Ctrl-C")
+    _add_viz_flags(replay, None)
+    replay.set_defaults(func=_lazy("cmd_replay", "swarm.playback"))
 
-def _lazy(name: str):
+    report = sub.add_parser("report", help="write the Fig. 2 panels and an HTML summary of a recording",
+                            description="Read an MCAP recording and write into DIR the panels of the paper's "
+                                        "Fig. 2 (the code of swarm sim --plots, on the recorded samples), "
+                                        "scenario.toml, metrics.json and index.html, a one-page summary.",
+                            epilog="Example: swarm report run.mcap -o report/ && xdg-open report/index.html")
+    report.add_argument("recording", type=Path, metavar="FILE.mcap")
+    report.add_argument("-o", "--out", type=Path, required=True, metavar="DIR", help="the directory to write")
+    report.set_defaults(func=_lazy("cmd_report", "swarm.playback"))
+
+
+def _lazy(name: str, module: str = "swarm.commands"):
     def run(args, started):
-        from swarm import commands
+        import importlib
 
-        return getattr(commands, name)(args, started)
+        return getattr(importlib.import_module(module), name)(args, started)
 
     return run
 
@@ -307,47 +348,27 @@ def _overrides(args: argparse.Namespace):
                      governor=getattr(args, "governor", None))
 
 
-class _StopFlag:
-    """Turns SIGINT and SIGTERM into a flag the run loop polls between chunks."""
-
-    def __init__(self) -> None:
-        self.signal: int | None = None
-        self._old: dict[int, object] = {}
-
-    def __enter__(self) -> "_StopFlag":
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            self._old[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def _handle(self, signum, frame) -> None:
-        if self.signal is not None:  # a second Ctrl-C: stop now
-            raise KeyboardInterrupt
-        self.signal = signum
-
-    def __exit__(self, *exc) -> None:
-        for sig, old in self._old.items():
-            signal.signal(sig, old)
-
-    def __call__(self) -> bool:
-        return self.signal is not None
-
-
 def cmd_sim(args: argparse.Namespace, started: float) -> int:
     from swarm import console, scenario_file
     from swarm.commands import check_viz_port, viz_options
     from swarm.sim import Simulation
 
     scn = scenario_file.load(args.scenario, _overrides(args))
-    for path in (args.metrics,):
+    for flag, path in (("--metrics", args.metrics), ("--record", args.record)):
         if path is not None and path.parent and not path.parent.exists():
-            raise BadInput(f"--metrics {path}: directory {path.parent} does not exist")
+            raise BadInput(f"{flag} {path}: directory {path.parent} does not exist")
     viz = viz_options(args, args.viz, "needs --viz", extra=(("--speed", args.speed),))
     if viz is not None:
         check_viz_port(viz)
     status = console.StatusLine(enabled=not args.quiet)
     if not args.quiet and not _kernel_cached():
         print("compiling the simulation kernel (first run after install only, ~5-10 s)...", file=sys.stderr)
-    sim = Simulation(scn)
+    if args.record is not None:
+        from swarm import record
+
+        sim = Simulation(scn, record_period=record.record_period(args.record_hz, scn.dt))
+    else:
+        sim = Simulation(scn)
 
     def show(p) -> None:
         dist = "-" if p.min_distance is None else f"{p.min_distance:.3f} m"
@@ -356,8 +377,8 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
 
     if viz is not None:
         return _sim_in_viewer(args, viz, scn, sim, show, status, started)
-    with _StopFlag() as stop:
-        result = sim.run(progress=show, should_stop=stop, started=started)
+    with StopEvent() as stop:
+        result = sim.run(progress=show, should_stop=stop.is_set, started=started)
     status.close()
     return _sim_report(args, scn, result)
 
@@ -370,19 +391,26 @@ def _sim_report(args: argparse.Namespace, scn, result) -> int:
         from swarm.plots import write_panels
 
         write_panels(result.recording, scn, args.plots)
+    if args.record is not None:
+        from swarm.record import RecordError, record_simulation
+
+        try:
+            record_simulation(args.record, scn, result, args.record_hz)
+        except RecordError as e:
+            raise Failure(str(e)) from None
     if not args.quiet:
         print(summary(m, scn.name))
         if args.metrics is not None:
             print(f"metrics: {args.metrics}")
         if args.plots is not None:
             print(f"plots:   {args.plots}/")
+        if args.record is not None:
+            print(f"record:  {args.record}")
     return EXIT_INTERRUPTED if m["interrupted"] else EXIT_OK
 
 
 def _sim_in_viewer(args: argparse.Namespace, viz, scn, sim, show, status, started: float) -> int:
     """`swarm sim --viz`: the run paced at --speed in the viewer, then the viewer stays up until Ctrl-C."""
-    import threading
-
     from swarm.meshcat_server import MeshcatServer, ServerError
     from swarm.sim import Result
     from swarm.viz import SceneInfo, Viewer
@@ -393,16 +421,15 @@ def _sim_in_viewer(args: argparse.Namespace, viz, scn, sim, show, status, starte
         server.start()
         print(f"viewer: {server.web_url}", flush=True)
         viewer = Viewer(server, SceneInfo.from_scenario(scn), rings=viz.rings)
-        with _StopFlag() as stop:
-            interrupted = play_simulation(sim, viewer, args.speed or 1.0, should_stop=stop, progress=show)
+        with StopEvent() as stop:
+            interrupted = play_simulation(sim, viewer, args.speed or 1.0, should_stop=stop.is_set, progress=show)
             result = Result(sim.metrics(time.perf_counter() - started, interrupted), sim.recording())
             status.close()
             code = _sim_report(args, scn, result)
             if not interrupted:
                 print(f"viewer: the run is over; the viewer stays at {server.web_url} until Ctrl-C", flush=True)
-                idle = threading.Event()
-                while not stop():
-                    idle.wait(0.25)
+                while not stop.wait(0.25):
+                    pass
     except ServerError as e:
         raise Failure(f"viewer: {e}") from None
     finally:

@@ -403,6 +403,7 @@ def cmd_up(args, started: float) -> int:
         _check_endpoint("--connect", ep)
     _check_out_dir("--metrics", args.metrics)
     _check_out_dir("--trace", args.trace)
+    _check_out_dir("--record", args.record)
     if args.zenoh_config is not None and not Path(args.zenoh_config).is_file():
         raise BadInput(f"--zenoh-config {args.zenoh_config}: no such file")
     log_dir = Path(args.log_dir or os.path.join(tempfile.gettempdir(), f"swarm-{fleet}-{os.getpid()}"))
@@ -441,6 +442,7 @@ def cmd_up(args, started: float) -> int:
     launched_s = None
     say(f"swarm up: {scn.n} robots, scenario {scn.name}, {args.mode}, dt {scn.dt:g} s, "
         f"{'governor on' if scn.control.governor else 'governor off'}; logs in {log_dir}")
+    recorder = None
     with StopEvent() as stop, Supervisor(plan, log_dir) as sup:
         bus = None
         try:
@@ -456,6 +458,8 @@ def cmd_up(args, started: float) -> int:
             progress: list = [None]
             bus.watch_alive(keys.alive_any(fleet), lambda k, up: alive.add(k) if up else alive.discard(k))
             bus.subscribe(keys.world_progress(fleet), lambda k, b: progress.__setitem__(0, b))
+            if args.record is not None:  # subscribed before the world starts: its first snapshot is recorded
+                recorder = _start_recorder(bus, fleet, scn, args)
             sup.start(plan.world)
             sup.start(plan.leader)
             for spec in plan.robots:
@@ -497,6 +501,8 @@ def cmd_up(args, started: float) -> int:
                 stop.wait(0.1)
             if not interrupted and world.proc.returncode not in (0, EXIT_INTERRUPTED):
                 failure = f"the world process failed ({launch._rc(world.proc.returncode)}); see {world.log}"
+            if recorder is not None:  # the world's last messages may still be on their way
+                recorder.wait_for(scn.steps * scn.dt if not interrupted else None, timeout_s=1.0)
         except Failure as e:
             failure = str(e)
         finally:
@@ -516,15 +522,37 @@ def cmd_up(args, started: float) -> int:
     metrics["processes"] = len(plan.processes)
     metrics["robot_restarts"] = sup.restarted
     _write_json(metrics_path, metrics)
+    record_note = _close_recorder(recorder, metrics, args.record)
     if not args.quiet:
         from swarm.cli import summary
 
         print(summary(metrics, scn.name))
         print(f"metrics: {metrics_path}")
+        if record_note:
+            print(record_note)
     if failure is not None:
         print(f"swarm up: failed: {failure}", file=sys.stderr)
         return EXIT_INTERRUPTED if interrupted else EXIT_FAILURE
     return EXIT_INTERRUPTED if metrics["interrupted"] else EXIT_OK
+
+
+def _start_recorder(bus, fleet: str, scn, args):
+    from swarm.record import BusRecorder, Recorder, RecordError
+
+    try:
+        return BusRecorder(bus, fleet, Recorder(args.record, scn, args.record_hz, source=args.mode, fleet=fleet))
+    except RecordError as e:
+        raise Failure(str(e)) from None
+
+
+def _close_recorder(recorder, metrics: dict, path) -> str | None:
+    """Finish the recording with the run's final metrics (those written to --metrics)."""
+    if recorder is None:
+        return None
+    recorder.close(metrics)
+    missed = f", {recorder.snapshots_missed} lost on the way" if recorder.snapshots_missed else ""
+    bad = f", {recorder.bad} bad messages dropped" if recorder.bad else ""
+    return f"record:  {path} ({recorder.snapshots} snapshots received{missed}{bad})"
 
 
 def launch_failure(text: str, sup, name: str | None = None) -> Failure:

@@ -530,6 +530,7 @@ class BusRecorder:
         self.snapshots = 0  # snapshots received (valid ones)
         self.first_seq: int | None = None  # seq of the first one
         self.snapshots_missed = 0  # gaps in their seq (best-effort messages lost on the way)
+        self.last_snapshot_t = -math.inf  # simulated time of the newest snapshot processed
         self._last_seq: int | None = None
         self._frozen = [False] * self.n
         self._ids: dict[str, int | None] = {}
@@ -631,6 +632,7 @@ class BusRecorder:
     def _snapshot(self, key: str, payload: bytes) -> None:
         s: Snapshot = protocol.decode(payload, "snapshot")
         self.snapshots += 1
+        self.last_snapshot_t = max(self.last_snapshot_t, s.t)
         if self._last_seq is None:
             self.first_seq = s.seq
         elif s.seq > self._last_seq + 1:
@@ -667,6 +669,18 @@ class BusRecorder:
         self.rec.snapshot(s.t, s.seq, ids, x, y, theta, v, w, stopped, alive, frozen)
 
     # -- the end
+
+    def wait_for(self, t: float | None, timeout_s: float) -> bool:
+        """Wait at most timeout_s until the snapshot at simulated time t has been processed and nothing
+        is pending (t None: only the latter). For the owner at the end of a run: the world's last
+        messages may still be on their way when its process exits. True if it came."""
+        end = time.monotonic() + timeout_s
+        while True:
+            if (t is None or self.last_snapshot_t >= t - 1e-6) and not self._pending:
+                return True
+            if time.monotonic() >= end:
+                return False
+            time.sleep(POLL_S / 2)
 
     @property
     def pending(self) -> int:

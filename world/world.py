@@ -200,9 +200,11 @@ class World:
         self._publish_poses(t, seq)
 
     def _publish_poses(self, t: float, seq: int) -> None:
+        # the snapshot first: it is best effort (a viewer must never hold the world back), and at the
+        # head of the burst it finds the send queue empty instead of behind N reliable poses
+        self._publish_snapshot(t, seq)
         for i in range(self.n):
             self._publish_pose(i, t, seq)
-        self._publish_snapshot(t, seq)
 
     def _publish_pose(self, i: int, t: float, seq: int) -> None:
         x, y, th = self.q[i]

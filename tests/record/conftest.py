@@ -57,12 +57,7 @@ def run_recorded_swarm(scn, path: Path, record_hz: float | None = 20.0) -> LiveR
     br = record.BusRecorder(MemoryBus(net), FLEET, rec)
     seen: list = []
     MemoryBus(net).subscribe(keys.world_snapshot(FLEET), lambda k, b: seen.append(protocol.decode(b, "snapshot")))
-    original = harness.MemoryNet
-    harness.MemoryNet = lambda: net  # the harness builds its own net: hand it ours
-    try:
-        metrics, world, _agents = harness.run_swarm(scn, fleet=FLEET)
-    finally:
-        harness.MemoryNet = original
+    metrics, world, _agents = harness.run_swarm(scn, fleet=FLEET, net=net)
     br.close(metrics)
     return LiveRun(scn, metrics, world, br, path, seen)
 

@@ -11,9 +11,10 @@ from world.world import World
 
 
 def run_swarm(scn, lockstep: bool = True, fleet: str = "t", trace: bool = True, timeout_s: float = 60.0,
-              kill: dict | None = None):
-    """Returns (metrics, world, agents). `kill` maps robot id -> the tick at which its agent stops."""
-    net = MemoryNet()
+              kill: dict | None = None, net: MemoryNet | None = None):
+    """Returns (metrics, world, agents). `kill` maps robot id -> the tick at which its agent stops;
+    `net`: the in-memory network to run on (default: a new one), for observers subscribed beforehand."""
+    net = net or MemoryNet()
     wbus = MemoryBus(net)
     world = World(wbus, scn, fleet, lockstep=lockstep, trace=trace, tick_timeout=5.0)
     world.start()

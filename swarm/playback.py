@@ -1,0 +1,101 @@
+"""`swarm replay` and `swarm report`: the commands that read a recording (swarm.record's MCAP file).
+
+    swarm replay run.mcap [--speed X] [--viz-host H] [--viz-port P] [--exit]
+    swarm report run.mcap -o DIR
+
+Replay draws the recorded snapshots in the viewer exactly as recorded (poses, and the colours
+from the recorded alive, stopped and frozen flags), paced by their simulated time at --speed and
+at most MAX_HZ frames a wall second (a frame whose successor is already due is skipped, never
+drawn late). The reading itself is swarm.report's, so a replay and a report see the same data.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from swarm.commands import EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent, check_viz_port, viz_options
+
+log = logging.getLogger("swarm.playback")
+
+MAX_HZ = 30.0
+
+
+def _recording(path: Path) -> Path:
+    if not path.is_file():
+        raise BadInput(f"{path}: no such file")
+    return path
+
+
+def replay_into(path: Path, viewer, speed: float, stop: threading.Event, max_hz: float = MAX_HZ,
+                on_frame=None) -> tuple[int, bool]:
+    """Draw the frames of `path` into `viewer` at `speed`; returns (frames drawn, stopped early)."""
+    from swarm import report
+    from swarm.viz import state_codes
+
+    drawn = 0
+    for f in report.pace(report.iter_frames(path), speed, max_hz=max_hz, sleep=stop.wait):
+        if stop.is_set():
+            return drawn, True
+        codes = state_codes(f.alive, f.stopped, f.frozen, np.zeros(len(f.q)))
+        viewer.draw(f.t, f.q, codes)
+        drawn += 1
+        if on_frame is not None:
+            on_frame(f)
+    return drawn, stop.is_set()
+
+
+def cmd_replay(args, started: float) -> int:
+    from swarm import report
+    from swarm.meshcat_server import MeshcatServer, ServerError
+    from swarm.viz import SceneInfo, Viewer
+
+    path = _recording(args.recording)
+    try:
+        scn, info = report.read_scenario(path)
+    except report.ReportError as e:
+        raise BadInput(str(e)) from None
+    viz = viz_options(args, True, "")
+    check_viz_port(viz)
+    with StopEvent() as stop:
+        server = MeshcatServer(viz.host, viz.port)
+        try:
+            server.start()
+            print(f"viewer: {server.web_url}", flush=True)
+            print(f"replay: {path} ({scn.n} robots, {scn.name}, recorded from {info.get('source', '?')}) "
+                  f"at {args.speed:g}x", flush=True)
+            viewer = Viewer(server, SceneInfo.from_scenario(scn), rings=viz.rings)
+            try:
+                drawn, early = replay_into(path, viewer, args.speed, stop)
+            except report.ReportError as e:
+                raise Failure(str(e)) from None
+            if early:
+                return EXIT_INTERRUPTED
+            print(f"replay: done, {drawn} frames drawn", flush=True)
+            if args.exit:
+                return EXIT_OK
+            print(f"replay: the viewer stays at {server.web_url} until Ctrl-C", flush=True)
+            while not stop.wait(0.25):
+                pass
+            return EXIT_INTERRUPTED
+        except ServerError as e:
+            raise Failure(f"viewer: {e}") from None
+        finally:
+            server.stop()
+
+
+def cmd_report(args, started: float) -> int:
+    from swarm import report
+
+    path = _recording(args.recording)
+    if args.out.exists() and not args.out.is_dir():
+        raise BadInput(f"-o {args.out}: exists and is not a directory")
+    try:
+        files = report.write_report(path, args.out)
+    except report.ReportError as e:
+        raise BadInput(str(e)) from None
+    print(f"report: {args.out / 'index.html'} ({len(files)} files in {args.out})")
+    return EXIT_OK
