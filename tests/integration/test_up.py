@@ -7,6 +7,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -36,6 +37,37 @@ def up(tmp_path: Path, *args: str, fleet: str = "t") -> tuple[list[str], Path]:
     cmd = [sys.executable, "-m", "swarm.cli", "up", "--listen", f"tcp/127.0.0.1:{free_port()}", "--fleet", fleet,
            "--metrics", str(metrics), "--log-dir", str(tmp_path / "logs"), "--start-timeout", "60", "--no-viz", *args]
     return cmd, metrics
+
+
+def wait_for_ticks(cmd: list[str], fleet: str, tick: int, proc: subprocess.Popen, timeout_s: float = 90.0) -> None:
+    """Wait (bounded) until the world of `swarm up` (command line `cmd`) reports tick `tick` on its
+    progress key: an event to wait on instead of a sleep."""
+    from swarm import keys, protocol
+    from swarm.bus import ZenohBus, zenoh_config
+
+    endpoint = cmd[cmd.index("--listen") + 1]
+    seen = threading.Event()
+
+    def on_progress(key: str, payload: bytes) -> None:
+        if protocol.decode(payload, "progress").seq >= tick:
+            seen.set()
+
+    deadline = time.monotonic() + timeout_s
+    bus = None
+    try:
+        while bus is None:  # the router may not listen yet
+            try:
+                bus = ZenohBus(zenoh_config(connect=[endpoint]))
+            except Exception:
+                assert time.monotonic() < deadline and proc.poll() is None, "the router never came up"
+                time.sleep(0.1)
+        bus.subscribe(keys.world_progress(fleet), on_progress)
+        while not seen.wait(0.2):
+            assert proc.poll() is None, proc.communicate()[1]
+            assert time.monotonic() < deadline, f"no progress message with tick >= {tick} in {timeout_s:g} s"
+    finally:
+        if bus is not None:
+            bus.close()
 
 
 def descendants(pid: int) -> list[psutil.Process]:
@@ -74,16 +106,7 @@ def test_sigint_mid_run_stops_everything_and_writes_interrupted_metrics(tmp_path
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     children: list[psutil.Process] = []
     try:
-        # wait (bounded) until every process is up and the world is waiting for or running the robots
-        deadline = time.monotonic() + 90
-        while time.monotonic() < deadline:
-            children = descendants(proc.pid)
-            log = tmp_path / "logs" / "world.log"
-            if log.exists() and "waiting for robots" in log.read_text() and len(children) >= 8:
-                break
-            assert proc.poll() is None, proc.communicate()[1]
-            time.sleep(0.1)
-        time.sleep(2.0)  # let it tick
+        wait_for_ticks(cmd, "t", 50, proc)  # every process up and the run a second in
         children = descendants(proc.pid)
         assert len(children) >= 8  # router, world, leader, 5 robots
         proc.send_signal(signal.SIGINT)
@@ -119,7 +142,7 @@ def test_a_killed_robot_is_restarted_and_the_run_completes(tmp_path):
                         victim = p
             time.sleep(0.1)
         assert victim is not None
-        time.sleep(0.5)
+        wait_for_ticks(cmd, "t", 25, proc)  # the run under way
         victim.kill()
         _, err = proc.communicate(timeout=120)
         assert proc.returncode == 0, err
