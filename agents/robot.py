@@ -47,6 +47,8 @@ WAIT_TIMEOUT_S = 1.0  # lock-step: wall seconds to wait for a tick's inputs befo
 STATUS_PERIOD_S = 0.1  # simulated seconds between status messages
 STALE_AFTER_S = 0.5  # real time: a neighbour state older than this (simulated s) counts as stale
 FORGET_AFTER_S = 2.0  # real time: a live neighbour not heard for this long is dropped
+HORIZON_CAP_S = 0.5  # real time: the governor's horizon is at most the control period plus this
+LISTEN_PERIODS = 3  # real time: control periods a robot listens (commands 0) after its first pose
 
 
 @dataclass
@@ -126,6 +128,9 @@ class Agent:
         self.last_cmd: Cmd | None = None
         self.neighbours = 0
         self.stale = 0
+        self.oldest_state_s = 0.0  # real time: age of the oldest neighbour state in the last command
+        self.horizon_s = cfg.dt  # real time: the governor's horizon of the last command
+        self._first_pose_t: float | None = None
 
     # ------------------------------------------------------------------ wiring
 
@@ -288,6 +293,7 @@ class Agent:
         r2 = self.side * self.side
         nx, ny, nr, nR, nk = [], [], [], [], []
         robots = stale = 0
+        oldest = 0.0
         for j in sorted(self.table):
             nb = self.table[j]
             if not nb.alive:
@@ -301,6 +307,8 @@ class Agent:
                 if age > FORGET_AFTER_S:
                     continue
                 is_stale = age > STALE_AFTER_S
+                if age > oldest and (x - nb.x) ** 2 + (y - nb.y) ** 2 < r2:
+                    oldest = age
             dx = x - nb.x
             dy = y - nb.y
             if dx * dx + dy * dy < r2:
@@ -323,11 +331,21 @@ class Agent:
             dy = y - nb.y
             if dx * dx + dy * dy < r2:
                 nx.append(nb.x), ny.append(nb.y), nr.append(nb.r), nR.append(nb.R), nk.append(law.KIND_OBSTACLE)
+        self.oldest_state_s = oldest
         return nx, ny, nr, nR, nk, robots, stale
 
-    def command(self, t: float, x: float, y: float, th: float, ref: tuple, seq: int | None) -> tuple[float, float]:
-        """The law for this robot at time t with pose (x, y, th) and live reference ref = (xl, yl, thl, vl, wl)."""
+    def command(self, t: float, x: float, y: float, th: float, ref: tuple, seq: int | None,
+                pose_t: float | None = None) -> tuple[float, float]:
+        """The law for this robot at time t with pose (x, y, th) and live reference ref = (xl, yl, thl, vl, wl).
+        Real time (seq None): the governor's horizon is the control period plus the age of the
+        robot's own pose (pose_t) and of the oldest neighbour state used, at most HORIZON_CAP_S more:
+        the command stays in force until the next one lands, and the bodies may be where they
+        were that long ago (lock-step keeps the period: the world applies a command for exactly dt)."""
         nx, ny, nr, nR, nk, robots, stale = self.bodies(x, y, seq, t)
+        if seq is None:
+            lag = max(0.0, t - pose_t) if pose_t is not None else 0.0
+            self.p[law.P_DT] = self.cfg.dt + min(HORIZON_CAP_S, lag + self.oldest_state_s)
+            self.horizon_s = self.p[law.P_DT]
         xl, yl, thl, vl, wl = ref
         v, w = law.robot_command(x, y, th, self.cfg.dx, self.cfg.dy, self.cfg.r, t, xl, yl, thl, vl, wl,
                                  nx, ny, nr, nR, nk, len(nx), self.mem, self.p)
@@ -408,8 +426,15 @@ class Agent:
         # the reference advanced exactly along the leader's arc to now (its v, w are constant between messages)
         dx, dy, dth = kinematics.arc_displacement(ref.theta, ref.v, ref.w, t - ref.t)
         r = (ref.x + dx, ref.y + dy, ref.theta + dth, ref.v, ref.w)
+        if self._first_pose_t is None:
+            self._first_pose_t = pose.t
+        if pose.t - self._first_pose_t < LISTEN_PERIODS * self.cfg.dt - 1e-9:
+            # just started: listen before moving (the neighbours' first states are still on their way; a
+            # command computed without them would be blind to a robot 0.5 m away): hold still, say so
+            self._publish(pose.t, self.seq, 0.0, 0.0, r, pose)
+            return True
         with self.lock:
-            v, w = self.command(t, pose.x, pose.y, pose.theta, r, None)
+            v, w = self.command(t, pose.x, pose.y, pose.theta, r, None, pose.t)
         # stamped with its pose's time: a drive (or the world) sees how old the command's input is
         self._publish(pose.t, self.seq, v, w, r, pose)
         return True

@@ -53,12 +53,13 @@ class Wire:
         return acted or self.agent.tick_lockstep()
 
 
-def law_command(pose, ref, t, bodies, mem=None, cfg=CFG):
-    """The core law called directly with the same inputs."""
+def law_command(pose, ref, t, bodies, mem=None, cfg=CFG, horizon=None):
+    """The core law called directly with the same inputs (horizon: the governor's, default dt)."""
     mem = mem if mem is not None else [0.0] * law.M_SIZE
     p = [0.0] * law.P_SIZE
     p[law.P_K1], p[law.P_K2], p[law.P_K3], p[law.P_TU], p[law.P_VT] = cfg.k1, cfg.k2, cfg.k3, cfg.tu, cfg.vt
-    p[law.P_THRESHOLD], p[law.P_GOVERNOR], p[law.P_DT], p[law.P_SENSE] = cfg.threshold, 1.0, cfg.dt, cfg.sense
+    p[law.P_THRESHOLD], p[law.P_GOVERNOR], p[law.P_SENSE] = cfg.threshold, 1.0, cfg.sense
+    p[law.P_DT] = cfg.dt if horizon is None else horizon
     nx, ny, nr, nR, nk = ([b[i] for b in bodies] for i in range(5))
     return law.robot_command(pose[0], pose[1], pose[2], cfg.dx, cfg.dy, cfg.r, t, *ref, nx, ny, nr, nR, nk,
                              len(bodies), mem, p)
@@ -161,11 +162,32 @@ def test_real_time_tick_uses_the_newest_data_and_advances_the_reference():
     cfg = Config(**{**CFG.__dict__, "lockstep": False})
     w = Wire(cfg)
     w.put(keys.leader_ref(F), Ref(t=1.0, seq=50, x=0.0, y=0.0, theta=0.0, v=0.5, w=0.0))
+    # just started: it listens for LISTEN_PERIODS control periods, commanding 0 (states still on their way)
+    for k in range(robot.LISTEN_PERIODS):
+        w.put(keys.robot_pose(F, cfg.id), Pose(t=0.94 + 0.02 * k, seq=47 + k, x=-1.0, y=0.0, theta=0.0))
+        assert w.agent.tick_realtime(0.94 + 0.02 * k)
+        assert (w.cmds[-1].v, w.cmds[-1].w) == (0.0, 0.0)
     w.put(keys.robot_pose(F, cfg.id), Pose(t=1.0, seq=50, x=-1.0, y=0.0, theta=0.0))
     assert w.agent.tick_realtime(1.1)
-    # the leader moved 0.05 m along its heading since its last message
-    v, om = law_command((-1.0, 0.0, 0.0), (0.05, 0.0, 0.0, 0.5, 0.0), 1.1, [], cfg=cfg)
+    # the leader moved 0.05 m along its heading since its last message; the governor's horizon is the
+    # period plus the pose's age (0.1 s)
+    v, om = law_command((-1.0, 0.0, 0.0), (0.05, 0.0, 0.0, 0.5, 0.0), 1.1, [], cfg=cfg, horizon=0.02 + 0.1)
     assert w.cmds[-1].v == pytest.approx(v, abs=1e-15) and w.cmds[-1].w == pytest.approx(om, abs=1e-15)
+    assert w.agent.horizon_s == pytest.approx(0.12)
+
+
+def test_real_time_governor_horizon_counts_the_oldest_neighbour_state_and_is_capped():
+    cfg = Config(**{**CFG.__dict__, "lockstep": False})
+    w = Wire(cfg)
+    w.agent._first_pose_t = 0.0  # past the listening start
+    w.put(keys.leader_ref(F), Ref(t=2.0, seq=100, x=0.0, y=0.0, theta=0.0, v=0.5, w=0.0))
+    w.put(keys.cell(F, 0, 0, 8), State(id=8, t=1.7, seq=85, x=0.5, y=0.2, theta=0.0, r=0.3, R=1.2, frozen=False))
+    w.put(keys.robot_pose(F, cfg.id), Pose(t=2.0, seq=100, x=0.0, y=0.0, theta=0.0))
+    assert w.agent.tick_realtime(2.05)
+    assert w.agent.horizon_s == pytest.approx(0.02 + 0.05 + 0.35)  # period + own pose's age + oldest state
+    w.put(keys.robot_pose(F, cfg.id), Pose(t=2.02, seq=101, x=0.0, y=0.0, theta=0.0))
+    assert w.agent.tick_realtime(2.4)  # pose 0.38 s old, the state 0.7 s: capped
+    assert w.agent.horizon_s == pytest.approx(0.02 + robot.HORIZON_CAP_S)
 
 
 def test_agent_module_imports_nothing_of_the_world_nor_numpy():
