@@ -45,7 +45,7 @@ def run(n: int, duration: float, mode: str, out: Path) -> tuple[dict, dict]:
 
     def sample() -> None:
         parent = psutil.Process(proc.pid)
-        while not done.wait(1.0):
+        while not done.wait(0.25):
             for c in parent.children(recursive=True):
                 try:
                     if "robot" in c.cmdline():
@@ -62,7 +62,7 @@ def run(n: int, duration: float, mode: str, out: Path) -> tuple[dict, dict]:
     cpu, rss = [], []
     for rows in samples.values():
         rss += [r for _, _, r in rows]
-        if len(rows) >= 4:  # skip the start-up second
+        if len(rows) >= 4:  # skip the first sample (start-up)
             (t0, c0, _), (t1, c1, _) = rows[1], rows[-1]
             cpu.append((c1.user + c1.system - c0.user - c0.system) / (t1 - t0))
     res = {"cpu_pct": 100 * sum(cpu) / max(1, len(cpu)), "rss_mean": sum(rss) / max(1, len(rss)) / 2**20,

@@ -8,12 +8,13 @@ Section 1, the viewer's own cost per frame (median and p95, milliseconds of the 
   real meshcat server); `draw` is Viewer.draw alone. Paced at 30 Hz like the watcher, on the
   paper-50hz run resized to N robots, with no browser and with a headless Chromium page
   connected (software WebGL: a real GPU browser renders far faster; the page only adds load).
+Section 1b, the recorder's own cost per frame (bench/record_cost.py's bench_recorder: decode,
+  events and MCAP writing of one tick's traffic: a snapshot, the reference, N commands, N/5 statuses).
 Section 2, the slowdown of a running swarm: `swarm up --robots 37 --duration 10` in lock-step,
-  with --no-viz, with the viewer, and with the viewer and a headless page watching it; wall time
-  of the world's run (launch excluded), ticks per second and the slowdown against --no-viz
-  (median of --repeats runs, interleaved).
-Sections are functions in SECTIONS at the bottom, run in order; more (the recorder's cost) are
-appended there.
+  with --no-viz, with the viewer, with the recorder (--record, no viewer), with both, and with the
+  viewer and a headless page watching it; wall time of the world's run (launch excluded), ticks per
+  second and the slowdown against --no-viz (median of --repeats runs, interleaved).
+Sections are functions in SECTIONS at the bottom, run in order.
 """
 
 from __future__ import annotations
@@ -150,14 +151,17 @@ def free_port() -> int:
 
 
 def up_run(kind: str, n: int, duration: float, out: Path) -> dict:
-    """One `swarm up` run; kind: "no-viz", "viz" or "viz+page". Returns its metrics."""
+    """One `swarm up` run; kind: "no-viz", "viz", "rec" (recorder, no viewer), "viz+rec" or "viz+page".
+    Returns its metrics."""
     tag = f"{kind.replace('+', '-')}-{time.monotonic_ns()}"
     metrics = out / f"m-{tag}.json"
     cmd = [sys.executable, "-m", "swarm.cli", "up", "--robots", str(n), "--duration", str(duration),
            "--listen", f"tcp/127.0.0.1:{free_port()}", "--fleet", "vizcost", "--metrics", str(metrics),
            "--log-dir", str(out / f"logs-{tag}"), "--quiet"]
-    if kind == "no-viz":
+    if kind in ("no-viz", "rec"):
         cmd.append("--no-viz")
+    if kind in ("rec", "viz+rec"):
+        cmd += ["--record", str(out / f"r-{tag}.mcap")]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, start_new_session=True)
     lines: queue.Queue[str] = queue.Queue()
     threading.Thread(target=lambda: [lines.put(x) for x in proc.stdout], daemon=True).start()
@@ -187,7 +191,7 @@ def up_run(kind: str, n: int, duration: float, out: Path) -> dict:
 def swarm_slowdown(a) -> None:
     if not a.up:
         return
-    kinds = ["no-viz", "viz"] + (["viz+page"] if a.page and have_browser() else [])
+    kinds = ["no-viz", "viz", "rec", "viz+rec"] + (["viz+page"] if a.page and have_browser() else [])
     print(f"\nSection 2: `swarm up --robots {a.up_robots} --duration {a.duration:g}` in lock-step "
           f"(median of {a.repeats} interleaved runs)")
     runs: dict[str, list[dict]] = {k: [] for k in kinds}
@@ -206,8 +210,17 @@ def swarm_slowdown(a) -> None:
 
 # --------------------------------------------------------------------------- main
 
-# The sections, run in order. Append further sections here (the recorder's cost is next).
-SECTIONS = [viewer_cost, swarm_slowdown]
+def recorder_cost(a) -> None:
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from record_cost import bench_recorder
+
+    print("\nSection 1b: the recorder's cost per frame (one tick of traffic; record_hz 20)")
+    for n in a.robots:
+        bench_recorder(n, max(100, a.frames))
+
+
+# The sections, run in order.
+SECTIONS = [viewer_cost, recorder_cost, swarm_slowdown]
 
 
 def main(argv=None) -> int:

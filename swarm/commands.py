@@ -540,7 +540,8 @@ def _start_recorder(bus, fleet: str, scn, args):
     from swarm.record import BusRecorder, Recorder, RecordError
 
     try:
-        return BusRecorder(bus, fleet, Recorder(args.record, scn, args.record_hz, source=args.mode, fleet=fleet))
+        return BusRecorder(bus, fleet, Recorder(args.record, scn, args.record_hz, source=args.mode, fleet=fleet),
+                           commands_from_snapshots=args.mode == "lockstep")
     except RecordError as e:
         raise Failure(str(e)) from None
 

@@ -518,8 +518,14 @@ class BusRecorder:
     owner calls drain() (deterministic tests, benches).
     """
 
-    def __init__(self, bus, fleet: str, recorder: Recorder, max_pending: int = MAX_PENDING, threaded: bool = True):
+    def __init__(self, bus, fleet: str, recorder: Recorder, max_pending: int = MAX_PENDING, threaded: bool = True,
+                 commands_from_snapshots: bool = False):
         self.rec = recorder
+        # Lock-step: the world applies exactly cmd_k over [t_k, t_k+1], so snapshot k+1 carries every
+        # robot's cmd_k (v, w): one message a tick instead of N (a held command after a miss shows as
+        # held; cmd_misses counts it). Real time keeps the robots' own command messages.
+        self.commands_from_snapshots = commands_from_snapshots
+        self._prev_tick: tuple[int, float] | None = None
         self.fleet = keys.check_fleet(fleet)
         scn = recorder.scenario
         self.n = scn.n
@@ -544,10 +550,11 @@ class BusRecorder:
             self._worker.start()
         # topic -> the bus callback (fn(key, payload)); public for benches that time it alone
         self.callbacks = {topic: self._on(topic) for topic in (TOPIC_SNAPSHOT, TOPIC_REF, TOPIC_CMD, TOPIC_STATUS)}
+        cmds = [] if commands_from_snapshots else [bus.subscribe(keys.robot_any(fleet, "cmd"), self.callbacks[TOPIC_CMD])]
         self._handles = [
             bus.subscribe(keys.world_snapshot(fleet), self.callbacks[TOPIC_SNAPSHOT]),
             bus.subscribe(keys.leader_ref(fleet), self.callbacks[TOPIC_REF]),
-            bus.subscribe(keys.robot_any(fleet, "cmd"), self.callbacks[TOPIC_CMD]),
+            *cmds,
             bus.subscribe(keys.robot_any(fleet, "status"), self.callbacks[TOPIC_STATUS]),
         ]
 
@@ -667,6 +674,12 @@ class BusRecorder:
         for ev in self.events.snapshot(s.t, s.seq, full_x, full_y, full_alive, full_stopped):
             self.rec.event(ev)
         self.rec.snapshot(s.t, s.seq, ids, x, y, theta, v, w, stopped, alive, frozen)
+        if self.commands_from_snapshots:
+            prev, self._prev_tick = self._prev_tick, (s.seq, s.t)
+            if prev is not None and s.seq == prev[0] + 1:
+                for j, i in enumerate(ids):
+                    if alive[j] and not stopped[j]:
+                        self.rec.cmd(i, Cmd(t=prev[1], seq=prev[0], v=v[j], w=w[j]))
 
     # -- the end
 

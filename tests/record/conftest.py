@@ -47,14 +47,14 @@ def sim_run(tmp_path_factory) -> SimRun:
     return SimRun(scn, result, path)
 
 
-def run_recorded_swarm(scn, path: Path, record_hz: float | None = 20.0) -> LiveRun:
+def run_recorded_swarm(scn, path: Path, record_hz: float | None = 20.0, commands_from_snapshots: bool = False) -> LiveRun:
     """tests/runtime/harness.run_swarm (world, leader and agents as threads on one in-memory net) with a
     BusRecorder on that net, subscribed before anything starts, closed with the world's metrics."""
     from tests.runtime import harness
 
     net = MemoryNet()
     rec = record.Recorder(path, scn, record_hz, source="lockstep", fleet=FLEET)
-    br = record.BusRecorder(MemoryBus(net), FLEET, rec)
+    br = record.BusRecorder(MemoryBus(net), FLEET, rec, commands_from_snapshots=commands_from_snapshots)
     seen: list = []
     MemoryBus(net).subscribe(keys.world_snapshot(FLEET), lambda k, b: seen.append(protocol.decode(b, "snapshot")))
     metrics, world, _agents = harness.run_swarm(scn, fleet=FLEET, net=net)
@@ -65,3 +65,10 @@ def run_recorded_swarm(scn, path: Path, record_hz: float | None = 20.0) -> LiveR
 @pytest.fixture(scope="session")
 def live_run(tmp_path_factory) -> LiveRun:
     return run_recorded_swarm(small_scenario(), tmp_path_factory.mktemp("live") / "live.mcap")
+
+
+@pytest.fixture(scope="session")
+def live_run_lean(tmp_path_factory) -> LiveRun:
+    """As live_run, with the commands taken from the world's snapshots (what `swarm up` does in lock-step)."""
+    return run_recorded_swarm(small_scenario(), tmp_path_factory.mktemp("lean") / "lean.mcap",
+                              commands_from_snapshots=True)

@@ -54,6 +54,18 @@ def test_live_samples_match_the_simulator(live_run):
     assert np.array_equal(got.cmd[:-1], sim.cmd[:-1])
 
 
+def test_commands_taken_from_the_snapshots_equal_the_robots_own(live_run, live_run_lean):
+    """In lock-step the world applies exactly cmd_k over a tick, so snapshot k+1 carries it: the lean
+    recorder (no subscription to N command keys) writes the same commands as the one that subscribes."""
+    own = {(c["id"], c["seq"]): (c["t"], c["v"], c["w"]) for c in recorded(live_run.path, "/robot/cmd")}
+    lean = {(c["id"], c["seq"]): (c["t"], c["v"], c["w"]) for c in recorded(live_run_lean.path, "/robot/cmd")}
+    last = max(seq for _, seq in own)
+    assert lean and {k: v for k, v in own.items() if k[1] < last} == {k: v for k, v in lean.items() if k[1] < last}
+    scn = live_run_lean.scenario
+    sim = Simulation(scn, record_period=2 * scn.dt).run().recording
+    assert np.array_equal(report.read_recording(live_run_lean.path).recording.cmd[:-1], sim.cmd[:-1])
+
+
 def test_freeze_events_are_the_status_transitions_and_snapshots_carry_the_flag(live_run):
     statuses = recorded(live_run.path, "/robot/status")
     events = recorded(live_run.path, "/events")
