@@ -142,6 +142,17 @@ def _add_scenario_flags(p: argparse.ArgumentParser, default: str) -> None:
                    help="the discrete-time safety governor (default: the scenario's control.governor)")
 
 
+def _add_optional_scenario_flags(p: argparse.ArgumentParser, otherwise: str) -> None:
+    """The scenario flags of a process that can also learn its scenario from the running swarm."""
+    g = p.add_argument_group(f"scenario (optional: without it {otherwise})")
+    g.add_argument("--scenario", metavar="NAME|FILE", help="built-in name or TOML file (the same on every machine)")
+    g.add_argument("--robots", type=_count, metavar="N")
+    g.add_argument("--seed", type=_seed, metavar="S")
+    g.add_argument("--duration", type=_positive_float, metavar="T")
+    g.add_argument("--dt", type=_positive_float, metavar="DT")
+    g.add_argument("--governor", action=argparse.BooleanOptionalAction, default=None)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="swarm",
@@ -274,13 +285,7 @@ def _add_runtime_parsers(sub) -> None:
                                        "--scenario FILE (the same file on every machine) or, without it, from "
                                        "the world's configuration queryable.")
     robot.add_argument("--id", type=_int_at_least(0), required=True, metavar="I", help="the robot's id (0-based)")
-    g = robot.add_argument_group("scenario (optional: without it the world's configuration is used)")
-    g.add_argument("--scenario", metavar="NAME|FILE")
-    g.add_argument("--robots", type=_count, metavar="N")
-    g.add_argument("--seed", type=_seed, metavar="S")
-    g.add_argument("--duration", type=_positive_float, metavar="T")
-    g.add_argument("--dt", type=_positive_float, metavar="DT")
-    g.add_argument("--governor", action=argparse.BooleanOptionalAction, default=None)
+    _add_optional_scenario_flags(robot, "the world's configuration is used")
     _add_run_flags(robot)
     _add_net_flags(robot)
     robot.set_defaults(func=_lazy("cmd_robot"))
@@ -291,13 +296,7 @@ def _add_runtime_parsers(sub) -> None:
                                      "the formation's slots, trails. It only listens: it never slows the swarm. "
                                      "Without --scenario it asks the world for the obstacles and the slots.",
                          epilog="Example: swarm viz --connect tcp/192.168.1.10:7447 --viz-host 0.0.0.0 --viz-port 7000")
-    g = viz.add_argument_group("scenario (optional: without it the world's queryables are used)")
-    g.add_argument("--scenario", metavar="NAME|FILE")
-    g.add_argument("--robots", type=_count, metavar="N")
-    g.add_argument("--seed", type=_seed, metavar="S")
-    g.add_argument("--duration", type=_positive_float, metavar="T")
-    g.add_argument("--dt", type=_positive_float, metavar="DT")
-    g.add_argument("--governor", action=argparse.BooleanOptionalAction, default=None)
+    _add_optional_scenario_flags(viz, "the world's queryables are used")
     _add_viz_flags(viz, None)
     viz.add_argument("--server-log", type=Path, metavar="PATH",
                      help="append the meshcat server's own log (connections) to PATH (default: discarded)")
