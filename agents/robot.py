@@ -509,6 +509,9 @@ def _loop_realtime(agent: Agent, stop: threading.Event, wall) -> None:
         agent.wake.clear()
         with agent.lock:
             epoch, speed, fresh = agent.epoch, agent.speed, agent._due()
+        if epoch is not None and agent._clock_sub is not None:
+            agent._clock_sub.close()  # the epoch is all a real-time robot needs of the clock (one message a period less)
+            agent._clock_sub = None
         if epoch is None or not fresh:
             continue
         agent.tick_realtime((wall() - epoch) * speed)

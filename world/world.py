@@ -349,7 +349,9 @@ class World:
         seq = 0
         t_pub = 0.0
         pose_seq = [0] * n
-        phase = [i * period / n for i in range(n)]
+        # on the fine grid: the world's time only advances in fine steps, and an event between two
+        # of them would have the loop wake, find nothing to do, and spin until the next step
+        phase = [round(i * period / n / self.fine_dt) * self.fine_dt for i in range(n)]
         next_pose = list(phase)
         end_t = scn.duration
         fine_k, end_k = 0, int(math.ceil(end_t / self.fine_dt - 1e-9))  # integer steps: no drift in t
@@ -392,7 +394,7 @@ class World:
                 t_pub = seq * period
             if fine_k >= end_k:
                 return False
-            wake = epoch + min(t_pub, min(next_pose), self.t + self.fine_dt) / self.speed
+            wake = epoch + (self.t + self.fine_dt) / self.speed  # the next fine step (every event is on the grid)
             left = wake - time.time()
             if left > 0:
                 stop.wait(left)
