@@ -1,6 +1,6 @@
 """`swarm up` speed: launch, lock-step ticks per second, real-time round trip, CPU and RSS per robot.
 
-    python bench/up_speed.py [--robots 7 19 37] [--duration 20]
+    python bench/up_speed.py [--robots 7 19 37] [--duration 20] [--speed 1]
 
 For each N it runs `swarm up` twice (lock-step, then real time at 50 Hz) as a user would, and
 samples every child process with psutil while the run is under way. Figures:
@@ -34,11 +34,11 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def run(n: int, duration: float, mode: str, out: Path) -> tuple[dict, dict]:
+def run(n: int, duration: float, mode: str, out: Path, speed: float = 1.0) -> tuple[dict, dict]:
     metrics = out / f"m-{mode}-{n}.json"
     cmd = [sys.executable, "-m", "swarm.cli", "up", "--robots", str(n), "--duration", str(duration), "--mode", mode,
            "--listen", f"tcp/127.0.0.1:{free_port()}", "--fleet", f"bench{n}", "--metrics", str(metrics),
-           "--log-dir", str(out / f"logs-{mode}-{n}"), "--no-viz", "--quiet"]
+           "--log-dir", str(out / f"logs-{mode}-{n}"), "--no-viz", "--quiet", "--speed", str(speed)]
     proc = subprocess.Popen(cmd)
     samples: dict[int, list] = {}
     done = threading.Event()
@@ -74,14 +74,18 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--robots", type=int, nargs="+", default=[7, 19, 37])
     ap.add_argument("--duration", type=float, default=20.0, help="simulated seconds per run (default 20)")
+    ap.add_argument("--speed", type=float, default=1.0,
+                    help="real-time runs: simulated seconds per wall second (default 1; 0.25 puts a quarter of "
+                         "the load on the machine)")
     a = ap.parse_args()
     out = Path(tempfile.mkdtemp(prefix="swarm-bench-"))
-    print(f"{os.cpu_count()} CPUs; runs of {a.duration:g} simulated s of paper-50hz; logs in {out}")
+    print(f"{os.cpu_count()} CPUs; runs of {a.duration:g} simulated s of paper-50hz (real time at speed {a.speed:g}); "
+          f"logs in {out}")
     print(f"{'N':>4} {'launch s':>9} {'ticks/s':>8} {'rt median ms':>13} {'rt p99 ms':>10} {'robot CPU %':>12} "
           f"{'robot RSS MiB':>14} {'converged':>10} {'collisions':>10}")
     for n in a.robots:
         ls, res = run(n, a.duration, "lockstep", out)
-        rt, _ = run(n, a.duration, "realtime", out)
+        rt, _ = run(n, a.duration, "realtime", out, a.speed)
         tps = ls["steps"] / ls["run_wall_s"]
         print(f"{n:>4} {ls['launch_s']:>9.2f} {tps:>8.1f} {rt.get('round_trip_ms_median', float('nan')):>13.2f} "
               f"{rt.get('round_trip_ms_p99', float('nan')):>10.2f} {res['cpu_pct']:>12.1f} "
