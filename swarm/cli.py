@@ -58,7 +58,8 @@ def _add_record_flags(g) -> None:
                    help="record the run into an MCAP file (snapshots, reference, commands, statuses, events, "
                         "scenario, metrics; Foxglove opens it; swarm report and swarm replay read it)")
     g.add_argument("--record-hz", type=_record_hz, default=20.0, metavar="HZ",
-                   help="with --record: snapshots per simulated second (default 20; 0: every step)")
+                   help="with --record: snapshots per simulated second (default 20, rounded to whole control "
+                        "steps: 25 at dt = 0.02; 0: every step)")
 
 
 def _int_at_least(minimum: int):
@@ -172,7 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_scenario_flags(sim, "paper")
     out = sim.add_argument_group("output")
-    out.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (DESIGN.md section 7)")
+    out.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (its keys: docs/design.md, Metrics); swarm up always writes it to the log directory too")
     out.add_argument("--plots", type=Path, metavar="DIR", help="write the panels of the paper's Fig. 2 as PNG")
     out.add_argument("--quiet", action="store_true", help="no progress bar and no summary table")
     _add_record_flags(out)
@@ -226,7 +227,7 @@ def _add_run_flags(p: argparse.ArgumentParser, up: bool = False) -> None:
         g.add_argument("--tick-timeout", type=_positive_float, default=1.0, metavar="S",
                        help="lock-step: wall seconds to wait for a tick's commands before counting misses "
                             "(default 1)")
-        g.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (DESIGN.md section 7)")
+        g.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (its keys: docs/design.md, Metrics); swarm up always writes it to the log directory too")
         g.add_argument("--trace", type=Path, metavar="PATH.npz",
                        help="write every robot's pose at every sample (numpy .npz: q[k, i] = x, y, theta)")
         if up:
@@ -353,9 +354,12 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
     from swarm.sim import Simulation
 
     scn = scenario_file.load(args.scenario, _overrides(args))
-    for flag, path in (("--metrics", args.metrics), ("--record", args.record)):
-        if path is not None and path.parent and not path.parent.exists():
-            raise BadInput(f"{flag} {path}: directory {path.parent} does not exist")
+    from swarm.commands import _check_out_dir
+
+    _check_out_dir("--metrics", args.metrics)
+    _check_out_dir("--record", args.record)
+    if args.plots is not None and args.plots.exists() and not args.plots.is_dir():
+        raise BadInput(f"--plots {args.plots}: exists and is not a directory")
     viz = viz_options(args, args.viz, "needs --viz", extra=(("--speed", args.speed),))
     if viz is not None:
         check_viz_port(viz)

@@ -39,19 +39,25 @@ class Failure(Exception):
 
 
 class StopEvent:
-    """SIGINT and SIGTERM set a threading.Event that the process's loop polls."""
+    """SIGINT and SIGTERM set a threading.Event that the process's loop polls. A second Ctrl-C stops at
+    once (KeyboardInterrupt) unless hard_second is False: then the shutdown under way (bounded: it
+    ends with SIGKILL) finishes, so the metrics and a recording are still written."""
 
-    def __init__(self) -> None:
+    def __init__(self, hard_second: bool = True) -> None:
         self.event = threading.Event()
         self.signal: int | None = None
+        self.hard_second = hard_second
 
     def __enter__(self) -> threading.Event:
         self._old = {s: signal.signal(s, self._handle) for s in (signal.SIGINT, signal.SIGTERM)}
         return self.event
 
     def _handle(self, signum, frame) -> None:
-        if self.event.is_set() and signum == signal.SIGINT:  # a second Ctrl-C: stop now
-            raise KeyboardInterrupt
+        if self.event.is_set() and signum == signal.SIGINT:  # a second Ctrl-C
+            if self.hard_second:
+                raise KeyboardInterrupt
+            print("swarm: stopping; the metrics and the recording are being written (a few seconds at most)",
+                  file=sys.stderr, flush=True)
         self.signal = signum
         self.event.set()
 
@@ -69,9 +75,34 @@ def fleet_of(args) -> str:
 
 def _check_endpoint(flag: str, ep: str) -> str:
     proto, sep, rest = ep.partition("/")
-    if not sep or not proto or ":" not in rest:
+    host, colon, port = rest.rpartition(":")
+    if not sep or not proto or not colon or not host:
         raise BadInput(f"{flag} {ep!r}: expected an endpoint like tcp/127.0.0.1:7447")
+    if not port.isdigit() or not 0 < int(port) < 65536:
+        raise BadInput(f"{flag} {ep!r}: the port must be an integer in 1..65535, got {port!r}")
     return ep
+
+
+def _check_listen_free(ep: str) -> None:
+    """A router that cannot bind its port only says so in its log, and the swarm then joins whatever
+    holds the port (another swarm's router): refuse before anything starts."""
+    proto, _, rest = ep.partition("/")
+    if proto != "tcp":
+        return
+    host, _, port = rest.rpartition(":")
+    host = host.strip("[]")
+    try:
+        infos = socket.getaddrinfo(host, int(port), type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except socket.gaierror as e:
+        raise BadInput(f"--listen {ep}: unknown host {host!r} ({e.strerror})") from None
+    for family, kind, proto_, _, addr in infos[:1]:
+        with socket.socket(family, kind, proto_) as sock:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                sock.bind(addr)
+            except OSError as e:
+                raise BadInput(f"--listen {ep}: cannot listen there ({e.strerror}); is another swarm or router "
+                               "running? Give another port with --listen, or join it with --connect") from None
 
 
 def open_bus(args, mode: str = "client", listen: list[str] | None = None, timeout_s: float = 10.0,
@@ -152,8 +183,15 @@ def _write_json(path: Path, obj: dict) -> None:
 
 
 def _check_out_dir(flag: str, path: Path | None) -> None:
-    if path is not None and not path.parent.exists():
+    """An output file's directory must exist (and be a directory), and the file must not be a directory."""
+    if path is None:
+        return
+    if not path.parent.exists():
         raise BadInput(f"{flag} {path}: directory {path.parent} does not exist")
+    if not path.parent.is_dir():
+        raise BadInput(f"{flag} {path}: {path.parent} is not a directory")
+    if path.is_dir():
+        raise BadInput(f"{flag} {path}: is a directory (give a file name)")
 
 
 def viz_options(args, enabled: bool, otherwise: str, extra: tuple[tuple[str, object], ...] = ()) -> VizOptions | None:
@@ -404,6 +442,8 @@ def cmd_up(args, started: float) -> int:
     _check_out_dir("--metrics", args.metrics)
     _check_out_dir("--trace", args.trace)
     _check_out_dir("--record", args.record)
+    if args.log_dir is not None and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
+        raise BadInput(f"--log-dir {args.log_dir}: exists and is not a directory")
     if args.zenoh_config is not None and not Path(args.zenoh_config).is_file():
         raise BadInput(f"--zenoh-config {args.zenoh_config}: no such file")
     log_dir = Path(args.log_dir or os.path.join(tempfile.gettempdir(), f"swarm-{fleet}-{os.getpid()}"))
@@ -426,6 +466,8 @@ def cmd_up(args, started: float) -> int:
         return EXIT_OK
     if viz is not None:
         check_viz_port(viz)
+    if plan.router is not None:
+        _check_listen_free(opts.listen)
     log_dir.mkdir(parents=True, exist_ok=True)
     status = console.StatusLine(enabled=not args.quiet)
     say = (lambda text: None) if args.quiet else (lambda text: status.note(text))
@@ -443,7 +485,7 @@ def cmd_up(args, started: float) -> int:
     say(f"swarm up: {scn.n} robots, scenario {scn.name}, {args.mode}, dt {scn.dt:g} s, "
         f"{'governor on' if scn.control.governor else 'governor off'}; logs in {log_dir}")
     recorder = None
-    with StopEvent() as stop, Supervisor(plan, log_dir) as sup:
+    with StopEvent(hard_second=False) as stop, Supervisor(plan, log_dir) as sup:
         bus = None
         try:
             if plan.router is not None:

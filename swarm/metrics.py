@@ -15,13 +15,14 @@ def step_time(t: float) -> float:
     return round(t, 9)
 
 
-def record(scn, *, duration_s: float, converged_at_s: float | None, position_error_max: float,
-           orientation_error_max: float, min_robot_distance: float, min_obstacle_distance: float,
+def record(scn, *, duration_s: float, converged_at_s: float | None, position_error_max: float | None,
+           orientation_error_max: float | None, min_robot_distance: float, min_obstacle_distance: float,
            collisions: int, last_freeze_end_s: float | None, wall_s: float, interrupted: bool, mode: str,
            **extra) -> dict:
     """The contract's keys in the contract's order, then the extra keys (scenario, mode, governor, ...).
     A smallest distance is null when there is no such pair (fewer than two robots, no obstacle) or
-    when it was never measured (infinite)."""
+    when it was never measured (infinite); the final errors are null when no step was run (a run
+    stopped during start-up)."""
     n_obstacles = len(scn.obstacles)
     return {
         "robots": scn.n,
@@ -30,8 +31,8 @@ def record(scn, *, duration_s: float, converged_at_s: float | None, position_err
         "dt": scn.dt,
         "seed": scn.seed,
         "converged_at_s": None if converged_at_s is None else step_time(converged_at_s),
-        "final_position_error_max_m": float(position_error_max),
-        "final_orientation_error_max_rad": float(orientation_error_max),
+        "final_position_error_max_m": None if position_error_max is None else float(position_error_max),
+        "final_orientation_error_max_rad": None if orientation_error_max is None else float(orientation_error_max),
         "min_robot_distance_m": float(min_robot_distance)
         if scn.n >= 2 and math.isfinite(min_robot_distance) else None,
         "min_obstacle_distance_m": float(min_obstacle_distance)

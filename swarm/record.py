@@ -86,7 +86,8 @@ def _schema(title: str, description: str, props: dict, optional: tuple[str, ...]
 
 # Metrics that may be null (DESIGN.md section 7): not declared below, since a JSON Schema type list such as
 # ["number", "null"] is valid JSON Schema but Foxglove's schema reader refuses it (one type per field).
-NULLABLE_METRICS = ("converged_at_s", "min_robot_distance_m", "min_obstacle_distance_m", "last_freeze_end_s")
+NULLABLE_METRICS = ("converged_at_s", "final_position_error_max_m", "final_orientation_error_max_rad",
+                    "min_robot_distance_m", "min_obstacle_distance_m", "last_freeze_end_s")
 
 # topic -> (schema name, JSON schema). One "type" per property (what Foxglove reads); a property that can
 # be absent (optional) is left out of the message rather than written as null.
@@ -121,7 +122,6 @@ SCHEMAS: dict[str, tuple[str, dict]] = {
                     "the metrics JSON (extra keys included); written once at the end. Also there, as a number or "
                     "null: " + ", ".join(NULLABLE_METRICS) + ".", {
                         "robots": _INT, "obstacles": _INT, "duration_s": _NUM, "dt": _NUM, "seed": _INT,
-                        "final_position_error_max_m": _NUM, "final_orientation_error_max_rad": _NUM,
                         "collisions": _INT, "wall_s": _NUM, "messages_dropped": _INT, "cmd_misses": _INT,
                         "bad_messages": _INT, "interrupted": _BOOL}, extra=True)),
 }

@@ -111,8 +111,9 @@ class Referee:
 
     def metrics(self, wall_s: float, interrupted: bool, mode: str, **extra) -> dict:
         return metrics.record(
-            self.scn, duration_s=self.last_t or 0.0, converged_at_s=self.converged_at(), position_error_max=self.pmax,
-            orientation_error_max=self.emax, min_robot_distance=self.min_rr, min_obstacle_distance=self.min_ro,
+            self.scn, duration_s=self.last_t or 0.0, converged_at_s=self.converged_at(),
+            position_error_max=self.pmax if self.samples else None,
+            orientation_error_max=self.emax if self.samples else None, min_robot_distance=self.min_rr, min_obstacle_distance=self.min_ro,
             collisions=self.collisions, last_freeze_end_s=self.last_frozen_t, wall_s=wall_s,
             interrupted=interrupted, mode=mode, freeze_intervals=self.freeze_intervals, samples=self.samples,
             **extra)

@@ -143,3 +143,42 @@ def test_report_of_a_file_that_is_not_a_recording_names_it(tmp_path):
     bad.write_text("not an mcap file\n")
     out = cli("report", str(bad), "-o", str(tmp_path / "r"))
     assert out.returncode == 2 and str(bad) in out.stderr
+
+
+def test_a_second_ctrl_c_still_leaves_a_complete_recording(tmp_path):
+    """Ctrl-C twice in a row during `swarm up --record`: the shutdown finishes (exit 130, nothing left
+    running) and the recording is closed with the interrupted metrics."""
+    import signal
+    import time
+
+    from tests.integration.test_up import descendants, kill_all, wait_for_ticks
+
+    cmd, metrics = up(tmp_path, "--robots", "4", "--duration", "300", "--record", str(tmp_path / "r.mcap"),
+                      fleet="twice")
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
+    children = []
+    try:
+        wait_for_ticks(cmd, "twice", 25, proc)
+        children = descendants(proc.pid)
+        proc.send_signal(signal.SIGINT)
+        time.sleep(0.1)  # the point of the test: a second Ctrl-C right behind the first
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+        assert proc.returncode == 130, err
+        msgs = mcap_messages(tmp_path / "r.mcap")
+        assert msgs["/metrics"] == [json.loads(metrics.read_text())] and msgs["/metrics"][0]["interrupted"] is True
+    finally:
+        kill_all(descendants(proc.pid) + children)
+        if proc.poll() is None:
+            proc.kill()
+
+
+def test_up_refuses_a_router_port_that_is_taken(tmp_path):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        out = cli("up", "--robots", "3", "--listen", f"tcp/127.0.0.1:{port}", "--no-viz", timeout=60, cwd=tmp_path)
+    assert out.returncode == 2 and "cannot listen there" in out.stderr, out.stderr
