@@ -147,11 +147,12 @@ def _add_optional_scenario_flags(p: argparse.ArgumentParser, otherwise: str) -> 
     """The scenario flags of a process that can also learn its scenario from the running swarm."""
     g = p.add_argument_group(f"scenario (optional: without it {otherwise})")
     g.add_argument("--scenario", metavar="NAME|FILE", help="built-in name or TOML file (the same on every machine)")
-    g.add_argument("--robots", type=_count, metavar="N")
-    g.add_argument("--seed", type=_seed, metavar="S")
-    g.add_argument("--duration", type=_positive_float, metavar="T")
-    g.add_argument("--dt", type=_positive_float, metavar="DT")
-    g.add_argument("--governor", action=argparse.BooleanOptionalAction, default=None)
+    g.add_argument("--robots", type=_count, metavar="N", help="with --scenario: number of robots")
+    g.add_argument("--seed", type=_seed, metavar="S", help="with --scenario: random seed")
+    g.add_argument("--duration", type=_positive_float, metavar="T", help="with --scenario: simulated seconds")
+    g.add_argument("--dt", type=_positive_float, metavar="DT", help="with --scenario: control period [s]")
+    g.add_argument("--governor", action=argparse.BooleanOptionalAction, default=None,
+                   help="with --scenario: the safety governor")
 
 
 def build_parser() -> argparse.ArgumentParser:

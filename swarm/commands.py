@@ -469,7 +469,7 @@ def cmd_up(args, started: float) -> int:
     if plan.router is not None:
         _check_listen_free(opts.listen)
     log_dir.mkdir(parents=True, exist_ok=True)
-    status = console.StatusLine(enabled=not args.quiet)
+    status = console.StatusLine(enabled=not args.quiet, log_every=2.0)
     say = (lambda text: None) if args.quiet else (lambda text: status.note(text))
     viewer: list[ViewerUrl] = []
 
