@@ -27,7 +27,8 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from swarm.commands import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent
+from swarm.commands import (EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent,
+                            record_rate)
 
 
 # --------------------------------------------------------------------------- argument types
@@ -57,7 +58,7 @@ def _add_record_flags(g) -> None:
     g.add_argument("--record", type=Path, metavar="PATH.mcap",
                    help="record the run into an MCAP file (snapshots, reference, commands, statuses, events, "
                         "scenario, metrics; Foxglove opens it; swarm report and swarm replay read it)")
-    g.add_argument("--record-hz", type=_record_hz, default=20.0, metavar="HZ",
+    g.add_argument("--record-hz", type=_record_hz, metavar="HZ",
                    help="with --record: snapshots per simulated second (default 20, rounded to whole control "
                         "steps: 25 at dt = 0.02; 0: every step)")
 
@@ -359,6 +360,7 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
 
     _check_out_dir("--metrics", args.metrics)
     _check_out_dir("--record", args.record)
+    args.record_hz = record_rate(args)
     if args.plots is not None and args.plots.exists() and not args.plots.is_dir():
         raise BadInput(f"--plots {args.plots}: exists and is not a directory")
     viz = viz_options(args, args.viz, "needs --viz", extra=(("--speed", args.speed),))

@@ -182,6 +182,17 @@ def _write_json(path: Path, obj: dict) -> None:
     tmp.replace(path)
 
 
+def record_rate(args) -> float:
+    """--record-hz (default swarm.record.DEFAULT_RECORD_HZ), refused without --record rather than ignored."""
+    if args.record_hz is not None and args.record is None:
+        raise BadInput("--record-hz needs --record PATH.mcap")
+    if args.record_hz is None:
+        from swarm.record import DEFAULT_RECORD_HZ
+
+        return DEFAULT_RECORD_HZ
+    return args.record_hz
+
+
 def _check_out_dir(flag: str, path: Path | None) -> None:
     """An output file's directory must exist (and be a directory), and the file must not be a directory."""
     if path is None:
@@ -442,6 +453,7 @@ def cmd_up(args, started: float) -> int:
     _check_out_dir("--metrics", args.metrics)
     _check_out_dir("--trace", args.trace)
     _check_out_dir("--record", args.record)
+    args.record_hz = record_rate(args)
     if args.log_dir is not None and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
         raise BadInput(f"--log-dir {args.log_dir}: exists and is not a directory")
     if args.zenoh_config is not None and not Path(args.zenoh_config).is_file():
