@@ -129,7 +129,6 @@ class Agent:
         self.neighbours = 0
         self.stale = 0
         self.oldest_state_s = 0.0  # real time: age of the oldest neighbour state in the last command
-        self.horizon_s = cfg.dt  # real time: the governor's horizon of the last command
         self._first_pose_t: float | None = None
 
     # ------------------------------------------------------------------ wiring
@@ -154,9 +153,7 @@ class Agent:
             self._ocells.setdefault(keys.cell_of(x, y, self.side), []).append(m)
 
     def close(self) -> None:
-        if self._clock_sub is not None:
-            self._clock_sub.close()
-            self._clock_sub = None
+        self.drop_clock()
         for h in list(self._cells.values()) + self._handles[::-1]:
             h.close()
         self._cells.clear()
@@ -172,6 +169,17 @@ class Agent:
         for c in self._cells.keys() - want:
             self._cells.pop(c).close()
         self._block_prev = now
+
+    @property
+    def horizon_s(self) -> float:
+        """The safety governor's horizon [s]: the control period, or more in real time (see command())."""
+        return self.p[law.P_DT]
+
+    def drop_clock(self) -> None:
+        """Unsubscribe from the clock once it has given what this robot needs (loop thread only)."""
+        if self._clock_sub is not None:
+            self._clock_sub.close()
+            self._clock_sub = None
 
     @property
     def subscribed_cells(self) -> set[tuple[int, int]]:
@@ -302,19 +310,19 @@ class Agent:
                 if nb.seq != seq and j not in self.waiting:
                     continue
                 is_stale = nb.seq != seq
+                age = 0.0
             else:
                 age = t - nb.t
                 if age > FORGET_AFTER_S:
                     continue
                 is_stale = age > STALE_AFTER_S
-                if age > oldest and (x - nb.x) ** 2 + (y - nb.y) ** 2 < r2:
-                    oldest = age
             dx = x - nb.x
             dy = y - nb.y
             if dx * dx + dy * dy < r2:
                 nx.append(nb.x), ny.append(nb.y), nr.append(nb.r), nR.append(nb.R), nk.append(law.KIND_ROBOT)
                 robots += 1
                 stale += is_stale
+                oldest = max(oldest, age)
         cx, cy = keys.cell_of(x, y, self.side)
         near = sorted(m for c in block(cx, cy) for m in self._ocells.get(c, ()))
         for m in near:
@@ -345,7 +353,6 @@ class Agent:
         if seq is None:
             lag = max(0.0, t - pose_t) if pose_t is not None else 0.0
             self.p[law.P_DT] = self.cfg.dt + min(HORIZON_CAP_S, lag + self.oldest_state_s)
-            self.horizon_s = self.p[law.P_DT]
         xl, yl, thl, vl, wl = ref
         v, w = law.robot_command(x, y, th, self.cfg.dx, self.cfg.dy, self.cfg.r, t, xl, yl, thl, vl, wl,
                                  nx, ny, nr, nR, nk, len(nx), self.mem, self.p)
@@ -375,9 +382,8 @@ class Agent:
             return False
         if pose.seq > self.k_started:
             self._start_tick(pose)
-            if self._clock_sub is not None and pose.seq > 0 and self.clock_seq >= 0:
-                self._clock_sub.close()  # past the start barrier: the clock is not needed any more
-                self._clock_sub = None
+            if pose.seq > 0 and self.clock_seq >= 0:
+                self.drop_clock()  # past the start barrier: the clock is not needed any more
         with self.lock:
             k = self.k_started
             pose = self.pose if self.pose.seq == k else pose
@@ -509,9 +515,8 @@ def _loop_realtime(agent: Agent, stop: threading.Event, wall) -> None:
         agent.wake.clear()
         with agent.lock:
             epoch, speed, fresh = agent.epoch, agent.speed, agent._due()
-        if epoch is not None and agent._clock_sub is not None:
-            agent._clock_sub.close()  # the epoch is all a real-time robot needs of the clock (one message a period less)
-            agent._clock_sub = None
+        if epoch is not None:
+            agent.drop_clock()  # the epoch is all a real-time robot needs of the clock (one message a period less)
         if epoch is None or not fresh:
             continue
         agent.tick_realtime((wall() - epoch) * speed)

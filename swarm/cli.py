@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Sequence
 
 from swarm.commands import (EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent,
-                            record_rate)
+                            check_out_dir, record_rate)
 
 
 # --------------------------------------------------------------------------- argument types
@@ -356,10 +356,8 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
     from swarm.sim import Simulation
 
     scn = scenario_file.load(args.scenario, _overrides(args))
-    from swarm.commands import _check_out_dir
-
-    _check_out_dir("--metrics", args.metrics)
-    _check_out_dir("--record", args.record)
+    check_out_dir("--metrics", args.metrics)
+    check_out_dir("--record", args.record)
     args.record_hz = record_rate(args)
     if args.plots is not None and args.plots.exists() and not args.plots.is_dir():
         raise BadInput(f"--plots {args.plots}: exists and is not a directory")

@@ -83,6 +83,23 @@ def _check_endpoint(flag: str, ep: str) -> str:
     return ep
 
 
+def _bind_error(host: str, port: int) -> str | None:
+    """Why a TCP server could not listen on host:port now (None: it could), binding as servers do
+    (SO_REUSEADDR): a clear exit 2 up front rather than a child that fails later, in its log."""
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except socket.gaierror as e:
+        return f"unknown host {host!r} ({e.strerror})"
+    for family, kind, proto, _, addr in infos:
+        with socket.socket(family, kind, proto) as sock:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                sock.bind(addr)
+            except OSError as e:
+                return e.strerror or str(e)
+    return None
+
+
 def _check_listen_free(ep: str) -> None:
     """A router that cannot bind its port only says so in its log, and the swarm then joins whatever
     holds the port (another swarm's router): refuse before anything starts."""
@@ -90,19 +107,10 @@ def _check_listen_free(ep: str) -> None:
     if proto != "tcp":
         return
     host, _, port = rest.rpartition(":")
-    host = host.strip("[]")
-    try:
-        infos = socket.getaddrinfo(host, int(port), type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
-    except socket.gaierror as e:
-        raise BadInput(f"--listen {ep}: unknown host {host!r} ({e.strerror})") from None
-    for family, kind, proto_, _, addr in infos[:1]:
-        with socket.socket(family, kind, proto_) as sock:
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            try:
-                sock.bind(addr)
-            except OSError as e:
-                raise BadInput(f"--listen {ep}: cannot listen there ({e.strerror}); is another swarm or router "
-                               "running? Give another port with --listen, or join it with --connect") from None
+    error = _bind_error(host.strip("[]"), int(port))
+    if error is not None:
+        raise BadInput(f"--listen {ep}: cannot listen there ({error}); is another swarm or router running? "
+                       "Give another port with --listen, or join it with --connect")
 
 
 def open_bus(args, mode: str = "client", listen: list[str] | None = None, timeout_s: float = 10.0,
@@ -193,7 +201,7 @@ def record_rate(args) -> float:
     return args.record_hz
 
 
-def _check_out_dir(flag: str, path: Path | None) -> None:
+def check_out_dir(flag: str, path: Path | None) -> None:
     """An output file's directory must exist (and be a directory), and the file must not be a directory."""
     if path is None:
         return
@@ -223,14 +231,9 @@ def check_viz_port(v: VizOptions) -> None:
     """A fixed --viz-port must be free now (a clear exit 2 rather than a viewer that fails later)."""
     if not v.port:
         return
-    for family, kind, proto, _, addr in socket.getaddrinfo(v.host, v.port, type=socket.SOCK_STREAM,
-                                                           flags=socket.AI_PASSIVE):
-        with socket.socket(family, kind, proto) as s:
-            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server's own bind
-            try:
-                s.bind(addr)
-            except OSError as e:
-                raise BadInput(f"--viz-port {v.port}: cannot listen on {v.host}:{v.port} ({e.strerror})") from None
+    error = _bind_error(v.host, v.port)
+    if error is not None:
+        raise BadInput(f"--viz-port {v.port}: cannot listen on {v.host}:{v.port} ({error})")
 
 
 # --------------------------------------------------------------------------- processes
@@ -313,8 +316,8 @@ def cmd_world(args, started: float) -> int:
     _setup_logging()
     scn = _load(args)
     fleet = fleet_of(args)
-    _check_out_dir("--metrics", args.metrics)
-    _check_out_dir("--trace", args.trace)
+    check_out_dir("--metrics", args.metrics)
+    check_out_dir("--trace", args.trace)
     with StopEvent() as stop:
         bus = open_bus(args, stop=stop)
         try:
@@ -360,7 +363,7 @@ def cmd_viz(args, started: float) -> int:
     scene = SceneInfo.from_scenario(_load(args)) if args.scenario is not None else None
     v = viz_options(args, True, "")
     check_viz_port(v)
-    _check_out_dir("--server-log", args.server_log)
+    check_out_dir("--server-log", args.server_log)
     connect = [_check_endpoint("--connect", c) for c in (args.connect or [DEFAULT_LISTEN])]
     with StopEvent() as stop:
         # the server first: fork before zenoh starts its threads, and from this (main) thread, which
@@ -450,9 +453,9 @@ def cmd_up(args, started: float) -> int:
         _check_endpoint("--listen", ep)
     for ep in args.connect or []:
         _check_endpoint("--connect", ep)
-    _check_out_dir("--metrics", args.metrics)
-    _check_out_dir("--trace", args.trace)
-    _check_out_dir("--record", args.record)
+    check_out_dir("--metrics", args.metrics)
+    check_out_dir("--trace", args.trace)
+    check_out_dir("--record", args.record)
     args.record_hz = record_rate(args)
     if args.log_dir is not None and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
         raise BadInput(f"--log-dir {args.log_dir}: exists and is not a directory")

@@ -21,16 +21,9 @@ from swarm.scenario_file import Overrides
 from swarm.meshcat_objects import CommandLog
 from swarm.viz import DEAD, FROZEN, PALETTE, STALE, STOPPED, TRACKING, SceneInfo, Viewer, state_codes
 from swarm.watch import SwarmWatcher, fetch_scene, play_simulation
+from tests.viz.helpers import wait_until
 
 FLEET = "vz"
-
-
-def wait_until(predicate, timeout_s: float, what: str) -> None:
-    end = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() > end:
-            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-        time.sleep(0.005)
 
 
 def snapshot(seq: int, n: int = 3, alive=None, stopped=None, dt: float = 0.02) -> bytes:
