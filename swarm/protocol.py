@@ -191,6 +191,9 @@ _KIND_OF = {cls: kind for kind, cls in KINDS.items()}
 
 def encode(msg) -> bytes:
     """msgpack bytes of a message (no validation: messages are built by this process)."""
+    fast = _FAST_ENCODE.get(type(msg))
+    if fast is not None:
+        return fast(msg)
     kind = _KIND_OF.get(type(msg))
     if kind is None:
         raise TypeError(f"not a protocol message: {type(msg).__name__}")
@@ -201,8 +204,8 @@ def encode(msg) -> bytes:
         d.update(t=msg.t, seq=msg.seq,
                  robots=[{f: getattr(s, f) for f in _SNAP_FIELDS} for s in msg.robots])
     else:
-        for f in fields(msg):
-            d[_WIRE.get(f.name, f.name)] = getattr(msg, f.name)
+        for name, wire in _WIRE_NAMES[kind]:
+            d[wire] = getattr(msg, name)
     return msgpack.packb(d, use_bin_type=True)
 
 
@@ -269,7 +272,61 @@ _SPEC: dict[str, tuple[tuple[str, str], ...]] = {
 # on the wire the linear velocity is "vel" (docs/protocol.md). In Python it is still .v.
 _WIRE = {"v": "vel"}
 _FIELD = {"vel": "v"}
+_WIRE_NAMES = {k: tuple((f.name, _WIRE.get(f.name, f.name)) for f in fields(cls)) for k, cls in KINDS.items()}
 _READ = {"n": _num, "i": _int, "b": _bool, "id": lambda d, n: _int(d, n, MAX_ROBOTS - 1)}
+
+
+def _compile_fast(kind: str):
+    """A decoder for the common case of a flat kind: exactly the fields of the spec, floats that are
+    floats and finite, ints in range, bools. It returns the message, or None for anything else, and
+    decode() then takes the general path, which accepts ints for numbers and names what is wrong.
+    Generated once per kind (as dataclasses and namedtuple do): straight-line code is 3x faster than
+    the general path, and a robot decodes ~10 messages per control period."""
+    spec = _SPEC[kind]
+    wire = {_FIELD.get(n, n): n for n, _ in spec}  # python name -> wire name
+    kinds = dict(spec)
+    var = {n: f"a{i}" for i, (n, _) in enumerate(spec)}
+    floats = [var[n] for n, t in spec if t == "n"]
+    body = [f"def fast(d):",
+            f"    if len(d) != {len(spec) + 2} or d.get('kind') != {kind!r} or d.get('v') != {VERSION} "
+            "or type(d['v']) is not int:",
+            "        return None",
+            "    try:",
+            *[f"        {var[n]} = d[{n!r}]" for n, _ in spec],
+            "    except KeyError:",
+            "        return None"]
+    for n, t in spec:
+        a = var[n]
+        if t == "n":
+            body.append(f"    if type({a}) is not float: return None")
+        elif t == "b":
+            body.append(f"    if type({a}) is not bool: return None")
+        else:
+            limit = MAX_ROBOTS - 1 if t == "id" else 2**53
+            body.append(f"    if type({a}) is not int or not 0 <= {a} <= {limit}: return None")
+    if floats:  # finite iff their sum minus itself is 0 (inf and nan propagate; an overflow goes the long way)
+        body += [f"    s = {' + '.join(floats)}", "    if s - s != 0.0: return None"]
+    args = ", ".join(var[wire[f.name]] for f in fields(KINDS[kind]))
+    body.append(f"    return cls({args})")
+    ns = {"cls": KINDS[kind]}
+    exec(compile("\n".join(body), f"<protocol fast decoder for {kind}>", "exec"), ns)
+    return ns["fast"]
+
+
+_FAST = {k: _compile_fast(k) for k in _SPEC}
+
+
+def _compile_encode(kind: str):
+    """encode() for a flat kind as one dict display (the general loop costs 3x as much)."""
+    items = ", ".join(f"{wire!r}: m.{name}" for name, wire in _WIRE_NAMES[kind])
+    src = f"def enc(m):\n    return packb({{'v': {VERSION}, 'kind': {kind!r}, {items}}}, use_bin_type=True)"
+    ns = {"packb": msgpack.packb}
+    exec(compile(src, f"<protocol fast encoder for {kind}>", "exec"), ns)
+    return ns["enc"]
+
+
+_FAST_ENCODE = {KINDS[k]: _compile_encode(k) for k in _SPEC}
+_unpackb = msgpack.unpackb
 
 
 def decode(payload: bytes, kind: str | None = None, key_id: int | None = None):
@@ -279,11 +336,26 @@ def decode(payload: bytes, kind: str | None = None, key_id: int | None = None):
     if len(payload) > MAX_PAYLOAD:
         raise ProtocolError(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD}")
     try:
-        d = msgpack.unpackb(bytes(payload), raw=False, strict_map_key=True)
+        d = _unpackb(payload, raw=False, strict_map_key=True)
     except Exception as e:  # msgpack raises several types for garbage
         raise ProtocolError(f"not msgpack: {type(e).__name__}") from None
     if not isinstance(d, dict):
         raise ProtocolError(f"payload must be a map, got {type(d).__name__}")
+    fast = _FAST.get(kind) if kind is not None else None
+    if fast is not None:
+        msg = fast(d)
+        if msg is not None:
+            check = _CHECK.get(kind)
+            if check is not None:
+                check(msg)
+            if key_id is not None and kind in ("state", "config") and msg.id != key_id:
+                raise ProtocolError(f"id {msg.id} in the payload does not match id {key_id} in the key")
+            return msg
+    return _decode_map(d, kind, key_id)
+
+
+def _decode_map(d: dict, kind: str | None, key_id: int | None):
+    """The general path: every check in turn, with a reason for the first that fails."""
     if d.get("v") != VERSION or isinstance(d.get("v"), bool):
         raise ProtocolError(f"unsupported protocol version {d.get('v')!r} (this side speaks {VERSION})")
     k = d.get("kind")

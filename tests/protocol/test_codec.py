@@ -165,3 +165,35 @@ def test_config_ranges_and_key_id():
     for change, message in (({"threshold": 5}, "threshold"), ({"sense": 1.0}, "sense"), ({"k1": 0.0}, "k1")):
         with pytest.raises(p.ProtocolError, match=message):
             p.decode(msgpack.packb({**d, **change}))
+
+
+def _near_valid(kind: str):
+    """Maps that are a valid `kind` message with some fields replaced, dropped or added."""
+    base = msgpack.unpackb(p.encode(next(m for m in MESSAGES if p._KIND_OF[type(m)] == kind)))
+    edit = st.dictionaries(st.sampled_from(sorted(base) + ["extra"]),
+                           st.one_of(_scalars, st.floats(allow_nan=True, allow_infinity=True), st.integers(-3, 3),
+                                     st.sampled_from([1e308, -1e308, 0.0, 0.3, 1.2])), max_size=3)
+    drop = st.sets(st.sampled_from(sorted(base)), max_size=1)
+    return st.tuples(st.just(base), edit, drop)
+
+
+@pytest.mark.parametrize("kind", sorted(p._FAST))
+@settings(max_examples=200, deadline=None)
+@given(data=st.data())
+def test_fast_decoder_agrees_with_the_general_path(kind, data):
+    """The generated fast decoders accept nothing the general path refuses, and decode the same."""
+    base, edit, drop = data.draw(_near_valid(kind))
+    d = {k: v for k, v in {**base, **edit}.items() if k not in drop}
+    try:
+        fast = p.decode(msgpack.packb(d, use_bin_type=True), kind)
+    except p.ProtocolError as e:
+        fast = e
+    try:
+        slow = p._decode_map(dict(d), kind, None)
+    except p.ProtocolError as e:
+        slow = e
+    if isinstance(slow, Exception):
+        assert isinstance(fast, p.ProtocolError) and str(fast) == str(slow)
+    else:
+        assert fast == slow
+        assert all(type(getattr(fast, f)) is type(getattr(slow, f)) for f in type(fast).__dataclass_fields__)
