@@ -2,7 +2,10 @@
 
 Lock-step: on world clock k it publishes ref_(k+1) (and any earlier ref it has not sent yet,
 ref_0 and ref_1 on clock_0), one tick ahead so the reference is never on the critical path.
-Real time: it publishes the reference at its own rate from the world's epoch.
+Real time: it publishes the reference every REF_PERIOD_S of simulated time on the world's
+clock, and at the start of every segment. Between two messages an agent advances the reference
+exactly along the leader's arc (v and w are constant within a segment), so a lower rate loses
+nothing, and every robot takes one message a period less than at the control rate.
 The reference at tick k is the leader's exact state at t_k = k dt (swarm.kinematics), the
 same number the simulator uses.
 """
@@ -19,11 +22,14 @@ from swarm.protocol import ProtocolError, Ref
 
 log = logging.getLogger("swarm.leader")
 
+REF_PERIOD_S = 0.1  # real time: simulated seconds between references (plus one at every segment start)
+
 
 class Leader:
     def __init__(self, bus, table, dt: float, fleet: str = "default", lockstep: bool = True, rate_hz: float | None = None):
         self.bus, self.table, self.dt, self.fleet, self.lockstep = bus, table, dt, fleet, lockstep
-        self.period = 1.0 / rate_hz if rate_hz else dt  # simulated seconds between real-time refs
+        self.period = 1.0 / rate_hz if rate_hz else REF_PERIOD_S  # simulated seconds between real-time refs
+        self.switches = [float(t0) for t0 in table[1:, kinematics.SEG_T0]]  # segment starts after the first
         self.inbox: queue.SimpleQueue = queue.SimpleQueue()
         self.next_seq = 0
         self.bad = protocol.BadMessages(log)
@@ -76,7 +82,8 @@ class Leader:
             t = (now - self.epoch) * self.speed
             self.publish(t, self.next_seq)
             self.next_seq += 1
-            wake = self.epoch + (t // self.period + 1) * self.period / self.speed
+            t_next = min([(t // self.period + 1) * self.period] + [s for s in self.switches if s > t])
+            wake = self.epoch + t_next / self.speed
             while not stop.is_set():
                 left = wake - time.time()
                 if left <= 0:

@@ -112,6 +112,15 @@ def cell_of(x: float, y: float, side: float) -> tuple[int, int]:
     return int(math.floor(x / side)), int(math.floor(y / side))
 
 
+def cell_robot(key: str) -> int | None:
+    """The robot id at the end of a cell key (the hot path of a robot's state messages; `parse`
+    does the full check). None if the last chunk is not an id."""
+    _, _, last = key.rpartition("/")
+    if last.isascii() and last.isdigit() and len(last) <= 10 and (last == "0" or last[0] != "0"):
+        return int(last)
+    return None
+
+
 @dataclass(frozen=True)
 class Key:
     fleet: str

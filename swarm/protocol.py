@@ -284,10 +284,9 @@ def _compile_fast(kind: str):
     the general path, and a robot decodes ~10 messages per control period."""
     spec = _SPEC[kind]
     wire = {_FIELD.get(n, n): n for n, _ in spec}  # python name -> wire name
-    kinds = dict(spec)
     var = {n: f"a{i}" for i, (n, _) in enumerate(spec)}
     floats = [var[n] for n, t in spec if t == "n"]
-    body = [f"def fast(d):",
+    body = ["def fast(d):",
             f"    if len(d) != {len(spec) + 2} or d.get('kind') != {kind!r} or d.get('v') != {VERSION} "
             "or type(d['v']) is not int:",
             "        return None",

@@ -64,6 +64,8 @@ class World:
         self.q = [list(map(float, row)) for row in scn.poses]
         self.comp = [[0.0, 0.0, 0.0] for _ in range(n)]
         self.cmd = [(0.0, 0.0)] * n  # the command being applied
+        self._cmd_changed = True  # real time: a command came since the loop last read them
+        self._pose_keys = [keys.robot_pose(fleet, i) for i in range(n)]
         self.cmd_seq = [-1] * n  # lock-step: tick of the newest command
         self.cmd_time = [-math.inf] * n  # sim time (lock-step) or monotonic wall time (real time) of the newest command
         self.stopped = [True] * n
@@ -161,6 +163,7 @@ class World:
                 else:
                     now = time.monotonic()
                     self.cmd[i] = (c.v, c.w)
+                    self._cmd_changed = True
                     self.cmd_time[i] = now
                     self.stopped[i] = False
                     sent = self._pose_sent.get(c.t)
@@ -206,10 +209,9 @@ class World:
         for i in range(self.n):
             self._publish_pose(i, t, seq)
 
-    def _publish_pose(self, i: int, t: float, seq: int) -> None:
-        x, y, th = self.q[i]
-        self.bus.put(keys.robot_pose(self.fleet, i), protocol.encode(Pose(t=t, seq=seq, x=x, y=y, theta=th)),
-                     reliable=True)
+    def _publish_pose(self, i: int, t: float, seq: int, xyth=None) -> None:
+        x, y, th = self.q[i] if xyth is None else xyth
+        self.bus.put(self._pose_keys[i], protocol.encode(Pose(t=t, seq=seq, x=x, y=y, theta=th)), reliable=True)
 
     def _publish_snapshot(self, t: float, seq: int) -> None:
         key = keys.world_snapshot(self.fleet)
@@ -357,23 +359,28 @@ class World:
         fine_k, end_k = 0, int(math.ceil(end_t / self.fine_dt - 1e-9))  # integer steps: no drift in t
         self.t = 0.0
         self._publish_clock_rt(epoch)
+        cmd = np.zeros((n, 2))
+        watch_t = -math.inf
         while not stop.is_set():
             now = time.time()
             t_now = (now - epoch) * self.speed
             mono = time.monotonic()
-            with self.lock:
-                for i in range(n):  # watchdog (wall time: what a real drive does)
-                    if mono - self.cmd_time[i] > self.watchdog:
-                        self.cmd[i] = (0.0, 0.0)
-                        self.stopped[i] = True
-                cmd = np.array(self.cmd)
+            if mono - watch_t >= period / self.speed or self._cmd_changed:
+                with self.lock:
+                    if mono - watch_t >= period / self.speed:  # watchdog, once a period (wall time, as a drive)
+                        watch_t = mono
+                        for i in range(n):
+                            if mono - self.cmd_time[i] > self.watchdog:
+                                self.cmd[i] = (0.0, 0.0)
+                                self.stopped[i] = True
+                    cmd = np.array(self.cmd)
+                    self._cmd_changed = False
             steps = min(end_k, int(math.floor(t_now / self.fine_dt + 1e-9))) - fine_k
             if steps > 0:
                 for _ in range(steps):
                     step_all(q, cmd, self.fine_dt)
                 fine_k += steps
                 self.t = round(fine_k * self.fine_dt, 9)
-                self.q = q.tolist()
             due = [i for i in range(n) if next_pose[i] <= self.t + 1e-9]
             if due:
                 with self.lock:
@@ -381,10 +388,11 @@ class World:
                     if len(self._pose_sent) > 4 * n + 64:
                         self._pose_sent.pop(next(iter(self._pose_sent)))
                 for i in due:
-                    self._publish_pose(i, self.t, pose_seq[i])
+                    self._publish_pose(i, self.t, pose_seq[i], q[i].tolist())
                     pose_seq[i] += 1
                     next_pose[i] = pose_seq[i] * period + phase[i]
             if self.t >= t_pub - 1e-9:
+                self.q = q.tolist()
                 self.k = seq
                 self._publish_clock_rt(epoch)
                 self._publish_snapshot(self.t, seq)
@@ -393,11 +401,13 @@ class World:
                 seq += 1
                 t_pub = seq * period
             if fine_k >= end_k:
+                self.q = q.tolist()
                 return False
             wake = epoch + (self.t + self.fine_dt) / self.speed  # the next fine step (every event is on the grid)
             left = wake - time.time()
             if left > 0:
                 stop.wait(left)
+        self.q = q.tolist()
         return True
 
     def _publish_clock_rt(self, epoch: float) -> None:

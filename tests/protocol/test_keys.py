@@ -56,3 +56,11 @@ def test_bad_ids_are_refused(bad):
 def test_cell_of_floors_negative_coordinates():
     assert keys.cell_of(-0.1, 0.1, 1.5) == (-1, 0)
     assert keys.cell_of(3.0, -3.0, 1.5) == (2, -2)
+
+
+@pytest.mark.parametrize("last", ["0", "7", "123", "9999999999", "-3", "07", "x", "", "²", "1.5", "99999999999", "1 "])
+def test_cell_robot_agrees_with_parse(last):
+    """The hot-path id of a cell key is the id `parse` finds, or None where `parse` refuses the key."""
+    key = f"swarm/f/cell/1/-2/{last}"
+    full = keys.parse(key)
+    assert keys.cell_robot(key) == (full.id if full is not None else None)

@@ -56,6 +56,20 @@ def test_memory_bus_pubsub_tokens_and_queries():
     assert b.query("swarm/f/world/obstacles") == []
 
 
+def test_memory_inbox_keeps_the_newest_until_drained():
+    net = busmod.MemoryNet()
+    a, b = busmod.MemoryBus(net), busmod.MemoryBus(net)
+    box = b.inbox("swarm/f/cell/0/0/*", depth=3)
+    for i in range(5):
+        a.put(f"swarm/f/cell/0/0/{i}", bytes([i]))
+    a.put("swarm/f/cell/1/0/9", b"elsewhere")
+    assert box.drain() == [(f"swarm/f/cell/0/0/{i}", bytes([i])) for i in (2, 3, 4)]
+    assert box.drain() == []
+    box.close()
+    a.put("swarm/f/cell/0/0/1", b"late")
+    assert box.drain() == []
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -108,6 +122,30 @@ def test_zenoh_bus_through_a_router():
             while not replies and time.monotonic() < deadline:
                 replies = b.query("swarm/t/world/obstacles", timeout_s=1.0)
             assert replies == [("swarm/t/world/obstacles", b"obstacles!")]
+            # an inbox: samples wait in zenoh until drained, the newest `depth`, in order
+            box = b.inbox("swarm/t/cell/0/0/*", depth=4)
+            deadline = time.monotonic() + 10
+            while not box.drain():  # the subscription reaches the router asynchronously
+                a.put("swarm/t/cell/0/0/1", b"ping", reliable=True)
+                assert time.monotonic() < deadline, "no message into the inbox"
+                time.sleep(0.02)
+            a.put("swarm/t/cell/0/0/1", b"sync", reliable=True)
+            seen: list = []
+            deadline = time.monotonic() + 10
+            while (b"sync" not in [p for _, p in seen]) and time.monotonic() < deadline:
+                seen += box.drain()
+            box.drain()
+            for i in range(10):
+                a.put("swarm/t/cell/0/0/2", bytes([i]), reliable=True)
+            a.put("swarm/t/cell/0/0/3", b"last", reliable=True)
+            got_box: list = []
+            deadline = time.monotonic() + 10
+            while (not got_box or got_box[-1][1] != b"last") and time.monotonic() < deadline:
+                time.sleep(0.01)  # an inbox has no event to wait on: poll it, under the deadline
+                got_box += box.drain()
+            assert got_box[-1] == ("swarm/t/cell/0/0/3", b"last")
+            assert [p for _, p in got_box[:-1]] == sorted(p for _, p in got_box[:-1])  # in order, oldest dropped
+            box.close()
             tok.close()
             ev.wait_until(lambda: alive.get("swarm/t/alive/robot/1") is False, 10, "the token to go")
     finally:

@@ -1,0 +1,48 @@
+"""The leader process on the in-memory bus."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from agents import leader as leader_mod
+from swarm import keys, kinematics, protocol
+from swarm.bus import MemoryBus, MemoryNet
+from swarm.protocol import Clock
+from swarm.scenario import Leader, Segment
+
+F = "t"
+
+
+@pytest.mark.timeout(30)
+def test_realtime_refs_every_period_and_at_every_segment_start():
+    """Real time: a reference every REF_PERIOD_S and one at each segment start, each the leader's exact
+    state at its time, so an agent that advances the newest along its arc is exact at any time."""
+    lead_scn = Leader((0.0, 0.0, 0.0), (Segment(0.25, 0.5, 0.0), Segment(0.33, 0.5, 0.3), Segment(1.0, 0.5, -0.2)))
+    table = lead_scn.table()
+    net = MemoryNet()
+    got: list[protocol.Ref] = []
+    MemoryBus(net).subscribe(keys.leader_ref(F), lambda k, b: got.append(protocol.decode(b, "ref")))
+    lead = leader_mod.Leader(MemoryBus(net), table, 0.02, F, lockstep=False)
+    lead.start()
+    stop = threading.Event()
+    th = threading.Thread(target=lead.run, args=(stop,), daemon=True)
+    th.start()
+    speed = 10.0
+    MemoryBus(net).put(keys.world_clock(F), protocol.encode(Clock(t=0.0, seq=0, epoch=time.time(), speed=speed)))
+    deadline = time.monotonic() + 10
+    while (not got or got[-1].t < 1.3) and time.monotonic() < deadline:
+        time.sleep(0.01)  # the leader runs on the wall clock: give it ~0.13 s
+    stop.set()
+    th.join(5)
+    lead.close()
+    ts = np.array([r.t for r in got])
+    assert ts[-1] >= 1.3, "the leader stopped publishing"
+    for start in (0.25, 0.58):  # the segment starts: each has a reference within 0.02 s (2 ms of wall time at speed 10)
+        assert np.min(np.abs(ts - start)) < 0.02, f"no reference at the segment start {start}"
+    gaps = np.diff(ts)
+    assert gaps.max() <= leader_mod.REF_PERIOD_S + 0.05  # the wall clock's jitter, at speed 10
+    assert len(got) < 1.3 / 0.02 / 2  # far fewer than one per control period
+    for r in got:  # exact: the leader's state at the message's own time
+        assert (r.x, r.y, r.theta, r.v, r.w) == tuple(kinematics.leader_state(table, r.t))
