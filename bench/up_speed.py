@@ -39,7 +39,9 @@ def run(n: int, duration: float, mode: str, out: Path, speed: float = 1.0) -> tu
     metrics = out / f"m-{mode}-{n}.json"
     cmd = [sys.executable, "-m", "swarm.cli", "up", "--robots", str(n), "--duration", str(duration), "--mode", mode,
            "--listen", f"tcp/127.0.0.1:{free_port()}", "--fleet", f"bench{n}", "--metrics", str(metrics),
-           "--log-dir", str(out / f"logs-{mode}-{n}"), "--no-viz", "--quiet", "--speed", str(speed)]
+           "--log-dir", str(out / f"logs-{mode}-{n}"), "--no-viz", "--quiet"]
+    if mode == "realtime":
+        cmd += ["--speed", str(speed)]
     proc = subprocess.Popen(cmd)
     samples: dict[int, list] = {}
     done = threading.Event()

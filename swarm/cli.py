@@ -223,7 +223,8 @@ def _add_run_flags(p: argparse.ArgumentParser, up: bool = False) -> None:
                    help="control rate (sets dt = 1/HZ; the built-in paper-50hz runs at 50 Hz)")
     if up or p.prog.endswith("world"):
         g.add_argument("--speed", type=_positive_float, default=1.0, metavar="X",
-                       help="real time: simulated seconds per wall second (default 1)")
+                       help="real time only: simulated seconds per wall second (default 1; lock-step "
+                            "runs as fast as the robots answer)")
         g.add_argument("--watchdog", type=_positive_float, default=0.5, metavar="S",
                        help="stop a robot whose newest command is older than S seconds (default 0.5)")
         g.add_argument("--tick-timeout", type=_positive_float, default=1.0, metavar="S",

@@ -457,6 +457,9 @@ def cmd_up(args, started: float) -> int:
     check_out_dir("--trace", args.trace)
     check_out_dir("--record", args.record)
     args.record_hz = record_rate(args)
+    if args.mode == "lockstep" and args.speed != 1.0:
+        log.warning("--speed %g has no effect in lock-step, which runs as fast as the robots answer; "
+                    "it applies with --mode realtime", args.speed)
     if args.log_dir is not None and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
         raise BadInput(f"--log-dir {args.log_dir}: exists and is not a directory")
     if args.zenoh_config is not None and not Path(args.zenoh_config).is_file():

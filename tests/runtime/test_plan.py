@@ -59,6 +59,14 @@ def test_dry_run_prints_the_plan_and_starts_nothing():
     assert "4 robots" in out.stdout and out.stdout.count(" robot --id ") == 4
 
 
+def test_speed_in_lockstep_is_said_to_have_no_effect():
+    base = [sys.executable, "-m", "swarm.cli", "up", "--robots", "2", "--dry-run", "--speed", "3"]
+    out = subprocess.run(base, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and "--speed 3 has no effect in lock-step" in out.stderr
+    out = subprocess.run(base + ["--mode", "realtime"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and "no effect" not in out.stderr
+
+
 def test_the_viewer_is_a_viz_process_right_after_the_router():
     from swarm.launch import VizOptions
 
