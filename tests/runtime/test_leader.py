@@ -23,7 +23,14 @@ def test_realtime_refs_every_period_and_at_every_segment_start():
     table = lead_scn.table()
     net = MemoryNet()
     got: list[protocol.Ref] = []
-    MemoryBus(net).subscribe(keys.leader_ref(F), lambda k, b: got.append(protocol.decode(b, "ref")))
+    cond = threading.Condition()
+
+    def on_ref(k, b):
+        with cond:
+            got.append(protocol.decode(b, "ref"))
+            cond.notify_all()
+
+    MemoryBus(net).subscribe(keys.leader_ref(F), on_ref)
     lead = leader_mod.Leader(MemoryBus(net), table, 0.02, F, lockstep=False)
     lead.start()
     stop = threading.Event()
@@ -31,9 +38,8 @@ def test_realtime_refs_every_period_and_at_every_segment_start():
     th.start()
     speed = 10.0
     MemoryBus(net).put(keys.world_clock(F), protocol.encode(Clock(t=0.0, seq=0, epoch=time.time(), speed=speed)))
-    deadline = time.monotonic() + 10
-    while (not got or got[-1].t < 1.3) and time.monotonic() < deadline:
-        time.sleep(0.01)  # the leader runs on the wall clock: give it ~0.13 s
+    with cond:  # the leader runs on the wall clock: ~0.13 s at speed 10
+        cond.wait_for(lambda: bool(got) and got[-1].t >= 1.3, timeout=10)
     stop.set()
     th.join(5)
     lead.close()
