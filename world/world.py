@@ -15,13 +15,14 @@ state_0 has been delivered (the start barrier), publish clock_0; then per tick k
 cmd_k of every live robot (or `tick_timeout` wall seconds: then the missing robots hold their
 last command and a miss is counted), sample the metrics, move every robot one exact arc of dt,
 publish clock_(k+1) and pose_(k+1). Deterministic: equal to `swarm sim` step for step.
-Real time: the world integrates with a fine step (default 1 ms of simulated time) holding the
-newest command, publishes each robot's pose once per control period (staggered over the period),
+Real time: on a fine time grid (default 1 ms of simulated time) the world holds each robot's
+newest command and integrates it lazily (one exact arc per event), publishes each robot's pose once per control period (staggered over the period),
 and clock and snapshot every period; `speed` sets simulated seconds per wall second.
 """
 
 from __future__ import annotations
 
+import heapq
 import logging
 import math
 import threading
@@ -64,8 +65,8 @@ class World:
         self.q = [list(map(float, row)) for row in scn.poses]
         self.comp = [[0.0, 0.0, 0.0] for _ in range(n)]
         self.cmd = [(0.0, 0.0)] * n  # the command being applied
-        self._cmd_changed = True  # real time: a command came since the loop last read them
         self._pose_keys = [keys.robot_pose(fleet, i) for i in range(n)]
+        self._cmd_ids = {keys.robot_cmd(fleet, i): i for i in range(n)}
         self.cmd_seq = [-1] * n  # lock-step: tick of the newest command
         self.cmd_time = [-math.inf] * n  # sim time (lock-step) or monotonic wall time (real time) of the newest command
         self.stopped = [True] * n
@@ -97,8 +98,13 @@ class World:
         f, ev = self.fleet, self.event
         self._handles.append(self.bus.serve(keys.world_obstacles(f), lambda key: self._obstacles))
         self._handles.append(self.bus.serve(keys.world_config_any(f), self._config))
-        self._handles.append(self.bus.subscribe(keys.robot_any(f, "cmd"), lambda k, b: ev(("cmd", k, b))))
-        self._handles.append(self.bus.subscribe(keys.robot_any(f, "status"), lambda k, b: ev(("status", k, b))))
+        if self.lockstep:
+            self._handles.append(self.bus.subscribe(keys.robot_any(f, "cmd"), lambda k, b: ev(("cmd", k, b))))
+            self._handles.append(self.bus.subscribe(keys.robot_any(f, "status"), lambda k, b: ev(("status", k, b))))
+        else:  # real time: the run loop drains these itself (no Python on zenoh's threads, no wait for the GIL)
+            self._cmd_inbox = self.bus.inbox(keys.robot_any(f, "cmd"), depth=8 * self.n + 64)
+            self._status_inbox = self.bus.inbox(keys.robot_any(f, "status"), depth=8 * self.n + 64)
+            self._handles += [self._cmd_inbox, self._status_inbox]
         self._handles.append(self.bus.watch_alive(keys.alive_any(f, "robot"), lambda k, up: ev(("alive", k, up))))
         self._handles.append(self.bus.watch_alive(keys.alive_any(f, "leader"), lambda k, up: ev(("leader", k, up))))
         if self.lockstep:  # the start barrier: every robot's state_0 (unsubscribed once passed)
@@ -154,21 +160,11 @@ class World:
             if parsed is None or parsed.id is None or parsed.id >= self.n:
                 raise ProtocolError(f"not a robot of this world: {key!r}")
             i = parsed.id
-            if tag == "cmd":
+            if tag == "cmd":  # lock-step (real time takes its commands in _take_commands)
                 c = protocol.decode(data, "cmd")
-                if self.lockstep:
-                    if c.seq > self.cmd_seq[i]:
-                        self.cmd_seq[i] = c.seq
-                        self._pending[i] = (c.v, c.w)
-                else:
-                    now = time.monotonic()
-                    self.cmd[i] = (c.v, c.w)
-                    self._cmd_changed = True
-                    self.cmd_time[i] = now
-                    self.stopped[i] = False
-                    sent = self._pose_sent.get(c.t)
-                    if sent is not None and len(self.round_trips) < 1_000_000:
-                        self.round_trips.append(now - sent)
+                if c.seq > self.cmd_seq[i]:
+                    self.cmd_seq[i] = c.seq
+                    self._pending[i] = (c.v, c.w)
             elif tag == "status":
                 self.robot_bad[i] = protocol.decode(data, "status").bad
             elif tag == "state":
@@ -209,8 +205,8 @@ class World:
         for i in range(self.n):
             self._publish_pose(i, t, seq)
 
-    def _publish_pose(self, i: int, t: float, seq: int, xyth=None) -> None:
-        x, y, th = self.q[i] if xyth is None else xyth
+    def _publish_pose(self, i: int, t: float, seq: int) -> None:
+        x, y, th = self.q[i]
         self.bus.put(self._pose_keys[i], protocol.encode(Pose(t=t, seq=seq, x=x, y=y, theta=th)), reliable=True)
 
     def _publish_snapshot(self, t: float, seq: int) -> None:
@@ -342,88 +338,101 @@ class World:
         """Real time. Robot i's pose goes out once per control period at phase i/N of it (staggered,
         as unsynchronized localization would be: N robots do not all wake at the same instant and
         queue behind each other on a few cores); clock, snapshot, metrics sample and progress at
-        the period boundaries."""
-        scn, n = self.scn, self.n
+        the period boundaries.
+
+        The loop wakes every fine step, and all its work is on this thread: it drains the commands
+        (a bus inbox: zenoh's threads run no Python and never wait for this thread's GIL) and
+        integrates each robot lazily, one exact arc from where it was to the instant it is needed
+        (its pose, a new command, the period boundary). Arcs compose exactly for a held command,
+        so this is the fine-step integration without the work of moving every robot every step."""
+        scn, n, fine = self.scn, self.n, self.fine_dt
         period = scn.dt
         epoch = time.time() + 0.2  # a little lead so every process hears the clock before t = 0
         self.epoch = epoch
-        q = np.array(self.q)
-        seq = 0
-        t_pub = 0.0
-        pose_seq = [0] * n
+        q, comp, cmd, tq = self.q, self.comp, self.cmd, [0.0] * n
+
+        def advance(i: int, t: float) -> None:  # robot i one exact arc up to time t, with its held command
+            if t > tq[i]:
+                kinematics.step_pose(q[i], comp[i], cmd[i][0], cmd[i][1], t - tq[i])
+                tq[i] = t
+
         # on the fine grid: the world's time only advances in fine steps, and an event between two
         # of them would have the loop wake, find nothing to do, and spin until the next step
-        phase = [round(i * period / n / self.fine_dt) * self.fine_dt for i in range(n)]
-        next_pose = list(phase)
-        end_t = scn.duration
-        fine_k, end_k = 0, int(math.ceil(end_t / self.fine_dt - 1e-9))  # integer steps: no drift in t
+        phase = [round(i * period / n / fine) * fine for i in range(n)]
+        pose_seq = [0] * n
+        poses = sorted((phase[i], i) for i in range(n))  # (due time, robot): a heap
+        seq = 0
+        t_pub = 0.0
+        end_k = int(math.ceil(scn.duration / fine - 1e-9))  # integer steps: no drift in t
+        fine_k = 0
         self.t = 0.0
         self._publish_clock_rt(epoch)
-        cmd = np.zeros((n, 2))
         watch_t = -math.inf
         while not stop.is_set():
-            now = time.time()
-            t_now = (now - epoch) * self.speed
+            fine_k = max(fine_k, min(end_k, int(math.floor((time.time() - epoch) * self.speed / fine + 1e-9))))
+            t = self.t = round(fine_k * fine, 9)
             mono = time.monotonic()
-            if mono - watch_t >= period / self.speed or self._cmd_changed:
+            self._take_commands(t, mono, advance)
+            if mono - watch_t >= period / self.speed:  # watchdog, once a period (wall time, as a drive)
+                watch_t = mono
+                for i in range(n):
+                    if mono - self.cmd_time[i] > self.watchdog and not self.stopped[i]:
+                        advance(i, t)
+                        cmd[i] = (0.0, 0.0)
+                        self.stopped[i] = True
+            if poses[0][0] <= t + 1e-9:
                 with self.lock:
-                    if mono - watch_t >= period / self.speed:  # watchdog, once a period (wall time, as a drive)
-                        watch_t = mono
-                        for i in range(n):
-                            if mono - self.cmd_time[i] > self.watchdog:
-                                self.cmd[i] = (0.0, 0.0)
-                                self.stopped[i] = True
-                    cmd = np.array(self.cmd)
-                    self._cmd_changed = False
-            steps = min(end_k, int(math.floor(t_now / self.fine_dt + 1e-9))) - fine_k
-            if steps > 0:
-                for _ in range(steps):
-                    step_all(q, cmd, self.fine_dt)
-                fine_k += steps
-                self.t = round(fine_k * self.fine_dt, 9)
-            due = [i for i in range(n) if next_pose[i] <= self.t + 1e-9]
-            if due:
-                with self.lock:
-                    self._pose_sent[self.t] = time.monotonic()
+                    self._pose_sent[t] = mono
                     if len(self._pose_sent) > 4 * n + 64:
                         self._pose_sent.pop(next(iter(self._pose_sent)))
-                for i in due:
-                    self._publish_pose(i, self.t, pose_seq[i], q[i].tolist())
+                while poses[0][0] <= t + 1e-9:
+                    _, i = heapq.heappop(poses)
+                    advance(i, t)
+                    self._publish_pose(i, t, pose_seq[i])
                     pose_seq[i] += 1
-                    next_pose[i] = pose_seq[i] * period + phase[i]
-            if self.t >= t_pub - 1e-9:
-                self.q = q.tolist()
+                    heapq.heappush(poses, (pose_seq[i] * period + phase[i], i))
+            if t >= t_pub - 1e-9 or fine_k >= end_k:
+                for i in range(n):
+                    advance(i, t)
+                for key, data in self._status_inbox.drain():
+                    self.event(("status", key, data))
                 self.k = seq
                 self._publish_clock_rt(epoch)
-                self._publish_snapshot(self.t, seq)
-                self._sample(self.t)
+                self._publish_snapshot(t, seq)
+                self._sample(t)
                 self._report()
                 seq += 1
                 t_pub = seq * period
             if fine_k >= end_k:
-                self.q = q.tolist()
                 return False
-            wake = epoch + (self.t + self.fine_dt) / self.speed  # the next fine step (every event is on the grid)
-            left = wake - time.time()
+            left = epoch + (t + fine) / self.speed - time.time()  # the next fine step (every event is on the grid)
             if left > 0:
                 stop.wait(left)
-        self.q = q.tolist()
+        for i in range(n):
+            advance(i, self.t)
         return True
+
+    def _take_commands(self, t: float, mono: float, advance) -> None:
+        """Real time: apply the commands that came since the last fine step (robot i moves to t with
+        its old command first), and measure their round trips (pose published -> command here)."""
+        for key, data in self._cmd_inbox.drain():
+            i = self._cmd_ids.get(key)
+            try:
+                if i is None:
+                    raise ProtocolError(f"not a robot of this world: {key!r}")
+                c = protocol.decode(data, "cmd")
+            except ProtocolError as e:
+                self.bad.reject(key, e)
+                continue
+            advance(i, t)
+            self.cmd[i] = (c.v, c.w)
+            self.cmd_time[i] = mono
+            self.stopped[i] = False
+            sent = self._pose_sent.get(c.t)
+            if sent is not None and len(self.round_trips) < 1_000_000:
+                self.round_trips.append(mono - sent)
 
     def _publish_clock_rt(self, epoch: float) -> None:
         self.bus.put(keys.world_clock(self.fleet),
                      protocol.encode(Clock(t=self.t, seq=self.k, epoch=epoch, speed=self.speed)), reliable=True)
 
-
-def step_all(q: np.ndarray, cmd: np.ndarray, dt: float) -> None:
-    """Every robot one exact arc of dt (vectorized; real-time mode's fine step). q (N, 3), cmd (N, 2)."""
-    v, w = cmd[:, 0], cmd[:, 1]
-    half = 0.5 * w * dt
-    small = np.abs(half) < 1e-3
-    safe = np.where(small, 1.0, half)
-    sinc = np.where(small, 1.0 - half * half / 6.0, np.sin(safe) / safe)
-    d = v * dt * sinc
-    h = q[:, 2] + half
-    q[:, 0] += d * np.cos(h)
-    q[:, 1] += d * np.sin(h)
-    q[:, 2] += w * dt

@@ -1,0 +1,70 @@
+"""The world's real-time loop on the in-memory bus: lazy exact-arc integration, the command inbox,
+the watchdog, round trips, bad commands."""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import pytest
+
+from swarm import keys, kinematics, protocol, scenario_file
+from swarm.bus import MemoryBus, MemoryNet
+from swarm.protocol import Cmd
+from world.world import World
+
+F = "wrt"
+V, W = 0.4, 0.3  # robot 0's constant command
+
+
+def doc() -> dict:
+    return {"run": {"duration": 1.0, "dt": 0.02, "seed": 0},
+            "leader": {"start": [0.0, 0.0, 0.0], "segments": [{"duration": 1.0, "v": 0.0, "w": 0.0}]},
+            "formation": {"offsets": [[0.0, 0.0], [5.0, 0.0], [0.0, 5.0]], "assignment": "ordered"},
+            "robots": {"poses": [[0.0, 0.0, 0.1], [5.0, 0.0, 0.0], [0.0, 5.0, 0.0]]}}
+
+
+def test_realtime_world_integrates_exact_arcs_lazily_and_stops_silent_robots(write_scenario):
+    scn = scenario_file.load(write_scenario(doc()))
+    net = MemoryNet()
+    world = World(MemoryBus(net), scn, F, lockstep=False, speed=4.0)
+    world.start()
+    drive = MemoryBus(net)  # robot 0 answers every pose with (V, W); robot 1 never answers; robot 2 sends junk
+    poses: list[protocol.Pose] = []
+    lock = threading.Lock()
+
+    def on_pose(key: str, data: bytes) -> None:
+        p = protocol.decode(data, "pose")
+        with lock:
+            poses.append(p)
+        drive.put(keys.robot_cmd(F, 0), protocol.encode(Cmd(t=p.t, seq=p.seq, v=V, w=W)), reliable=True)
+
+    drive.subscribe(keys.robot_pose(F, 0), on_pose)
+    drive.put(keys.robot_cmd(F, 2), b"\xc1 not msgpack")
+    drive.put(keys.robot_cmd(F, 2), protocol.encode(Cmd(t=0.0, seq=0, v=math.nan, w=0.0)))
+    try:
+        metrics = world.run(threading.Event())
+    finally:
+        world.close()
+        drive.close()
+
+    # robot 0 moved along one arc of the held command, started when its first command came: the
+    # lazily integrated pose (one arc per event) is that arc at every published pose and at the end
+    x0, y0, th0 = scn.poses[0]
+    tau_end = (world.q[0][2] - th0) / W
+    assert 0.5 < tau_end < 1.0
+    dx, dy, _ = kinematics.arc_displacement(th0, V, W, tau_end)
+    assert world.q[0][0] == pytest.approx(x0 + dx, abs=1e-9) and world.q[0][1] == pytest.approx(y0 + dy, abs=1e-9)
+    start = 1.0 - tau_end  # simulated time the first command took effect
+    moving = [p for p in poses if p.t > start + 1e-9]
+    assert len(moving) >= 40  # once a control period
+    for p in moving:
+        dx, dy, dth = kinematics.arc_displacement(th0, V, W, p.t - start)
+        assert (p.x, p.y, p.theta) == pytest.approx((x0 + dx, y0 + dy, th0 + dth), abs=1e-9)
+    assert [p.seq for p in poses] == list(range(len(poses)))
+    # robots 1 and 2 never had a valid command: held still and stopped by the watchdog
+    assert world.q[1] == list(scn.poses[1]) and world.q[2] == list(scn.poses[2])
+    assert world.stopped[1] and world.stopped[2] and not world.stopped[0]
+    assert metrics["bad_messages"] == 2
+    # every command came back but the last (its pose went out as the run ended)
+    assert metrics["round_trips"] == len(poses) - 1 and metrics["round_trip_ms_median"] >= 0.0
