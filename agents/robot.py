@@ -81,6 +81,7 @@ class Agent:
         self.mem = [0.0] * law.M_SIZE
         self.mem[law.M_SCALE] = 1.0
         self.side = cfg.sense
+        self._cmd_key, self._status_key = keys.robot_cmd(fleet, self.id), keys.robot_status(fleet, self.id)
         self.lock = threading.Lock()
         self.wake = threading.Event()
         self.table: dict[int, State] = {}  # the last state of every robot heard (alive: not in self.dead)
@@ -109,6 +110,7 @@ class Agent:
         self.seq = 0
         self._last_status_t = -math.inf
         self._cells: dict[tuple[int, int], object] = {}
+        self._state_keys: dict[tuple[int, int], str] = {}  # this robot's state key in each cell it has been in
         self._block_prev: set[tuple[int, int]] = set()
         self._cell: tuple[int, int] | None = None
         self._settled = False  # the subscriptions are exactly the block around self._cell
@@ -127,12 +129,13 @@ class Agent:
         then declare this robot's liveliness token: whoever sees the token can count on them."""
         f = self.fleet
         self.set_obstacles(obstacles or [])
-        self._handles.append(self.bus.subscribe(keys.robot_pose(f, self.id), self._on_pose_msg))
         if self.cfg.lockstep:
+            self._handles.append(self.bus.subscribe(keys.robot_pose(f, self.id), self._on_pose_msg))
             self._handles.append(self.bus.subscribe(keys.leader_ref(f), self._on_ref_msg))
-        else:
+        else:  # the loop waits on its pose inbox and drains the others (see _loop_realtime)
+            self._pose_inbox = self.bus.inbox(keys.robot_pose(f, self.id), depth=8)
             self._ref_inbox = self.bus.inbox(keys.leader_ref(f))
-            self._handles.append(self._ref_inbox)
+            self._handles += [self._pose_inbox, self._ref_inbox]
         self._clock_sub = self.bus.subscribe(keys.world_clock(f), self._on_clock_msg)
         self._handles.append(self.bus.watch_alive(keys.alive_any(f, "robot"), self._on_alive_msg))
         self._move_cells(self.cfg.x, self.cfg.y)
@@ -234,6 +237,46 @@ class Agent:
         if due:
             self.wake.set()
 
+    def take_poses(self, items: list[tuple[str, bytes]]) -> None:
+        """Real time (loop thread): the poses from the pose inbox; the newest is kept."""
+        for key, data in items:
+            try:
+                pose = protocol.decode(data, "pose")
+            except ProtocolError as e:
+                with self.lock:
+                    self.bad.reject(key, e)
+                continue
+            with self.lock:
+                self._on_pose(pose)
+
+    def _take_inboxes(self) -> None:
+        """Real time (loop thread): decode the references and neighbour states waiting in the inboxes,
+        in one batch under one lock (no per-message wake-up: the loop is already running)."""
+        self.take_poses(self._pose_inbox.drain())  # one that came since the loop woke (the newest wins)
+        decode, bad = protocol.decode, []
+        refs, states = [], []
+        for key, data in self._ref_inbox.drain():
+            try:
+                refs.append(decode(data, "ref"))
+            except ProtocolError as e:
+                bad.append((key, e))
+        for box in self._cells.values():
+            for key, data in box.drain():
+                try:
+                    j = keys.cell_robot(key)
+                    if j is None:
+                        raise ProtocolError(f"not a cell key: {key!r}")
+                    states.append(decode(data, "state", j))
+                except ProtocolError as e:
+                    bad.append((key, e))
+        with self.lock:
+            for ref in refs:
+                self._on_ref(ref)
+            for st in states:
+                self._on_state(st)
+            for key, e in bad:
+                self.bad.reject(key, e)
+
     def _due(self) -> bool:
         if self.pose is None:
             return False
@@ -303,11 +346,14 @@ class Agent:
     # ------------------------------------------------------------------ control
 
     def _publish_state(self, pose, seq: int) -> None:
-        cx, cy = keys.cell_of(pose.x, pose.y, self.side)
+        c = keys.cell_of(pose.x, pose.y, self.side)
+        key = self._state_keys.get(c)
+        if key is None:
+            key = self._state_keys[c] = keys.cell(self.fleet, c[0], c[1], self.id)
         frozen = self.mem[law.M_FROZEN] != 0.0
         s = protocol.encode(State(id=self.id, t=pose.t, seq=seq, x=pose.x, y=pose.y, theta=pose.theta,
                                   r=self.cfg.r, R=self.cfg.R, frozen=frozen))
-        self.bus.put(keys.cell(self.fleet, cx, cy, self.id), s)
+        self.bus.put(key, s)
 
     def bodies(self, x: float, y: float, seq: int | None, t: float | None = None):
         """The known bodies closer than the cell side, in summation order: live robots by id, the
@@ -376,7 +422,7 @@ class Agent:
 
     def _publish(self, t: float, seq: int, v: float, w: float, ref: tuple, pose) -> None:
         cmd = Cmd(t=t, seq=seq, v=v, w=w)
-        self.bus.put(keys.robot_cmd(self.fleet, self.id), protocol.encode(cmd), reliable=True)
+        self.bus.put(self._cmd_key, protocol.encode(cmd), reliable=True)
         self.last_cmd = cmd
         self.ticks += 1
         if t - self._last_status_t >= STATUS_PERIOD_S * (1 - 1e-9):
@@ -385,7 +431,7 @@ class Agent:
             st = Status(t=t, ex=xl + self.cfg.dx - pose.x, ey=yl + self.cfg.dy - pose.y,
                         etheta=law.wrap_angle(thl - pose.theta), frozen=self.mem[law.M_FROZEN] != 0.0,
                         neighbours=self.neighbours, stale=self.stale, bad=self.bad.count)
-            self.bus.put(keys.robot_status(self.fleet, self.id), protocol.encode(st))
+            self.bus.put(self._status_key, protocol.encode(st))
 
     def tick_lockstep(self) -> bool:
         """Loop thread: start a new tick if its pose came, and compute it once its inputs are complete
@@ -435,11 +481,7 @@ class Agent:
 
     def tick_realtime(self, t: float) -> bool:
         """Real time: one control step at simulated time t with the newest data. True if it acted."""
-        for k, b in self._ref_inbox.drain():
-            self._on_ref_msg(k, b)
-        for box in list(self._cells.values()):
-            for k, b in box.drain():
-                self._on_state_msg(k, b)
+        self._take_inboxes()
         with self.lock:
             pose, ref = self.pose, self.ref
         if pose is None or ref is None:
@@ -529,15 +571,33 @@ def _loop_lockstep(agent: Agent, stop: threading.Event) -> None:
 def _loop_realtime(agent: Agent, stop: threading.Event, wall) -> None:
     """Real time: a command for every new pose (the pose stream sets the control rate: the world's
     control period now, localization's rate on a real robot), at the agent's own clock's time.
-    No new pose, no command: the drive's watchdog then stops the robot."""
-    while not stop.is_set():
-        if not agent.wake.wait(0.2):
-            continue
-        agent.wake.clear()
-        with agent.lock:
-            epoch, speed, fresh = agent.epoch, agent.speed, agent._due()
-        if epoch is not None:
-            agent.drop_clock()  # the epoch is all a real-time robot needs of the clock (one message a period less)
-        if epoch is None or not fresh:
-            continue
-        agent.tick_realtime((wall() - epoch) * speed)
+    No new pose, no command: the drive's watchdog then stops the robot.
+    The loop blocks on its pose inbox: zenoh's receiving thread runs no Python and hands the pose
+    straight to this thread (no callback, no GIL hand-over, no event). A helper thread wakes it on stop."""
+    done = threading.Event()
+    waker = threading.Thread(target=_wake_on_stop, args=(stop, done, agent._pose_inbox), daemon=True,
+                             name=f"robot-{agent.id}-waker")
+    waker.start()
+    try:
+        while not stop.is_set():
+            agent.take_poses(agent._pose_inbox.wait())
+            with agent.lock:
+                epoch, speed, fresh = agent.epoch, agent.speed, agent._due()
+            if epoch is not None:
+                agent.drop_clock()  # the epoch is all a real-time robot needs of the clock (one message a period less)
+            if epoch is None or not fresh:
+                continue
+            agent.tick_realtime((wall() - epoch) * speed)
+    finally:
+        done.set()
+        waker.join(1.0)
+
+
+def _wake_on_stop(stop: threading.Event, done: threading.Event, box) -> None:
+    while not done.is_set():
+        if stop.wait(0.5):
+            try:
+                box.wake()
+            except Exception as e:  # the session is already closing: the loop is on its way out anyway
+                log.debug("could not wake the robot loop: %s", e)
+            return

@@ -4,6 +4,7 @@
     bus.wanted(key)                             # would anyone receive a put on key? (skip costly work if not)
     sub = bus.subscribe(key_expr, fn)           # fn(key: str, payload: bytes), on a bus thread
     box = bus.inbox(key_expr, depth=64)         # kept until box.drain() -> [(key, payload), ...] (newest depth)
+    box.wait()                                  # block until something came (or box.wake()), then drain
     tok = bus.token(key)                        # a liveliness token; tok.close() withdraws it
     sub = bus.watch_alive(key_expr, fn)         # fn(key: str, alive: bool); current tokens first
     sub = bus.serve(key_expr, fn)               # a queryable: fn(key: str) -> bytes, or None: no reply
@@ -33,6 +34,8 @@ class Closable(Protocol):
 
 class Inbox(Protocol):
     def drain(self) -> list[tuple[str, bytes]]: ...
+    def wait(self) -> list[tuple[str, bytes]]: ...  # blocks until a message or wake(); may return []
+    def wake(self) -> None: ...  # from another thread: a blocked wait() returns
     def close(self) -> None: ...
 
 
@@ -81,18 +84,31 @@ class _Handle:
 class _MemoryInbox:
     def __init__(self, depth: int) -> None:
         self.items: deque[tuple[str, bytes]] = deque(maxlen=depth)
-        self.lock = threading.Lock()
+        self.cond = threading.Condition()
+        self.woken = False
         self.handle: Closable | None = None
 
     def push(self, key: str, payload: bytes) -> None:
-        with self.lock:
+        with self.cond:
             self.items.append((key, payload))
+            self.cond.notify_all()
 
     def drain(self) -> list[tuple[str, bytes]]:
-        with self.lock:
+        with self.cond:
             out = list(self.items)
             self.items.clear()
         return out
+
+    def wait(self) -> list[tuple[str, bytes]]:
+        with self.cond:
+            self.cond.wait_for(lambda: self.items or self.woken)
+            self.woken = False
+        return self.drain()
+
+    def wake(self) -> None:
+        with self.cond:
+            self.woken = True
+            self.cond.notify_all()
 
     def close(self) -> None:
         if self.handle is not None:
@@ -291,7 +307,8 @@ class ZenohBus:
         """Samples wait in a zenoh ring channel (the newest `depth`) until drain(): zenoh's thread
         never runs Python for them (no GIL, no callback), and the owner decodes them in one batch.
         A robot's neighbour states take this path in real time (about a fifth less CPU per robot)."""
-        return self._keep(_ZenohInbox(self.session.declare_subscriber(key_expr, self._z.handlers.RingChannel(depth))))
+        sub = self.session.declare_subscriber(key_expr, self._z.handlers.RingChannel(depth))
+        return self._keep(_ZenohInbox(sub, self.session, key_expr, self._z))
 
     def _handler(self, cb):
         # direct: on zenoh's receiving thread, in arrival order (the lock-step protocol relies on
@@ -355,15 +372,39 @@ def _init_zenoh_log(zenoh) -> None:
 
 
 class _ZenohInbox:
-    def __init__(self, sub) -> None:
-        self.sub = sub
+    """A ring channel of zenoh samples. wait() blocks in zenoh with the GIL released (the receiving
+    thread runs no Python for these samples); wake() sends this session a local sample that carries
+    the WAKE attachment, which wait() and drain() skip."""
+
+    WAKE = b"swarm-inbox-wake"
+
+    def __init__(self, sub, session, key_expr: str, zenoh) -> None:
+        self.sub, self.session, self.key_expr, self._z = sub, session, key_expr, zenoh
+
+    def _item(self, s) -> tuple[str, bytes] | None:
+        a = s.attachment
+        if a is not None and a.to_bytes() == self.WAKE:
+            return None
+        return str(s.key_expr), s.payload.to_bytes()
 
     def drain(self) -> list[tuple[str, bytes]]:
         out = []
         recv = self.sub.try_recv
         while (s := recv()) is not None:
-            out.append((str(s.key_expr), s.payload.to_bytes()))
+            if (item := self._item(s)) is not None:
+                out.append(item)
         return out
+
+    def wait(self) -> list[tuple[str, bytes]]:
+        first = self._item(self.sub.recv())
+        rest = self.drain()
+        return rest if first is None else [first] + rest
+
+    def wake(self) -> None:
+        if "*" in self.key_expr:
+            raise ValueError(f"wake() needs a concrete key, not {self.key_expr!r}")
+        self.session.put(self.key_expr, b"", attachment=self.WAKE,
+                         allowed_destination=self._z.Locality.SESSION_LOCAL)
 
     def close(self) -> None:
         self.sub.undeclare()

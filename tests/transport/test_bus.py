@@ -70,6 +70,30 @@ def test_memory_inbox_keeps_the_newest_until_drained():
     assert box.drain() == []
 
 
+def _waiting(box) -> tuple[threading.Thread, list]:
+    """box.wait() on a thread of its own; the list gets what it returned."""
+    out: list = []
+    th = threading.Thread(target=lambda: out.append(box.wait()), daemon=True)
+    th.start()
+    return th, out
+
+
+def test_memory_inbox_wait_returns_on_a_message_or_a_wake():
+    net = busmod.MemoryNet()
+    a, b = busmod.MemoryBus(net), busmod.MemoryBus(net)
+    box = b.inbox("swarm/f/robot/1/pose", depth=4)
+    th, out = _waiting(box)
+    a.put("swarm/f/robot/1/pose", b"p0")
+    th.join(5)
+    assert out == [[("swarm/f/robot/1/pose", b"p0")]]
+    th, out = _waiting(box)
+    box.wake()
+    th.join(5)
+    assert out == [[]] and not th.is_alive()
+    box.wake()  # a wake before the wait is not lost
+    assert box.wait() == []
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -146,6 +170,26 @@ def test_zenoh_bus_through_a_router():
             assert got_box[-1] == ("swarm/t/cell/0/0/3", b"last")
             assert [p for _, p in got_box[:-1]] == sorted(p for _, p in got_box[:-1])  # in order, oldest dropped
             box.close()
+            # wait() blocks in zenoh until a sample comes; wake() (a session-local sample) returns it empty
+            pose = b.inbox("swarm/t/robot/1/pose", depth=4)
+            deadline = time.monotonic() + 10
+            while not pose.drain():  # the subscription reaches the router asynchronously
+                a.put("swarm/t/robot/1/pose", b"ping", reliable=True)
+                assert time.monotonic() < deadline, "no message into the pose inbox"
+                time.sleep(0.02)
+            th, out = _waiting(pose)
+            a.put("swarm/t/robot/1/pose", b"p1", reliable=True)
+            th.join(10)
+            assert out == [[("swarm/t/robot/1/pose", b"p1")]]
+            th, out = _waiting(pose)
+            pose.wake()
+            th.join(10)
+            assert out == [[]] and not th.is_alive()
+            a.put("swarm/t/robot/1/pose", b"p2", reliable=True)
+            assert pose.wait() == [("swarm/t/robot/1/pose", b"p2")]  # the wake left nothing behind
+            with pytest.raises(ValueError):
+                box.wake()  # a wildcard inbox cannot be woken
+            pose.close()
             tok.close()
             ev.wait_until(lambda: alive.get("swarm/t/alive/robot/1") is False, 10, "the token to go")
     finally:
