@@ -353,7 +353,7 @@ class Agent:
         frozen = self.mem[law.M_FROZEN] != 0.0
         s = protocol.encode(State(id=self.id, t=pose.t, seq=seq, x=pose.x, y=pose.y, theta=pose.theta,
                                   r=self.cfg.r, R=self.cfg.R, frozen=frozen))
-        self.bus.put(key, s)
+        self.bus.put(key, s, loopback=False)  # its own state is of no use to this robot's cell inboxes
 
     def bodies(self, x: float, y: float, seq: int | None, t: float | None = None):
         """The known bodies closer than the cell side, in summation order: live robots by id, the

@@ -1,6 +1,7 @@
 """The small bus every process talks through: the one place that touches zenoh.
 
     bus.put(key, payload, reliable=False)      # reliable: congestion control BLOCK
+    bus.put(key, payload, loopback=False)      # not to this bus's own subscribers (zenoh: remote only)
     bus.wanted(key)                             # would anyone receive a put on key? (skip costly work if not)
     sub = bus.subscribe(key_expr, fn)           # fn(key: str, payload: bytes), on a bus thread
     box = bus.inbox(key_expr, depth=64)         # kept until box.drain() -> [(key, payload), ...] (newest depth)
@@ -40,7 +41,7 @@ class Inbox(Protocol):
 
 
 class Bus(Protocol):
-    def put(self, key: str, payload: bytes, reliable: bool = False) -> None: ...
+    def put(self, key: str, payload: bytes, reliable: bool = False, loopback: bool = True) -> None: ...
     def wanted(self, key: str) -> bool: ...
     def subscribe(self, key_expr: str, fn: Handler) -> Closable: ...
     def inbox(self, key_expr: str, depth: int = 64) -> Inbox: ...
@@ -134,9 +135,9 @@ class MemoryBus:
         self.net = net
         self._handles: list[_Handle] = []
 
-    def put(self, key: str, payload: bytes, reliable: bool = False) -> None:
+    def put(self, key: str, payload: bytes, reliable: bool = False, loopback: bool = True) -> None:
         with self.net.lock:
-            targets = [fn for expr, fn in self.net.subs if matches(expr, key)]
+            targets = [fn for expr, fn, owner in self.net.subs if matches(expr, key) and (loopback or owner is not self)]
             self.net.delivered += len(targets)
         for fn in targets:
             fn(key, bytes(payload))
@@ -144,7 +145,7 @@ class MemoryBus:
     def wanted(self, key: str) -> bool:
         """Whether some subscriber would receive a put on `key` (a publisher may skip costly work if not)."""
         with self.net.lock:
-            return any(matches(expr, key) for expr, _fn in self.net.subs)
+            return any(matches(expr, key) for expr, _fn, _owner in self.net.subs)
 
     def _keep(self, lst: list, item) -> _Handle:
         with self.net.lock:
@@ -160,7 +161,7 @@ class MemoryBus:
         return h
 
     def subscribe(self, key_expr: str, fn: Handler) -> Closable:
-        return self._keep(self.net.subs, (key_expr, fn))
+        return self._keep(self.net.subs, (key_expr, fn, self))
 
     def inbox(self, key_expr: str, depth: int = 64) -> Inbox:
         box = _MemoryInbox(depth)
@@ -264,7 +265,7 @@ class ZenohBus:
         self.session = zenoh.open(conf)
         self._handles: list[Closable] = []
         self._closed = False
-        self._pubs: OrderedDict[tuple[str, bool], object] = OrderedDict()
+        self._pubs: OrderedDict[tuple[str, bool, bool], object] = OrderedDict()
         self._pub_lock = threading.Lock()
 
     def __enter__(self) -> "ZenohBus":
@@ -273,22 +274,24 @@ class ZenohBus:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def put(self, key: str, payload: bytes, reliable: bool = False) -> None:
-        self._publisher(key, reliable).put(payload)
+    def put(self, key: str, payload: bytes, reliable: bool = False, loopback: bool = True) -> None:
+        self._publisher(key, reliable, loopback).put(payload)
 
     def wanted(self, key: str) -> bool:
         return bool(self._publisher(key, False).matching_status.matching)
 
-    def _publisher(self, key: str, reliable: bool):
+    def _publisher(self, key: str, reliable: bool, loopback: bool = True):
         """A declared publisher per key, kept for the next put (LRU, at most PUBLISHERS): a declared
         key is resolved once, and a put on it costs about a third of a session.put on a string."""
         with self._pub_lock:
-            pub = self._pubs.get((key, reliable))
+            pub = self._pubs.get((key, reliable, loopback))
             if pub is not None:
-                self._pubs.move_to_end((key, reliable))
+                self._pubs.move_to_end((key, reliable, loopback))
                 return pub
             cc = self._z.CongestionControl.BLOCK if reliable else self._z.CongestionControl.DROP
-            pub = self._pubs[(key, reliable)] = self.session.declare_publisher(key, congestion_control=cc)
+            where = self._z.Locality.ANY if loopback else self._z.Locality.REMOTE
+            pub = self._pubs[(key, reliable, loopback)] = self.session.declare_publisher(
+                key, congestion_control=cc, allowed_destination=where)
             if len(self._pubs) > PUBLISHERS:
                 self._pubs.popitem(last=False)[1].undeclare()
             return pub

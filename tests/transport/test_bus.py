@@ -70,6 +70,16 @@ def test_memory_inbox_keeps_the_newest_until_drained():
     assert box.drain() == []
 
 
+def test_memory_put_without_loopback_skips_the_publishers_own_subscribers():
+    net = busmod.MemoryNet()
+    a, b = busmod.MemoryBus(net), busmod.MemoryBus(net)
+    mine, theirs = a.inbox("swarm/f/cell/0/0/*"), b.inbox("swarm/f/cell/0/0/*")
+    a.put("swarm/f/cell/0/0/1", b"s", loopback=False)
+    assert mine.drain() == [] and theirs.drain() == [("swarm/f/cell/0/0/1", b"s")]
+    a.put("swarm/f/cell/0/0/1", b"t")
+    assert mine.drain() == theirs.drain() == [("swarm/f/cell/0/0/1", b"t")]
+
+
 def _waiting(box) -> tuple[threading.Thread, list]:
     """box.wait() on a thread of its own; the list gets what it returned."""
     out: list = []
@@ -190,6 +200,22 @@ def test_zenoh_bus_through_a_router():
             with pytest.raises(ValueError):
                 box.wake()  # a wildcard inbox cannot be woken
             pose.close()
+            # loopback=False: a put reaches the other sessions, not this session's own subscribers
+            mine, theirs = a.inbox("swarm/t/cell/5/5/*"), b.inbox("swarm/t/cell/5/5/*")
+            deadline = time.monotonic() + 10
+            while not theirs.drain():
+                a.put("swarm/t/cell/5/5/1", b"ping", loopback=False)
+                assert time.monotonic() < deadline, "no message into the cell inbox"
+                time.sleep(0.02)
+            a.put("swarm/t/cell/5/5/1", b"remote only", reliable=True, loopback=False)
+            a.put("swarm/t/cell/5/5/1", b"everyone", reliable=True)
+            seen: list = []
+            while b"everyone" not in seen:
+                seen += [p for _, p in theirs.wait()]
+            assert seen[-2:] == [b"remote only", b"everyone"]
+            assert [p for _, p in mine.wait()] == [b"everyone"]  # none of the pings, nor "remote only"
+            mine.close()
+            theirs.close()
             tok.close()
             ev.wait_until(lambda: alive.get("swarm/t/alive/robot/1") is False, 10, "the token to go")
     finally:
