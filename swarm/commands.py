@@ -257,6 +257,17 @@ def cmd_router(args, started: float) -> int:
     return EXIT_INTERRUPTED
 
 
+def settle_heap() -> None:
+    """Before a process's run loop: collect once, then move everything alive (imports, sessions,
+    configuration) out of the garbage collector's sight (gc.freeze). A full collection of a robot
+    process costs about 3 ms (13 000 objects after its imports); frozen, the ones that still come
+    now and then cost microseconds, so they do not show up in the control round trip."""
+    import gc
+
+    gc.collect()
+    gc.freeze()
+
+
 def cmd_robot(args, started: float) -> int:
     from agents import robot
     from swarm.launch import die_with_parent
@@ -274,6 +285,7 @@ def cmd_robot(args, started: float) -> int:
             if cfg is None:
                 cfg = robot.fetch_config(bus, fleet, args.id, args.start_timeout, stop)
             obstacles = robot.fetch_obstacles(bus, fleet, args.start_timeout, stop)
+            settle_heap()
             agent = robot.run(bus, cfg, fleet, stop, obstacles)
         except robot.NoAnswer as e:
             if stop.is_set():
@@ -333,6 +345,7 @@ def cmd_world(args, started: float) -> int:
                     raise Failure(str(e)) from None
                 except InterruptedError:
                     pass
+                settle_heap()
                 metrics = world.run(stop, started) if not stop.is_set() else \
                     world.referee.metrics(time.perf_counter() - started, True, args.mode)
             finally:
