@@ -36,19 +36,19 @@ def test_realtime_refs_every_period_and_at_every_segment_start():
     stop = threading.Event()
     th = threading.Thread(target=lead.run, args=(stop,), daemon=True)
     th.start()
-    speed = 10.0
+    speed = 2.0  # slow enough that a loaded machine's wake-up jitter (a few ms) stays inside the bounds below
     MemoryBus(net).put(keys.world_clock(F), protocol.encode(Clock(t=0.0, seq=0, epoch=time.time(), speed=speed)))
-    with cond:  # the leader runs on the wall clock: ~0.13 s at speed 10
+    with cond:  # the leader runs on the wall clock: ~0.65 s at speed 2
         cond.wait_for(lambda: bool(got) and got[-1].t >= 1.3, timeout=10)
     stop.set()
     th.join(5)
     lead.close()
     ts = np.array([r.t for r in got])
     assert ts[-1] >= 1.3, "the leader stopped publishing"
-    for start in (0.25, 0.58):  # the segment starts: each has a reference within 0.02 s (2 ms of wall time at speed 10)
+    for start in (0.25, 0.58):  # the segment starts: each has a reference within 0.02 s (10 ms of wall time)
         assert np.min(np.abs(ts - start)) < 0.02, f"no reference at the segment start {start}"
     gaps = np.diff(ts)
-    assert gaps.max() <= leader_mod.REF_PERIOD_S + 0.05  # the wall clock's jitter, at speed 10
+    assert gaps.max() <= leader_mod.REF_PERIOD_S + 0.05  # the wall clock's jitter: 25 ms of wall time
     assert len(got) < 1.3 / 0.02 / 2  # far fewer than one per control period
     for r in got:  # exact: the leader's state at the message's own time
         assert (r.x, r.y, r.theta, r.v, r.w) == tuple(kinematics.leader_state(table, r.t))
