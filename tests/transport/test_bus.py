@@ -88,18 +88,23 @@ def _waiting(box) -> tuple[threading.Thread, list]:
     return th, out
 
 
+def _check_wait_and_wake(box, put, key: str, timeout_s: float) -> None:
+    """box.wait() returns what came, and an empty list when box.wake() is called from another thread."""
+    th, out = _waiting(box)
+    put(key, b"p1")
+    th.join(timeout_s)
+    assert out == [[(key, b"p1")]]
+    th, out = _waiting(box)
+    box.wake()
+    th.join(timeout_s)
+    assert out == [[]] and not th.is_alive()
+
+
 def test_memory_inbox_wait_returns_on_a_message_or_a_wake():
     net = busmod.MemoryNet()
     a, b = busmod.MemoryBus(net), busmod.MemoryBus(net)
     box = b.inbox("swarm/f/robot/1/pose", depth=4)
-    th, out = _waiting(box)
-    a.put("swarm/f/robot/1/pose", b"p0")
-    th.join(5)
-    assert out == [[("swarm/f/robot/1/pose", b"p0")]]
-    th, out = _waiting(box)
-    box.wake()
-    th.join(5)
-    assert out == [[]] and not th.is_alive()
+    _check_wait_and_wake(box, a.put, "swarm/f/robot/1/pose", 5)
     box.wake()  # a wake before the wait is not lost
     assert box.wait() == []
 
@@ -187,14 +192,7 @@ def test_zenoh_bus_through_a_router():
                 a.put("swarm/t/robot/1/pose", b"ping", reliable=True)
                 assert time.monotonic() < deadline, "no message into the pose inbox"
                 time.sleep(0.02)
-            th, out = _waiting(pose)
-            a.put("swarm/t/robot/1/pose", b"p1", reliable=True)
-            th.join(10)
-            assert out == [[("swarm/t/robot/1/pose", b"p1")]]
-            th, out = _waiting(pose)
-            pose.wake()
-            th.join(10)
-            assert out == [[]] and not th.is_alive()
+            _check_wait_and_wake(pose, lambda k, p: a.put(k, p, reliable=True), "swarm/t/robot/1/pose", 10)
             a.put("swarm/t/robot/1/pose", b"p2", reliable=True)
             assert pose.wait() == [("swarm/t/robot/1/pose", b"p2")]  # the wake left nothing behind
             with pytest.raises(ValueError):
