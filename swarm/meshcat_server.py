@@ -36,6 +36,9 @@ class ServerError(RuntimeError):
     """The meshcat server could not start, or stopped answering."""
 
 
+BROWSERS = b"swarm/browsers"  # a ZMQ command our server adds to meshcat's: the number of connected pages
+
+
 class MeshcatClient:
     """Sends meshcat commands over ZMQ REQ/REP, with timeouts (a REQ socket without them blocks
     forever on a dead server). Same `send(command)` as meshcat's ViewerWindow."""
@@ -71,6 +74,17 @@ class MeshcatClient:
             raise ServerError(f"the meshcat server at {self.zmq_url} did not answer within {self.timeout_s:g} s")
         self.sent += 1
         self.bytes += len(packed)
+
+    def browsers(self) -> int:
+        """How many browser pages are connected to the server now."""
+        if self.socket is None:
+            raise ServerError("the meshcat client is closed")
+        try:
+            self.socket.send_multipart([BROWSERS])
+            return int(self.socket.recv())
+        except self._zmq.Again:
+            self.close()
+            raise ServerError(f"the meshcat server at {self.zmq_url} did not answer within {self.timeout_s:g} s")
 
     def close(self) -> None:
         if self.socket is not None:
@@ -241,6 +255,12 @@ def _serve(host: str, port: int) -> None:
 
             app.listen = listen
             return app
+
+        def handle_zmq(self, frames):
+            if frames[0] == BROWSERS:  # ours: how many browsers are connected
+                self.zmq_socket.send(str(len(self.websocket_pool)).encode())
+            else:
+                super().handle_zmq(frames)
 
     bridge = LocalBridge(zmq_url=f"tcp://{LOOPBACK}:*", host=host, port=port)  # ZMQ: loopback, any port
     zmq_url = bridge.zmq_socket.getsockopt_string(zmq.LAST_ENDPOINT)

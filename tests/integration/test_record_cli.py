@@ -109,7 +109,7 @@ def test_replay_draws_the_recorded_poses_exactly(up37):
 
 def test_replay_command_serves_the_viewer_and_exits(up37):
     tmp, _, _ = up37
-    out = cli("replay", str(tmp / "run.mcap"), "--speed", "20", "--exit", timeout=60)
+    out = cli("replay", str(tmp / "run.mcap"), "--speed", "20", "--no-wait", "--exit", timeout=60)
     assert out.returncode == 0, out.stderr
     assert "viewer: http://127.0.0.1:" in out.stdout and "frames drawn" in out.stdout
 

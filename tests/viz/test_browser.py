@@ -8,6 +8,9 @@ docs/viewer.png is the 37-robot one.
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -140,3 +143,25 @@ def test_swarm_viz_connect_takes_the_scene_from_the_world_and_dies_with_a_sigkil
         if viz is not None:
             viz.close()
         swarm.close()
+
+
+def test_swarm_replay_waits_for_a_browser_then_plays_to_the_end(tmp_path):
+    """Without --no-wait, a replay holds its first frame until a page connects, so the user sees it whole."""
+    rec = tmp_path / "run.mcap"
+    made = subprocess.run([sys.executable, "-m", "swarm.cli", "sim", "--robots", "3", "--duration", "2",
+                           "--record", str(rec), "--quiet"], capture_output=True, text=True, timeout=120)
+    assert made.returncode == 0, made.stderr
+    replay = Child(["replay", str(rec), "--exit"], tmp_path / "replay.err")
+    try:
+        url = replay.expect(URL_LINE, 60).group(1)
+        replay.expect("waiting for a browser", 30)
+        assert not any("done" in line for line in replay.seen) and replay.proc.poll() is None
+        with browser_page(url) as page:
+            replay.expect("a browser is connected, starting", 30)
+            page.wait_for_function(robots_js(3), timeout=60_000)
+            drawn = int(replay.expect(r"replay: done, (\d+) frames drawn", 60).group(1))
+            assert drawn >= 20  # 2 s recorded at 20 Hz (41 frames); a frame already overdue is skipped
+            assert page.errors == []
+        assert replay.proc.wait(30) == 0
+    finally:
+        replay.close()
