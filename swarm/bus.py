@@ -5,7 +5,7 @@
     bus.wanted(key)                             # would anyone receive a put on key? (skip costly work if not)
     sub = bus.subscribe(key_expr, fn)           # fn(key: str, payload: bytes), on a bus thread
     box = bus.inbox(key_expr, depth=64)         # kept until box.drain() -> [(key, payload), ...] (newest depth)
-    box.wait()                                  # block until something came (or box.wake()), then drain
+    box.wait()                                  # block until something came (or box.wake()); drain() has the rest
     tok = bus.token(key)                        # a liveliness token; tok.close() withdraws it
     sub = bus.watch_alive(key_expr, fn)         # fn(key: str, alive: bool); current tokens first
     sub = bus.serve(key_expr, fn)               # a queryable: fn(key: str) -> bytes, or None: no reply
@@ -35,7 +35,7 @@ class Closable(Protocol):
 
 class Inbox(Protocol):
     def drain(self) -> list[tuple[str, bytes]]: ...
-    def wait(self) -> list[tuple[str, bytes]]: ...  # blocks until a message or wake(); may return []
+    def wait(self) -> list[tuple[str, bytes]]: ...  # blocks until a message or wake(); may return [] (drain() gets the rest)
     def wake(self) -> None: ...  # from another thread: a blocked wait() returns
     def close(self) -> None: ...
 
@@ -385,10 +385,12 @@ class _ZenohInbox:
         self.sub, self.session, self.key_expr, self._z = sub, session, key_expr, zenoh
 
     def _item(self, s) -> tuple[str, bytes] | None:
-        a = s.attachment
-        if a is not None and a.to_bytes() == self.WAKE:
-            return None
-        return str(s.key_expr), s.payload.to_bytes()
+        payload = s.payload.to_bytes()
+        if not payload:  # a real message is never empty: only then look for the wake marker
+            a = s.attachment
+            if a is not None and a.to_bytes() == self.WAKE:
+                return None
+        return str(s.key_expr), payload
 
     def drain(self) -> list[tuple[str, bytes]]:
         out = []
@@ -400,8 +402,7 @@ class _ZenohInbox:
 
     def wait(self) -> list[tuple[str, bytes]]:
         first = self._item(self.sub.recv())
-        rest = self.drain()
-        return rest if first is None else [first] + rest
+        return [] if first is None else [first]  # the rest, if any, is for drain()
 
     def wake(self) -> None:
         if "*" in self.key_expr:
