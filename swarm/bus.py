@@ -377,7 +377,10 @@ def _init_zenoh_log(zenoh) -> None:
 class _ZenohInbox:
     """A ring channel of zenoh samples. wait() blocks in zenoh with the GIL released (the receiving
     thread runs no Python for these samples); wake() sends this session a local sample that carries
-    the WAKE attachment, which wait() and drain() skip."""
+    the WAKE attachment, which wait() and drain() skip. Two rules: close() only from the thread that
+    waits (zenoh refuses a close while recv() holds the subscriber, and the wait then never ends: wake
+    it first), and no other subscriber of this session on a matching key (it would get the empty
+    wake-up sample as a bad message)."""
 
     WAKE = b"swarm-inbox-wake"
 

@@ -317,8 +317,10 @@ def _add_runtime_parsers(sub) -> None:
     replay.add_argument("recording", type=Path, metavar="FILE.mcap")
     replay.add_argument("--speed", type=_positive_float, default=1.0, metavar="X",
                         help="simulated seconds per wall second (default 1)")
-    replay.add_argument("--no-wait", action="store_true",
-                        help="start at once instead of waiting for a browser to open the viewer's URL")
+    w = replay.add_mutually_exclusive_group()
+    w.add_argument("--wait", action="store_true",
+                   help="start when a browser opens the viewer's URL (the default when the output is a terminal)")
+    w.add_argument("--no-wait", action="store_true", help="start at once (the default in scripts)")
     replay.add_argument("--exit", action="store_true", help="exit when the replay ends instead of waiting for Ctrl-C")
     _add_viz_flags(replay, None)
     replay.set_defaults(func=_lazy("cmd_replay", "swarm.playback"))

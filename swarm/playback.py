@@ -1,9 +1,9 @@
 """`swarm replay` and `swarm report`: the commands that read a recording (swarm.record's MCAP file).
 
-    swarm replay run.mcap [--speed X] [--viz-host H] [--viz-port P] [--no-wait] [--exit]
+    swarm replay run.mcap [--speed X] [--viz-host H] [--viz-port P] [--wait | --no-wait] [--exit]
     swarm report run.mcap -o DIR
 
-Replay waits for a browser page to connect (unless --no-wait), then draws the recorded snapshots in the viewer exactly as recorded (poses, and the colours
+Replay waits for a browser page to connect (--wait; the default on a terminal), then draws the recorded snapshots in the viewer exactly as recorded (poses, and the colours
 from the recorded alive, stopped and frozen flags), paced by their simulated time at --speed and
 at most MAX_HZ frames a wall second (a frame whose successor is already due is skipped, never
 drawn late). The reading itself is swarm.report's, so a replay and a report see the same data.
@@ -12,6 +12,7 @@ drawn late). The reading itself is swarm.report's, so a replay and a report see 
 from __future__ import annotations
 
 import logging
+import sys
 import threading
 from pathlib import Path
 
@@ -68,7 +69,8 @@ def cmd_replay(args, started: float) -> int:
             print(f"replay: {path} ({scn.n} robots, {scn.name}, recorded from {info.get('source', '?')}) "
                   f"at {args.speed:g}x", flush=True)
             viewer = Viewer(server, SceneInfo.from_scenario(scn), rings=viz.rings)
-            if not args.no_wait and not _wait_for_browser(server, stop):
+            wait = args.wait or (not args.no_wait and sys.stdout.isatty())  # a script must never hang here
+            if wait and not _wait_for_browser(server, stop):
                 return EXIT_INTERRUPTED
             try:
                 drawn, early = replay_into(path, viewer, args.speed, stop)
@@ -94,7 +96,7 @@ def _wait_for_browser(server, stop: threading.Event, poll_s: float = 0.2) -> boo
     page opens). False if stopped first."""
     if server.client.browsers() > 0:
         return True
-    print(f"replay: waiting for a browser on {server.web_url} (--no-wait starts at once)", flush=True)
+    print(f"replay: waiting for a browser on {server.web_url} (Ctrl-C to stop; --no-wait starts at once)", flush=True)
     while not stop.wait(poll_s):
         if server.client.browsers() > 0:
             print("replay: a browser is connected, starting", flush=True)

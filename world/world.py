@@ -41,6 +41,7 @@ WATCHDOG_S = 0.5
 TICK_TIMEOUT_S = 1.0
 FINE_DT_S = 0.001
 PROGRESS_PERIOD_S = 0.25  # wall seconds between progress messages
+ROUND_TRIP_HISTORY_S = 5.0  # real time: poses remembered for round trips (simulated s; far past the watchdog)
 
 
 class NotReady(RuntimeError):
@@ -359,9 +360,9 @@ class World:
         # on the fine grid: the world's time only advances in fine steps, and an event between two
         # of them would have the loop wake, find nothing to do, and spin until the next step
         phase = [round(i * period / n / fine) * fine for i in range(n)]
-        pose_seq = [0] * n
+        pose_seq = [0] * n  # poses sent to each robot (the pose's seq)
+        slot = [0] * n  # the period of each robot's next pose: after a stall, late slots are skipped, not sent in a burst
         poses = sorted((phase[i], i) for i in range(n))  # (due time, robot): a heap
-        seq = 0
         t_pub = 0.0
         end_k = int(math.ceil(scn.duration / fine - 1e-9))  # integer steps: no drift in t
         fine_k = 0
@@ -382,27 +383,29 @@ class World:
                         self.stopped[i] = True
             if poses[0][0] <= t + 1e-9:
                 with self.lock:
-                    self._pose_sent[t] = mono
-                    if len(self._pose_sent) > 4 * n + 64:
-                        self._pose_sent.pop(next(iter(self._pose_sent)))
+                    sent = self._pose_sent
+                    sent[t] = mono
+                    while (first := next(iter(sent))) < t - ROUND_TRIP_HISTORY_S:
+                        del sent[first]
                 while poses[0][0] <= t + 1e-9:
                     _, i = heapq.heappop(poses)
                     advance(i, t)
                     self._publish_pose(i, t, pose_seq[i])
                     pose_seq[i] += 1
-                    heapq.heappush(poses, (pose_seq[i] * period + phase[i], i))
+                    slot[i] = max(slot[i] + 1, int(math.floor((t - phase[i]) / period + 1e-9)) + 1)
+                    heapq.heappush(poses, (slot[i] * period + phase[i], i))
             if t >= t_pub - 1e-9 or fine_k >= end_k:
                 for i in range(n):
                     advance(i, t)
                 for key, data in self._status_inbox.drain():
                     self.event(("status", key, data))
+                seq = int(math.floor(t / period + 1e-9))  # the period (after a stall, the ones missed are skipped)
                 self.k = seq
                 self._publish_clock_rt(epoch)
                 self._publish_snapshot(t, seq)
                 self._sample(t)
                 self._report()
-                seq += 1
-                t_pub = seq * period
+                t_pub = (seq + 1) * period
             if fine_k >= end_k:
                 return False
             left = epoch + (t + fine) / self.speed - time.time()  # the next fine step (every event is on the grid)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 
 import pytest
 
@@ -68,3 +69,42 @@ def test_realtime_world_integrates_exact_arcs_lazily_and_stops_silent_robots(wri
     assert metrics["bad_messages"] == 2
     # every command came back but the last (its pose went out as the run ended)
     assert metrics["round_trips"] == len(poses) - 1 and metrics["round_trip_ms_median"] >= 0.0
+
+
+def test_after_a_stall_the_realtime_world_skips_late_slots_instead_of_bursting(write_scenario):
+    """A stalled world loop (here: a drive that blocks the in-memory delivery for 0.1 s of wall time)
+    must not catch up by sending each robot a burst of poses at one instant, nor clocks for every
+    missed period."""
+    scn = scenario_file.load(write_scenario(doc()))
+    net = MemoryNet()
+    world = World(MemoryBus(net), scn, F, lockstep=False, speed=2.0)
+    world.start()
+    drive = MemoryBus(net)
+    poses: list[protocol.Pose] = []
+    clocks: list[protocol.Clock] = []
+
+    def on_pose(key: str, data: bytes) -> None:
+        p = protocol.decode(data, "pose")
+        poses.append(p)
+        if p.seq == 10:
+            time.sleep(0.1)  # the stall under test: 0.2 s of simulated time, 10 control periods
+        drive.put(keys.robot_cmd(F, 0), protocol.encode(Cmd(t=p.t, seq=p.seq, v=V, w=W)), reliable=True)
+
+    drive.subscribe(keys.robot_pose(F, 0), on_pose)
+    drive.subscribe(keys.world_clock(F), lambda k, b: clocks.append(protocol.decode(b, "clock")))
+    try:
+        world.run(threading.Event())
+    finally:
+        world.close()
+        drive.close()
+    ts = [p.t for p in poses]
+    assert ts == sorted(set(ts))  # one pose per instant, in order
+    assert [p.seq for p in poses] == list(range(len(poses)))
+    gaps = [b - a for a, b in zip(ts, ts[1:])]
+    assert max(gaps) >= 0.15  # the stall is visible (slots skipped) ...
+    assert len(poses) <= 51 - 5  # ... and not made up for
+    period = scn.dt
+    # one clock per period at most, its seq the period it is in (late ones at the instant they went out)
+    assert all(c.seq == math.floor(c.t / period + 1e-9) for c in clocks[1:])
+    seqs = [c.seq for c in clocks[1:]]
+    assert seqs == sorted(set(seqs)) and max(b - a for a, b in zip(seqs, seqs[1:])) >= 5

@@ -146,12 +146,13 @@ def test_swarm_viz_connect_takes_the_scene_from_the_world_and_dies_with_a_sigkil
 
 
 def test_swarm_replay_waits_for_a_browser_then_plays_to_the_end(tmp_path):
-    """Without --no-wait, a replay holds its first frame until a page connects, so the user sees it whole."""
+    """With --wait (the default on a terminal), a replay holds its first frame until a page connects,
+    so the user sees it whole."""
     rec = tmp_path / "run.mcap"
     made = subprocess.run([sys.executable, "-m", "swarm.cli", "sim", "--robots", "3", "--duration", "2",
                            "--record", str(rec), "--quiet"], capture_output=True, text=True, timeout=120)
     assert made.returncode == 0, made.stderr
-    replay = Child(["replay", str(rec), "--exit"], tmp_path / "replay.err")
+    replay = Child(["replay", str(rec), "--wait", "--exit"], tmp_path / "replay.err")
     try:
         url = replay.expect(URL_LINE, 60).group(1)
         replay.expect("waiting for a browser", 30)
