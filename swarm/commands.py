@@ -500,6 +500,7 @@ def cmd_up(args, started: float) -> int:
     if plan.router is not None:
         _check_listen_free(opts.listen)
     log_dir.mkdir(parents=True, exist_ok=True)
+    launch.compile_project()
     status = console.StatusLine(enabled=not args.quiet, log_every=2.0)
     say = (lambda text: None) if args.quiet else (lambda text: status.note(text))
     viewer: list[ViewerUrl] = []
@@ -519,6 +520,7 @@ def cmd_up(args, started: float) -> int:
     with StopEvent(hard_second=False) as stop, Supervisor(plan, log_dir) as sup:
         bus = None
         try:
+            t0 = time.monotonic()  # launch time: from the first process started to every token seen
             if plan.router is not None:
                 sup.start(plan.router)
             if plan.viz is not None:
@@ -539,8 +541,7 @@ def cmd_up(args, started: float) -> int:
                 sup.start(spec)
             want = {keys.alive(fleet, "world"), keys.alive(fleet, "leader")} | \
                    {keys.alive(fleet, "robot", i) for i in range(scn.n)}
-            t0 = time.monotonic()
-            end = t0 + args.start_timeout
+            end = time.monotonic() + args.start_timeout
             while not want <= alive and not stop.is_set():
                 if time.monotonic() > end:
                     missing = sorted(want - alive, key=lambda k: (len(k), k))

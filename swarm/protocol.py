@@ -192,6 +192,8 @@ _KIND_OF = {cls: kind for kind, cls in KINDS.items()}
 def encode(msg) -> bytes:
     """msgpack bytes of a message (no validation: messages are built by this process)."""
     fast = _FAST_ENCODE.get(type(msg))
+    if fast is None and type(msg) in _KIND_OF and _KIND_OF[type(msg)] in _SPEC:
+        fast = _FAST_ENCODE[type(msg)] = _compile_encode(_KIND_OF[type(msg)])
     if fast is not None:
         return fast(msg)
     kind = _KIND_OF.get(type(msg))
@@ -312,7 +314,9 @@ def _compile_fast(kind: str):
     return ns["fast"]
 
 
-_FAST = {k: _compile_fast(k) for k in _SPEC}
+# Generated on first use of each kind (a process uses a few; compiling all at import cost ~15 ms of
+# every process's start, 40 times over at `swarm up`).
+_FAST: dict[str, object] = {}
 
 
 def _compile_encode(kind: str):
@@ -324,7 +328,7 @@ def _compile_encode(kind: str):
     return ns["enc"]
 
 
-_FAST_ENCODE = {KINDS[k]: _compile_encode(k) for k in _SPEC}
+_FAST_ENCODE: dict[type, object] = {}
 _unpackb = msgpack.unpackb
 
 
@@ -341,6 +345,8 @@ def decode(payload: bytes, kind: str | None = None, key_id: int | None = None):
     if not isinstance(d, dict):
         raise ProtocolError(f"payload must be a map, got {type(d).__name__}")
     fast = _FAST.get(kind) if kind is not None else None
+    if fast is None and kind in _SPEC:
+        fast = _FAST[kind] = _compile_fast(kind)
     if fast is not None:
         msg = fast(d)
         if msg is not None:

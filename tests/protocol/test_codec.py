@@ -177,7 +177,7 @@ def _near_valid(kind: str):
     return st.tuples(st.just(base), edit, drop)
 
 
-@pytest.mark.parametrize("kind", sorted(p._FAST))
+@pytest.mark.parametrize("kind", sorted(p._SPEC))
 @settings(max_examples=200, deadline=None)
 @given(data=st.data())
 def test_fast_decoder_agrees_with_the_general_path(kind, data):

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 from swarm.launch import RestartPolicy, UpOptions, make_plan
 
@@ -90,3 +92,25 @@ def test_dry_run_shows_the_viewer_unless_no_viz():
     assert len(viz) == 1 and "--viz-host 127.0.0.1 --viz-port 7123" in viz[0]
     out = subprocess.run(base[:-2] + ["--no-viz"], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and " viz " not in out.stdout
+
+
+def test_compile_project_leaves_bytecode_the_children_use(tmp_path):
+    """The launcher compiles the project once; a child that may not write bytecode still reads it."""
+    import shutil
+
+    for pkg in ("swarm", "agents", "world"):  # a copy of the sources, so the test owns its __pycache__
+        shutil.copytree(Path(__file__).resolve().parents[2] / pkg, tmp_path / pkg,
+                        ignore=shutil.ignore_patterns("__pycache__"))
+    env = {**os.environ, "PYTHONPATH": str(tmp_path), "PYTHONDONTWRITEBYTECODE": "1"}
+    run = [sys.executable, "-c", "from swarm import launch; launch.compile_project(); print(launch.__file__)"]
+    out = subprocess.run(run, env=env, capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert Path(out.stdout.strip()) == tmp_path / "swarm" / "launch.py"  # the copy, not the checkout
+    pycs = {p.relative_to(tmp_path).parts[0] for p in tmp_path.rglob("__pycache__/*.pyc")}
+    assert pycs == {"swarm", "agents", "world"}
+    stamps = {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*.pyc")}
+    out = subprocess.run([sys.executable, "-v", "-c", "import agents.robot"], env=env, capture_output=True,
+                         text=True, timeout=60, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert f"matches {tmp_path / 'agents' / 'robot.py'}" in out.stderr  # imported from its .pyc
+    assert {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*.pyc")} == stamps
