@@ -109,6 +109,15 @@ def test_memory_inbox_wait_returns_on_a_message_or_a_wake():
     assert box.wait() == []
 
 
+def _prime(box, ping, what: str) -> None:
+    """Ping until a first message reaches `box`: a new subscription reaches the router asynchronously."""
+    deadline = time.monotonic() + 10
+    while not box.drain():
+        ping()
+        assert time.monotonic() < deadline, f"no message into {what}"
+        time.sleep(0.02)
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -163,35 +172,25 @@ def test_zenoh_bus_through_a_router():
             assert replies == [("swarm/t/world/obstacles", b"obstacles!")]
             # an inbox: samples wait in zenoh until drained, the newest `depth`, in order
             box = b.inbox("swarm/t/cell/0/0/*", depth=4)
-            deadline = time.monotonic() + 10
-            while not box.drain():  # the subscription reaches the router asynchronously
-                a.put("swarm/t/cell/0/0/1", b"ping", reliable=True)
-                assert time.monotonic() < deadline, "no message into the inbox"
-                time.sleep(0.02)
+            _prime(box, lambda: a.put("swarm/t/cell/0/0/1", b"ping", reliable=True), "the inbox")
             a.put("swarm/t/cell/0/0/1", b"sync", reliable=True)
             seen: list = []
-            deadline = time.monotonic() + 10
-            while (b"sync" not in [p for _, p in seen]) and time.monotonic() < deadline:
-                seen += box.drain()
+            while b"sync" not in [p for _, p in seen]:  # bounded by the test's timeout
+                seen += box.wait()
             box.drain()
             for i in range(10):
                 a.put("swarm/t/cell/0/0/2", bytes([i]), reliable=True)
             a.put("swarm/t/cell/0/0/3", b"last", reliable=True)
             got_box: list = []
-            deadline = time.monotonic() + 10
-            while (not got_box or got_box[-1][1] != b"last") and time.monotonic() < deadline:
-                time.sleep(0.01)  # an inbox has no event to wait on: poll it, under the deadline
+            while not got_box or got_box[-1][1] != b"last":  # bounded by the test's timeout
+                got_box += box.wait()
                 got_box += box.drain()
             assert got_box[-1] == ("swarm/t/cell/0/0/3", b"last")
             assert [p for _, p in got_box[:-1]] == sorted(p for _, p in got_box[:-1])  # in order, oldest dropped
             box.close()
             # wait() blocks in zenoh until a sample comes; wake() (a session-local sample) returns it empty
             pose = b.inbox("swarm/t/robot/1/pose", depth=4)
-            deadline = time.monotonic() + 10
-            while not pose.drain():  # the subscription reaches the router asynchronously
-                a.put("swarm/t/robot/1/pose", b"ping", reliable=True)
-                assert time.monotonic() < deadline, "no message into the pose inbox"
-                time.sleep(0.02)
+            _prime(pose, lambda: a.put("swarm/t/robot/1/pose", b"ping", reliable=True), "the pose inbox")
             _check_wait_and_wake(pose, lambda k, p: a.put(k, p, reliable=True), "swarm/t/robot/1/pose", 10)
             a.put("swarm/t/robot/1/pose", b"p2", reliable=True)
             assert pose.wait() == [("swarm/t/robot/1/pose", b"p2")]  # the wake left nothing behind
@@ -200,11 +199,7 @@ def test_zenoh_bus_through_a_router():
             pose.close()
             # loopback=False: a put reaches the other sessions, not this session's own subscribers
             mine, theirs = a.inbox("swarm/t/cell/5/5/*"), b.inbox("swarm/t/cell/5/5/*")
-            deadline = time.monotonic() + 10
-            while not theirs.drain():
-                a.put("swarm/t/cell/5/5/1", b"ping", loopback=False)
-                assert time.monotonic() < deadline, "no message into the cell inbox"
-                time.sleep(0.02)
+            _prime(theirs, lambda: a.put("swarm/t/cell/5/5/1", b"ping", loopback=False), "the cell inbox")
             a.put("swarm/t/cell/5/5/1", b"remote only", reliable=True, loopback=False)
             a.put("swarm/t/cell/5/5/1", b"everyone", reliable=True)
             seen: list = []
