@@ -175,7 +175,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_scenario_flags(sim, "paper")
     out = sim.add_argument_group("output")
-    out.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (its keys: docs/design.md, Metrics); swarm up always writes it to the log directory too")
+    out.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (its keys: docs/design.md, Metrics)")
     out.add_argument("--plots", type=Path, metavar="DIR", help="write the panels of the paper's Fig. 2 as PNG")
     out.add_argument("--quiet", action="store_true", help="no progress bar and no summary table")
     _add_record_flags(out)
@@ -369,7 +369,7 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
     viz = viz_options(args, args.viz, "needs --viz", extra=(("--speed", args.speed),))
     if viz is not None:
         check_viz_port(viz)
-    status = console.StatusLine(enabled=not args.quiet)
+    status = console.StatusLine(enabled=not args.quiet, log_every=2.0)  # a line every 2 s in a log, as swarm up
     if not args.quiet and not _kernel_cached():
         print("compiling the simulation kernel (first run after install only, ~5-10 s)...", file=sys.stderr)
     if args.record is not None:

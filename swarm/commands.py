@@ -500,6 +500,10 @@ def cmd_up(args, started: float) -> int:
     if plan.router is not None:
         _check_listen_free(opts.listen)
     log_dir.mkdir(parents=True, exist_ok=True)
+    try:  # whatever is read back at the end must be this run's: never an earlier run's file
+        metrics_path.unlink(missing_ok=True)
+    except OSError as e:
+        raise BadInput(f"--metrics {metrics_path}: cannot replace it: {e.strerror or e}") from None
     launch.compile_project()
     status = console.StatusLine(enabled=not args.quiet, log_every=2.0)
     say = (lambda text: None) if args.quiet else (lambda text: status.note(text))
@@ -553,7 +557,8 @@ def cmd_up(args, started: float) -> int:
                 status.update(f"starting: {len(alive & want)}/{len(want)} processes alive", force=False)
                 watch_viewer()
                 time.sleep(0.02)
-            launched_s = time.monotonic() - t0
+            if want <= alive:  # a launch cut short (Ctrl-C) has no launch time
+                launched_s = time.monotonic() - t0
             if not stop.is_set():
                 say(f"all {len(want)} processes alive after {launched_s:.2f} s; router at {plan.endpoint}")
             world = sup.children["world"]

@@ -124,6 +124,16 @@ def test_sigint_mid_run_stops_everything_and_writes_interrupted_metrics(tmp_path
             proc.kill()
 
 
+def test_a_failed_launch_reports_its_own_empty_metrics_not_an_earlier_runs(tmp_path):
+    cmd, metrics = up(tmp_path, "--robots", "3", "--duration", "5", "--start-timeout", "0.05")
+    metrics.write_text(json.dumps({"converged_at_s": 12.34, "collisions": 7, "launch_s": 1.0}))  # a stale file
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 1 and "not alive after 0.05 s" in out.stderr, out.stderr
+    m = json.loads(metrics.read_text())
+    assert m["converged_at_s"] is None and m["collisions"] == 0 and m["launch_s"] is None
+    assert "12.34" not in out.stdout
+
+
 def test_a_killed_robot_is_restarted_and_the_run_completes(tmp_path):
     cmd, metrics = up(tmp_path, "--robots", "4", "--duration", "60", "--quiet")
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
