@@ -43,10 +43,11 @@ class StopEvent:
     once (KeyboardInterrupt) unless hard_second is False: then the shutdown under way (bounded: it
     ends with SIGKILL) finishes, so the metrics and a recording are still written."""
 
-    def __init__(self, hard_second: bool = True) -> None:
+    def __init__(self, hard_second: bool = True, exit_after_s: float | None = None) -> None:
         self.event = threading.Event()
         self.signal: int | None = None
         self.hard_second = hard_second
+        self.exit_after_s = exit_after_s  # a bound on the clean shutdown: then the process exits anyway
 
     def __enter__(self) -> threading.Event:
         self._old = {s: signal.signal(s, self._handle) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -58,12 +59,27 @@ class StopEvent:
                 raise KeyboardInterrupt
             print("swarm: stopping; the metrics and the recording are being written (a few seconds at most)",
                   file=sys.stderr, flush=True)
+        if not self.event.is_set() and self.exit_after_s is not None:
+            timer = threading.Timer(self.exit_after_s, _hard_exit, (self.exit_after_s,))
+            timer.daemon = True
+            timer.start()
         self.signal = signum
         self.event.set()
 
     def __exit__(self, *exc) -> None:
         for s, old in self._old.items():
             signal.signal(s, old)
+
+
+# A swarm process told to stop (by a signal; by its parent's death through PR_SET_PDEATHSIG) exits
+# within this many seconds even if its clean shutdown hangs (a zenoh session whose router is gone):
+# nobody is left to SIGKILL it when the launcher itself was killed.
+CHILD_EXIT_AFTER_S = 5.0
+
+
+def _hard_exit(after_s: float) -> None:
+    print(f"swarm: the clean shutdown took more than {after_s:g} s; exiting now", file=sys.stderr, flush=True)
+    os._exit(EXIT_INTERRUPTED)
 
 
 def fleet_of(args) -> str:
@@ -245,7 +261,7 @@ def cmd_router(args, started: float) -> int:
     die_with_parent()
     _setup_logging()
     listen = [_check_endpoint("--listen", ep) for ep in (args.listen or [DEFAULT_LISTEN])]
-    with StopEvent() as stop:
+    with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, mode="router", listen=listen)
         try:
             bus.token(keys.alive(fleet_of(args), "router"))
@@ -279,7 +295,7 @@ def cmd_robot(args, started: float) -> int:
     if args.scenario is not None:
         scn = _load(args)
         cfg = scn.robot_config(args.id, lockstep=args.mode == "lockstep")
-    with StopEvent() as stop:
+    with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, lean=True)
         try:
             if cfg is None:
@@ -306,7 +322,7 @@ def cmd_leader(args, started: float) -> int:
     _setup_logging()
     scn = _load(args)
     fleet = fleet_of(args)
-    with StopEvent() as stop:
+    with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, stop=stop, lean=True)
         try:
             lead = Leader(bus, scn.leader.table(), scn.dt, fleet, lockstep=args.mode == "lockstep")
@@ -330,7 +346,7 @@ def cmd_world(args, started: float) -> int:
     fleet = fleet_of(args)
     check_out_dir("--metrics", args.metrics)
     check_out_dir("--trace", args.trace)
-    with StopEvent() as stop:
+    with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, stop=stop)
         try:
             world = World(bus, scn, fleet, lockstep=args.mode == "lockstep", speed=args.speed,
@@ -378,7 +394,7 @@ def cmd_viz(args, started: float) -> int:
     check_viz_port(v)
     check_out_dir("--server-log", args.server_log)
     connect = [_check_endpoint("--connect", c) for c in (args.connect or [DEFAULT_LISTEN])]
-    with StopEvent() as stop:
+    with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         # the server first: fork before zenoh starts its threads, and from this (main) thread, which
         # its PR_SET_PDEATHSIG follows
         server = MeshcatServer(v.host, v.port, log=args.server_log)

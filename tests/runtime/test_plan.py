@@ -114,3 +114,16 @@ def test_compile_project_leaves_bytecode_the_children_use(tmp_path):
     assert out.returncode == 0, out.stderr
     assert f"matches {tmp_path / 'agents' / 'robot.py'}" in out.stderr  # imported from its .pyc
     assert {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*.pyc")} == stamps
+
+
+def test_a_stopped_child_whose_shutdown_hangs_exits_anyway():
+    """StopEvent(exit_after_s): after the stop signal, a process stuck in its clean shutdown (here: a
+    wait that never ends) still exits, with 130, so a SIGKILLed launcher leaves nothing behind."""
+    code = ("import os, signal, threading; from swarm.commands import StopEvent\n"
+            "with StopEvent(exit_after_s=0.5) as stop:\n"
+            "    os.kill(os.getpid(), signal.SIGTERM)\n"
+            "    assert stop.wait(5)\n"
+            "    threading.Event().wait()  # a shutdown that never ends\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    assert out.returncode == 130, out.stderr
+    assert "clean shutdown took more than 0.5 s" in out.stderr
