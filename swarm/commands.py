@@ -41,39 +41,65 @@ class Failure(Exception):
 class StopEvent:
     """SIGINT and SIGTERM set a threading.Event that the process's loop polls. A second Ctrl-C stops at
     once (KeyboardInterrupt) unless hard_second is False: then the shutdown under way (bounded: it
-    ends with SIGKILL) finishes, so the metrics and a recording are still written."""
+    ends with SIGKILL) finishes, so the metrics and a recording are still written. exit_after_s
+    bounds the clean shutdown: that long after the first signal, the process exits anyway.
+
+    The handler takes no lock: it writes the signal to a pipe and a watcher thread sets the event.
+    A handler that called Event.set() itself deadlocked a leader in CI: a second signal came while
+    the first handler held the event's lock (or while the main thread did, inside stop.wait())."""
 
     def __init__(self, hard_second: bool = True, exit_after_s: float | None = None) -> None:
         self.event = threading.Event()
         self.signal: int | None = None
         self.hard_second = hard_second
-        self.exit_after_s = exit_after_s  # a bound on the clean shutdown: then the process exits anyway
+        self.exit_after_s = exit_after_s
 
     def __enter__(self) -> threading.Event:
+        self._r, self._w = os.pipe()
+        self._watcher = threading.Thread(target=self._watch, name="stop-signals", daemon=True)
+        self._watcher.start()
         self._old = {s: signal.signal(s, self._handle) for s in (signal.SIGINT, signal.SIGTERM)}
         return self.event
 
     def _handle(self, signum, frame) -> None:
-        if self.event.is_set() and signum == signal.SIGINT:  # a second Ctrl-C
-            if self.hard_second:
-                raise KeyboardInterrupt
-            print("swarm: stopping; the metrics and the recording are being written (a few seconds at most)",
-                  file=sys.stderr, flush=True)
-        if not self.event.is_set() and self.exit_after_s is not None:
-            timer = threading.Timer(self.exit_after_s, _hard_exit, (self.exit_after_s,))
-            timer.daemon = True
-            timer.start()
+        second = self.signal is not None
         self.signal = signum
-        self.event.set()
+        if second and signum == signal.SIGINT and self.hard_second:  # a second Ctrl-C
+            raise KeyboardInterrupt
+        try:
+            os.write(self._w, bytes([signum]))
+        except OSError:  # closed: the with block is over
+            pass
+
+    def _watch(self) -> None:
+        timer = None
+        while True:
+            try:
+                got = os.read(self._r, 16)
+            except OSError:
+                return
+            if not got:
+                return
+            if self.event.is_set() and signal.SIGINT in got and not self.hard_second:
+                print("swarm: stopping; the metrics and the recording are being written (a few seconds at most)",
+                      file=sys.stderr, flush=True)
+            if timer is None and self.exit_after_s is not None:
+                timer = threading.Timer(self.exit_after_s, _hard_exit, (self.exit_after_s,))
+                timer.daemon = True
+                timer.start()
+            self.event.set()
 
     def __exit__(self, *exc) -> None:
         for s, old in self._old.items():
             signal.signal(s, old)
+        os.close(self._w)  # the watcher reads the end of the pipe and returns
+        self._watcher.join(1.0)
+        os.close(self._r)
 
 
 # A swarm process told to stop (by a signal; by its parent's death through PR_SET_PDEATHSIG) exits
-# within this many seconds even if its clean shutdown hangs (a zenoh session whose router is gone):
-# nobody is left to SIGKILL it when the launcher itself was killed.
+# within this many seconds even if its clean shutdown hangs: nobody is left to SIGKILL it when the
+# launcher itself was killed.
 CHILD_EXIT_AFTER_S = 5.0
 
 

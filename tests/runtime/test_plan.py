@@ -127,3 +127,23 @@ def test_a_stopped_child_whose_shutdown_hangs_exits_anyway():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
     assert out.returncode == 130, out.stderr
     assert "clean shutdown took more than 0.5 s" in out.stderr
+
+
+def test_stop_event_survives_a_storm_of_signals():
+    """The handler takes no lock: signals arriving while the main thread waits on the event, or while an
+    earlier handler runs, must neither deadlock nor break the process (a leader once hung that way)."""
+    code = ("import os, signal, threading, time\nfrom swarm.commands import StopEvent\n"
+            "with StopEvent(hard_second=False) as stop:\n"
+            "    def storm():\n"
+            "        for _ in range(300):\n"
+            "            os.kill(os.getpid(), signal.SIGTERM)\n"
+            "            time.sleep(0.0005)\n"
+            "    th = threading.Thread(target=storm)\n"
+            "    th.start()\n"
+            "    while th.is_alive():\n"
+            "        stop.wait(0.0005)\n"
+            "    th.join()\n"
+            "    assert stop.wait(5)\n"
+            "print('ok')\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
