@@ -183,9 +183,14 @@ def listening(p: psutil.Process) -> set[tuple[str, int]]:
 
 
 def assert_all_gone(procs: list[psutil.Process], timeout_s: float, what: str) -> None:
+    """Every process in `procs` exits within timeout_s; those that do not are reported, then killed
+    (an orphan of a killed launcher is no longer in anybody's process tree: nothing else would)."""
     _, alive = psutil.wait_procs(procs, timeout=timeout_s)
-    assert not alive, f"{what}: still running after {timeout_s} s: " + \
-        ", ".join(f"{p.pid} {' '.join(_cmd(p))[:80]}" for p in alive)
+    names = ", ".join(f"{p.pid} {' '.join(_cmd(p))[:80]}" for p in alive)
+    for p in alive:
+        with contextlib.suppress(psutil.Error):
+            p.kill()
+    assert not alive, f"{what}: still running after {timeout_s} s: {names}"
 
 
 def _cmd(p: psutil.Process) -> list[str]:
