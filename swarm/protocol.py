@@ -191,14 +191,16 @@ _KIND_OF = {cls: kind for kind, cls in KINDS.items()}
 
 def encode(msg) -> bytes:
     """msgpack bytes of a message (no validation: messages are built by this process)."""
-    fast = _FAST_ENCODE.get(type(msg))
-    if fast is None and type(msg) in _KIND_OF and _KIND_OF[type(msg)] in _SPEC:
-        fast = _FAST_ENCODE[type(msg)] = _compile_encode(_KIND_OF[type(msg)])
+    cls = type(msg)
+    fast = _FAST_ENCODE.get(cls)
     if fast is not None:
         return fast(msg)
-    kind = _KIND_OF.get(type(msg))
+    kind = _KIND_OF.get(cls)
     if kind is None:
-        raise TypeError(f"not a protocol message: {type(msg).__name__}")
+        raise TypeError(f"not a protocol message: {cls.__name__}")
+    if kind in _SPEC:  # a flat kind's first message: generate its encoder (kept for the next ones)
+        fast = _FAST_ENCODE[cls] = _compile_encode(kind)
+        return fast(msg)
     d: dict = {"v": VERSION, "kind": kind}
     if kind == "obstacles":
         d["obstacles"] = [{"x": o.x, "y": o.y, "r": o.r, "R": o.R} for o in msg.obstacles]

@@ -382,11 +382,10 @@ class World:
                         cmd[i] = (0.0, 0.0)
                         self.stopped[i] = True
             if poses[0][0] <= t + 1e-9:
-                with self.lock:
-                    sent = self._pose_sent
-                    sent[t] = mono
-                    while (first := next(iter(sent))) < t - ROUND_TRIP_HISTORY_S:
-                        del sent[first]
+                sent = self._pose_sent  # this thread's only (_take_commands reads it)
+                sent[t] = mono
+                while (first := next(iter(sent))) < t - ROUND_TRIP_HISTORY_S:
+                    del sent[first]
                 while poses[0][0] <= t + 1e-9:
                     _, i = heapq.heappop(poses)
                     advance(i, t)
