@@ -107,6 +107,7 @@ class Agent:
         self.prev_xy: tuple[float, float] | None = None
         # counters
         self.states_received = 0
+        self.loop_cpu_s = 0.0  # CPU time of the loop thread handling its wake-ups (thread_time; bench/up_speed.py)
         self.ticks = 0
         self.skipped = 0
         self.stale_total = 0
@@ -564,11 +565,14 @@ def run(bus, cfg: Config, fleet: str = "default", stop: threading.Event | None =
 
 
 def _loop_lockstep(agent: Agent, stop: threading.Event) -> None:
+    cpu = time.thread_time
     while not stop.is_set():
         agent.wake.wait(min(0.2, agent.next_wakeup()))
+        c0 = cpu()
         agent.wake.clear()
         while agent.tick_lockstep():  # a tick done; the next pose may already be here
             pass
+        agent.loop_cpu_s += cpu() - c0
 
 
 def _loop_realtime(agent: Agent, stop: threading.Event, wall) -> None:
@@ -581,16 +585,19 @@ def _loop_realtime(agent: Agent, stop: threading.Event, wall) -> None:
     waker = threading.Thread(target=_wake_on_stop, args=(stop, done, agent._pose_inbox), daemon=True,
                              name=f"robot-{agent.id}-waker")
     waker.start()
+    cpu = time.thread_time
     try:
         while not stop.is_set():
-            agent.take_poses(agent._pose_inbox.wait())
+            got = agent._pose_inbox.wait()
+            c0 = cpu()
+            agent.take_poses(got)
             with agent.lock:
                 epoch, speed, fresh = agent.epoch, agent.speed, agent._due()
             if epoch is not None:
                 agent.drop_clock()  # the epoch is all a real-time robot needs of the clock (one message a period less)
-            if epoch is None or not fresh:
-                continue
-            agent.tick_realtime((wall() - epoch) * speed)
+            if epoch is not None and fresh:
+                agent.tick_realtime((wall() - epoch) * speed)
+            agent.loop_cpu_s += cpu() - c0
     finally:
         done.set()
         waker.join(1.0)

@@ -10,6 +10,9 @@ samples every child process with psutil while the run is under way. Figures:
   robot CPU   mean CPU of one robot process during the lock-step run [% of a core] (the real-time
               run is not sampled: sampling ~150 threads 4 times a second would disturb it)
   robot RSS   mean and largest resident memory of a robot process [MiB]
+  loop us     real time: CPU of a robot's loop thread per control period [us], the mean over robots
+              (from their logs); bench/zenoh_floor.py measures the same for a loop that only moves
+              the messages
 Targets (issue 3, N = 37 on 2 cores): launch <= 5 s, >= 100 ticks/s, p99 <= 10 ms, <= 60 MiB.
 """
 
@@ -18,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -75,6 +79,15 @@ def run(n: int, duration: float, mode: str, out: Path, speed: float = 1.0) -> tu
     return m, res
 
 
+LOOP_CPU = re.compile(r"loop CPU (\d+) us a tick")
+
+
+def loop_us(log_dir: Path) -> float:
+    """Mean over the robots of their loop thread's CPU per tick, as each robot logs it at exit."""
+    found = [float(m.group(1)) for f in log_dir.glob("robot-*.log") for m in LOOP_CPU.finditer(f.read_text())]
+    return sum(found) / len(found) if found else float("nan")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--robots", type=int, nargs="+", default=[7, 19, 37])
@@ -87,14 +100,15 @@ def main() -> None:
     print(f"{os.cpu_count()} CPUs; runs of {a.duration:g} simulated s of paper-50hz (real time at speed {a.speed:g}); "
           f"logs in {out}")
     print(f"{'N':>4} {'launch s':>9} {'ticks/s':>8} {'rt median ms':>13} {'rt p99 ms':>10} {'robot CPU %':>12} "
-          f"{'robot RSS MiB':>14} {'converged':>10} {'collisions':>10}")
+          f"{'robot RSS MiB':>14} {'loop us':>8} {'converged':>10} {'collisions':>10}")
     for n in a.robots:
         ls, res = run(n, a.duration, "lockstep", out)
         rt, _ = run(n, a.duration, "realtime", out, a.speed)
         tps = ls["steps"] / ls["run_wall_s"]
         print(f"{n:>4} {ls['launch_s']:>9.2f} {tps:>8.1f} {rt.get('round_trip_ms_median', float('nan')):>13.2f} "
               f"{rt.get('round_trip_ms_p99', float('nan')):>10.2f} {res['cpu_pct']:>12.1f} "
-              f"{res['rss_mean']:>6.1f}/{res['rss_max']:<7.1f} {str(ls['converged_at_s']):>10} "
+              f"{res['rss_mean']:>6.1f}/{res['rss_max']:<7.1f} {loop_us(out / f'logs-realtime-{n}'):>8.0f} "
+              f"{str(ls['converged_at_s']):>10} "
               f"{ls['collisions'] + rt['collisions']:>10}", flush=True)
 
 

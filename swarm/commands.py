@@ -335,8 +335,9 @@ def cmd_robot(args, started: float) -> int:
             raise Failure(str(e)) from None
         finally:
             bus.close()
-    log.info("robot %d: %d ticks, %d skipped, %d states received, %d bad messages", args.id, agent.ticks,
-             agent.skipped, agent.states_received, agent.bad.count)
+    log.info("robot %d: %d ticks, %d skipped, %d states received, %d bad messages, loop CPU %.0f us a tick",
+             args.id, agent.ticks, agent.skipped, agent.states_received, agent.bad.count,
+             1e6 * agent.loop_cpu_s / max(1, agent.ticks))
     return EXIT_INTERRUPTED
 
 

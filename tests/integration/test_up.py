@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import re
 import signal
 import socket
 import subprocess
@@ -204,3 +205,7 @@ def test_realtime_mode_runs_on_the_wall_clock_and_measures_the_round_trip(tmp_pa
     assert m["round_trips"] > 100 and 0 < m["round_trip_ms_median"] <= m["round_trip_ms_p99"]
     assert m["collisions"] == 0 and m["min_robot_distance_m"] > 0.3
     assert time.monotonic() - started < 60
+    # each robot logs its loop's CPU per tick at exit (bench/up_speed.py reads these lines)
+    loops = [re.search(r"(\d+) ticks, .* loop CPU (\d+) us a tick", (tmp_path / "logs" / f"robot-{i}.log").read_text())
+             for i in range(4)]
+    assert all(lp and int(lp.group(1)) > 100 and 0 < int(lp.group(2)) < 20_000 for lp in loops), loops

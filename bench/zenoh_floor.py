@@ -1,0 +1,264 @@
+"""The floor under `swarm up`'s real-time round trip: the same processes and messages, no control law.
+
+    python bench/zenoh_floor.py [--robots 37] [--duration 20] [--rate 50] [--work-us 0] [--transport tcp]
+
+It starts what `swarm up --mode realtime` starts (a router, a world, N robot processes, each a zenoh
+client of the router with the same session settings and runtime as swarm's), and moves the same
+messages: the world sends robot i its pose at phase i/N of every control period; robot i blocks on
+its pose inbox, drains the states in the 3x3 cells around its slot in the built-in scenario's
+formation (or its start position: `--layout start`), sends its state on its own cell key and a command that echoes the pose's time; the world
+drains its command inbox and takes the round trip. Robots do nothing else (or spin `--work-us` of CPU
+per period, to stand in for the law). So the figures are what zenoh and the processes cost on this
+machine, the floor under `python bench/up_speed.py`'s round trip.
+
+Prints the round trip (median, p99, max), the states a robot took per period, and the CPU of each
+role in cores, measured from /proc over the run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from swarm.bus import ZENOH_RUNTIME, ZenohBus, zenoh_config  # noqa: E402
+
+PREFIX = "floor"
+POSE = struct.Struct("<dI")  # time sent (CLOCK_MONOTONIC, shared by the machine's processes), robot id
+PAD = bytes(80)  # a state or a pose of swarm is ~80-100 bytes of msgpack
+
+
+def cells_of(n: int, layout: str) -> list[tuple[int, int]]:
+    """The cell of every robot of the built-in scenario with n robots: at the start (spread out) or
+    in formation (its slots around the leader's start: the densest, ~6 neighbours each)."""
+    from swarm import keys
+    from swarm.scenario_file import Overrides, load
+
+    sc = load("paper-50hz", Overrides(robots=n))
+    if layout == "start":
+        points = sc.poses[:, :2]
+    else:
+        x, y, _, _, _ = sc.leader.state(0.0)
+        points = sc.offsets + (x, y)
+    return [keys.cell_of(float(x), float(y), sc.cell_side) for x, y in points]
+
+
+def robot(i: int, n: int, endpoint: str, layout: str) -> None:
+    cells = cells_of(n, layout)
+    cx, cy = cells[i]
+    with ZenohBus(zenoh_config("client", connect=[endpoint])) as bus:
+        pose = bus.inbox(f"{PREFIX}/robot/{i}/pose", depth=8)
+        near = [bus.inbox(f"{PREFIX}/cell/{cx + a}/{cy + b}/*", depth=64) for a in (-1, 0, 1) for b in (-1, 0, 1)]
+        mine, cmd = f"{PREFIX}/cell/{cx}/{cy}/{i}", f"{PREFIX}/robot/{i}/cmd"
+        token = bus.token(f"{PREFIX}/alive/{i}")
+        work = float(os.environ.get("FLOOR_WORK_US", "0")) * 1e-6
+        states = periods = 0
+        loop_cpu = 0.0
+        stop = False
+
+        def on_term(*_):
+            nonlocal stop
+            stop = True
+            pose.wake()
+
+        signal.signal(signal.SIGTERM, on_term)
+        while not stop:
+            got = pose.wait() + pose.drain()
+            if not got:
+                continue
+            c0 = time.thread_time()
+            for box in near:
+                states += len(box.drain())
+            periods += 1
+            if work:
+                end = time.thread_time() + work
+                while time.thread_time() < end:
+                    pass
+            body = got[-1][1]
+            bus.put(mine, body + PAD, loopback=False)
+            bus.put(cmd, body, reliable=True)
+            loop_cpu += time.thread_time() - c0
+        Path(os.environ["FLOOR_OUT"], f"robot-{i}.json").write_text(json.dumps(
+            {"states_per_period": states / max(1, periods), "loop_us": 1e6 * loop_cpu / max(1, periods)}))
+        token.close()
+        for box in near + [pose]:
+            box.close()
+
+
+def world(n: int, endpoint: str, duration: float, rate: float, lockstep: bool) -> None:
+    period = 1.0 / rate
+    with ZenohBus(zenoh_config("client", connect=[endpoint])) as bus:
+        cmds = bus.inbox(f"{PREFIX}/robot/*/cmd", depth=4 * n)
+        alive: set[str] = set()
+        bus.watch_alive(f"{PREFIX}/alive/*", lambda key, up: alive.add(key) if up else alive.discard(key))
+        deadline = time.monotonic() + 60
+        while len(alive) < n:
+            if time.monotonic() > deadline:
+                sys.exit(f"zenoh_floor: only {len(alive)} of {n} robots came up in 60 s")
+            time.sleep(0.05)
+        keys = [f"{PREFIX}/robot/{i}/pose" for i in range(n)]
+        rtt: list[float] = []
+        warm = 1.0  # s of wall time left out of the figures (subscriptions settling)
+        t0 = time.monotonic() + 0.1
+        print("START", flush=True)
+        if lockstep:
+            return world_lockstep(bus, cmds, keys, t0 + warm, duration)
+        k = 0
+        while True:
+            base = t0 + k * period
+            if base - t0 > duration + warm:
+                break
+            for i in range(n):
+                slot = base + period * i / n
+                while (now := time.monotonic()) < slot:
+                    for _, body in cmds.drain():
+                        sent, _ = POSE.unpack_from(body)
+                        if sent > t0 + warm:
+                            rtt.append(now - sent)
+                    time.sleep(min(0.0005, slot - now))
+                bus.put(keys[i], POSE.pack(time.monotonic(), i))
+            k += 1
+        print("STOP", flush=True)
+        rtt.sort()
+        q = (lambda p: 1e3 * rtt[min(len(rtt) - 1, int(p * len(rtt)))]) if rtt else (lambda p: float("nan"))
+        print(json.dumps({"commands": len(rtt), "expected": int(duration * rate) * n,
+                          "median_ms": q(0.5), "p99_ms": q(0.99), "max_ms": q(1.0)}), flush=True)
+
+
+def world_lockstep(bus, cmds, keys: list[str], t_start: float, duration: float) -> None:
+    """Lock-step: every pose of tick k at once, then every command of tick k, then tick k + 1. The
+    robots do not wait for their neighbours' states (swarm's do), so this bounds swarm's rate from above."""
+    n, ticks, t_end = len(keys), 0, t_start + duration
+    while (now := time.monotonic()) < t_end:
+        stamp = POSE.pack(now, 0)
+        for key in keys:
+            bus.put(key, stamp, reliable=True)
+        got = 0
+        while got < n:
+            got += len(cmds.wait()) + len(cmds.drain())
+        ticks += now >= t_start
+    print("STOP", flush=True)
+    print(json.dumps({"ticks_per_s": ticks / duration}), flush=True)
+
+
+def router(endpoint: str) -> None:
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    with ZenohBus(zenoh_config("router", listen=[endpoint])):
+        print("READY", flush=True)
+        stop.wait(600)
+
+
+def cpu_s(pid: int) -> float:
+    f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--robots", type=int, default=37)
+    ap.add_argument("--duration", type=float, default=20.0, help="measured seconds (after 1 s of warm-up)")
+    ap.add_argument("--rate", type=float, default=50.0, help="real time: control rate [Hz]")
+    ap.add_argument("--mode", choices=("realtime", "lockstep"), default="realtime",
+                    help="real time (the round trip at --rate) or lock-step (ticks per second, as fast as it goes)")
+    ap.add_argument("--work-us", type=float, default=0.0, help="CPU a robot spins per period, standing in for the law")
+    ap.add_argument("--transport", choices=("tcp", "unix"), default="tcp",
+                    help="tcp on 127.0.0.1 (as swarm up), or a unix socket (unixsock-stream)")
+    ap.add_argument("--layout", choices=("formation", "start"), default="formation",
+                    help="robots' cells: their formation slots (dense) or their start poses (spread out)")
+    ap.add_argument("--role", choices=("router", "world", "robot"), help=argparse.SUPPRESS)
+    ap.add_argument("--id", type=int, default=0, help=argparse.SUPPRESS)
+    ap.add_argument("--endpoint", help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.robots < 1 or a.duration <= 0 or a.rate <= 0 or a.work_us < 0:
+        ap.error("--robots, --duration and --rate must be positive, --work-us not negative")
+    if a.role == "router":
+        return router(a.endpoint)
+    if a.role == "world":
+        return world(a.robots, a.endpoint, a.duration, a.rate, a.mode == "lockstep")
+    if a.role == "robot":
+        return robot(a.id, a.robots, a.endpoint, a.layout)
+
+    tmp = Path(tempfile.mkdtemp(prefix="floor-"))
+    if a.transport == "tcp":
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    else:
+        endpoint = f"unixsock-stream/{tmp / 'router.sock'}"
+    env = dict(os.environ, FLOOR_WORK_US=str(a.work_us), FLOOR_OUT=str(tmp), PYTHONPATH=str(ROOT))
+    me = [sys.executable, __file__, "--robots", str(a.robots), "--duration", str(a.duration), "--rate", str(a.rate),
+          "--endpoint", endpoint, "--layout", a.layout, "--mode", a.mode]
+    procs: dict[str, list[subprocess.Popen]] = {"router": [], "world": [], "robot": []}
+
+    def start(role: str, *extra: str, **kw) -> subprocess.Popen:
+        e = dict(env, ZENOH_RUNTIME=ZENOH_RUNTIME) if role == "robot" else env  # as swarm's launcher does
+        p = subprocess.Popen(me + ["--role", role, *extra], env=e, start_new_session=True, text=True, **kw)
+        procs[role].append(p)
+        return p
+
+    def kill_all() -> None:
+        for ps in (procs["robot"], procs["world"], procs["router"]):
+            for p in ps:
+                if p.poll() is None:
+                    os.killpg(p.pid, signal.SIGKILL)
+                    p.wait(timeout=10)
+
+    watchdog = threading.Timer(a.duration + 120, kill_all)  # a hung run ends: the world's output then ends too
+    watchdog.start()
+    try:
+        r = start("router", stdout=subprocess.PIPE)
+        if r.stdout.readline().strip() != "READY":
+            sys.exit("zenoh_floor: the router did not start")
+        w = start("world", stdout=subprocess.PIPE)
+        for i in range(a.robots):
+            start("robot", "--id", str(i))
+        if w.stdout.readline().strip() != "START":
+            sys.exit("zenoh_floor: the world did not start")
+        time.sleep(1.0)  # the world's warm-up second, left out of its figures too
+        every = [p for ps in procs.values() for p in ps]
+        c0, w0 = {p.pid: cpu_s(p.pid) for p in every}, time.monotonic()
+        if w.stdout.readline().strip() != "STOP":
+            sys.exit("zenoh_floor: the world failed")
+        c1, w1 = {p.pid: cpu_s(p.pid) for p in every}, time.monotonic()
+        res = json.loads(w.stdout.readline())
+        w.wait(timeout=10)
+        for p in procs["robot"]:
+            p.send_signal(signal.SIGTERM)
+        for p in procs["robot"]:
+            p.wait(timeout=10)
+        rows = [json.loads(f.read_text()) for f in tmp.glob("robot-*.json")]
+        per = [r["states_per_period"] for r in rows]
+        loop_us = sum(r["loop_us"] for r in rows) / max(1, len(rows))
+        cores = {role: sum(c1[p.pid] - c0[p.pid] for p in ps) / (w1 - w0) for role, ps in procs.items()}
+        if a.mode == "lockstep":
+            head = f"N = {a.robots}, lock-step, {a.transport}, {a.layout}, work {a.work_us:g} us/tick, {a.duration:g} s: " \
+                   f"{res['ticks_per_s']:.1f} ticks/s; "
+        else:
+            head = f"N = {a.robots}, {a.rate:g} Hz, {a.transport}, {a.layout}, work {a.work_us:g} us/period, " \
+                   f"{a.duration:g} s: round trip median {res['median_ms']:.2f} ms, p99 {res['p99_ms']:.2f} ms, max " \
+                   f"{res['max_ms']:.1f} ms ({res['commands']} of {res['expected']} commands); "
+        per_what = "tick" if a.mode == "lockstep" else "period"
+        print(head +
+              f"{sum(per) / max(1, len(per)):.1f} states per robot per {per_what}; a robot's loop thread {loop_us:.0f} us "
+              f"of CPU per {per_what} (work included); CPU [cores]: "
+              + ", ".join(f"{k} {v:.2f}" for k, v in cores.items()) + f" (robot {100 * cores['robot'] / a.robots:.1f} % each)")
+    finally:
+        watchdog.cancel()
+        kill_all()
+
+
+if __name__ == "__main__":
+    main()
