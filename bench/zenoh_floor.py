@@ -1,18 +1,21 @@
-"""The floor under `swarm up`'s real-time round trip: the same processes and messages, no control law.
+"""The floor under `swarm up`: the same processes and messages, with robots that compute nothing.
 
-    python bench/zenoh_floor.py [--robots 37] [--duration 20] [--rate 50] [--work-us 0] [--transport tcp]
+    python bench/zenoh_floor.py [--robots 37] [--duration 20] [--mode realtime|lockstep] [--rate 50]
+                                [--work-us 0] [--transport tcp|unix] [--layout formation|start]
 
-It starts what `swarm up --mode realtime` starts (a router, a world, N robot processes, each a zenoh
-client of the router with the same session settings and runtime as swarm's), and moves the same
-messages: the world sends robot i its pose at phase i/N of every control period; robot i blocks on
-its pose inbox, drains the states in the 3x3 cells around its slot in the built-in scenario's
-formation (or its start position: `--layout start`), sends its state on its own cell key and a command that echoes the pose's time; the world
-drains its command inbox and takes the round trip. Robots do nothing else (or spin `--work-us` of CPU
-per period, to stand in for the law). So the figures are what zenoh and the processes cost on this
-machine, the floor under `python bench/up_speed.py`'s round trip.
+It starts what `swarm up` starts (a router, a world, N robot processes, each a zenoh client of the
+router with swarm's session settings and runtime) and moves the same messages. Real time: the world
+sends robot i its pose at phase i/N of every control period; robot i blocks on its pose inbox, drains
+the states in the 3x3 cells around its slot in the built-in scenario's formation (or its start
+position: `--layout start`), sends its state on its own cell key and a command that echoes the pose's
+time; the world drains its command inbox and takes the round trip. Lock-step: the world sends every
+pose of a tick at once and waits for every command before the next tick (its robots wait for no
+neighbour, so this bounds swarm's rate from above). Robots do nothing else, or spin `--work-us` of CPU
+a period to stand in for decoding, the law and encoding. So the figures are what zenoh and 40 processes
+cost on this machine: the floor under `python bench/up_speed.py` (docs/runtime.md compares them).
 
-Prints the round trip (median, p99, max), the states a robot took per period, and the CPU of each
-role in cores, measured from /proc over the run.
+Prints the round trip (median, p99, max) or the ticks per second, the states a robot took per period,
+its loop thread's CPU per period, and the CPU of each role in cores, from /proc over the run.
 """
 
 from __future__ import annotations
