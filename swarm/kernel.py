@@ -45,7 +45,12 @@ A_MIN_RR = 0  # smallest robot-robot distance seen [m] (inf: none within the cel
 A_MIN_RO = 1  # smallest robot-obstacle distance [m]
 A_PMAX = 2  # largest position error at the last evaluated step [m]
 A_EMAX = 3  # largest |e_theta| at the last evaluated step [rad]
-A_SIZE = 4
+A_FAR_RR = 4  # smallest robot-robot distance over the steps with no pair within the cell side yet [m]
+A_FAR_RO = 5  # the same for robot-obstacle pairs [m]
+A_SIZE = 6
+# While no pair has come within the cell side, every pair is measured at every step (the metrics
+# contract samples every step), up to this many pairs; beyond it metrics fall back to the samples.
+FAR_PAIRS_MAX = 8192
 # Integer accumulators (iacc).
 I_COLLISIONS = 0
 I_LAST_BAD = 1  # last step with some robot not converged (-1: none)
@@ -169,6 +174,19 @@ def run_steps(k0, k1, n_steps, q, comp, mem, cmd, offsets, radius, obstacles,
                 rec_err[s, i, 0] = px
                 rec_err[s, i, 1] = py
                 rec_err[s, i, 2] = ee
+        # nobody within the cell side so far: the smallest distance is that of the farther pairs
+        if acc[A_MIN_RR] == math.inf and n * (n - 1) // 2 <= FAR_PAIRS_MAX:
+            for i in range(n):
+                for j in range(i + 1, n):
+                    d = math.sqrt((q[i, 0] - q[j, 0]) ** 2 + (q[i, 1] - q[j, 1]) ** 2)
+                    if d < acc[A_FAR_RR]:
+                        acc[A_FAR_RR] = d
+        if m > 0 and acc[A_MIN_RO] == math.inf and n * m <= FAR_PAIRS_MAX:
+            for i in range(n):
+                for o in range(m):
+                    d = math.sqrt((q[i, 0] - oxs[o]) ** 2 + (q[i, 1] - oys[o]) ** 2)
+                    if d < acc[A_FAR_RO]:
+                        acc[A_FAR_RO] = d
         # collisions: pairs inside now that were not inside at the previous step
         n_prev = iacc[I_N_PAIRS]
         for c in range(n_cur):
@@ -216,8 +234,7 @@ def run_steps(k0, k1, n_steps, q, comp, mem, cmd, offsets, radius, obstacles,
 
 def new_accumulators() -> tuple[np.ndarray, np.ndarray]:
     acc = np.zeros(A_SIZE)
-    acc[A_MIN_RR] = np.inf
-    acc[A_MIN_RO] = np.inf
+    acc[A_MIN_RR] = acc[A_MIN_RO] = acc[A_FAR_RR] = acc[A_FAR_RO] = np.inf
     iacc = np.zeros(I_SIZE, np.int64)
     iacc[I_LAST_BAD] = -1
     iacc[I_LAST_FROZEN] = -1

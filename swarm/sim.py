@@ -169,10 +169,16 @@ class Simulation:
         last_frozen = int(self.iacc[k.I_LAST_FROZEN])
         min_rr = float(self.acc[k.A_MIN_RR])
         min_ro = float(self.acc[k.A_MIN_RO])
+        # nobody ever came within the cell side: every pair was measured at every step (or, for more
+        # than kernel.FAR_PAIRS_MAX pairs, the recorded samples stand in)
         if not math.isfinite(min_rr) and scn.n >= 2:
-            min_rr = _min_pair_distance(self.recording().q)  # nobody ever came within the cell side
+            min_rr = float(self.acc[k.A_FAR_RR])
+            if not math.isfinite(min_rr):
+                min_rr = _min_pair_distance(self.recording().q)
         if not math.isfinite(min_ro) and len(scn.obstacles) and scn.n:
-            min_ro = _min_obstacle_distance(self.recording().q, scn.obstacles)
+            min_ro = float(self.acc[k.A_FAR_RO])
+            if not math.isfinite(min_ro):
+                min_ro = _min_obstacle_distance(self.recording().q, scn.obstacles)
         return metrics.record(
             scn, duration_s=_step_time(max(last, 0), scn.dt), converged_at_s=converged_at,
             position_error_max=self.acc[k.A_PMAX], orientation_error_max=self.acc[k.A_EMAX],

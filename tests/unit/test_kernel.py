@@ -270,6 +270,18 @@ def reference_metrics(scn: Scenario):
     }
 
 
+def _far_apart_doc():
+    """Nobody ever within the cell side: two robots pass each other 2 m apart and an obstacle 3 m off,
+    at dt = 0.01 s, so the closest approach falls between the 0.05 s samples."""
+    return {
+        "run": {"duration": 4.0, "dt": 0.01},
+        "leader": {"start": [0.0, 0.0, 7.0], "segments": [{"duration": 4.0, "v": 0.3, "w": 0.0}]},
+        "formation": {"offsets": [[0.0, 0.0], [0.0, 2.0]]},
+        "robots": {"poses": [[0.0, 0.0, 7.0], [0.3, 2.0, -12.5]]},
+        "obstacles": [{"center": [0.7, -3.2]}],
+    }
+
+
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize(
     "make",
@@ -280,8 +292,9 @@ def reference_metrics(scn: Scenario):
         lambda: sf.resolve(sf.parse(_two_body_doc(False, False), "t", "h")).replace(duration=10.0),
         lambda: sf.resolve(sf.parse(_two_body_doc(True, False), "t", "h")).replace(duration=10.0),
         lambda: sf.load("paper-50hz", sf.Overrides(robots=7, seed=4, duration=30.0)),
+        lambda: sf.resolve(sf.parse(_far_apart_doc(), "t", "far")),
     ],
-    ids=["obstacle-bounces", "head-on-free", "head-on-governed", "paper-50hz-7"],
+    ids=["obstacle-bounces", "head-on-free", "head-on-governed", "paper-50hz-7", "far-apart"],
 )
 def test_metrics_equal_their_definition_evaluated_at_every_step(make):
     scn = make()
