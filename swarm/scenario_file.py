@@ -284,7 +284,9 @@ def resolve(spec: Spec, ov: Overrides = Overrides()) -> Scenario:
                       "resizes scenarios made by generators (formation.hex, robots.random)")
 
     if len(poses) != len(offsets):
-        raise rd.fail("robots", f"{len(poses)} robot poses but {len(offsets)} formation offsets: "
+        key = ("robots.random" if spec.random is not None else "robots.poses") + " / " + \
+            ("formation.hex" if spec.hex is not None else "formation.offsets")
+        raise rd.fail(key, f"{len(poses)} robot poses but {len(offsets)} formation offsets: "
                       "give one offset per robot")
     if spec.assignment == "random":
         offsets = offsets[rng.permutation(len(offsets))]
