@@ -15,15 +15,17 @@ imports nothing of the world: the same agent drives a simulated or a real robot.
 Lock-step tick k (the world owns the clock; DESIGN.md section 3):
   1. pose_k arrives: move the cell subscriptions (the old block is kept one more tick) and
      publish state_k on the cell key.
-  2. Wait for state_k of every live robot whose state_(k-1) was within R + 2L, where
-     L = (side - R) / 3 is the largest step the protocol assumes (a robot that can matter
-     at k, closer than R, was that close at k-1; one that was that close is still inside
-     the cells subscribed at k-1, so its state_k is sure to arrive), for ref_k and for
-     clock_k (clock_0 is the world's start barrier: every state_0 has been delivered).
-     After `wait_timeout` seconds it goes on with what it has and counts the missing as stale.
+  2. Wait for state_k of every live robot whose state_(k-1) was within reach + 2L, where
+     reach is the largest R (the law ignores bodies farther than that) and L = (side - reach) / 3
+     is the largest step the protocol assumes (a robot that can matter at k, closer than reach,
+     was within reach + 2L at k-1; one that was that close is still inside the cells subscribed
+     at k-1, so its state_k is sure to arrive), for ref_k and for clock_k (clock_0 is the world's
+     start barrier: every state_0 has been delivered). After `wait_timeout` seconds it goes on
+     with what it has and counts the missing as stale. The world counts the robot-ticks that
+     moved more than L (metrics `lockstep_overruns`): only then can a run differ from swarm sim.
   3. Compute cmd_k from the bodies closer than the cell side in ascending id order (the
-     simulator's order: robots by id, then obstacles, then dead robots as static bodies) and
-     publish it.
+     simulator's order: robots by id, then obstacles, then dead robots as static bodies; the
+     law uses those closer than reach) and publish it.
 Real time: for every new pose it takes the newest reference (advanced exactly along the
 leader's arc to now on its own clock) and neighbour states (with their age: older than
 STALE_AFTER_S counts as stale, older than FORGET_AFTER_S is dropped), and publishes state and
@@ -80,10 +82,12 @@ class Agent:
         self.p[law.P_K1], self.p[law.P_K2], self.p[law.P_K3] = cfg.k1, cfg.k2, cfg.k3
         self.p[law.P_TU], self.p[law.P_VT], self.p[law.P_THRESHOLD] = cfg.tu, cfg.vt, float(cfg.threshold)
         self.p[law.P_GOVERNOR] = 1.0 if cfg.governor else 0.0
-        self.p[law.P_DT], self.p[law.P_SENSE] = cfg.dt, cfg.sense
+        self.p[law.P_DT], self.p[law.P_SENSE], self.p[law.P_REACH] = cfg.dt, cfg.sense, cfg.reach
         self.mem = [0.0] * law.M_SIZE
         self.mem[law.M_SCALE] = 1.0
         self.side = cfg.sense
+        # lock-step: L = (side - reach) / 3 is the largest step the wait rule assumes (docs/runtime.md)
+        self._wait_reach = cfg.reach + 2.0 * (cfg.sense - cfg.reach) / 3.0
         self._cmd_key, self._status_key = keys.robot_cmd(fleet, self.id), keys.robot_status(fleet, self.id)
         self.lock = threading.Lock()
         self.wake = threading.Event()
@@ -339,11 +343,10 @@ class Agent:
             px, py = self.prev_xy if self.prev_xy is not None else (pose.x, pose.y)
             self.waiting = set()
             dead = self.dead
+            reach2 = self._wait_reach * self._wait_reach
             for j, nb in self.table.items():
-                if nb.seq == k - 1 and j not in dead:
-                    reach = nb.R + 2.0 * (self.side - max(self.cfg.R, nb.R)) / 3.0
-                    if (px - nb.x) ** 2 + (py - nb.y) ** 2 < reach * reach:
-                        self.waiting.add(j)
+                if nb.seq == k - 1 and j not in dead and (px - nb.x) ** 2 + (py - nb.y) ** 2 < reach2:
+                    self.waiting.add(j)
             self.deadline = self.clock() + self.wait_timeout
             self.k_started = k
 

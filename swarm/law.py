@@ -41,8 +41,9 @@ P_VT = 4
 P_THRESHOLD = 5  # one of THRESHOLD_*
 P_GOVERNOR = 6  # 1.0 on, 0.0 off
 P_DT = 7  # s, the control period
-P_SENSE = 8  # m, bodies closer than this are known (the cell side)
-P_SIZE = 9
+P_SENSE = 8  # m, bodies closer than this are known (the cell side): callers pass them to the law
+P_REACH = 9  # m, bodies closer than this act on the command (the largest R); farther known ones are ignored
+P_SIZE = 10
 
 # Layout of the per-robot memory vector `mem` (freeze state), updated in place.
 M_FROZEN = 0  # 1.0 while frozen
@@ -180,22 +181,24 @@ def freeze_update(mem, inside, t, xl, yl, thl, tu):
 
 
 @_jit
-def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, dt, sense):
-    """Largest |v| [m/s] with which one step of length dt keeps every known body safe.
+def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, dt, reach):
+    """Largest |v| [m/s] with which one step of length dt keeps every body safe.
 
     Over a step the robot moves at most |v| dt (an arc is no shorter than its chord).
     A static body may take GOVERNOR_FRACTION of the clearance l - r per step, another
     robot half of that (it may close by as much). Clearance then shrinks at most
-    geometrically and never reaches zero. Bodies beyond `sense` are unknown; to keep
-    them safe too, |v| dt is also held below the same share of (sense - r_self).
+    geometrically and never reaches zero. Bodies at `reach` or farther are left out;
+    to keep them safe too, |v| dt is also held below the same share of (reach - r_self).
     A body already inside (clearance <= 0) sets no limit: the clamped repulsion
     pushes the robot out and stopping it there would trap it.
     """
-    limit = 0.5 * GOVERNOR_FRACTION * (sense - r_self) / dt
+    limit = 0.5 * GOVERNOR_FRACTION * (reach - r_self) / dt
     for k in range(n):
         dx = x - nx[k]
         dy = y - ny[k]
         l = math.sqrt(dx * dx + dy * dy)
+        if l >= reach:
+            continue
         if nk[k] == KIND_ROBOT:
             c = l - max(r_self, nr[k])
             share = 0.5 * GOVERNOR_FRACTION
@@ -216,16 +219,22 @@ def robot_command(x, y, th, ox, oy, r_self, t, xl, yl, thl, vl, wl, nx, ny, nr, 
     x, y, th: the robot's pose; (ox, oy): its formation offset d_i; r_self: its radius;
     t: the step time [s]; (xl, yl, thl, vl, wl): the live leader reference;
     nx, ny, nr, nR, nk: the first n entries are the known bodies (closer than p[P_SENSE])
-    in summation order, with radii and kind (KIND_ROBOT / KIND_OBSTACLE);
+    in summation order, with radii and kind (KIND_ROBOT / KIND_OBSTACLE); only those closer
+    than p[P_REACH] (the largest R) act on the command: the repulsion of a body is zero
+    beyond its R anyway, and the governor leaves them out too, so a distributed robot needs
+    exactly the bodies its lock-step wait rule guarantees (docs/runtime.md);
     mem: this robot's memory (M_* layout), updated; p: parameters (P_* layout).
     Returns (v [m/s], w [rad/s]).
     """
     gx = 0.0
     gy = 0.0
     inside = False
+    reach2 = p[P_REACH] * p[P_REACH]
     for k in range(n):
         dx = x - nx[k]
         dy = y - ny[k]
+        if dx * dx + dy * dy >= reach2:
+            continue
         if nk[k] == KIND_ROBOT and dx * dx + dy * dy < nR[k] * nR[k]:
             inside = True
         ax, ay = repulsion_gradient(x, y, nx[k], ny[k], nr[k], nR[k])
@@ -244,7 +253,7 @@ def robot_command(x, y, th, ox, oy, r_self, t, xl, yl, thl, vl, wl, nx, ny, nr, 
     v = apply_threshold(v, p[P_VT], int(p[P_THRESHOLD]), frozen)
     scale = 1.0
     if p[P_GOVERNOR] != 0.0:
-        limit = governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, p[P_DT], p[P_SENSE])
+        limit = governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, p[P_DT], p[P_REACH])
         if abs(v) > limit:
             scale = limit / abs(v)
             v *= scale

@@ -161,6 +161,7 @@ class Config:
     governor: bool
     dt: float  # control period [s]
     sense: float  # cell side = sensing range [m]
+    reach: float  # the largest R of any body [m]: bodies closer than this act on the command (R <= reach < sense)
     lockstep: bool
 
 
@@ -267,7 +268,7 @@ _SPEC: dict[str, tuple[tuple[str, str], ...]] = {
     "clock": (("t", "n"), ("seq", "i"), ("epoch", "n"), ("speed", "n")),
     "config": (("id", "id"), ("x", "n"), ("y", "n"), ("theta", "n"), ("dx", "n"), ("dy", "n"), ("r", "n"),
                ("R", "n"), ("k1", "n"), ("k2", "n"), ("k3", "n"), ("tu", "n"), ("vt", "n"), ("threshold", "i"),
-               ("governor", "b"), ("dt", "n"), ("sense", "n"), ("lockstep", "b")),
+               ("governor", "b"), ("dt", "n"), ("sense", "n"), ("reach", "n"), ("lockstep", "b")),
     "progress": (("t", "n"), ("seq", "i"), ("duration", "n"), ("robots", "i"), ("alive", "i"),
                  ("converged", "i"), ("frozen", "i"), ("min_distance", "n"), ("misses", "i"), ("bad", "i")),
 }
@@ -402,8 +403,8 @@ def _check_config(c: Config) -> None:
     _nonnegative(c, "vt")
     if c.threshold not in (0, 1, 2):
         raise ProtocolError(f"field 'threshold' must be 0, 1 or 2, got {c.threshold}")
-    if c.sense < c.R:
-        raise ProtocolError(f"field 'sense' ({c.sense}) must be >= R ({c.R})")
+    if not c.R <= c.reach < c.sense:
+        raise ProtocolError(f"fields must hold R <= reach < sense, got R {c.R}, reach {c.reach}, sense {c.sense}")
 
 
 _CHECK = {

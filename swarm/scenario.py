@@ -19,7 +19,9 @@ from swarm import kinematics, law
 THRESHOLDS = {"off": law.THRESHOLD_OFF, "frozen": law.THRESHOLD_FROZEN, "always": law.THRESHOLD_ALWAYS}
 
 # Cell side = the largest R plus this margin (DESIGN.md section 5): bodies closer than
-# the cell side are "known" to a robot (its 3x3 cells hold all of them).
+# the cell side are "known" to a robot (its 3x3 cells hold all of them); those closer than
+# the largest R act on its command. Lock-step equals swarm sim while no robot moves more
+# than a third of the margin in one tick (docs/runtime.md).
 CELL_MARGIN = 0.3  # m
 
 
@@ -53,14 +55,14 @@ class Control:
         if self.threshold not in THRESHOLDS:
             raise ValueError(f"control.threshold must be one of {sorted(THRESHOLDS)}, got {self.threshold!r}")
 
-    def vector(self, dt: float, sense: float) -> np.ndarray:
+    def vector(self, dt: float, sense: float, reach: float) -> np.ndarray:
         """The law's parameter vector (swarm.law P_* layout)."""
         p = np.zeros(law.P_SIZE)
         p[law.P_K1], p[law.P_K2], p[law.P_K3] = self.k1, self.k2, self.k3
         p[law.P_TU], p[law.P_VT] = self.tu, self.vt
         p[law.P_THRESHOLD] = THRESHOLDS[self.threshold]
         p[law.P_GOVERNOR] = 1.0 if self.governor else 0.0
-        p[law.P_DT], p[law.P_SENSE] = dt, sense
+        p[law.P_DT], p[law.P_SENSE], p[law.P_REACH] = dt, sense, reach
         return p
 
 
@@ -119,13 +121,17 @@ class Scenario:
         return int(math.ceil(self.duration / self.dt - 1e-9))
 
     @property
+    def reach(self) -> float:
+        """The largest R of any body [m]: bodies closer than this act on a robot's command."""
+        return max([float(self.R)] + [float(R) for R in self.obstacles[:, 3]])
+
+    @property
     def cell_side(self) -> float:
         """Side of a neighbourhood cell [m]: the largest R plus a margin."""
-        big_r = max([self.R] + [float(R) for R in self.obstacles[:, 3]])
-        return big_r + CELL_MARGIN
+        return self.reach + CELL_MARGIN
 
     def params(self) -> np.ndarray:
-        return self.control.vector(self.dt, self.cell_side)
+        return self.control.vector(self.dt, self.cell_side, self.reach)
 
     def robot_config(self, i: int, lockstep: bool = True):
         """Robot i's slice of the scenario (what its agent is given; never the others' state)."""
@@ -137,7 +143,7 @@ class Scenario:
         return Config(id=i, x=x, y=y, theta=th, dx=float(self.offsets[i, 0]), dy=float(self.offsets[i, 1]),
                       r=float(self.r), R=float(self.R), k1=c.k1, k2=c.k2, k3=c.k3, tu=c.tu, vt=c.vt,
                       threshold=THRESHOLDS[c.threshold], governor=c.governor, dt=float(self.dt),
-                      sense=float(self.cell_side), lockstep=lockstep)
+                      sense=float(self.cell_side), reach=self.reach, lockstep=lockstep)
 
     def replace(self, **changes) -> "Scenario":
         from dataclasses import replace

@@ -32,6 +32,7 @@ import numpy as np
 
 from swarm import keys, kinematics, protocol
 from swarm.protocol import Clock, Obstacle, Obstacles, Pose, ProtocolError, RobotSnap, Snapshot
+from swarm.record import pairs_within
 from swarm.scenario import Scenario
 from world.referee import Referee
 
@@ -82,6 +83,10 @@ class World:
         self.bad = protocol.BadMessages(log)
         self.robot_bad: dict[int, int] = {}
         self.misses = 0
+        # lock-step: pairs of robots a tick that the agents' wait rule could not cover (see _check_wait_rule)
+        self.step_bound = (scn.cell_side - scn.reach) / 3.0  # L, the largest step the rule assumes
+        self.wait_reach = scn.reach + 2.0 * self.step_bound
+        self.overruns = 0
         self.round_trips: list[float] = []  # real time: s from publishing a pose to the command computed from it
         self._pose_sent: dict[float, float] = {}
         self.k = 0
@@ -264,6 +269,7 @@ class World:
         return self.referee.metrics(
             time.perf_counter() - started, interrupted, "lockstep" if self.lockstep else "realtime",
             cmd_misses=self.misses, bad_messages=self.bad_total(), steps=self.k,
+            **({"lockstep_overruns": self.overruns} if self.lockstep else {}),
             robots_alive_at_end=int(self.alive.sum()), run_wall_s=time.perf_counter() - self._run_started,
             **self._latency())
 
@@ -321,6 +327,7 @@ class World:
                         break
                 self.wake.wait(min(left, 0.5))
                 self.wake.clear()
+            before = np.array(self.q)[:, :2]
             for i in range(self.n):
                 if i in pending:
                     self.cmd[i] = pending.pop(i)
@@ -333,7 +340,35 @@ class World:
                 kinematics.step_pose(self.q[i], self.comp[i], v, w, dt)
                 if not all(math.isfinite(a) for a in self.q[i]):
                     raise RuntimeError(f"robot {i} reached a non-finite pose at t = {t + dt:g} s")
+            self._check_wait_rule(t + dt, before)
         return stop.is_set()
+
+    def _check_wait_rule(self, t: float, before: np.ndarray) -> None:
+        """Lock-step: count the pairs of live robots the agents' wait rule did not cover this tick. At
+        tick k + 1 agent i waits for robot j iff j was within wait_reach (reach + 2L) at tick k, and its
+        law uses j iff j is within reach. The rule covers every pair while no robot moves more than L
+        in a tick; a faster robot can (a) come within reach of one that did not wait for it, or (b) leave
+        the cells an agent waiting for it listens to. Then the run may differ from swarm sim."""
+        live = np.flatnonzero(self.alive)
+        if live.size < 2:
+            return
+        now = np.array(self.q)[live, :2]
+        was = before[live]
+        side = self.scn.cell_side
+        i, j, _ = pairs_within(now[:, 0], now[:, 1], self.scn.reach)
+        unannounced = int(np.count_nonzero(np.hypot(*(was[i] - was[j]).T) >= self.wait_reach))
+        i, j, _ = pairs_within(was[:, 0], was[:, 1], self.wait_reach)
+        c_was, c_now = np.floor(was / side), np.floor(now / side)
+        lost = int(np.count_nonzero((np.abs(c_now[j] - c_was[i]).max(axis=1) > 1)
+                                    | (np.abs(c_now[i] - c_was[j]).max(axis=1) > 1)))
+        if unannounced or lost:
+            first = self.overruns == 0
+            self.overruns += unannounced + lost
+            if first or self.overruns // 1000 > (self.overruns - unannounced - lost) // 1000:
+                log.warning("at t = %g s robots moved farther than the %.3f m a lock-step tick assumes (a third of "
+                            "the cell margin): %d pairs came within reach unannounced, %d left the cells of a robot "
+                            "waiting for them (%d so far). This run may differ from swarm sim; a smaller --dt "
+                            "shortens the steps", t, self.step_bound, unannounced, lost, self.overruns)
 
     def _run_realtime(self, stop: threading.Event) -> bool:
         """Real time. Robot i's pose goes out once per control period at phase i/N of it (staggered,

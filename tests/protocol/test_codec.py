@@ -23,7 +23,7 @@ MESSAGES = [
                                         p.RobotSnap(4, 0.0, 0.0, 0.0, 0.0, 0.0, True, False))),
     p.Clock(t=1.0, seq=50, epoch=1.7e9, speed=2.0),
     p.Config(id=3, x=1.0, y=2.0, theta=0.1, dx=1.5, dy=0.0, r=0.3, R=1.2, k1=0.5, k2=0.5, k3=1.0, tu=1.0, vt=0.05,
-             threshold=1, governor=True, dt=0.02, sense=1.5, lockstep=True),
+             threshold=1, governor=True, dt=0.02, sense=1.5, reach=1.2, lockstep=True),
     p.Progress(t=1.0, seq=50, duration=120.0, robots=37, alive=37, converged=3, frozen=2, min_distance=-1.0,
                misses=0, bad=0),
 ]
@@ -162,7 +162,8 @@ def test_config_ranges_and_key_id():
     with pytest.raises(p.ProtocolError, match="does not match"):
         p.decode(good, "config", 4)
     d = msgpack.unpackb(good)
-    for change, message in (({"threshold": 5}, "threshold"), ({"sense": 1.0}, "sense"), ({"k1": 0.0}, "k1")):
+    for change, message in (({"threshold": 5}, "threshold"), ({"sense": 1.0}, "sense"), ({"reach": 1.0}, "reach"),
+                            ({"reach": 1.5}, "reach < sense"), ({"k1": 0.0}, "k1")):
         with pytest.raises(p.ProtocolError, match=message):
             p.decode(msgpack.packb({**d, **change}))
 

@@ -15,7 +15,8 @@ from swarm.protocol import Clock, Config, Pose, Ref, State
 
 F = "t"
 CFG = Config(id=3, x=0.0, y=0.0, theta=0.0, dx=1.5, dy=-0.5, r=0.3, R=1.2, k1=0.5, k2=0.5, k3=1.0, tu=1.0,
-             vt=0.05, threshold=law.THRESHOLD_FROZEN, governor=True, dt=0.02, sense=1.5, lockstep=True)
+             vt=0.05, threshold=law.THRESHOLD_FROZEN, governor=True, dt=0.02, sense=1.5, reach=1.2,
+             lockstep=True)
 
 
 class Wire:
@@ -58,7 +59,7 @@ def law_command(pose, ref, t, bodies, mem=None, cfg=CFG, horizon=None):
     mem = mem if mem is not None else [0.0] * law.M_SIZE
     p = [0.0] * law.P_SIZE
     p[law.P_K1], p[law.P_K2], p[law.P_K3], p[law.P_TU], p[law.P_VT] = cfg.k1, cfg.k2, cfg.k3, cfg.tu, cfg.vt
-    p[law.P_THRESHOLD], p[law.P_GOVERNOR], p[law.P_SENSE] = cfg.threshold, 1.0, cfg.sense
+    p[law.P_THRESHOLD], p[law.P_GOVERNOR], p[law.P_SENSE], p[law.P_REACH] = cfg.threshold, 1.0, cfg.sense, cfg.reach
     p[law.P_DT] = cfg.dt if horizon is None else horizon
     nx, ny, nr, nR, nk = ([b[i] for b in bodies] for i in range(5))
     return law.robot_command(pose[0], pose[1], pose[2], cfg.dx, cfg.dy, cfg.r, t, *ref, nx, ny, nr, nR, nk,
@@ -105,6 +106,26 @@ def test_waits_for_neighbours_known_at_the_previous_tick():
     w.put(keys.cell(F, 0, 0, 5), State(id=5, t=0.02, seq=1, x=1.0, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False))
     assert w.agent.tick_lockstep()
     assert len(w.cmds) == 2
+
+
+@pytest.mark.parametrize("distance, awaited", [(2.15, True), (2.25, False)])
+def test_the_wait_reach_follows_the_largest_R_of_any_body(distance, awaited):
+    """An obstacle with R = 2 makes the law's reach 2 m (the governor counts robots that close), so
+    with cells of 2.3 m (L = 0.1 m) the agent waits for robots within 2.2 m at the previous tick."""
+    cfg = Config(**{**CFG.__dict__, "sense": 2.3, "reach": 2.0})
+    w = Wire(cfg)
+    ref = (0.0, 0.0, 0.0, 0.5, 0.0)
+    w.put(keys.leader_ref(F), Ref(t=0.0, seq=0, x=0.0, y=0.0, theta=0.0, v=0.5, w=0.0))
+    w.put(keys.robot_pose(F, cfg.id), Pose(t=0.0, seq=0, x=0.0, y=0.0, theta=0.0))
+    w.agent.tick_lockstep()
+    w.put(keys.cell(F, *keys.cell_of(distance, 0.0, 2.3), 5),
+          State(id=5, t=0.0, seq=0, x=distance, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False))
+    w.put(keys.world_clock(F), Clock(t=0.0, seq=0, epoch=0.0, speed=1.0))
+    assert w.agent.tick_lockstep()
+    w.put(keys.leader_ref(F), Ref(t=0.02, seq=1, x=0.0, y=0.0, theta=0.0, v=ref[3], w=0.0))
+    w.put(keys.robot_pose(F, cfg.id), Pose(t=0.02, seq=1, x=0.0, y=0.0, theta=0.0))
+    assert w.agent.tick_lockstep() is not awaited
+    assert w.agent.waiting == ({5} if awaited else set())
 
 
 def test_a_robot_whose_token_goes_is_a_static_obstacle_and_not_awaited():

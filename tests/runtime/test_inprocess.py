@@ -23,8 +23,28 @@ def test_lockstep_equals_the_simulator_step_for_step():
     assert q.shape == sim.recording.q.shape == (151, 7, 3)
     assert np.abs(q - sim.recording.q).max() <= 1e-9
     assert {k: metrics[k] for k in METRIC_KEYS} == {k: sim.metrics[k] for k in METRIC_KEYS}
-    assert metrics["cmd_misses"] == 0 and metrics["bad_messages"] == 0
+    assert metrics["cmd_misses"] == 0 and metrics["bad_messages"] == 0 and metrics["lockstep_overruns"] == 0
     assert all(a.ticks >= 150 for a in agents)  # tick 150 (the last state) may or may not be computed
+
+
+def test_lockstep_counts_steps_longer_than_its_wait_rule_assumes(write_scenario, caplog):
+    """Two robots 4 m apart rush at each other with 0.25 s ticks: a step of more than a third of the
+    cell margin brings one into the other's reach unannounced (neither waited for the other), so the
+    run may differ from swarm sim. The world counts such pairs, says so, and the summary warns."""
+    from swarm.cli import summary
+
+    doc = {"run": {"duration": 1.5, "dt": 0.25}, "control": {"k1": 2.0}, "bodies": {"r": 0.3, "R": 0.31},
+           "leader": {"start": [0.0, 0.0, 0.0], "segments": [{"duration": 1.5, "v": 0.0, "w": 0.0}]},
+           "formation": {"offsets": [[0.0, 0.0], [2.0, 0.05]]},
+           "robots": {"poses": [[0.0, 0.0, 0.0], [-2.0, 0.05, 0.0]]}}
+    scn = scenario_file.load(write_scenario(doc))
+    with caplog.at_level("WARNING", logger="swarm.world"):
+        metrics, _, _ = run_swarm(scn, trace=False)
+    assert metrics["lockstep_overruns"] >= 1
+    assert any("farther than the 0.100 m a lock-step tick assumes" in r.getMessage() and "unannounced" in r.getMessage()
+               for r in caplog.records)
+    assert "may differ from swarm sim" in summary(metrics, "t")
+    assert "may differ" not in summary({**metrics, "lockstep_overruns": 0}, "t")
 
 
 def clusters_doc(clusters: int) -> dict:

@@ -14,10 +14,12 @@ from swarm.scenario import Control, Leader, Segment
 
 K1, K2, K3 = 0.5, 0.5, 1.0
 SENSE = 1.5  # m, the default cell side (R + margin)
+REACH = 1.2  # m, the default largest R
 
 
-def params(dt=0.01, threshold="off", governor=False, tu=1.0, vt=0.05, sense=SENSE):
-    return Control(k1=K1, k2=K2, k3=K3, tu=tu, vt=vt, threshold=threshold, governor=governor).vector(dt, sense)
+def params(dt=0.01, threshold="off", governor=False, tu=1.0, vt=0.05, sense=SENSE, reach=REACH):
+    return Control(k1=K1, k2=K2, k3=K3, tu=tu, vt=vt, threshold=threshold,
+                   governor=governor).vector(dt, sense, reach)
 
 
 def bodies(*rows):
@@ -436,11 +438,32 @@ def test_governor_step_closes_at_most_its_share_of_the_clearance(kind, r_body, l
         assert_allclose([v, w], [v0 * mem[law.M_SCALE], w0 * mem[law.M_SCALE]], rtol=1e-12)
 
 
-def test_governor_limit_of_unknown_bodies_is_a_share_of_the_sensing_range():
+def test_governor_limit_of_bodies_out_of_reach_is_a_share_of_the_reach():
     dt, r_self = 0.02, 0.3
     nx, ny, nr, nR, nk, n = bodies()
-    limit = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, SENSE)
-    assert_allclose(limit * dt, 0.5 * law.GOVERNOR_FRACTION * (SENSE - r_self), rtol=1e-15)
+    limit = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH)
+    assert_allclose(limit * dt, 0.5 * law.GOVERNOR_FRACTION * (REACH - r_self), rtol=1e-15)
+    # a known body at the reach or farther sets no limit of its own
+    nx, ny, nr, nR, nk, n = bodies((REACH, 0.0, 0.3, 1.2, law.KIND_ROBOT), (0.0, 1.4, 0.3, 1.2, law.KIND_OBSTACLE))
+    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH) == limit
+
+
+@pytest.mark.parametrize("kind", [law.KIND_OBSTACLE, law.KIND_ROBOT])
+@pytest.mark.parametrize("far", [REACH, 1.3, SENSE - 1e-9])
+def test_known_bodies_beyond_the_reach_do_not_act_on_the_command(kind, far):
+    """Lock-step waits only for the robots that can come within the reach (docs/runtime.md): those
+    between the reach and the cell side must not change the command, even where the governor acts.
+    (When the governor's bound for unseen bodies used the cell side, a robot 1.3 m away capped |v|.)"""
+    dt, r_self = 0.25, 0.3
+    p = params(dt=dt, governor=True, threshold="off")
+    ref = (8.0, 0.0, 0.0, 0.5, 0.0)  # the slot is far ahead: the law asks for more than the governor allows
+    alone = bodies()
+    with_far = bodies((-far, 0.0, 0.3, 1.2, kind))
+    mem0, mem1 = new_mem(), new_mem()
+    v0, w0 = command((0.0, 0.0, 0.0), (0.0, 0.0), 0.0, ref, alone, mem0, p)
+    v1, w1 = command((0.0, 0.0, 0.0), (0.0, 0.0), 0.0, ref, with_far, mem1, p)
+    assert (v1, w1) == (v0, w0) and list(mem1) == list(mem0)
+    assert_allclose(abs(v0), 0.5 * law.GOVERNOR_FRACTION * (REACH - r_self) / dt, rtol=1e-15)  # the governor acted
 
 
 @pytest.mark.parametrize("kind", [law.KIND_OBSTACLE, law.KIND_ROBOT])
@@ -448,12 +471,12 @@ def test_governor_limit_of_unknown_bodies_is_a_share_of_the_sensing_range():
 def test_body_already_inside_sets_no_speed_limit(kind, l):
     dt, r_self = 0.02, 0.3
     nx, ny, nr, nR, nk, n = bodies()
-    free = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, SENSE)
+    free = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH)
     nx, ny, nr, nR, nk, n = bodies((l, 0.0, 0.3, 1.2, kind))
-    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, SENSE) == free
+    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH) == free
     # with another body outside, that one sets the limit
     nx, ny, nr, nR, nk, n = bodies((l, 0.0, 0.3, 1.2, kind), (0.0, 0.5, 0.3, 1.2, law.KIND_OBSTACLE))
-    got = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, SENSE)
+    got = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH)
     assert_allclose(got, law.GOVERNOR_FRACTION * 0.2 / dt, rtol=1e-12)
     # and through robot_command: inside a body the robot is pushed out at up to the free limit
     p = params(dt=dt, governor=True, threshold="off")
