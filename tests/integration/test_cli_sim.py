@@ -137,3 +137,14 @@ def test_help_lists_commands_and_exit_codes():
                     reason="the console script is not installed (pip install -e .)")
 def test_console_script_is_installed():
     assert run(["scenario", "check", "--help"]).returncode == 0
+
+
+def test_wall_time_counts_from_the_process_start():
+    """wall_s runs from the command's start (DESIGN.md section 7): a process that spent 0.3 s before
+    calling main() reports an age of at least that (the clock ticks in 10 ms steps)."""
+    code = ("import time; t = time.monotonic()\n"
+            "while time.monotonic() - t < 0.3: pass\n"
+            "from swarm.cli import _process_age_s; print(_process_age_s())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert 0.28 <= float(out.stdout) < 30.0
