@@ -21,8 +21,9 @@ Lock-step tick k (the world owns the clock; DESIGN.md section 3):
      was within reach + 2L at k-1; one that was that close is still inside the cells subscribed
      at k-1, so its state_k is sure to arrive), for ref_k and for clock_k (clock_0 is the world's
      start barrier: every state_0 has been delivered). After `wait_timeout` seconds it goes on
-     with what it has and counts the missing as stale. The world counts the robot-ticks that
-     moved more than L (metrics `lockstep_overruns`): only then can a run differ from swarm sim.
+     with what it has and counts the missing as stale. A robot that moves more than L in a tick
+     breaks the premise; the world then counts the pairs the rule could not cover (metrics
+     `lockstep_overruns`): only then can a run differ from swarm sim.
   3. Compute cmd_k from the bodies closer than the cell side in ascending id order (the
      simulator's order: robots by id, then obstacles, then dead robots as static bodies; the
      law uses those closer than reach) and publish it.

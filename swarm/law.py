@@ -181,14 +181,16 @@ def freeze_update(mem, inside, t, xl, yl, thl, tu):
 
 
 @_jit
-def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, dt, reach):
+def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, dt, reach, sense):
     """Largest |v| [m/s] with which one step of length dt keeps every body safe.
 
     Over a step the robot moves at most |v| dt (an arc is no shorter than its chord).
     A static body may take GOVERNOR_FRACTION of the clearance l - r per step, another
     robot half of that (it may close by as much). Clearance then shrinks at most
-    geometrically and never reaches zero. Bodies at `reach` or farther are left out;
-    to keep them safe too, |v| dt is also held below the same share of (reach - r_self).
+    geometrically and never reaches zero. Robots at `reach` or farther are left out (a
+    distributed robot is sure to know only those closer: docs/runtime.md), obstacles at
+    `sense` or farther (every robot knows every obstacle); to keep those safe too, |v| dt
+    is also held below the same share of (reach - r_self).
     A body already inside (clearance <= 0) sets no limit: the clamped repulsion
     pushes the robot out and stopping it there would trap it.
     """
@@ -197,7 +199,7 @@ def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, dt, reach):
         dx = x - nx[k]
         dy = y - ny[k]
         l = math.sqrt(dx * dx + dy * dy)
-        if l >= reach:
+        if l >= (reach if nk[k] == KIND_ROBOT else sense):
             continue
         if nk[k] == KIND_ROBOT:
             c = l - max(r_self, nr[k])
@@ -219,22 +221,20 @@ def robot_command(x, y, th, ox, oy, r_self, t, xl, yl, thl, vl, wl, nx, ny, nr, 
     x, y, th: the robot's pose; (ox, oy): its formation offset d_i; r_self: its radius;
     t: the step time [s]; (xl, yl, thl, vl, wl): the live leader reference;
     nx, ny, nr, nR, nk: the first n entries are the known bodies (closer than p[P_SENSE])
-    in summation order, with radii and kind (KIND_ROBOT / KIND_OBSTACLE); only those closer
-    than p[P_REACH] (the largest R) act on the command: the repulsion of a body is zero
-    beyond its R anyway, and the governor leaves them out too, so a distributed robot needs
-    exactly the bodies its lock-step wait rule guarantees (docs/runtime.md);
+    in summation order, with radii and kind (KIND_ROBOT / KIND_OBSTACLE); the robots among
+    them act on the command only when closer than p[P_REACH] (the largest R): the repulsion
+    of a body is zero beyond its R anyway, and the governor leaves such robots out too, so a
+    distributed robot needs exactly the robots its lock-step wait rule guarantees
+    (docs/runtime.md); obstacles, known to every robot, count up to p[P_SENSE];
     mem: this robot's memory (M_* layout), updated; p: parameters (P_* layout).
     Returns (v [m/s], w [rad/s]).
     """
     gx = 0.0
     gy = 0.0
     inside = False
-    reach2 = p[P_REACH] * p[P_REACH]
     for k in range(n):
         dx = x - nx[k]
         dy = y - ny[k]
-        if dx * dx + dy * dy >= reach2:
-            continue
         if nk[k] == KIND_ROBOT and dx * dx + dy * dy < nR[k] * nR[k]:
             inside = True
         ax, ay = repulsion_gradient(x, y, nx[k], ny[k], nr[k], nR[k])
@@ -253,7 +253,7 @@ def robot_command(x, y, th, ox, oy, r_self, t, xl, yl, thl, vl, wl, nx, ny, nr, 
     v = apply_threshold(v, p[P_VT], int(p[P_THRESHOLD]), frozen)
     scale = 1.0
     if p[P_GOVERNOR] != 0.0:
-        limit = governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, p[P_DT], p[P_REACH])
+        limit = governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, p[P_DT], p[P_REACH], p[P_SENSE])
         if abs(v) > limit:
             scale = limit / abs(v)
             v *= scale

@@ -87,6 +87,7 @@ class World:
         self.step_bound = (scn.cell_side - scn.reach) / 3.0  # L, the largest step the rule assumes
         self.wait_reach = scn.reach + 2.0 * self.step_bound
         self.overruns = 0
+        self._cells_hist: tuple[np.ndarray, np.ndarray] | None = None  # lock-step: cells at k-2, k-3
         self.round_trips: list[float] = []  # real time: s from publishing a pose to the command computed from it
         self._pose_sent: dict[float, float] = {}
         self.k = 0
@@ -344,23 +345,40 @@ class World:
         return stop.is_set()
 
     def _check_wait_rule(self, t: float, before: np.ndarray) -> None:
-        """Lock-step: count the pairs of live robots the agents' wait rule did not cover this tick. At
-        tick k + 1 agent i waits for robot j iff j was within wait_reach (reach + 2L) at tick k, and its
-        law uses j iff j is within reach. The rule covers every pair while no robot moves more than L
-        in a tick; a faster robot can (a) come within reach of one that did not wait for it, or (b) leave
-        the cells an agent waiting for it listens to. Then the run may differ from swarm sim."""
+        """Lock-step: count the pairs of live robots the agents' wait rule did not cover this tick.
+
+        At tick k agent i is sure to hear robot j's state_k when j's cell at k is in one of the blocks
+        i subscribed to before tick k (around its cells at k-1 and k-2; the block around its cell at k
+        is declared at pose_k and races with state_k). It waits for j at k when it has j's state_(k-1)
+        and j was within wait_reach (reach + 2L) at k-1; its law uses j when j is within reach at k.
+        Flagged, for either robot of a pair: (a) within reach at k, but the wait at k was not sure
+        (farther than wait_reach at k-1, or j's cell at k-1 outside i's blocks of k-2 and k-3); (b)
+        within wait_reach at k-1 (so maybe awaited), but j's cell at k outside i's blocks of k-1 and
+        k-2. Neither can happen while no robot moves more than L in a tick; when one does, the run
+        may differ from swarm sim."""
         live = np.flatnonzero(self.alive)
+        side = self.scn.cell_side
+        c0 = np.floor(before / side)  # cells at k-1
+        if self._cells_hist is None:  # the start blocks are subscribed before tick 0
+            self._cells_hist = (c0, c0)
+        cm1, cm2 = self._cells_hist  # cells at k-2 and k-3
+        self._cells_hist = (c0, cm1)
         if live.size < 2:
             return
-        now = np.array(self.q)[live, :2]
-        was = before[live]
-        side = self.scn.cell_side
+        now, was = np.array(self.q)[live, :2], before[live]
+        c1, c0, cm1, cm2 = np.floor(now / side), c0[live], cm1[live], cm2[live]
+
+        def inside(blocks_of, a, cell_of, b):  # cell_of[b] within the 3x3 block around blocks_of[a]
+            return np.abs(cell_of[b] - blocks_of[a]).max(axis=1) <= 1
+
         i, j, _ = pairs_within(now[:, 0], now[:, 1], self.scn.reach)
-        unannounced = int(np.count_nonzero(np.hypot(*(was[i] - was[j]).T) >= self.wait_reach))
+        far = np.hypot(*(was[i] - was[j]).T) >= self.wait_reach
+        unsure_ij = far | ~(inside(cm1, i, c0, j) | inside(cm2, i, c0, j))
+        unsure_ji = far | ~(inside(cm1, j, c0, i) | inside(cm2, j, c0, i))
+        unannounced = int(np.count_nonzero(unsure_ij | unsure_ji))
         i, j, _ = pairs_within(was[:, 0], was[:, 1], self.wait_reach)
-        c_was, c_now = np.floor(was / side), np.floor(now / side)
-        lost = int(np.count_nonzero((np.abs(c_now[j] - c_was[i]).max(axis=1) > 1)
-                                    | (np.abs(c_now[i] - c_was[j]).max(axis=1) > 1)))
+        lost = int(np.count_nonzero(~(inside(c0, i, c1, j) | inside(cm1, i, c1, j))
+                                    | ~(inside(c0, j, c1, i) | inside(cm1, j, c1, i))))
         if unannounced or lost:
             first = self.overruns == 0
             self.overruns += unannounced + lost

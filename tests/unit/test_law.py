@@ -441,19 +441,30 @@ def test_governor_step_closes_at_most_its_share_of_the_clearance(kind, r_body, l
 def test_governor_limit_of_bodies_out_of_reach_is_a_share_of_the_reach():
     dt, r_self = 0.02, 0.3
     nx, ny, nr, nR, nk, n = bodies()
-    limit = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH)
+    limit = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE)
     assert_allclose(limit * dt, 0.5 * law.GOVERNOR_FRACTION * (REACH - r_self), rtol=1e-15)
-    # a known body at the reach or farther sets no limit of its own
-    nx, ny, nr, nR, nk, n = bodies((REACH, 0.0, 0.3, 1.2, law.KIND_ROBOT), (0.0, 1.4, 0.3, 1.2, law.KIND_OBSTACLE))
-    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH) == limit
+    # a robot at the reach or farther, an obstacle at the cell side or farther, set no limit of their own
+    nx, ny, nr, nR, nk, n = bodies((REACH, 0.0, 0.3, 1.2, law.KIND_ROBOT), (0.0, SENSE, 1.1, 1.2, law.KIND_OBSTACLE))
+    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE) == limit
 
 
-@pytest.mark.parametrize("kind", [law.KIND_OBSTACLE, law.KIND_ROBOT])
+def test_a_big_obstacle_beyond_the_reach_still_caps_the_speed():
+    """Obstacles count up to the cell side (every robot knows them all): one of r = 1 at 1.3 m has 0.3 m
+    of clearance, which the bound for unseen robots (a share of reach - r) would let a robot cross."""
+    dt = 0.25
+    p = params(dt=dt, governor=True, threshold="off")
+    ref = (8.0, 0.0, 0.0, 0.5, 0.0)
+    v, _ = command((0.0, 0.0, 0.0), (0.0, 0.0), 0.0, ref, bodies((0.0, -1.3, 1.0, 1.2, law.KIND_OBSTACLE)),
+                   new_mem(), p)
+    assert_allclose(abs(v), law.GOVERNOR_FRACTION * (1.3 - 1.0) / dt, rtol=1e-12)
+
+
 @pytest.mark.parametrize("far", [REACH, 1.3, SENSE - 1e-9])
-def test_known_bodies_beyond_the_reach_do_not_act_on_the_command(kind, far):
+def test_known_robots_beyond_the_reach_do_not_act_on_the_command(far):
     """Lock-step waits only for the robots that can come within the reach (docs/runtime.md): those
     between the reach and the cell side must not change the command, even where the governor acts.
     (When the governor's bound for unseen bodies used the cell side, a robot 1.3 m away capped |v|.)"""
+    kind = law.KIND_ROBOT
     dt, r_self = 0.25, 0.3
     p = params(dt=dt, governor=True, threshold="off")
     ref = (8.0, 0.0, 0.0, 0.5, 0.0)  # the slot is far ahead: the law asks for more than the governor allows
@@ -471,12 +482,12 @@ def test_known_bodies_beyond_the_reach_do_not_act_on_the_command(kind, far):
 def test_body_already_inside_sets_no_speed_limit(kind, l):
     dt, r_self = 0.02, 0.3
     nx, ny, nr, nR, nk, n = bodies()
-    free = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH)
+    free = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE)
     nx, ny, nr, nR, nk, n = bodies((l, 0.0, 0.3, 1.2, kind))
-    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH) == free
+    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE) == free
     # with another body outside, that one sets the limit
     nx, ny, nr, nR, nk, n = bodies((l, 0.0, 0.3, 1.2, kind), (0.0, 0.5, 0.3, 1.2, law.KIND_OBSTACLE))
-    got = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH)
+    got = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE)
     assert_allclose(got, law.GOVERNOR_FRACTION * 0.2 / dt, rtol=1e-12)
     # and through robot_command: inside a body the robot is pushed out at up to the free limit
     p = params(dt=dt, governor=True, threshold="off")
