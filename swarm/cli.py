@@ -361,6 +361,8 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
     from swarm.sim import Simulation
 
     scn = scenario_file.load(args.scenario, _overrides(args))
+    for note in scenario_file.advisories(scn):
+        print(f"swarm sim: warning: {note}", file=sys.stderr)
     check_out_dir("--metrics", args.metrics)
     check_out_dir("--record", args.record)
     args.record_hz = record_rate(args)
@@ -483,6 +485,8 @@ def cmd_scenario_check(args: argparse.Namespace, started: float) -> int:
     for f in args.files:
         scn = scenario_file.load(f)
         print(f"{f}: ok ({scn.n} robots, {len(scn.obstacles)} obstacles, {scn.steps} steps of {scn.dt:g} s)")
+        for note in scenario_file.advisories(scn):
+            print(f"{f}: warning: {note}")
     return EXIT_OK
 
 

@@ -502,6 +502,10 @@ def cmd_up(args, started: float) -> int:
     from swarm.launch import RestartPolicy, Supervisor, UpOptions
 
     scn = _load(args)  # bad input is refused here, before anything starts
+    from swarm.scenario_file import advisories
+
+    for note in advisories(scn):
+        print(f"swarm up: warning: {note}", file=sys.stderr)
     fleet = fleet_of(args)
     if args.connect and args.listen:
         raise BadInput("give --listen (start a router) or --connect (join one), not both")

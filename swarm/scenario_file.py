@@ -320,6 +320,20 @@ def check(scn: Scenario, where: str, offsets_key: str = "formation.offsets", pos
                                 f"r = {scn.obstacles[o, 2]:g} m")
 
 
+STEEP_START = 0.02  # share of (R - r): a start this close above r is allowed but warned about
+
+
+def advisories(scn: Scenario) -> list[str]:
+    """Valid but risky choices, to warn about (the contract accepts them)."""
+    out = []
+    i, j, d = _closest_pair(scn.poses[:, :2])
+    if d is not None and d < scn.r + STEEP_START * (scn.R - scn.r):
+        out.append(f"robots {i} and {j} start {d:.4g} m apart, just outside r = {scn.r:g} m: the repulsion there is "
+                   "so steep that one step can throw them far apart"
+                   + ("" if scn.control.governor else " (the governor, --governor, limits that)"))
+    return out
+
+
 def _closest_pair(points: np.ndarray) -> tuple[int, int, float | None]:
     """The closest pair of rows of (K, 2) points (grid-free but chunked: fine to ~10^4)."""
     n = len(points)

@@ -148,3 +148,17 @@ def test_wall_time_counts_from_the_process_start():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert 0.28 <= float(out.stdout) < 30.0
+
+
+def test_a_start_just_outside_r_is_accepted_with_a_warning(write_scenario):
+    doc = {"run": {"duration": 1.0, "dt": 0.01},
+           "leader": {"start": [0.0, 0.0, 0.0], "segments": [{"duration": 1.0, "v": 0.0, "w": 0.0}]},
+           "formation": {"offsets": [[0.0, 0.0], [2.0, 0.0]]}, "robots": {"poses": [[0.0, 0.0, 0.0], [0.305, 0.0, 0.0]]}}
+    steep = write_scenario(doc, "steep.toml")
+    doc["robots"]["poses"][1] = [0.5, 0.0, 0.0]
+    fine = write_scenario(doc, "fine.toml")
+    out = subprocess.run([sys.executable, "-m", "swarm.cli", "scenario", "check", steep, fine],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    warnings = [line for line in out.stdout.splitlines() if "warning" in line]
+    assert len(warnings) == 1 and warnings[0].startswith(f"{steep}: warning: robots 0 and 1 start 0.305 m apart")
