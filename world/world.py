@@ -347,15 +347,15 @@ class World:
     def _check_wait_rule(self, t: float, before: np.ndarray) -> None:
         """Lock-step: count the pairs of live robots the agents' wait rule did not cover this tick.
 
-        At tick k agent i is sure to hear robot j's state_k when j's cell at k is in one of the blocks
-        i subscribed to before tick k (around its cells at k-1 and k-2; the block around its cell at k
-        is declared at pose_k and races with state_k). It waits for j at k when it has j's state_(k-1)
-        and j was within wait_reach (reach + 2L) at k-1; its law uses j when j is within reach at k.
-        Flagged, for either robot of a pair: (a) within reach at k, but the wait at k was not sure
-        (farther than wait_reach at k-1, or j's cell at k-1 outside i's blocks of k-2 and k-3); (b)
-        within wait_reach at k-1 (so maybe awaited), but j's cell at k outside i's blocks of k-1 and
-        k-2. Neither can happen while no robot moves more than L in a tick; when one does, the run
-        may differ from swarm sim."""
+        On pose_k agent i subscribes to the block around its cell at k and keeps the block around its
+        cell at k-1, dropping the rest (Agent._move_cells). So while robots publish state_k it surely
+        holds held(i, k) = block(c_i(k-1)) | (block(c_i(k-2)) & block(c_i(k))); the new cells race with
+        state_k. It waits for j at k when it has j's state_(k-1) and j was within wait_reach (reach + 2L)
+        at k-1; its law uses j when j is within reach at k. Flagged, for either robot of a pair: (a)
+        within reach at k, but the wait at k was not sure (farther than wait_reach at k-1, or j's cell at
+        k-1 outside held(i, k-1)); (b) within wait_reach at k-1 (so maybe awaited), but j's cell at k
+        outside held(i, k). Neither can happen while no robot moves more than L in a tick; when one does,
+        the run may differ from swarm sim."""
         live = np.flatnonzero(self.alive)
         side = self.scn.cell_side
         c0 = np.floor(before / side)  # cells at k-1
@@ -371,14 +371,14 @@ class World:
         def inside(blocks_of, a, cell_of, b):  # cell_of[b] within the 3x3 block around blocks_of[a]
             return np.abs(cell_of[b] - blocks_of[a]).max(axis=1) <= 1
 
+        def held(prev, older, new, a, cell_of, b):  # cell_of[b] surely subscribed by a: see above
+            return inside(prev, a, cell_of, b) | (inside(older, a, cell_of, b) & inside(new, a, cell_of, b))
+
         i, j, _ = pairs_within(now[:, 0], now[:, 1], self.scn.reach)
         far = np.hypot(*(was[i] - was[j]).T) >= self.wait_reach
-        unsure_ij = far | ~(inside(cm1, i, c0, j) | inside(cm2, i, c0, j))
-        unsure_ji = far | ~(inside(cm1, j, c0, i) | inside(cm2, j, c0, i))
-        unannounced = int(np.count_nonzero(unsure_ij | unsure_ji))
+        unannounced = int(np.count_nonzero(far | ~held(cm1, cm2, c0, i, c0, j) | ~held(cm1, cm2, c0, j, c0, i)))
         i, j, _ = pairs_within(was[:, 0], was[:, 1], self.wait_reach)
-        lost = int(np.count_nonzero(~(inside(c0, i, c1, j) | inside(cm1, i, c1, j))
-                                    | ~(inside(c0, j, c1, i) | inside(cm1, j, c1, i))))
+        lost = int(np.count_nonzero(~held(c0, cm1, c1, i, c1, j) | ~held(c0, cm1, c1, j, c1, i)))
         if unannounced or lost:
             first = self.overruns == 0
             self.overruns += unannounced + lost
