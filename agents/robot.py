@@ -153,6 +153,7 @@ class Agent:
     def set_obstacles(self, obstacles: list[protocol.Obstacle]) -> None:
         """Keep the obstacles, indexed by cell so a tick looks only at the 3x3 cells around it."""
         self.obstacles = [(o.x, o.y, o.r, o.R) for o in obstacles]
+        self.p[law.P_OBSTACLE_R] = max((o.r for o in obstacles), default=0.0)  # the governor's bound (swarm.law)
         self._ocells = {}
         self._onear = {}
         for m, (x, y, _r, _R) in enumerate(self.obstacles):

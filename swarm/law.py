@@ -43,7 +43,8 @@ P_GOVERNOR = 6  # 1.0 on, 0.0 off
 P_DT = 7  # s, the control period
 P_SENSE = 8  # m, bodies closer than this are known (the cell side): callers pass them to the law
 P_REACH = 9  # m, bodies closer than this act on the command (the largest R); farther known ones are ignored
-P_SIZE = 10
+P_OBSTACLE_R = 10  # m, the largest r of any obstacle (0 without obstacles): bounds a step toward unseen ones
+P_SIZE = 11
 
 # Layout of the per-robot memory vector `mem` (freeze state), updated in place.
 M_FROZEN = 0  # 1.0 while frozen
@@ -181,7 +182,7 @@ def freeze_update(mem, inside, t, xl, yl, thl, tu):
 
 
 @_jit
-def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, dt, reach, sense):
+def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, dt, reach, sense, obstacle_r):
     """Largest |v| [m/s] with which one step of length dt keeps every body safe.
 
     Over a step the robot moves at most |v| dt (an arc is no shorter than its chord).
@@ -190,11 +191,12 @@ def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, dt, reach, sense):
     geometrically and never reaches zero. Robots at `reach` or farther are left out (a
     distributed robot is sure to know only those closer: docs/runtime.md), obstacles at
     `sense` or farther (every robot knows every obstacle); to keep those safe too, |v| dt
-    is also held below the same share of (reach - r_self).
+    is also held below the same share of (reach - r_self), and below GOVERNOR_FRACTION of
+    (sense - obstacle_r), the least clearance an obstacle beyond `sense` can have.
     A body already inside (clearance <= 0) sets no limit: the clamped repulsion
     pushes the robot out and stopping it there would trap it.
     """
-    limit = 0.5 * GOVERNOR_FRACTION * (reach - r_self) / dt
+    limit = min(0.5 * GOVERNOR_FRACTION * (reach - r_self), GOVERNOR_FRACTION * (sense - obstacle_r)) / dt
     for k in range(n):
         dx = x - nx[k]
         dy = y - ny[k]
@@ -253,7 +255,8 @@ def robot_command(x, y, th, ox, oy, r_self, t, xl, yl, thl, vl, wl, nx, ny, nr, 
     v = apply_threshold(v, p[P_VT], int(p[P_THRESHOLD]), frozen)
     scale = 1.0
     if p[P_GOVERNOR] != 0.0:
-        limit = governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, p[P_DT], p[P_REACH], p[P_SENSE])
+        limit = governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, p[P_DT], p[P_REACH], p[P_SENSE],
+                                     p[P_OBSTACLE_R])
         if abs(v) > limit:
             scale = limit / abs(v)
             v *= scale

@@ -55,14 +55,14 @@ class Control:
         if self.threshold not in THRESHOLDS:
             raise ValueError(f"control.threshold must be one of {sorted(THRESHOLDS)}, got {self.threshold!r}")
 
-    def vector(self, dt: float, sense: float, reach: float) -> np.ndarray:
+    def vector(self, dt: float, sense: float, reach: float, obstacle_r: float = 0.0) -> np.ndarray:
         """The law's parameter vector (swarm.law P_* layout)."""
         p = np.zeros(law.P_SIZE)
         p[law.P_K1], p[law.P_K2], p[law.P_K3] = self.k1, self.k2, self.k3
         p[law.P_TU], p[law.P_VT] = self.tu, self.vt
         p[law.P_THRESHOLD] = THRESHOLDS[self.threshold]
         p[law.P_GOVERNOR] = 1.0 if self.governor else 0.0
-        p[law.P_DT], p[law.P_SENSE], p[law.P_REACH] = dt, sense, reach
+        p[law.P_DT], p[law.P_SENSE], p[law.P_REACH], p[law.P_OBSTACLE_R] = dt, sense, reach, obstacle_r
         return p
 
 
@@ -131,7 +131,8 @@ class Scenario:
         return self.reach + CELL_MARGIN
 
     def params(self) -> np.ndarray:
-        return self.control.vector(self.dt, self.cell_side, self.reach)
+        obstacle_r = float(self.obstacles[:, 2].max()) if len(self.obstacles) else 0.0
+        return self.control.vector(self.dt, self.cell_side, self.reach, obstacle_r)
 
     def robot_config(self, i: int, lockstep: bool = True):
         """Robot i's slice of the scenario (what its agent is given; never the others' state)."""

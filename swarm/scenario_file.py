@@ -327,10 +327,20 @@ def advisories(scn: Scenario) -> list[str]:
     """Valid but risky choices, to warn about (the contract accepts them)."""
     out = []
     i, j, d = _closest_pair(scn.poses[:, :2])
+    hint = "" if scn.control.governor else " (the governor, --governor, limits that)"
     if d is not None and d < scn.r + STEEP_START * (scn.R - scn.r):
         out.append(f"robots {i} and {j} start {d:.4g} m apart, just outside r = {scn.r:g} m: the repulsion there is "
-                   "so steep that one step can throw them far apart"
-                   + ("" if scn.control.governor else " (the governor, --governor, limits that)"))
+                   f"so steep that one step can throw them far apart{hint}")
+    if len(scn.obstacles) and scn.n:
+        diff = scn.poses[:, None, :2] - scn.obstacles[None, :, :2]
+        dist = np.sqrt(np.sum(diff * diff, axis=2))
+        ro, Ro = scn.obstacles[None, :, 2], scn.obstacles[None, :, 3]
+        steep = dist < ro + STEEP_START * (Ro - ro)
+        if steep.any():
+            i, o = map(int, np.argwhere(steep)[0])
+            out.append(f"robot {i} starts {dist[i, o]:.4g} m from obstacle {o}, just outside its r = "
+                       f"{scn.obstacles[o, 2]:g} m: the repulsion there is so steep that one step can throw the "
+                       f"robot far away{hint}")
     return out
 
 

@@ -162,3 +162,9 @@ def test_a_start_just_outside_r_is_accepted_with_a_warning(write_scenario):
     assert out.returncode == 0, out.stderr
     warnings = [line for line in out.stdout.splitlines() if "warning" in line]
     assert len(warnings) == 1 and warnings[0].startswith(f"{steep}: warning: robots 0 and 1 start 0.305 m apart")
+    doc["obstacles"] = [{"center": [0.5, 0.31]}]  # 0.31 m from robot 1, its r 0.3
+    near_obstacle = write_scenario(doc, "obstacle.toml")
+    out = subprocess.run([sys.executable, "-m", "swarm.cli", "sim", "--scenario", near_obstacle, "--duration", "0.1",
+                          "--quiet"], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "swarm sim: warning: robot 1 starts 0.31 m from obstacle 0, just outside its r = 0.3 m" in out.stderr

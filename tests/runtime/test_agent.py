@@ -54,12 +54,13 @@ class Wire:
         return acted or self.agent.tick_lockstep()
 
 
-def law_command(pose, ref, t, bodies, mem=None, cfg=CFG, horizon=None):
+def law_command(pose, ref, t, bodies, mem=None, cfg=CFG, horizon=None, obstacle_r=0.0):
     """The core law called directly with the same inputs (horizon: the governor's, default dt)."""
     mem = mem if mem is not None else [0.0] * law.M_SIZE
     p = [0.0] * law.P_SIZE
     p[law.P_K1], p[law.P_K2], p[law.P_K3], p[law.P_TU], p[law.P_VT] = cfg.k1, cfg.k2, cfg.k3, cfg.tu, cfg.vt
     p[law.P_THRESHOLD], p[law.P_GOVERNOR], p[law.P_SENSE], p[law.P_REACH] = cfg.threshold, 1.0, cfg.sense, cfg.reach
+    p[law.P_OBSTACLE_R] = obstacle_r
     p[law.P_DT] = cfg.dt if horizon is None else horizon
     nx, ny, nr, nR, nk = ([b[i] for b in bodies] for i in range(5))
     return law.robot_command(pose[0], pose[1], pose[2], cfg.dx, cfg.dy, cfg.r, t, *ref, nx, ny, nr, nR, nk,

@@ -17,9 +17,9 @@ SENSE = 1.5  # m, the default cell side (R + margin)
 REACH = 1.2  # m, the default largest R
 
 
-def params(dt=0.01, threshold="off", governor=False, tu=1.0, vt=0.05, sense=SENSE, reach=REACH):
+def params(dt=0.01, threshold="off", governor=False, tu=1.0, vt=0.05, sense=SENSE, reach=REACH, obstacle_r=0.3):
     return Control(k1=K1, k2=K2, k3=K3, tu=tu, vt=vt, threshold=threshold,
-                   governor=governor).vector(dt, sense, reach)
+                   governor=governor).vector(dt, sense, reach, obstacle_r)
 
 
 def bodies(*rows):
@@ -441,11 +441,23 @@ def test_governor_step_closes_at_most_its_share_of_the_clearance(kind, r_body, l
 def test_governor_limit_of_bodies_out_of_reach_is_a_share_of_the_reach():
     dt, r_self = 0.02, 0.3
     nx, ny, nr, nR, nk, n = bodies()
-    limit = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE)
+    limit = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE, 0.3)
     assert_allclose(limit * dt, 0.5 * law.GOVERNOR_FRACTION * (REACH - r_self), rtol=1e-15)
     # a robot at the reach or farther, an obstacle at the cell side or farther, set no limit of their own
     nx, ny, nr, nR, nk, n = bodies((REACH, 0.0, 0.3, 1.2, law.KIND_ROBOT), (0.0, SENSE, 1.1, 1.2, law.KIND_OBSTACLE))
-    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE) == limit
+    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE, 0.3) == limit
+
+
+def test_the_bound_for_unseen_obstacles_follows_the_largest_obstacle():
+    """An obstacle of r = 2.4 beyond the cell side (2.8 m) has only 0.4 m of clearance there: a step may
+    take GOVERNOR_FRACTION of that, less than the share of reach - r_self a step toward unseen robots may
+    take (a review found 5-15 collisions with big obstacles when only that bound held)."""
+    dt, r_self, reach, sense = 0.1, 0.3, 2.5, 2.8
+    nx, ny, nr, nR, nk, n = bodies()
+    limit = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, reach, sense, 2.4)
+    assert_allclose(limit * dt, law.GOVERNOR_FRACTION * (sense - 2.4), rtol=1e-15)
+    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, reach, sense, 0.3) * dt == \
+        pytest.approx(0.5 * law.GOVERNOR_FRACTION * (reach - r_self))
 
 
 def test_a_big_obstacle_beyond_the_reach_still_caps_the_speed():
@@ -455,7 +467,7 @@ def test_a_big_obstacle_beyond_the_reach_still_caps_the_speed():
     p = params(dt=dt, governor=True, threshold="off")
     ref = (8.0, 0.0, 0.0, 0.5, 0.0)
     v, _ = command((0.0, 0.0, 0.0), (0.0, 0.0), 0.0, ref, bodies((0.0, -1.3, 1.0, 1.2, law.KIND_OBSTACLE)),
-                   new_mem(), p)
+                   new_mem(), params(dt=dt, governor=True, threshold="off", obstacle_r=1.0))
     assert_allclose(abs(v), law.GOVERNOR_FRACTION * (1.3 - 1.0) / dt, rtol=1e-12)
 
 
@@ -482,12 +494,12 @@ def test_known_robots_beyond_the_reach_do_not_act_on_the_command(far):
 def test_body_already_inside_sets_no_speed_limit(kind, l):
     dt, r_self = 0.02, 0.3
     nx, ny, nr, nR, nk, n = bodies()
-    free = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE)
+    free = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE, 0.3)
     nx, ny, nr, nR, nk, n = bodies((l, 0.0, 0.3, 1.2, kind))
-    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE) == free
+    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE, 0.3) == free
     # with another body outside, that one sets the limit
     nx, ny, nr, nR, nk, n = bodies((l, 0.0, 0.3, 1.2, kind), (0.0, 0.5, 0.3, 1.2, law.KIND_OBSTACLE))
-    got = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE)
+    got = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE, 0.3)
     assert_allclose(got, law.GOVERNOR_FRACTION * 0.2 / dt, rtol=1e-12)
     # and through robot_command: inside a body the robot is pushed out at up to the free limit
     p = params(dt=dt, governor=True, threshold="off")
