@@ -464,7 +464,6 @@ def test_a_big_obstacle_beyond_the_reach_still_caps_the_speed():
     """Obstacles count up to the cell side (every robot knows them all): one of r = 1 at 1.3 m has 0.3 m
     of clearance, which the bound for unseen robots (a share of reach - r) would let a robot cross."""
     dt = 0.25
-    p = params(dt=dt, governor=True, threshold="off")
     ref = (8.0, 0.0, 0.0, 0.5, 0.0)
     v, _ = command((0.0, 0.0, 0.0), (0.0, 0.0), 0.0, ref, bodies((0.0, -1.3, 1.0, 1.2, law.KIND_OBSTACLE)),
                    new_mem(), params(dt=dt, governor=True, threshold="off", obstacle_r=1.0))
