@@ -87,8 +87,7 @@ class Agent:
         self.mem = [0.0] * law.M_SIZE
         self.mem[law.M_SCALE] = 1.0
         self.side = cfg.sense
-        # lock-step: L = (side - reach) / 3 is the largest step the wait rule assumes (docs/runtime.md)
-        self._wait_reach = cfg.reach + 2.0 * (cfg.sense - cfg.reach) / 3.0
+        self._wait_reach = keys.lockstep_wait_reach(cfg.reach, cfg.sense)
         self._cmd_key, self._status_key = keys.robot_cmd(fleet, self.id), keys.robot_status(fleet, self.id)
         self.lock = threading.Lock()
         self.wake = threading.Event()

@@ -112,6 +112,16 @@ def cell_of(x: float, y: float, side: float) -> tuple[int, int]:
     return int(math.floor(x / side)), int(math.floor(y / side))
 
 
+def lockstep_step_bound(reach: float, side: float) -> float:
+    """L [m], the largest step a tick the lock-step wait rule assumes (docs/runtime.md)."""
+    return (side - reach) / 3.0
+
+
+def lockstep_wait_reach(reach: float, side: float) -> float:
+    """An agent waits at tick k for the robots that were this close at k-1: reach + 2L."""
+    return reach + 2.0 * lockstep_step_bound(reach, side)
+
+
 def cell_robot(key: str) -> int | None:
     """The robot id at the end of a cell key (the hot path of a robot's state messages; `parse`
     does the full check). None if the last chunk is not an id."""

@@ -310,8 +310,7 @@ def check(scn: Scenario, where: str, offsets_key: str = "formation.offsets", pos
     if d is not None and d < scn.r:
         raise ScenarioError(where, poses_key, f"robots {i} and {j} start {d:.4g} m apart, closer than r = {scn.r:g} m")
     if len(scn.obstacles):
-        diff = scn.poses[:, None, :2] - scn.obstacles[None, :, :2]
-        dist = np.sqrt(np.sum(diff * diff, axis=2))
+        dist = _start_obstacle_distances(scn)
         bad = dist < scn.obstacles[None, :, 2]
         if bad.any():
             i, o = map(int, np.argwhere(bad)[0])
@@ -332,8 +331,7 @@ def advisories(scn: Scenario) -> list[str]:
         out.append(f"robots {i} and {j} start {d:.4g} m apart, just outside r = {scn.r:g} m: the repulsion there is "
                    f"so steep that one step can throw them far apart{hint}")
     if len(scn.obstacles) and scn.n:
-        diff = scn.poses[:, None, :2] - scn.obstacles[None, :, :2]
-        dist = np.sqrt(np.sum(diff * diff, axis=2))
+        dist = _start_obstacle_distances(scn)
         ro, Ro = scn.obstacles[None, :, 2], scn.obstacles[None, :, 3]
         steep = dist < ro + STEEP_START * (Ro - ro)
         if steep.any():
@@ -342,6 +340,12 @@ def advisories(scn: Scenario) -> list[str]:
                        f"{scn.obstacles[o, 2]:g} m: the repulsion there is so steep that one step can throw the "
                        f"robot far away{hint}")
     return out
+
+
+def _start_obstacle_distances(scn: Scenario) -> np.ndarray:
+    """(N, M) distances from each robot's start to each obstacle's centre [m]."""
+    diff = scn.poses[:, None, :2] - scn.obstacles[None, :, :2]
+    return np.sqrt(np.sum(diff * diff, axis=2))
 
 
 def _closest_pair(points: np.ndarray) -> tuple[int, int, float | None]:

@@ -84,8 +84,8 @@ class World:
         self.robot_bad: dict[int, int] = {}
         self.misses = 0
         # lock-step: pairs of robots a tick that the agents' wait rule could not cover (see _check_wait_rule)
-        self.step_bound = (scn.cell_side - scn.reach) / 3.0  # L, the largest step the rule assumes
-        self.wait_reach = scn.reach + 2.0 * self.step_bound
+        self.step_bound = keys.lockstep_step_bound(scn.reach, scn.cell_side)
+        self.wait_reach = keys.lockstep_wait_reach(scn.reach, scn.cell_side)
         self.overruns = 0
         self._cells_hist: tuple[np.ndarray, np.ndarray] | None = None  # lock-step: cells at k-2, k-3
         self.round_trips: list[float] = []  # real time: s from publishing a pose to the command computed from it
