@@ -6,7 +6,7 @@ Real time: it publishes the reference every REF_PERIOD_S of simulated time on th
 clock, and at the start of every segment. Between two messages an agent advances the reference
 exactly along the leader's arc (v and w are constant within a segment), so a lower rate loses
 nothing, and every robot takes one message a period less than at the control rate.
-The reference at tick k is the leader's exact state at t_k = k dt (swarm.kinematics), the
+The reference at tick k is the leader's exact state at t_k = k dt (swarm.core.kinematics), the
 same number the simulator uses.
 """
 
@@ -15,10 +15,11 @@ from __future__ import annotations
 import logging
 import queue
 import threading
-import time
 
-from swarm import keys, kinematics, protocol
-from swarm.protocol import ProtocolError, Ref
+from swarm.proto import keys, protocol
+from swarm.core import kinematics
+from swarm.core.clock import WALL
+from swarm.proto.protocol import ProtocolError, Ref
 
 log = logging.getLogger("swarm.leader")
 
@@ -26,8 +27,10 @@ REF_PERIOD_S = 0.1  # real time: simulated seconds between references (plus one 
 
 
 class Leader:
-    def __init__(self, bus, table, dt: float, fleet: str = "default", lockstep: bool = True, rate_hz: float | None = None):
+    def __init__(self, bus, table, dt: float, fleet: str = "default", lockstep: bool = True, rate_hz: float | None = None,
+                 clock=WALL):
         self.bus, self.table, self.dt, self.fleet, self.lockstep = bus, table, dt, fleet, lockstep
+        self.clock = clock
         self.period = 1.0 / rate_hz if rate_hz else REF_PERIOD_S  # simulated seconds between real-time refs
         self.switches = [float(t0) for t0 in table[1:, kinematics.SEG_T0]]  # segment starts after the first
         self.inbox: queue.SimpleQueue = queue.SimpleQueue()
@@ -78,17 +81,29 @@ class Leader:
                     pass
                 continue
             # real time: publish every period of simulated time, on the world's clock
-            now = time.time()
+            now = self.clock.time()
             t = (now - self.epoch) * self.speed
             self.publish(t, self.next_seq)
             self.next_seq += 1
             t_next = min([(t // self.period + 1) * self.period] + [s for s in self.switches if s > t])
             wake = self.epoch + t_next / self.speed
             while not stop.is_set():
-                left = wake - time.time()
+                left = wake - self.clock.time()
                 if left <= 0:
                     break
                 try:
                     self.on_clock(*self.inbox.get(timeout=left))
                 except queue.Empty:
                     break
+
+
+def run_leader(bus, clock, scn, fleet: str = "default", lockstep: bool = True, stop: threading.Event | None = None) -> Leader:
+    """Publish scenario `scn`'s reference on `bus` until `stop` is set; returns the leader (its counters)."""
+    stop = stop or threading.Event()
+    lead = Leader(bus, scn.leader.table(), scn.dt, fleet, lockstep=lockstep, clock=clock)
+    lead.start()
+    try:
+        lead.run(stop)
+    finally:
+        lead.close()
+    return lead

@@ -8,7 +8,7 @@ It knows only what it hears on the bus:
   world/clock         the clock (lock-step ticks, or the real-time epoch)
   alive/robot/*       liveliness: a robot that disappears stays a static body at its last pose
 and publishes its state on its cell key, its command on robot/<id>/cmd (reliable) and a status.
-The law is swarm.law.robot_command, the very function `swarm sim` compiles, run here as plain
+The law is swarm.core.law.robot_command, the very function `swarm sim` compiles, run here as plain
 Python (no numpy, no compiler: a robot process starts fast and stays small). This module
 imports nothing of the world: the same agent drives a simulated or a real robot.
 
@@ -42,8 +42,11 @@ import math
 import threading
 import time
 
-from swarm import keys, kinematics, law, protocol
-from swarm.protocol import Cmd, Config, ProtocolError, State, Status
+from swarm.proto import keys, protocol
+from swarm.core import kinematics, law
+from swarm.core.clock import WALL
+from swarm.launch.child import settle_heap
+from swarm.proto.protocol import Cmd, Config, ProtocolError, State, Status
 
 log = logging.getLogger("swarm.robot")
 
@@ -74,7 +77,7 @@ class Agent:
     """
 
     def __init__(self, bus, cfg: Config, fleet: str = "default", wait_timeout: float = WAIT_TIMEOUT_S,
-                 clock=time.monotonic):
+                 clock=WALL):
         self.bus, self.cfg, self.fleet = bus, cfg, fleet
         self.id = cfg.id
         self.clock = clock
@@ -152,7 +155,7 @@ class Agent:
     def set_obstacles(self, obstacles: list[protocol.Obstacle]) -> None:
         """Keep the obstacles, indexed by cell so a tick looks only at the 3x3 cells around it."""
         self.obstacles = [(o.x, o.y, o.r, o.R) for o in obstacles]
-        self.p[law.P_OBSTACLE_R] = max((o.r for o in obstacles), default=0.0)  # the governor's bound (swarm.law)
+        self.p[law.P_OBSTACLE_R] = max((o.r for o in obstacles), default=0.0)  # the governor's bound (swarm.core.law)
         self._ocells = {}
         self._onear = {}
         for m, (x, y, _r, _R) in enumerate(self.obstacles):
@@ -348,7 +351,7 @@ class Agent:
             for j, nb in self.table.items():
                 if nb.seq == k - 1 and j not in dead and (px - nb.x) ** 2 + (py - nb.y) ** 2 < reach2:
                     self.waiting.add(j)
-            self.deadline = self.clock() + self.wait_timeout
+            self.deadline = self.clock.monotonic() + self.wait_timeout
             self.k_started = k
 
     # ------------------------------------------------------------------ control
@@ -455,7 +458,7 @@ class Agent:
         with self.lock:
             k = self.k_started
             pose = self.pose if self.pose.seq == k else pose
-            overdue = self.clock() >= self.deadline
+            overdue = self.clock.monotonic() >= self.deadline
             if not self._inputs_complete(k) and not overdue:
                 return False
             ref = self.refs.get(k)
@@ -479,7 +482,7 @@ class Agent:
                 return 0.5
             if self.pose.seq > self.k_started:
                 return 0.0
-            return max(0.0, self.deadline - self.clock())
+            return max(0.0, self.deadline - self.clock.monotonic())
 
     def sim_time(self, wall: float) -> float | None:
         """Real time: the simulated time at unix time `wall` (None before the world's clock is known)."""
@@ -551,18 +554,19 @@ def _query_until(bus, key: str, kind: str, key_id, timeout_s: float, stop, what:
         time.sleep(0.1)
 
 
-def run(bus, cfg: Config, fleet: str = "default", stop: threading.Event | None = None,
-        obstacles: list[protocol.Obstacle] | None = None, wait_timeout: float = WAIT_TIMEOUT_S,
-        wall=time.time) -> Agent:
-    """Run one robot until `stop` is set; returns the agent (its counters) after closing it."""
+def run_robot(bus, clock, cfg: Config, fleet: str = "default", stop: threading.Event | None = None,
+              obstacles: list[protocol.Obstacle] | None = None, wait_timeout: float = WAIT_TIMEOUT_S) -> Agent:
+    """Run one robot on `bus` until `stop` is set; returns the agent (its counters) after closing it.
+    clock: swarm.core.clock (WALL in a process; a fake in tests)."""
     stop = stop or threading.Event()
-    agent = Agent(bus, cfg, fleet, wait_timeout=wait_timeout)
+    agent = Agent(bus, cfg, fleet, wait_timeout=wait_timeout, clock=clock)
     agent.start(obstacles)
+    settle_heap()
     try:
         if cfg.lockstep:
             _loop_lockstep(agent, stop)
         else:
-            _loop_realtime(agent, stop, wall)
+            _loop_realtime(agent, stop, clock.time)
     finally:
         agent.close()
     return agent

@@ -20,8 +20,8 @@ from pathlib import Path
 
 
 def run_one(job: tuple[str, int]) -> dict:
-    from swarm import scenario_file as sf
-    from swarm.sim import Simulation
+    from swarm.core import scenario_file as sf
+    from swarm.core.sim import Simulation
 
     name, seed = job
     m = Simulation(sf.load(name, sf.Overrides(seed=seed))).run().metrics
@@ -61,7 +61,7 @@ def main() -> int:
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     args = ap.parse_args()
 
-    from swarm import kernel  # noqa: F401  compile once before spawning workers
+    from swarm.core import kernel  # noqa: F401  compile once before spawning workers
 
     started = time.perf_counter()
     jobs = [(name, s) for name in ("paper", "paper-50hz") for s in range(max(10, args.jam_seeds))]

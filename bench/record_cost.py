@@ -1,11 +1,11 @@
-"""What the live recorder (swarm.record.BusRecorder) costs per message.
+"""What the live recorder (swarm.view.record.BusRecorder) costs per message.
 
     python bench/record_cost.py                 # N = 37 and 500, 400 frames each
     python bench/record_cost.py --robots 37 --frames 1000
     python bench/record_cost.py --up --robots 37 --duration 20 --repeats 3   # end to end, see bench_up
 
 The traffic of one lock-step tick of `swarm up` (paper-50hz: dt = 0.02 s, statuses every 0.1 s)
-is encoded with swarm.protocol as the processes would send it: one world snapshot of N robots, one
+is encoded with swarm.proto.protocol as the processes would send it: one world snapshot of N robots, one
 leader reference, N commands and about N / 5 statuses. Each message goes through the recorder's bus
 callback (the part on zenoh's receiving thread: an append to a deque) and then through its worker
 (decode, events, decimation to record_hz, JSON, MCAP with zstd), timed one message at a time with
@@ -33,10 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm import keys, protocol, scenario_file
-from swarm.bus import MemoryBus, MemoryNet
-from swarm.protocol import Cmd, Ref, RobotSnap, Snapshot, Status
-from swarm.record import BusRecorder, Recorder
+from swarm.proto import keys, protocol
+from swarm.core import scenario_file
+from swarm.net.bus import MemoryBus, MemoryNet
+from swarm.proto.protocol import Cmd, Ref, RobotSnap, Snapshot, Status
+from swarm.view.record import BusRecorder, Recorder
 
 FLEET = "bench"
 
@@ -54,7 +55,7 @@ def traffic(n_robots: int, frames: int, seed: int = 0):
     q = np.array(scn.poses, float)
     table = scn.leader.table()
     dt = scn.dt
-    from swarm import kinematics
+    from swarm.core import kinematics
 
     frozen = rng.random(n_robots) < 0.2
     for k in range(frames):
@@ -145,7 +146,7 @@ def side_recorder(endpoint: str, fleet: str, robots: int, duration: float, path:
     closes with the world's metrics and prints its CPU seconds (JSON on stdout): in all, before the
     world came up (start-up) and during the run. null: the same subscriptions with callbacks that do
     nothing (what receiving alone costs)."""
-    from swarm.bus import ZenohBus, zenoh_config
+    from swarm.net.bus import ZenohBus, zenoh_config
 
     scn = scenario_file.load("paper-50hz", scenario_file.Overrides(robots=robots, duration=duration))
     end = time.monotonic() + 30.0

@@ -23,8 +23,8 @@ import time
 CASE = r"""
 import json, resource, sys, time
 t0 = time.perf_counter()
-from swarm import scenario_file as sf
-from swarm.sim import Simulation
+from swarm.core import scenario_file as sf
+from swarm.core.sim import Simulation
 name, n, duration = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
 scn = sf.load(name, sf.Overrides(robots=n, duration=duration, seed=0))
 t1 = time.perf_counter()

@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm import scenario_file
-from swarm.scenario_file import Overrides
-from swarm.sim import Simulation
+from swarm.core import scenario_file
+from swarm.core.scenario_file import Overrides
+from swarm.core.sim import Simulation
 
 KEYS = ("converged_at_s", "collisions", "min_robot_distance_m", "min_obstacle_distance_m",
         "final_position_error_max_m", "final_orientation_error_max_rad", "last_freeze_end_s")

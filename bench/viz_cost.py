@@ -35,14 +35,15 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm import keys, protocol, scenario_file
-from swarm.bus import MemoryBus, MemoryNet
-from swarm.meshcat_server import MeshcatServer
-from swarm.protocol import RobotSnap, Snapshot, Status
-from swarm.scenario_file import Overrides
-from swarm.sim import Simulation
-from swarm.viz import SceneInfo, Viewer
-from swarm.watch import SwarmWatcher
+from swarm.proto import keys, protocol
+from swarm.core import scenario_file
+from swarm.net.bus import MemoryBus, MemoryNet
+from swarm.view.meshcat_server import MeshcatServer
+from swarm.proto.protocol import RobotSnap, Snapshot, Status
+from swarm.core.scenario_file import Overrides
+from swarm.core.sim import Simulation
+from swarm.view.viz import SceneInfo, Viewer
+from swarm.view.watch import SwarmWatcher
 
 CHROMIUM = "/usr/bin/chromium"
 FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",

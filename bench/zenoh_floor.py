@@ -37,7 +37,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from swarm.bus import ZENOH_RUNTIME, ZenohBus, zenoh_config  # noqa: E402
+from swarm.net.bus import ZENOH_RUNTIME, ZenohBus, zenoh_config  # noqa: E402
 
 PREFIX = "floor"
 POSE = struct.Struct("<dI")  # time sent (CLOCK_MONOTONIC, shared by the machine's processes), robot id
@@ -47,8 +47,8 @@ PAD = bytes(80)  # a state or a pose of swarm is ~80-100 bytes of msgpack
 def cells_of(n: int, layout: str) -> list[tuple[int, int]]:
     """The cell of every robot of the built-in scenario with n robots: at the start (spread out) or
     in formation (its slots around the leader's start: the densest, ~6 neighbours each)."""
-    from swarm import keys
-    from swarm.scenario_file import Overrides, load
+    from swarm.proto import keys
+    from swarm.core.scenario_file import Overrides, load
 
     sc = load("paper-50hz", Overrides(robots=n))
     if layout == "start":

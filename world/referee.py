@@ -2,7 +2,7 @@
 
 The world calls sample() at every control step (every tick in lock-step) with the true poses,
 which robots are alive and the live leader reference. The definitions are those of the
-in-process simulator (swarm.kernel), so a lock-step run and `swarm sim` report the same
+in-process simulator (swarm.core.kernel), so a lock-step run and `swarm sim` report the same
 numbers: errors against the live reference, a robot is frozen while it is inside R_j of another
 (live) robot, a collision is a pair going from >= r to < r between consecutive samples.
 """
@@ -13,9 +13,9 @@ import math
 
 import numpy as np
 
-from swarm import law, metrics
-from swarm.metrics import step_time
-from swarm.scenario import Scenario
+from swarm.core import law, metrics
+from swarm.core.metrics import step_time
+from swarm.core.scenario import Scenario
 
 CONVERGED_POSITION_M = 0.05
 CONVERGED_ANGLE_RAD = 0.05

@@ -1,9 +1,9 @@
 """The simulated world: every robot's exact-arc kinematics, the obstacles, the clock, the referee.
 
-    world = World(bus, scenario, fleet, lockstep=True)
-    world.start()                       # queryables, subscriptions, liveliness token
-    world.wait_ready(timeout_s=30)      # every robot and the leader alive (or NotReady naming the missing)
-    metrics = world.run(stop_event)     # the run; metrics of DESIGN.md section 7 from ground truth
+    metrics = run_world(bus, clock, scenario, WorldOptions(lockstep=True), stop_event)
+    # which is: World(...).start() (queryables, subscriptions, liveliness token), .wait_ready()
+    # (every robot and the leader alive, or NotReady naming the missing), .run() (the metrics of
+    # docs/metrics.md from ground truth), .close()
 
 It serves world/obstacles and world/config/<id> (each robot's slice of the scenario),
 publishes robot/<id>/pose, world/snapshot, world/clock and world/progress, and takes
@@ -27,13 +27,17 @@ import logging
 import math
 import threading
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
-from swarm import keys, kinematics, protocol
-from swarm.protocol import Clock, Obstacle, Obstacles, Pose, ProtocolError, RobotSnap, Snapshot
-from swarm.record import pairs_within
-from swarm.scenario import Scenario
+from swarm.proto import keys, protocol
+from swarm.core import kinematics
+from swarm.core.clock import WALL
+from swarm.launch.child import settle_heap
+from swarm.proto.protocol import Clock, Obstacle, Obstacles, Pose, ProtocolError, RobotSnap, Snapshot
+from swarm.core.geometry import pairs_within
+from swarm.core.scenario import Scenario
 from world.referee import Referee
 
 log = logging.getLogger("swarm.world")
@@ -57,8 +61,9 @@ class NotReady(RuntimeError):
 class World:
     def __init__(self, bus, scn: Scenario, fleet: str = "default", lockstep: bool = True, speed: float = 1.0,
                  watchdog: float = WATCHDOG_S, tick_timeout: float = TICK_TIMEOUT_S, fine_dt: float = FINE_DT_S,
-                 trace: bool = False, progress=None):
+                 trace: bool = False, progress=None, clock=WALL):
         self.bus, self.scn, self.fleet = bus, scn, fleet
+        self.clock = clock
         self.lockstep, self.speed = lockstep, speed
         self.watchdog, self.tick_timeout, self.fine_dt = watchdog, tick_timeout, fine_dt
         self.on_progress = progress  # optional callable(protocol.Progress), for a local display
@@ -182,7 +187,7 @@ class World:
 
     def wait_ready(self, timeout_s: float, stop: threading.Event | None = None) -> None:
         """Wait until every robot and the leader are alive; NotReady names the missing ones."""
-        end = time.monotonic() + timeout_s
+        end = self.clock.monotonic() + timeout_s
         while True:
             with self.lock:
                 if self.alive.all() and self.leader_alive:
@@ -191,7 +196,7 @@ class World:
                           [f"robot {i}" for i in np.flatnonzero(~self.alive)]
             if stop is not None and stop.is_set():
                 raise InterruptedError
-            left = end - time.monotonic()
+            left = end - self.clock.monotonic()
             if left <= 0:
                 raise NotReady(missing, timeout_s)
             self.wake.wait(min(left, 0.2))
@@ -244,7 +249,7 @@ class World:
         return self.bad.count + sum(self.robot_bad.values())
 
     def _report(self, force: bool = False) -> None:
-        now = time.monotonic()
+        now = self.clock.monotonic()
         if force or now - self._last_progress >= PROGRESS_PERIOD_S:
             self._last_progress = now
             p = self.progress()
@@ -286,8 +291,8 @@ class World:
         n_steps = scn.steps
         # start barrier: pose_0 to everyone, then wait until every live robot's state_0 is delivered
         self._publish_poses(0.0, 0)
-        end = time.monotonic() + max(5.0, 5 * self.tick_timeout)
-        while not stop.is_set() and time.monotonic() < end:
+        end = self.clock.monotonic() + max(5.0, 5 * self.tick_timeout)
+        while not stop.is_set() and self.clock.monotonic() < end:
             with self.lock:
                 if all(i in self._state0 for i in np.flatnonzero(self.alive)):
                     break
@@ -308,7 +313,7 @@ class World:
             if k == n_steps:
                 break
             # wait for cmd_k of every live robot
-            deadline = time.monotonic() + self.tick_timeout
+            deadline = self.clock.monotonic() + self.tick_timeout
             with self.lock:
                 self._await = k
             while True:
@@ -320,7 +325,7 @@ class World:
                         self._await = -1
                         pending, self._pending = self._pending, {}
                         break
-                    left = deadline - time.monotonic()
+                    left = deadline - self.clock.monotonic()
                     if left <= 0:
                         self.misses += len(waiting)
                         self._await = -1
@@ -401,7 +406,7 @@ class World:
         so this is the fine-step integration without the work of moving every robot every step."""
         scn, n, fine = self.scn, self.n, self.fine_dt
         period = scn.dt
-        epoch = time.time() + 0.2  # a little lead so every process hears the clock before t = 0
+        epoch = self.clock.time() + 0.2  # a little lead so every process hears the clock before t = 0
         self.epoch = epoch
         q, comp, cmd, tq = self.q, self.comp, self.cmd, [0.0] * n
 
@@ -423,9 +428,9 @@ class World:
         self._publish_clock_rt(epoch)
         watch_t = -math.inf
         while not stop.is_set():
-            fine_k = max(fine_k, min(end_k, int(math.floor((time.time() - epoch) * self.speed / fine + 1e-9))))
+            fine_k = max(fine_k, min(end_k, int(math.floor((self.clock.time() - epoch) * self.speed / fine + 1e-9))))
             t = self.t = round(fine_k * fine, 9)
-            mono = time.monotonic()
+            mono = self.clock.monotonic()
             self._take_commands(t, mono, advance)
             if mono - watch_t >= period / self.speed:  # watchdog, once a period (wall time, as a drive)
                 watch_t = mono
@@ -460,9 +465,9 @@ class World:
                 t_pub = (seq + 1) * period
             if fine_k >= end_k:
                 return False
-            left = epoch + (t + fine) / self.speed - time.time()  # the next fine step (every event is on the grid)
+            left = epoch + (t + fine) / self.speed - self.clock.time()  # the next fine step (every event is on the grid)
             if left > 0:
-                stop.wait(left)
+                self.clock.wait(stop, left)
         for i in range(n):
             advance(i, self.t)
         return True
@@ -491,3 +496,42 @@ class World:
         self.bus.put(keys.world_clock(self.fleet),
                      protocol.encode(Clock(t=self.t, seq=self.k, epoch=epoch, speed=self.speed)), reliable=True)
 
+
+
+@dataclass(frozen=True)
+class WorldOptions:
+    """How `swarm world` runs a scenario (the command line's flags)."""
+
+    lockstep: bool = True
+    speed: float = 1.0  # real time: simulated seconds per wall second
+    watchdog: float = WATCHDOG_S
+    tick_timeout: float = TICK_TIMEOUT_S
+    start_timeout: float = 60.0
+    trace: bool = False
+
+
+def run_world(bus, clock, scn: Scenario, opts: WorldOptions = WorldOptions(), stop: threading.Event | None = None,
+              fleet: str = "default", started: float | None = None) -> tuple[dict, "World"]:
+    """Run scenario `scn` on `bus`: serve, wait for every robot and the leader (NotReady after
+    opts.start_timeout), run, close. Returns the metrics and the world (its trace)."""
+    stop = stop or threading.Event()
+    started = time.perf_counter() if started is None else started
+    world = World(bus, scn, fleet, lockstep=opts.lockstep, speed=opts.speed, watchdog=opts.watchdog,
+                  tick_timeout=opts.tick_timeout, trace=opts.trace, clock=clock)
+    world.start()
+    try:
+        log.info("world: %d robots, %d obstacles, %s, waiting for robots and leader", scn.n, len(scn.obstacles),
+                 "lockstep" if opts.lockstep else "realtime")
+        try:
+            world.wait_ready(opts.start_timeout, stop)
+        except InterruptedError:
+            pass
+        if stop.is_set():
+            metrics = world.referee.metrics(time.perf_counter() - started, True,
+                                            "lockstep" if opts.lockstep else "realtime")
+        else:
+            settle_heap()
+            metrics = world.run(stop, started)
+    finally:
+        world.close()
+    return metrics, world

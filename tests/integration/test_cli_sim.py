@@ -144,7 +144,7 @@ def test_wall_time_counts_from_the_process_start():
     calling main() reports an age of at least that (the clock ticks in 10 ms steps)."""
     code = ("import time; t = time.monotonic()\n"
             "while time.monotonic() - t < 0.3: pass\n"
-            "from swarm.cli import _process_age_s; print(_process_age_s())")
+            "from swarm.cli.main import _process_age_s; print(_process_age_s())")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert 0.28 <= float(out.stdout) < 30.0

@@ -13,9 +13,9 @@ import uuid
 import numpy as np
 import pytest
 
-from swarm import scenario_file
-from swarm.scenario_file import Overrides
-from swarm.sim import Simulation
+from swarm.core import scenario_file
+from swarm.core.scenario_file import Overrides
+from swarm.core.sim import Simulation
 
 pytestmark = pytest.mark.integration
 

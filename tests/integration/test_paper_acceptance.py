@@ -2,8 +2,8 @@
 
 import pytest
 
-from swarm import scenario_file as sf
-from swarm.sim import Simulation
+from swarm.core import scenario_file as sf
+from swarm.core.sim import Simulation
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 

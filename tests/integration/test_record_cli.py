@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from swarm import record, report
-from swarm.playback import replay_into
+from swarm.view import record, report
+from swarm.cli.playback import replay_into
 from tests.integration.test_up import METRIC_KEYS, up
 
 pytestmark = pytest.mark.integration
@@ -86,7 +86,7 @@ def test_report_of_the_recorded_run_writes_panels_and_summary_with_its_metrics(u
 
 
 class CaptureViewer:
-    """Stands in for swarm.viz.Viewer: keeps what a replay draws."""
+    """Stands in for swarm.view.viz.Viewer: keeps what a replay draws."""
 
     def __init__(self) -> None:
         self.frames: list[tuple[float, np.ndarray, np.ndarray]] = []

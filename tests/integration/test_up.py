@@ -17,9 +17,9 @@ import numpy as np
 import psutil
 import pytest
 
-from swarm import scenario_file
-from swarm.scenario_file import Overrides
-from swarm.sim import Simulation
+from swarm.core import scenario_file
+from swarm.core.scenario_file import Overrides
+from swarm.core.sim import Simulation
 
 pytestmark = pytest.mark.integration
 
@@ -44,8 +44,8 @@ def up(tmp_path: Path, *args: str, fleet: str = "t") -> tuple[list[str], Path]:
 def wait_for_ticks(cmd: list[str], fleet: str, tick: int, proc: subprocess.Popen, timeout_s: float = 90.0) -> None:
     """Wait (bounded) until the world of `swarm up` (command line `cmd`) reports tick `tick` on its
     progress key: an event to wait on instead of a sleep."""
-    from swarm import keys, protocol
-    from swarm.bus import ZenohBus, zenoh_config
+    from swarm.proto import keys, protocol
+    from swarm.net.bus import ZenohBus, zenoh_config
 
     endpoint = cmd[cmd.index("--listen") + 1]
     seen = threading.Event()

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarm import protocol as p
+from swarm.proto import protocol as p
 
 MESSAGES = [
     p.Ref(t=1.5, seq=75, x=1.0, y=-2.0, theta=0.3, v=0.5, w=0.0982),

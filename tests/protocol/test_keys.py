@@ -2,7 +2,7 @@
 
 import pytest
 
-from swarm import keys
+from swarm.proto import keys
 
 
 @pytest.mark.parametrize(

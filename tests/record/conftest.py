@@ -8,10 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from swarm import keys, protocol, record
-from swarm import scenario_file as sf
-from swarm.bus import MemoryBus, MemoryNet
-from swarm.sim import Result, Simulation
+from swarm.proto import keys, protocol
+from swarm.view import record
+from swarm.core import scenario_file as sf
+from swarm.net.bus import MemoryBus, MemoryNet
+from swarm.core.sim import Result, Simulation
 
 FLEET = "rec"
 

@@ -7,10 +7,11 @@ import json
 import numpy as np
 from mcap.reader import make_reader
 
-from swarm import keys, protocol, record, report
-from swarm import scenario_file as sf
-from swarm.bus import MemoryBus, MemoryNet
-from swarm.protocol import Cmd, RobotSnap, Snapshot, Status
+from swarm.proto import keys, protocol
+from swarm.view import record, report
+from swarm.core import geometry, scenario_file as sf
+from swarm.net.bus import MemoryBus, MemoryNet
+from swarm.proto.protocol import Cmd, RobotSnap, Snapshot, Status
 from world.referee import Referee
 
 
@@ -69,7 +70,7 @@ def test_a_robot_dead_at_the_first_snapshot_is_an_event():
 def test_large_swarms_use_the_sweep_and_find_the_same_pairs():
     rng = np.random.default_rng(7)
     x, y = rng.uniform(0, 30, 600), rng.uniform(0, 30, 600)
-    i, j, dist = record.pairs_within(x, y, 0.5)  # sort and sweep (N > 256)
+    i, j, dist = geometry.pairs_within(x, y, 0.5)  # sort and sweep (N > 256)
     full = np.hypot(x[:, None] - x[None, :], y[:, None] - y[None, :])
     wi, wj = np.nonzero(np.triu(full < 0.5, 1))
     assert len(wi) > 10

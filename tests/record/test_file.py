@@ -8,7 +8,7 @@ from collections import Counter
 import pytest
 from mcap.reader import make_reader
 
-from swarm import record, report
+from swarm.view import record, report
 
 TYPES = {"number": (int, float), "integer": (int,), "boolean": (bool,), "string": (str,), "array": (list,),
          "object": (dict,), "null": (type(None),)}
@@ -107,7 +107,7 @@ def test_mcap_reads_every_channel_and_every_message_matches_its_schema(which, re
 
 
 def test_scenario_message_rebuilds_the_scenario(sim_run):
-    from swarm import scenario_file
+    from swarm.core import scenario_file
 
     _summary, messages = read_all(sim_run.path)
     msg = json.loads(next(m.data for _s, c, m in messages if c.topic == "/scenario"))

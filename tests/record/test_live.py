@@ -7,8 +7,8 @@ import json
 import numpy as np
 from mcap.reader import make_reader
 
-from swarm import report
-from swarm.sim import Simulation
+from swarm.view import report
+from swarm.core.sim import Simulation
 
 
 def recorded(path, topic):

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from mcap.writer import Writer
 
-from swarm import record, report
-from swarm.plots import TITLES, write_panels
+from swarm.view import record, report
+from swarm.view.plots import TITLES, write_panels
 
 PANELS = [f"{stem}.png" for stem in TITLES] + ["fig2.png"]
 
@@ -41,8 +41,8 @@ def test_report_is_the_sim_plots_of_the_recorded_samples(sim_run, tmp_path):
 def test_report_escapes_what_it_shows(tmp_path):
     """A bad message's key and the scenario's name end up in the page: as text, never as markup."""
     from tests.record.test_events import _snap, three_robots
-    from swarm import keys
-    from swarm.bus import MemoryBus, MemoryNet
+    from swarm.proto import keys
+    from swarm.net.bus import MemoryBus, MemoryNet
 
     scn = three_robots().replace(name="<script>alert(1)</script>")
     net = MemoryNet()
@@ -139,7 +139,7 @@ def test_bad_files_give_a_clear_error(case, reason, tmp_path, sim_run):
     elif case == "no_scenario":
         _mcap_with(path, {"/world/snapshot": SNAP})
     elif case == "bad_toml":
-        from swarm import scenario_file
+        from swarm.core import scenario_file
 
         text = scenario_file.to_toml(sim_run.scenario).replace("[control]", "[kontrol]")
         _mcap_with(path, {"/scenario": {"name": "x", "toml": text}, "/world/snapshot": SNAP})

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from swarm import record, report
-from swarm import scenario_file as sf
-from swarm.sim import Simulation
+from swarm.view import record, report
+from swarm.core import scenario_file as sf
+from swarm.core.sim import Simulation
 from tests.record.conftest import small_scenario
 
 

@@ -6,7 +6,7 @@ import threading
 
 from agents import leader as leader_mod
 from agents import robot
-from swarm.bus import MemoryBus, MemoryNet
+from swarm.net.bus import MemoryBus, MemoryNet
 from world.world import World
 
 

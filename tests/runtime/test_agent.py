@@ -9,9 +9,10 @@ import sys
 import pytest
 
 from agents import robot
-from swarm import keys, law, protocol
-from swarm.bus import MemoryBus, MemoryNet
-from swarm.protocol import Clock, Config, Pose, Ref, State
+from swarm.proto import keys, protocol
+from swarm.core import law
+from swarm.net.bus import MemoryBus, MemoryNet
+from swarm.proto.protocol import Clock, Config, Pose, Ref, State
 
 F = "t"
 CFG = Config(id=3, x=0.0, y=0.0, theta=0.0, dx=1.5, dy=-0.5, r=0.3, R=1.2, k1=0.5, k2=0.5, k3=1.0, tu=1.0,

@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from swarm import scenario_file
-from swarm.scenario_file import Overrides
-from swarm.sim import Simulation
+from swarm.core import scenario_file
+from swarm.core.scenario_file import Overrides
+from swarm.core.sim import Simulation
 from tests.runtime.harness import run_swarm
 
 METRIC_KEYS = ("robots", "obstacles", "duration_s", "dt", "seed", "converged_at_s", "final_position_error_max_m",
@@ -33,7 +33,7 @@ def test_lockstep_counts_steps_longer_than_its_wait_rule_assumes(write_scenario,
     """Two robots 4 m apart rush at each other with 0.25 s ticks: a step of more than a third of the
     cell margin brings one into the other's reach unannounced (neither waited for the other), so the
     run may differ from swarm sim. The world counts such pairs, says so, and the summary warns."""
-    from swarm.cli import summary
+    from swarm.cli.console import summary
 
     doc = {"run": {"duration": 1.5, "dt": 0.25}, "control": {"k1": 2.0}, "bodies": {"r": 0.3, "R": 0.31},
            "leader": {"start": [0.0, 0.0, 0.0], "segments": [{"duration": 1.5, "v": 0.0, "w": 0.0}]},
@@ -65,7 +65,7 @@ def test_lockstep_flags_a_robot_that_outran_its_own_subscriptions(write_scenario
 def replayed_overruns(scn) -> int:
     """The world's wait-rule check run over swarm sim's trajectory of `scn` (what the world sees when
     the distributed run does not diverge): deterministic, no threads."""
-    from swarm.bus import MemoryBus, MemoryNet
+    from swarm.net.bus import MemoryBus, MemoryNet
     from world.world import World
 
     q = Simulation(scn, record_period=scn.dt).run().recording.q

@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 
 from agents import leader as leader_mod
-from swarm import keys, kinematics, protocol
-from swarm.bus import MemoryBus, MemoryNet
-from swarm.protocol import Clock
-from swarm.scenario import Leader, Segment
+from swarm.proto import keys, protocol
+from swarm.core import kinematics
+from swarm.net.bus import MemoryBus, MemoryNet
+from swarm.proto.protocol import Clock
+from swarm.core.scenario import Leader, Segment
 
 F = "t"
 

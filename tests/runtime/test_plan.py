@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from swarm.launch import RestartPolicy, UpOptions, make_plan
+from swarm.launch.plan import RestartPolicy, UpOptions, make_plan
 
 
 def opts(**kw):
@@ -70,7 +70,7 @@ def test_speed_in_lockstep_is_said_to_have_no_effect():
 
 
 def test_the_viewer_is_a_viz_process_right_after_the_router():
-    from swarm.launch import VizOptions
+    from swarm.launch.plan import VizOptions
 
     plan = make_plan(opts(viz=VizOptions(host="0.0.0.0", port=7000, rings=True, server_log="/tmp/v.log")),
                      python="py")
@@ -102,10 +102,10 @@ def test_compile_project_leaves_bytecode_the_children_use(tmp_path):
         shutil.copytree(Path(__file__).resolve().parents[2] / pkg, tmp_path / pkg,
                         ignore=shutil.ignore_patterns("__pycache__"))
     env = {**os.environ, "PYTHONPATH": str(tmp_path), "PYTHONDONTWRITEBYTECODE": "1"}
-    run = [sys.executable, "-c", "from swarm import launch; launch.compile_project(); print(launch.__file__)"]
+    run = [sys.executable, "-c", "from swarm.launch import supervisor; supervisor.compile_project(); print(supervisor.__file__)"]
     out = subprocess.run(run, env=env, capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert out.returncode == 0, out.stderr
-    assert Path(out.stdout.strip()) == tmp_path / "swarm" / "launch.py"  # the copy, not the checkout
+    assert Path(out.stdout.strip()) == tmp_path / "swarm" / "launch" / "supervisor.py"  # the copy, not the checkout
     pycs = {p.relative_to(tmp_path).parts[0] for p in tmp_path.rglob("__pycache__/*.pyc")}
     assert pycs == {"swarm", "agents", "world"}
     stamps = {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*.pyc")}
@@ -119,7 +119,7 @@ def test_compile_project_leaves_bytecode_the_children_use(tmp_path):
 def test_a_stopped_child_whose_shutdown_hangs_exits_anyway():
     """StopEvent(exit_after_s): after the stop signal, a process stuck in its clean shutdown (here: a
     wait that never ends) still exits, with 130, so a SIGKILLed launcher leaves nothing behind."""
-    code = ("import os, signal, threading; from swarm.commands import StopEvent\n"
+    code = ("import os, signal, threading; from swarm.cli.common import StopEvent\n"
             "with StopEvent(exit_after_s=0.5) as stop:\n"
             "    os.kill(os.getpid(), signal.SIGTERM)\n"
             "    assert stop.wait(5)\n"
@@ -132,7 +132,7 @@ def test_a_stopped_child_whose_shutdown_hangs_exits_anyway():
 def test_stop_event_survives_a_storm_of_signals():
     """The handler takes no lock: signals arriving while the main thread waits on the event, or while an
     earlier handler runs, must neither deadlock nor break the process (a leader once hung that way)."""
-    code = ("import os, signal, threading, time\nfrom swarm.commands import StopEvent\n"
+    code = ("import os, signal, threading, time\nfrom swarm.cli.common import StopEvent\n"
             "with StopEvent(hard_second=False) as stop:\n"
             "    def storm():\n"
             "        for _ in range(300):\n"

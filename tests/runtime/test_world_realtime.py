@@ -9,9 +9,10 @@ import time
 
 import pytest
 
-from swarm import keys, kinematics, protocol, scenario_file
-from swarm.bus import MemoryBus, MemoryNet
-from swarm.protocol import Cmd
+from swarm.proto import keys, protocol
+from swarm.core import kinematics, scenario_file
+from swarm.net.bus import MemoryBus, MemoryNet
+from swarm.proto.protocol import Cmd
 from world.world import World
 
 F = "wrt"

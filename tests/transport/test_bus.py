@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from swarm import bus as busmod
+from swarm.net import bus as busmod
 
 
 class Events:

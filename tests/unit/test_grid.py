@@ -1,11 +1,11 @@
-"""The spatial hash grid (swarm.grid): neighbours within a radius, exactly and in ascending order."""
+"""The spatial hash grid (swarm.core.grid): neighbours within a radius, exactly and in ascending order."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from swarm import grid
+from swarm.core import grid
 
 
 def build(xs, ys, side):

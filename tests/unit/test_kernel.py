@@ -1,9 +1,9 @@
-"""The compiled batched simulator (swarm.kernel via swarm.sim) against the plain single-robot law.
+"""The compiled batched simulator (swarm.core.kernel via swarm.core.sim) against the plain single-robot law.
 
 The reference below is the robot agent's view of one tick, written out by hand: for each
 robot, its known bodies by brute force (closer than the cell side; robots by ascending
-id, then obstacles by ascending index), the plain-Python swarm.law.robot_command, then
-every robot moves one exact arc with swarm.kinematics.step_pose.
+id, then obstacles by ascending index), the plain-Python swarm.core.law.robot_command, then
+every robot moves one exact arc with swarm.core.kinematics.step_pose.
 """
 
 from __future__ import annotations
@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from swarm import kinematics, law
-from swarm import scenario_file as sf
-from swarm.scenario import Control, Scenario
-from swarm.sim import Simulation
+from swarm.core import kinematics, law
+from swarm.core import scenario_file as sf
+from swarm.core.scenario import Control, Scenario
+from swarm.core.sim import Simulation
 
 
 class Reference:
@@ -109,9 +109,9 @@ def _law_inputs(rng, count):
 
 
 def test_compiled_law_functions_equal_the_plain_ones():
-    from swarm import jit
+    from swarm.core import jit
 
-    cl = jit.compiled("swarm.law")
+    cl = jit.compiled("swarm.core.law")
     rng = np.random.default_rng(16)
     for a in list(rng.uniform(-20, 20, 200)) + [math.pi, -math.pi, 3 * math.pi, -3 * math.pi, 0.0]:
         assert cl.wrap_angle(a) == law.wrap_angle(a)

@@ -1,4 +1,4 @@
-"""Exact unicycle steps, the leader's segments and compensated sums (swarm.kinematics)."""
+"""Exact unicycle steps, the leader's segments and compensated sums (swarm.core.kinematics)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from swarm import kinematics
-from swarm.scenario import Leader, Segment
+from swarm.core import kinematics
+from swarm.core.scenario import Leader, Segment
 
 
 def rk4_unicycle(x, y, th, v, w, duration, substeps):

@@ -1,4 +1,4 @@
-"""The control law of DESIGN.md section 2 (swarm.law, plain Python form)."""
+"""The control law of DESIGN.md section 2 (swarm.core.law, plain Python form)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from swarm import kinematics, law
-from swarm import scenario_file as sf
-from swarm.scenario import Control, Leader, Segment
+from swarm.core import kinematics, law
+from swarm.core import scenario_file as sf
+from swarm.core.scenario import Control, Leader, Segment
 
 K1, K2, K3 = 0.5, 0.5, 1.0
 SENSE = 1.5  # m, the default cell side (R + margin)
@@ -558,7 +558,7 @@ def test_single_robot_converges_tightly_in_the_compiled_simulator(w):
         "formation": {"offsets": [[1.5, -0.75]]},
         "robots": {"poses": [[0.5, 0.2, 0.9]]},
     }
-    from swarm.sim import Simulation
+    from swarm.core.sim import Simulation
 
     m = Simulation(sf.resolve(sf.parse(doc, "test", "one-robot"))).run().metrics
     assert m["final_position_error_max_m"] < 1e-9

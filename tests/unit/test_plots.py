@@ -1,12 +1,12 @@
-"""swarm.plots: the Fig. 2 panels are written as real, non-blank PNG files."""
+"""swarm.view.plots: the Fig. 2 panels are written as real, non-blank PNG files."""
 
 import numpy as np
 import pytest
 from matplotlib import image
 
-from swarm import scenario_file as sf
-from swarm.plots import TITLES, close_pairs, write_panels
-from swarm.sim import Recording, Simulation
+from swarm.core import scenario_file as sf
+from swarm.view.plots import TITLES, close_pairs, write_panels
+from swarm.core.sim import Recording, Simulation
 
 NAMES = [f"{stem}.png" for stem in TITLES] + ["fig2.png"]
 
@@ -64,6 +64,6 @@ def test_close_pairs_sweep_matches_dense(monkeypatch):
     d = np.linalg.norm(q[:, :, None, :2] - q[:, None, :, :2], axis=-1).min(axis=0)
     i, j = np.nonzero(np.triu(d < 2.4, 1))
     assert np.array_equal(dense, np.stack([i, j], axis=1)) and len(dense) > 0
-    monkeypatch.setattr("swarm.plots.DENSE_PAIRS_N", 0)  # force the sort-and-sweep path
+    monkeypatch.setattr("swarm.view.plots.DENSE_PAIRS_N", 0)  # force the sort-and-sweep path
     assert np.array_equal(close_pairs(q, 2.4), dense)
     assert close_pairs(q[:, :1], 2.4).shape == (0, 2)

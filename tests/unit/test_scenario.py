@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from swarm import generators
-from swarm import scenario_file as sf
-from swarm.scenario import ScenarioError
+from swarm.core import generators
+from swarm.core import scenario_file as sf
+from swarm.core.scenario import ScenarioError
 
 # The example of DESIGN.md section 6, verbatim.
 DESIGN_EXAMPLE = """
@@ -375,7 +375,7 @@ def test_file_beats_defaults_and_flags_beat_the_file(base_doc, write_scenario):
     assert (scn.duration, scn.dt, scn.seed, scn.control.governor) == (3.0, 0.005, 9, False)
     assert scn.control.k1 == 0.7  # untouched by the flags
     p = scn.params()
-    from swarm import law
+    from swarm.core import law
 
     assert p[law.P_DT] == 0.005 and p[law.P_GOVERNOR] == 0.0 and p[law.P_THRESHOLD] == law.THRESHOLD_ALWAYS
     assert sf.load(path, sf.Overrides(governor=True)).control.governor is True

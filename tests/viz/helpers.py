@@ -18,7 +18,7 @@ import numpy as np
 import psutil
 import pytest
 
-from swarm.viz import STATE_COLORS, rgb
+from swarm.view.viz import STATE_COLORS, rgb
 
 CHROMIUM = "/usr/bin/chromium"
 # shared/recipes/meshcat-browser.md section 3: software WebGL (SwiftShader), offline, no profile noise
@@ -171,7 +171,7 @@ def meshcat_server_of(child: Child, timeout_s: float = 30.0) -> psutil.Process:
     def find():
         for p in child.tree():
             with contextlib.suppress(psutil.NoSuchProcess):
-                if "swarm.meshcat_server" in p.cmdline():
+                if "swarm.view.meshcat_server" in p.cmdline():
                     return p
         return None
 

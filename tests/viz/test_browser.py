@@ -14,11 +14,11 @@ import sys
 import numpy as np
 import pytest
 
-from swarm import scenario_file
-from swarm.meshcat_server import MeshcatServer
-from swarm.scenario_file import Overrides
-from swarm.sim import Simulation
-from swarm.viz import DEAD, FROZEN, STALE, STOPPED, TRACKING, SceneInfo, Viewer
+from swarm.core import scenario_file
+from swarm.view.meshcat_server import MeshcatServer
+from swarm.core.scenario_file import Overrides
+from swarm.core.sim import Simulation
+from swarm.view.viz import DEAD, FROZEN, STALE, STOPPED, TRACKING, SceneInfo, Viewer
 from tests.viz.helpers import (URL_LINE, Child, assert_all_gone, browser_page, chromium_processes, colour_of,
                                count_pixels, free_port, instance_colours, listening, meshcat_server_of,
                                needs_chromium, robots_js, screenshot_path, settle, wait_until)

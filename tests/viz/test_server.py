@@ -13,7 +13,7 @@ import textwrap
 import psutil
 import pytest
 
-from swarm.meshcat_server import MeshcatServer, ServerError
+from swarm.view.meshcat_server import MeshcatServer, ServerError
 from tests.viz.helpers import URL_LINE, Child, assert_all_gone, listening, meshcat_server_of
 
 pytestmark = pytest.mark.integration
@@ -52,7 +52,7 @@ def test_a_taken_port_fails_at_once_with_the_reason(tmp_path):
 def test_the_server_dies_with_a_sigkilled_parent(tmp_path):
     parent = subprocess.Popen([sys.executable, "-c", textwrap.dedent("""
         import sys
-        from swarm.meshcat_server import MeshcatServer
+        from swarm.view.meshcat_server import MeshcatServer
         s = MeshcatServer()
         s.start()
         print(s.pid, flush=True)
@@ -62,7 +62,7 @@ def test_the_server_dies_with_a_sigkilled_parent(tmp_path):
     try:
         line = parent.stdout.readline()  # bounded: the parent prints or dies within the start timeout
         server = psutil.Process(int(line))
-        assert "swarm.meshcat_server" in " ".join(server.cmdline())
+        assert "swarm.view.meshcat_server" in " ".join(server.cmdline())
         parent.kill()
         parent.wait(10)
         assert_all_gone([server], 10, "the meshcat server of a SIGKILLed parent")
@@ -100,7 +100,7 @@ def test_swarm_sim_viz_leaves_no_server_when_sigkilled(tmp_path):
     try:
         child.expect(URL_LINE, 60)
         tree = child.tree()
-        assert any("swarm.meshcat_server" in " ".join(p.cmdline()) for p in tree[1:])
+        assert any("swarm.view.meshcat_server" in " ".join(p.cmdline()) for p in tree[1:])
         child.proc.kill()
         assert_all_gone(tree, 10, "swarm sim --viz killed with SIGKILL")
     finally:

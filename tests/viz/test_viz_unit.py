@@ -13,14 +13,15 @@ import time
 import numpy as np
 import pytest
 
-from swarm import keys, kinematics, protocol, scenario_file
-from swarm.bus import MemoryBus, MemoryNet
-from swarm.cli import main
-from swarm.protocol import Ref, RobotSnap, Snapshot, Status
-from swarm.scenario_file import Overrides
-from swarm.meshcat_objects import CommandLog
-from swarm.viz import DEAD, FROZEN, PALETTE, STALE, STOPPED, TRACKING, SceneInfo, Viewer, state_codes
-from swarm.watch import SwarmWatcher, fetch_scene, play_simulation
+from swarm.proto import keys, protocol
+from swarm.core import kinematics, scenario_file
+from swarm.net.bus import MemoryBus, MemoryNet
+from swarm.cli.main import main
+from swarm.proto.protocol import Ref, RobotSnap, Snapshot, Status
+from swarm.core.scenario_file import Overrides
+from swarm.view.meshcat_objects import CommandLog
+from swarm.view.viz import DEAD, FROZEN, PALETTE, STALE, STOPPED, TRACKING, SceneInfo, Viewer, state_codes
+from swarm.view.watch import SwarmWatcher, fetch_scene, play_simulation
 from tests.viz.helpers import wait_until
 
 FLEET = "vz"
@@ -313,7 +314,7 @@ def test_without_a_scenario_the_scene_comes_from_the_worlds_queryables():
 
 
 def test_play_simulation_runs_to_the_end_and_shows_the_last_sample():
-    from swarm.sim import Simulation
+    from swarm.core.sim import Simulation
 
     scn = scenario_file.load("paper-50hz", Overrides(robots=3, duration=2.0))
     sim = Simulation(scn)
@@ -330,7 +331,7 @@ def test_play_simulation_runs_to_the_end_and_shows_the_last_sample():
 
 
 def test_play_simulation_stops_when_asked():
-    from swarm.sim import Simulation
+    from swarm.core.sim import Simulation
 
     scn = scenario_file.load("paper-50hz", Overrides(robots=3, duration=100.0))
     sim = Simulation(scn)
@@ -381,7 +382,7 @@ def test_a_taken_viewer_port_is_refused_before_anything_starts(command, taken_po
 
 
 def test_drawing_modules_import_no_transport():
-    code = ("import sys, swarm.viz, swarm.watch, swarm.meshcat_server; "
+    code = ("import sys, swarm.view.viz, swarm.view.watch, swarm.view.meshcat_server; "
             "print(','.join(m for m in ('zenoh', 'numba', 'IPython') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     assert out.stdout.strip() == ""
@@ -390,7 +391,7 @@ def test_drawing_modules_import_no_transport():
 def test_swarm_up_reads_this_runs_viewer_url_then_reports_an_early_exit(tmp_path):
     from types import SimpleNamespace
 
-    from swarm.commands import ViewerUrl
+    from swarm.cli.up import ViewerUrl
 
     log = tmp_path / "viz.log"
     log.write_text("viewer: http://127.0.0.1:1111/static/\n")  # an earlier run in the same --log-dir

@@ -3,7 +3,7 @@
     sim = Simulation(scenario)
     result = sim.run(progress=callback)     # -> Result(metrics dict, Recording)
 
-The compiled kernel (swarm.kernel) does the work in chunks so a caller can show
+The compiled kernel (swarm.core.kernel) does the work in chunks so a caller can show
 progress or stop early; this module owns the arrays, the sample recording and the
 metrics of DESIGN.md section 7.
 """
@@ -17,9 +17,9 @@ from typing import Callable
 
 import numpy as np
 
-from swarm import grid as grid_py
-from swarm import law, metrics
-from swarm.scenario import Scenario
+from swarm.core import grid as grid_py
+from swarm.core import law, metrics
+from swarm.core.scenario import Scenario
 
 # Samples kept for plots and recordings: one every RECORD_PERIOD_S of simulated time.
 RECORD_PERIOD_S = 0.05
@@ -64,7 +64,7 @@ class Simulation:
     """All robots of one scenario, stepped by the compiled kernel."""
 
     def __init__(self, scn: Scenario, record_period: float = RECORD_PERIOD_S):
-        from swarm import kernel  # compiles (or loads from cache) on first use
+        from swarm.core import kernel  # compiles (or loads from cache) on first use
 
         self.k = kernel
         self.scn = scn

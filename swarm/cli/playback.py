@@ -1,4 +1,4 @@
-"""`swarm replay` and `swarm report`: the commands that read a recording (swarm.record's MCAP file).
+"""`swarm replay` and `swarm report`: the commands that read a recording (swarm.view.record's MCAP file).
 
     swarm replay run.mcap [--speed X] [--viz-host H] [--viz-port P] [--wait | --no-wait] [--exit]
     swarm report run.mcap -o DIR
@@ -6,7 +6,7 @@
 Replay waits for a browser page to connect (--wait; the default on a terminal), then draws the recorded snapshots in the viewer exactly as recorded (poses, and the colours
 from the recorded alive, stopped and frozen flags), paced by their simulated time at --speed and
 at most MAX_HZ frames a wall second (a frame whose successor is already due is skipped, never
-drawn late). The reading itself is swarm.report's, so a replay and a report see the same data.
+drawn late). The reading itself is swarm.view.report's, so a replay and a report see the same data.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm.commands import EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent, check_viz_port, viz_options
+from swarm.cli.common import EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent, check_viz_port, viz_options
 
 log = logging.getLogger("swarm.playback")
 
@@ -34,8 +34,8 @@ def _recording(path: Path) -> Path:
 def replay_into(path: Path, viewer, speed: float, stop: threading.Event, max_hz: float = MAX_HZ,
                 on_frame=None) -> tuple[int, bool]:
     """Draw the frames of `path` into `viewer` at `speed`; returns (frames drawn, stopped early)."""
-    from swarm import report
-    from swarm.viz import state_codes
+    from swarm.view import report
+    from swarm.view.viz import state_codes
 
     drawn = 0
     for f in report.pace(report.iter_frames(path), speed, max_hz=max_hz, sleep=stop.wait):
@@ -50,9 +50,9 @@ def replay_into(path: Path, viewer, speed: float, stop: threading.Event, max_hz:
 
 
 def cmd_replay(args, started: float) -> int:
-    from swarm import report
-    from swarm.meshcat_server import MeshcatServer, ServerError
-    from swarm.viz import SceneInfo, Viewer
+    from swarm.view import report
+    from swarm.view.meshcat_server import MeshcatServer, ServerError
+    from swarm.view.viz import SceneInfo, Viewer
 
     path = _recording(args.recording)
     try:
@@ -105,7 +105,7 @@ def _wait_for_browser(server, stop: threading.Event, poll_s: float = 0.2) -> boo
 
 
 def cmd_report(args, started: float) -> int:
-    from swarm import report
+    from swarm.view import report
 
     path = _recording(args.recording)
     if args.out.exists() and not args.out.is_dir():

@@ -1,4 +1,4 @@
-"""The `swarm` command line.
+"""The `swarm` command line: the argument parser (no command runs here; swarm.cli.main dispatches).
 
     swarm sim [--scenario paper|FILE.toml] [--robots N] [--seed S] [--duration T] [--dt DT]
               [--governor/--no-governor] [--metrics out.json] [--plots DIR] [--quiet]
@@ -11,25 +11,18 @@
     swarm router | world | leader | robot --id I     (the processes `swarm up` starts; each runs alone
                                                      with --connect ENDPOINT, e.g. on another machine)
 
-Exit codes (every command): 0 done, 1 runtime failure, 2 bad input, 130 interrupted.
-A command-line flag beats the scenario file, which beats the built-in default.
+Each subcommand's `func` names the module and function that runs it ("swarm.cli.up:cmd_up"), imported
+only when that command runs: `swarm sim` never loads zenoh, a robot process never loads matplotlib.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
 import socket
-import sys
-import time
 from pathlib import Path
-from typing import Sequence
 
-from swarm.commands import (EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent,
-                            check_out_dir, record_rate)
-
+from swarm.launch.plan import VIZ_HOST
 
 # --------------------------------------------------------------------------- argument types
 
@@ -113,8 +106,6 @@ def _local_host(text: str) -> str:
 def _add_viz_flags(p: argparse.ArgumentParser, switch: str | None) -> None:
     """The viewer's flags; `switch` is "--viz" (sim: off unless asked), "--no-viz" (up: on unless
     refused) or None (viz: always on)."""
-    from swarm.launch import VIZ_HOST
-
     g = p.add_argument_group("viewer (meshcat, in a browser)")
     if switch == "--viz":
         g.add_argument("--viz", action="store_true",
@@ -180,7 +171,7 @@ def build_parser() -> argparse.ArgumentParser:
     out.add_argument("--quiet", action="store_true", help="no progress bar and no summary table")
     _add_record_flags(out)
     _add_viz_flags(sim, "--viz")
-    sim.set_defaults(func=cmd_sim)
+    sim.set_defaults(func="swarm.cli.sim:cmd_sim")
 
     scn = sub.add_parser("scenario", help="show or check scenario files",
                          description="Print a scenario as explicit TOML, or check files against the contract.")
@@ -191,10 +182,10 @@ def build_parser() -> argparse.ArgumentParser:
     show.add_argument("source", metavar="NAME|FILE")
     show.add_argument("--robots", type=_count, metavar="N")
     show.add_argument("--seed", type=_seed, metavar="S")
-    show.set_defaults(func=cmd_scenario_show)
+    show.set_defaults(func="swarm.cli.sim:cmd_scenario_show")
     check = scn_sub.add_parser("check", help="check scenario files; exit 2 at the first bad one")
     check.add_argument("files", nargs="+", metavar="FILE")
-    check.set_defaults(func=cmd_scenario_check)
+    check.set_defaults(func="swarm.cli.sim:cmd_scenario_check")
     _add_runtime_parsers(sub)
     return parser
 
@@ -261,13 +252,13 @@ def _add_runtime_parsers(sub) -> None:
     g.add_argument("--log-dir", metavar="DIR", help="where the processes' logs go (default: a new temp dir)")
     g.add_argument("--quiet", action="store_true", help="no status line and no summary")
     _add_viz_flags(up, "--no-viz")
-    up.set_defaults(func=_lazy("cmd_up"))
+    up.set_defaults(func="swarm.cli.up:cmd_up")
 
     router = sub.add_parser("router", help="a zenoh router (what swarm up embeds)",
                             description="Run a zenoh router in this process. Routers on several machines "
                                         "connect to each other with --connect.")
     _add_net_flags(router, listen=True, connect_help="another router to connect to (across machines)")
-    router.set_defaults(func=_lazy("cmd_router"))
+    router.set_defaults(func="swarm.cli.router:cmd_router")
 
     world = sub.add_parser("world", help="the simulated world: kinematics, obstacles, clock, metrics",
                            description="Simulate every robot (exact arcs), serve the obstacles and each robot's "
@@ -275,14 +266,14 @@ def _add_runtime_parsers(sub) -> None:
     _add_scenario_flags(world, "paper-50hz")
     _add_run_flags(world)
     _add_net_flags(world)
-    world.set_defaults(func=_lazy("cmd_world"))
+    world.set_defaults(func="swarm.cli.world:cmd_world")
 
     leader = sub.add_parser("leader", help="publish the leader's reference",
                             description="Publish the virtual leader's reference from the scenario's segments.")
     _add_scenario_flags(leader, "paper-50hz")
     _add_run_flags(leader)
     _add_net_flags(leader)
-    leader.set_defaults(func=_lazy("cmd_leader"))
+    leader.set_defaults(func="swarm.cli.leader:cmd_leader")
 
     robot = sub.add_parser("robot", help="one robot's agent (its decentralized controller)",
                            description="Run robot ID's controller. It takes its slice of the scenario from "
@@ -292,7 +283,7 @@ def _add_runtime_parsers(sub) -> None:
     _add_optional_scenario_flags(robot, "the world's configuration is used")
     _add_run_flags(robot)
     _add_net_flags(robot)
-    robot.set_defaults(func=_lazy("cmd_robot"))
+    robot.set_defaults(func="swarm.cli.robot:cmd_robot")
 
     viz = sub.add_parser("viz", help="watch a running swarm in a browser (meshcat)",
                          description="Start a meshcat web server, print its URL, and draw the swarm of --fleet "
@@ -307,7 +298,7 @@ def _add_runtime_parsers(sub) -> None:
     viz.add_argument("--start-timeout", type=_positive_float, default=60.0, metavar="S",
                      help="seconds to wait for the router at start (default 60)")
     _add_net_flags(viz)
-    viz.set_defaults(func=_lazy("cmd_viz"))
+    viz.set_defaults(func="swarm.cli.viz:cmd_viz")
 
     replay = sub.add_parser("replay", help="play a recording (swarm sim/up --record) in the browser viewer",
                             description="Play the snapshots of an MCAP recording in the viewer at --speed times "
@@ -323,7 +314,7 @@ def _add_runtime_parsers(sub) -> None:
     w.add_argument("--no-wait", action="store_true", help="start at once (the default in scripts)")
     replay.add_argument("--exit", action="store_true", help="exit when the replay ends instead of waiting for Ctrl-C")
     _add_viz_flags(replay, None)
-    replay.set_defaults(func=_lazy("cmd_replay", "swarm.playback"))
+    replay.set_defaults(func="swarm.cli.playback:cmd_replay")
 
     report = sub.add_parser("report", help="write the Fig. 2 panels and an HTML summary of a recording",
                             description="Read an MCAP recording and write into DIR the panels of the paper's "
@@ -332,215 +323,6 @@ def _add_runtime_parsers(sub) -> None:
                             epilog="Example: swarm report run.mcap -o report/ && xdg-open report/index.html")
     report.add_argument("recording", type=Path, metavar="FILE.mcap")
     report.add_argument("-o", "--out", type=Path, required=True, metavar="DIR", help="the directory to write")
-    report.set_defaults(func=_lazy("cmd_report", "swarm.playback"))
+    report.set_defaults(func="swarm.cli.playback:cmd_report")
 
 
-def _lazy(name: str, module: str = "swarm.commands"):
-    def run(args, started):
-        import importlib
-
-        return getattr(importlib.import_module(module), name)(args, started)
-
-    return run
-
-
-# --------------------------------------------------------------------------- commands
-
-
-def _overrides(args: argparse.Namespace):
-    from swarm.scenario_file import Overrides
-
-    return Overrides(robots=getattr(args, "robots", None), seed=getattr(args, "seed", None),
-                     duration=getattr(args, "duration", None), dt=getattr(args, "dt", None),
-                     governor=getattr(args, "governor", None))
-
-
-def cmd_sim(args: argparse.Namespace, started: float) -> int:
-    from swarm import console, scenario_file
-    from swarm.commands import check_viz_port, viz_options
-    from swarm.sim import Simulation
-
-    scn = scenario_file.load(args.scenario, _overrides(args))
-    for note in scenario_file.advisories(scn):
-        print(f"swarm sim: warning: {note}", file=sys.stderr)
-    check_out_dir("--metrics", args.metrics)
-    check_out_dir("--record", args.record)
-    args.record_hz = record_rate(args)
-    if args.plots is not None and args.plots.exists() and not args.plots.is_dir():
-        raise BadInput(f"--plots {args.plots}: exists and is not a directory")
-    viz = viz_options(args, args.viz, "needs --viz", extra=(("--speed", args.speed),))
-    if viz is not None:
-        check_viz_port(viz)
-    status = console.StatusLine(enabled=not args.quiet, log_every=2.0)  # a line every 2 s in a log, as swarm up
-    if not args.quiet and not _kernel_cached():
-        print("compiling the simulation kernel (first run after install only, ~5-10 s)...", file=sys.stderr)
-    if args.record is not None:
-        from swarm import record
-
-        sim = Simulation(scn, record_period=record.record_period(args.record_hz, scn.dt))
-    else:
-        sim = Simulation(scn)
-
-    def show(p) -> None:
-        dist = "-" if p.min_distance is None else f"{p.min_distance:.3f} m"
-        status.update(f"{console.bar(p.t / p.duration if p.duration else 1)} t {p.t:7.2f}/{p.duration:.1f} s"
-                      f"  converged {p.converged}/{p.robots}  frozen {p.frozen}  min distance {dist}")
-
-    if viz is not None:
-        return _sim_in_viewer(args, viz, scn, sim, show, status, started)
-    with StopEvent() as stop:
-        result = sim.run(progress=show, should_stop=stop.is_set, started=started)
-    status.close()
-    return _sim_report(args, scn, result)
-
-
-def _sim_report(args: argparse.Namespace, scn, result) -> int:
-    m = result.metrics
-    if args.metrics is not None:
-        args.metrics.write_text(json.dumps(m, indent=2, allow_nan=False) + "\n")
-    if args.plots is not None:
-        from swarm.plots import write_panels
-
-        write_panels(result.recording, scn, args.plots)
-    if args.record is not None:
-        from swarm.record import RecordError, record_simulation
-
-        try:
-            record_simulation(args.record, scn, result, args.record_hz)
-        except RecordError as e:
-            raise Failure(str(e)) from None
-    if not args.quiet:
-        print(summary(m, scn.name))
-        if args.metrics is not None:
-            print(f"metrics: {args.metrics}")
-        if args.plots is not None:
-            print(f"plots:   {args.plots}/")
-        if args.record is not None:
-            print(f"record:  {args.record}")
-    return EXIT_INTERRUPTED if m["interrupted"] else EXIT_OK
-
-
-def _sim_in_viewer(args: argparse.Namespace, viz, scn, sim, show, status, started: float) -> int:
-    """`swarm sim --viz`: the run paced at --speed in the viewer, then the viewer stays up until Ctrl-C."""
-    from swarm.meshcat_server import MeshcatServer, ServerError
-    from swarm.sim import Result
-    from swarm.viz import SceneInfo, Viewer
-    from swarm.watch import play_simulation
-
-    server = MeshcatServer(viz.host, viz.port)
-    try:
-        server.start()
-        print(f"viewer: {server.web_url}", flush=True)
-        viewer = Viewer(server, SceneInfo.from_scenario(scn), rings=viz.rings)
-        with StopEvent() as stop:
-            interrupted = play_simulation(sim, viewer, args.speed or 1.0, should_stop=stop.is_set, progress=show)
-            result = Result(sim.metrics(time.perf_counter() - started, interrupted), sim.recording())
-            status.close()
-            code = _sim_report(args, scn, result)
-            if not interrupted:
-                print(f"viewer: the run is over; the viewer stays at {server.web_url} until Ctrl-C", flush=True)
-                while not stop.wait(0.25):
-                    pass
-    except ServerError as e:
-        raise Failure(f"viewer: {e}") from None
-    finally:
-        server.stop()
-    return code
-
-
-def summary(m: dict, name: str) -> str:
-    from swarm.console import fmt, table
-
-    conv = m["converged_at_s"]
-    rows = [
-        ("scenario", f"{name}  ({m['robots']} robots, {m['obstacles']} obstacles, seed {m['seed']}, dt {m['dt']:g} s"
-                     f"{', governor on' if m.get('governor') else ''})"),
-        ("simulated", fmt(m["duration_s"], "s") + ("  (interrupted)" if m["interrupted"] else "")),
-        ("converged at", "not converged" if conv is None else fmt(conv, "s")),
-        ("final errors", f"position {fmt(m['final_position_error_max_m'], 'm', 3)}, "
-                         f"orientation {fmt(m['final_orientation_error_max_rad'], 'rad', 3)}"),
-        ("min distance", f"robot-robot {fmt(m['min_robot_distance_m'], 'm')}, "
-                         f"robot-obstacle {fmt(m['min_obstacle_distance_m'], 'm')}"),
-        ("collisions", str(m["collisions"])),
-        ("last freeze end", fmt(m["last_freeze_end_s"], "s")),
-        *([("lock-step", f"robots outran the wait rule ({m['lockstep_overruns']} pair-ticks): this run may "
-                         "differ from swarm sim (a smaller --dt helps; docs/runtime.md)")]
-          if m.get("lockstep_overruns") else []),
-        ("wall time", fmt(m["wall_s"], "s", 3)),
-    ]
-    return table(rows, "summary")
-
-
-def cmd_scenario_show(args: argparse.Namespace, started: float) -> int:
-    from swarm import scenario_file
-
-    scn = scenario_file.load(args.source, _overrides(args))
-    sys.stdout.write(scenario_file.to_toml(scn))
-    return EXIT_OK
-
-
-def cmd_scenario_check(args: argparse.Namespace, started: float) -> int:
-    from swarm import scenario_file
-
-    for f in args.files:
-        scn = scenario_file.load(f)
-        print(f"{f}: ok ({scn.n} robots, {len(scn.obstacles)} obstacles, {scn.steps} steps of {scn.dt:g} s)")
-        for note in scenario_file.advisories(scn):
-            print(f"{f}: warning: {note}")
-    return EXIT_OK
-
-
-def _kernel_cached() -> bool:
-    from swarm import jit
-
-    d = jit.cache_dir()
-    return d.is_dir() and any(d.rglob("*.nbi"))
-
-
-def _process_age_s() -> float:
-    """Seconds since this process started (Linux /proc, 10 ms steps; 0.0 where that is not known)."""
-    try:
-        with open("/proc/self/stat") as f:
-            start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])  # field 22, starttime
-        with open("/proc/uptime") as f:
-            uptime = float(f.read().split()[0])
-        return max(0.0, uptime - start_ticks / os.sysconf("SC_CLK_TCK"))
-    except (OSError, ValueError, IndexError):
-        return 0.0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    # wall_s runs from the command's start (DESIGN.md section 7): the interpreter's start and the
-    # imports count too when this is the command (argv None); a caller in-process counts from here
-    started = time.perf_counter() - (_process_age_s() if argv is None else 0.0)
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if args.command is None:
-        parser.print_help()
-        return EXIT_BAD_INPUT
-    from swarm.scenario import ScenarioError
-
-    try:
-        return args.func(args, started)
-    except (ScenarioError, BadInput) as e:
-        print(f"swarm {args.command}: error: {e}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except Failure as e:
-        print(f"swarm {args.command}: failed: {e}", file=sys.stderr)
-        return EXIT_FAILURE
-    except KeyboardInterrupt:
-        print(f"swarm {args.command}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    except BrokenPipeError:
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return EXIT_OK
-    except Exception as e:  # a runtime failure: one line, plus the traceback on request
-        if os.environ.get("SWARM_DEBUG"):
-            raise
-        print(f"swarm {args.command}: failed: {type(e).__name__}: {e} (set SWARM_DEBUG=1 for a traceback)",
-              file=sys.stderr)
-        return EXIT_FAILURE
-
-
-if __name__ == "__main__":
-    sys.exit(main())

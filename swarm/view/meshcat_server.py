@@ -8,7 +8,7 @@
 Why not `meshcat.Visualizer()` (shared/recipes/meshcat-browser.md): its server listens on every
 interface whatever it prints, walks silently to the next port when one is taken, survives a
 SIGKILLed parent, pipes a stderr nobody reads, and its REQ socket blocks forever on a dead
-server. Here the server half (`python -m swarm.meshcat_server`, the `main` below) subclasses
+server. Here the server half (`python -m swarm.view.meshcat_server`, the `main` below) subclasses
 meshcat's ZMQWebSocketBridge to bind HTTP to `host` only (ZMQ always to 127.0.0.1: only this
 machine draws), fails at once on a taken port, takes SIGTERM when its parent dies
 (PR_SET_PDEATHSIG through swarm.launch.die_with_parent; start it from the main thread, since the
@@ -93,7 +93,7 @@ class MeshcatClient:
 
 
 class MeshcatServer:
-    """Starts `python -m swarm.meshcat_server` and connects a MeshcatClient to it.
+    """Starts `python -m swarm.view.meshcat_server` and connects a MeshcatClient to it.
 
     host: where HTTP listens (default 127.0.0.1; "0.0.0.0" for other machines). port: the HTTP
     port, 0 for a free one. log: a file for the server's stderr (None: discarded)."""
@@ -118,9 +118,9 @@ class MeshcatServer:
         self.stop()
 
     def start(self) -> None:
-        from swarm.launch import PARENT_ENV
+        from swarm.launch.child import PARENT_ENV
 
-        argv = [sys.executable, "-u", "-m", "swarm.meshcat_server", "--host", self.host, "--port", str(self.port)]
+        argv = [sys.executable, "-u", "-m", "swarm.view.meshcat_server", "--host", self.host, "--port", str(self.port)]
         err = open(self.log, "ab") if self.log is not None else subprocess.DEVNULL
         try:
             # Same process group as this process: a launcher that kills our group kills the server
@@ -200,7 +200,7 @@ class MeshcatServer:
 
 def _child_env(extra: dict[str, str]) -> dict[str, str]:
     """This environment, with the directory that holds the `swarm` package on PYTHONPATH (so
-    `-m swarm.meshcat_server` imports whatever way this process found swarm)."""
+    `-m swarm.view.meshcat_server` imports whatever way this process found swarm)."""
     root = str(Path(__file__).resolve().parent.parent)
     path = os.environ.get("PYTHONPATH", "")
     if root not in path.split(os.pathsep):
@@ -274,11 +274,11 @@ def _serve(host: str, port: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from swarm.launch import die_with_parent
+    from swarm.launch.child import die_with_parent
 
     die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us after its own Ctrl-C
-    p = argparse.ArgumentParser(prog="python -m swarm.meshcat_server",
+    p = argparse.ArgumentParser(prog="python -m swarm.view.meshcat_server",
                                 description="A meshcat server with HTTP on one address (started by MeshcatServer).")
     p.add_argument("--host", default=LOOPBACK)
     p.add_argument("--port", type=int, default=0)

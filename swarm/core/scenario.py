@@ -1,6 +1,6 @@
 """A resolved scenario: every robot, offset, obstacle and setting as explicit numbers.
 
-`swarm.scenario_file` turns a TOML file (DESIGN.md section 6) or a built-in name into a
+`swarm.core.scenario_file` turns a TOML file (DESIGN.md section 6) or a built-in name into a
 `Scenario`; everything downstream (simulator, world, agents) reads only this.
 Arrays are row-per-robot: poses (N, 3) x [m], y [m], theta [rad]; offsets (N, 2)
 d_x, d_y [m] (already assigned: robot i's slot is leader + offsets[i]);
@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from swarm import kinematics, law
+from swarm.core import kinematics, law
 
 THRESHOLDS = {"off": law.THRESHOLD_OFF, "frozen": law.THRESHOLD_FROZEN, "always": law.THRESHOLD_ALWAYS}
 
@@ -56,7 +56,7 @@ class Control:
             raise ValueError(f"control.threshold must be one of {sorted(THRESHOLDS)}, got {self.threshold!r}")
 
     def vector(self, dt: float, sense: float, reach: float, obstacle_r: float = 0.0) -> np.ndarray:
-        """The law's parameter vector (swarm.law P_* layout)."""
+        """The law's parameter vector (swarm.core.law P_* layout)."""
         p = np.zeros(law.P_SIZE)
         p[law.P_K1], p[law.P_K2], p[law.P_K3] = self.k1, self.k2, self.k3
         p[law.P_TU], p[law.P_VT] = self.tu, self.vt
@@ -81,7 +81,7 @@ class Leader:
     segments: tuple[Segment, ...]
 
     def table(self) -> np.ndarray:
-        """The (S, 6) segment table of swarm.kinematics (start poses chained exactly)."""
+        """The (S, 6) segment table of swarm.core.kinematics (start poses chained exactly)."""
         table = np.zeros((len(self.segments), 6))
         t, (x, y, th) = 0.0, self.start
         for k, seg in enumerate(self.segments):
@@ -97,7 +97,7 @@ class Leader:
 
 @dataclass(frozen=True)
 class Scenario:
-    """Everything a run needs, resolved. Build with swarm.scenario_file.load()."""
+    """Everything a run needs, resolved. Build with swarm.core.scenario_file.load()."""
 
     name: str
     duration: float  # s
@@ -136,7 +136,7 @@ class Scenario:
 
     def robot_config(self, i: int, lockstep: bool = True):
         """Robot i's slice of the scenario (what its agent is given; never the others' state)."""
-        from swarm.protocol import Config
+        from swarm.proto.protocol import Config
 
         if not 0 <= i < self.n:
             raise ScenarioError(self.name, "--id", f"robot {i} is not in the scenario (it has {self.n} robots: 0..{self.n - 1})")

@@ -1,4 +1,4 @@
-"""Unicycle kinematics, exact for a constant (v, w) over a step (scalar style, see swarm.law).
+"""Unicycle kinematics, exact for a constant (v, w) over a step (scalar style, see swarm.core.law).
 
 q' = (v cos th, v sin th, w). Over a step of length dt with constant (v, w) the robot
 moves along an arc; its chord has length v dt sinc(w dt / 2) and heading th + w dt / 2.

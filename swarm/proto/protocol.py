@@ -7,7 +7,7 @@ Every payload is a msgpack map {"v": 1, "kind": ..., fields}. decode() validates
 boundary: size, msgpack, version, kind, the exact set of fields, types (bool is not a
 number), finite numbers, ranges (ids and seq >= 0, 0 < r < R), and the id in the key
 equal to the id in the payload. Anything wrong raises ProtocolError with a reason; a
-process drops and counts such a message (swarm.protocol.BadMessages) and goes on.
+process drops and counts such a message (swarm.proto.protocol.BadMessages) and goes on.
 """
 
 from __future__ import annotations
@@ -157,7 +157,7 @@ class Config:
     k3: float
     tu: float
     vt: float
-    threshold: int  # swarm.law.THRESHOLD_*
+    threshold: int  # swarm.core.law.THRESHOLD_*
     governor: bool
     dt: float  # control period [s]
     sense: float  # cell side = sensing range [m]

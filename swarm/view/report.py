@@ -1,13 +1,13 @@
-"""Reading a recording back (swarm.record's MCAP file): samples, frames for replay, a report.
+"""Reading a recording back (swarm.view.record's MCAP file): samples, frames for replay, a report.
 
     run = read_recording("run.mcap")      # scenario, sim.Recording, metrics, events
     for f in pace(iter_frames("run.mcap"), speed=2.0):
         view.show(f.q, f.alive, f.frozen)  # f.t [s], q (N, 3)
-    write_report("run.mcap", "out/")      # Fig. 2 panels (swarm.plots) + index.html
+    write_report("run.mcap", "out/")      # Fig. 2 panels (swarm.view.plots) + index.html
 
 The same reader serves a live recording (`swarm up --record`) and an in-process one (`swarm sim
---record`): both have the channels of swarm.record. The samples' errors are recomputed against the
-live leader reference of the stored scenario, exactly as the simulator computes them (swarm.kernel:
+--record`): both have the channels of swarm.view.record. The samples' errors are recomputed against the
+live leader reference of the stored scenario, exactly as the simulator computes them (swarm.core.kernel:
 p = (x_l + d_i) - x_i, e_theta = wrap(theta_l - theta_i)), never taken from a frozen snapshot.
 Every failure to read is a ReportError naming the file and the reason.
 """
@@ -26,10 +26,10 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from swarm import kinematics, law
-from swarm.record import METRIC_KEYS, TOPIC_CMD, TOPIC_EVENTS, TOPIC_METRICS, TOPIC_SCENARIO, TOPIC_SNAPSHOT
-from swarm.scenario import Scenario, ScenarioError
-from swarm.sim import Recording
+from swarm.core import kinematics, law
+from swarm.view.record import METRIC_KEYS, TOPIC_CMD, TOPIC_EVENTS, TOPIC_METRICS, TOPIC_SCENARIO, TOPIC_SNAPSHOT
+from swarm.core.scenario import Scenario, ScenarioError
+from swarm.core.sim import Recording
 
 FIRST_EVENTS = 50  # events listed one by one in index.html
 _MAGIC = b"\x89MCAP0\r\n"  # an MCAP file starts and ends with it
@@ -41,7 +41,7 @@ class ReportError(ValueError):
 
 @dataclass
 class Run:
-    """A recording read back. recording: samples at the recorded snapshots (swarm.sim.Recording);
+    """A recording read back. recording: samples at the recorded snapshots (swarm.core.sim.Recording);
     metrics: the run's metrics dict (None if the run never wrote them); events: /events dicts in time
     order; info: the /scenario message without its TOML (source, record_hz, fleet, ...)."""
 
@@ -119,7 +119,7 @@ def _messages(path: Path, topics: list[str] | None = None,
 
 
 def _scenario(path: Path, msg: dict | None) -> tuple[Scenario, dict]:
-    from swarm import scenario_file
+    from swarm.core import scenario_file
 
     if msg is None:
         raise ReportError(f"{path}: no {TOPIC_SCENARIO} message: not a swarm recording")
@@ -161,7 +161,7 @@ def _columns(path: Path, d: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.nd
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
-    """swarm.law.wrap_angle elementwise, bit for bit (numpy for angles in range, the scalar law otherwise)."""
+    """swarm.core.law.wrap_angle elementwise, bit for bit (numpy for angles in range, the scalar law otherwise)."""
     out = np.array(a, float)
     bad = ~((out > -math.pi) & (out <= math.pi))
     if bad.any():
@@ -320,7 +320,7 @@ img.wide{width:100%}figcaption{font-size:small}"""
 
 
 def _html(run: Run, panels: list[Path], extra: list[Path]) -> str:
-    from swarm.plots import TITLES
+    from swarm.view.plots import TITLES
 
     scn, rec, m = run.scenario, run.recording, run.metrics
     esc = html.escape
@@ -377,16 +377,16 @@ def _html(run: Run, panels: list[Path], extra: list[Path]) -> str:
 
 
 def _toml_of(scn: Scenario) -> str:
-    from swarm import scenario_file
+    from swarm.core import scenario_file
 
     return scenario_file.to_toml(scn)
 
 
 def write_report(path, out_dir) -> list[Path]:
-    """Write the Fig. 2 panels of a recording (swarm.plots.write_panels, as `swarm sim --plots`), its
+    """Write the Fig. 2 panels of a recording (swarm.view.plots.write_panels, as `swarm sim --plots`), its
     scenario.toml and metrics.json, and index.html (a one-page summary linking them). Returns the paths
     written: the panels first, then scenario.toml, metrics.json (if the run has metrics), index.html."""
-    from swarm.plots import write_panels
+    from swarm.view.plots import write_panels
 
     run = read_recording(path)
     out = Path(out_dir)

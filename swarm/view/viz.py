@@ -3,7 +3,7 @@
     viewer = Viewer(server, SceneInfo.from_scenario(scn))    # a MeshcatServer, its client, or a meshcat Visualizer
     viewer.draw(t, q, codes, leader=(x, y, theta))           # q (N, 3) x, y, theta; codes (N,) TRACKING ...
 
-The drawing knows nothing of zenoh, processes or where the poses come from: `swarm.watch` feeds it
+The drawing knows nothing of zenoh, processes or where the poses come from: `swarm.view.watch` feeds it
 from a live swarm, `swarm sim --viz` from the simulator, a replay from a recording.
 
 Scene (z up, metres): a ground with a 2 m grid; obstacles (r solid, R translucent with its rim);
@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from swarm import meshcat_objects as mo
-from swarm.meshcat_objects import poses_to_matrices
+from swarm.view import meshcat_objects as mo
+from swarm.view.meshcat_objects import poses_to_matrices
 
 # Robot states, in increasing priority: a robot shows the highest that applies.
 TRACKING, FROZEN, STALE, STOPPED, DEAD = 0, 1, 2, 3, 4
@@ -83,7 +83,7 @@ def state_codes(alive: np.ndarray, stopped: np.ndarray, frozen: np.ndarray, stat
 @dataclass(frozen=True)
 class SceneInfo:
     """What does not move: radii [m], formation offsets (N, 2) (None: no slots drawn), obstacles
-    (M, 4) x, y, r, R, and the leader's segment table (swarm.kinematics; None: the leader's pose
+    (M, 4) x, y, r, R, and the leader's segment table (swarm.core.kinematics; None: the leader's pose
     comes with each frame, or there is none)."""
 
     r: float = 0.3
@@ -109,7 +109,7 @@ class SceneInfo:
     def leader_pose(self, t: float) -> tuple[float, float, float] | None:
         if self.leader_table is None:
             return None
-        from swarm.kinematics import leader_state
+        from swarm.core.kinematics import leader_state
 
         x, y, th, _v, _w = leader_state(self.leader_table, t)
         return x, y, th

@@ -2,7 +2,7 @@
 
 Scalar style on purpose: this exact source runs as plain Python in a robot process (no
 compiler loaded, a few tens of microseconds a tick) and, compiled by numba through
-`swarm.jit.compiled("swarm.law")`, inside the batched simulator. Keep to what numba
+`swarm.core.jit.compiled("swarm.core.law")`, inside the batched simulator. Keep to what numba
 compiles: `math`, floats, ints, 1-D numpy arrays indexed by ints, tuples. No imports
 of other swarm modules (the compiled copy would call their uncompiled versions).
 
@@ -32,7 +32,7 @@ THRESHOLD_ALWAYS = 2
 # clearance to a static body, and half of that to another robot (which may close too).
 GOVERNOR_FRACTION = 0.5
 
-# Layout of the float64 parameter vector `p` (build it with swarm.scenario.Control.vector).
+# Layout of the float64 parameter vector `p` (build it with swarm.core.scenario.Control.vector).
 P_K1 = 0
 P_K2 = 1
 P_K3 = 2

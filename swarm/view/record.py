@@ -20,7 +20,7 @@ step and the last snapshot are always kept. record_hz 0 or None keeps every mess
 derived from every message received, never from the decimated ones only.
 
 Cost: a bus callback only appends the raw payload to a deque; one worker thread decodes
-(swarm.protocol.decode), derives the events and writes (bench/record_cost.py measures it).
+(swarm.proto.protocol.decode), derives the events and writes (bench/record_cost.py measures it).
 """
 
 from __future__ import annotations
@@ -36,9 +36,11 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm import keys, kinematics, protocol
-from swarm.protocol import Cmd, ProtocolError, Ref, Snapshot, Status
-from swarm.scenario import Scenario
+from swarm.proto import keys, protocol
+from swarm.core import kinematics
+from swarm.proto.protocol import Cmd, ProtocolError, Ref, Snapshot, Status
+from swarm.core.geometry import DENSE_N, pairs_within
+from swarm.core.scenario import Scenario
 
 log = logging.getLogger("swarm.record")
 
@@ -93,7 +95,7 @@ NULLABLE_METRICS = ("converged_at_s", "final_position_error_max_m", "final_orien
 # be absent (optional) is left out of the message rather than written as null.
 SCHEMAS: dict[str, tuple[str, dict]] = {
     TOPIC_SCENARIO: ("swarm.Scenario", _schema("swarm.Scenario", "The run's scenario, once at t = 0: `toml` is the "
-                     "resolved scenario file (swarm.scenario_file.to_toml), enough to rebuild it exactly; `fleet` "
+                     "resolved scenario file (swarm.core.scenario_file.to_toml), enough to rebuild it exactly; `fleet` "
                      "only for live runs.", {
                          "name": _STR, "robots": _INT, "obstacles": _INT, "dt": _NUM, "duration": _NUM, "seed": _INT,
                          "r": _NUM, "R": _NUM, "source": _STR, "record_hz": _NUM, "record_every": _INT,
@@ -199,42 +201,6 @@ class Event:
         return d
 
 
-_DENSE_N = 256  # pairwise distances over every pair up to this many robots, sort-and-sweep above
-
-
-def pairs_within(x: np.ndarray, y: np.ndarray, within: float,
-                 upper: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Index pairs i < j of points (x, y) [m] closer than `within` [m], and their distances [m].
-
-    upper: np.triu_indices(len(x), 1), when the caller keeps it (saves its construction per call)."""
-    n = len(x)
-    if n < 2:
-        e = np.zeros(0, np.int64)
-        return e, e, np.zeros(0)
-    if n <= _DENSE_N:
-        i, j = upper if upper is not None else np.triu_indices(n, 1)
-        dx, dy = x[i] - x[j], y[i] - y[j]
-        d2 = dx * dx + dy * dy
-        hit = np.flatnonzero(d2 < within * within)
-        return i[hit], j[hit], np.sqrt(d2[hit])
-    order = np.argsort(x, kind="stable")
-    sx, sy = x[order], y[order]
-    ii, jj, dd = [], [], []
-    for k in range(1, n):
-        dx = sx[k:] - sx[:-k]
-        near = np.flatnonzero(dx < within)
-        if not near.size:
-            break
-        d = np.hypot(dx[near], sy[k:][near] - sy[:-k][near])
-        hit = near[d < within]
-        a, b = order[hit], order[hit + k]
-        ii.append(np.minimum(a, b)), jj.append(np.maximum(a, b)), dd.append(d[d < within])
-    if not ii:
-        e = np.zeros(0, np.int64)
-        return e, e, np.zeros(0)
-    return np.concatenate(ii), np.concatenate(jj), np.concatenate(dd)
-
-
 class EventDeriver:
     """Derives events from a sequence of snapshots and freeze flags (pure: no I/O, no clock).
 
@@ -248,7 +214,7 @@ class EventDeriver:
         self.n = scn.n
         self.r = float(scn.r)
         self.obstacles = np.asarray(scn.obstacles, float).reshape(-1, 4)
-        self._upper = np.triu_indices(self.n, 1) if 2 <= self.n <= _DENSE_N else None
+        self._upper = np.triu_indices(self.n, 1) if 2 <= self.n <= DENSE_N else None
         self._inside: set[tuple[int, int]] = set()  # (i, j) robots, (i, n + m) robot i and obstacle m
         self._alive: np.ndarray | None = None
         self._stopped: np.ndarray | None = None
@@ -357,7 +323,7 @@ class Recorder:
                  presampled: bool = False, chunk_size: int = 1 << 20):
         from mcap.writer import CompressionType, Writer
 
-        from swarm import scenario_file
+        from swarm.core import scenario_file
 
         self.path = Path(path)
         self.scenario = scenario
@@ -511,7 +477,7 @@ class BusRecorder:
     """Records a live run from the bus: snapshots, leader reference, commands and statuses of `fleet`.
 
     Bus callbacks (on the bus's thread) only append (topic, key, payload) to a deque; a worker thread
-    decodes each payload with swarm.protocol.decode (a bad one is dropped, counted in `bad` and written
+    decodes each payload with swarm.proto.protocol.decode (a bad one is dropped, counted in `bad` and written
     as a bad_message event; nothing raises into the bus), merges each robot's newest status freeze flag
     into the snapshots, derives the events (EventDeriver) and writes through the Recorder. Nothing is
     dropped: when MAX_PENDING messages wait, a callback waits for room. threaded=False: no worker; the
@@ -728,7 +694,7 @@ class BusRecorder:
 def record_simulation(path, scenario: Scenario, result, record_hz: float | None = DEFAULT_RECORD_HZ) -> Path:
     """Write the recording of an in-process run: the same channels a live run has.
 
-    result: a swarm.sim.Result, or a Simulation (run to the end here if it has not run). Its samples
+    result: a swarm.core.sim.Result, or a Simulation (run to the end here if it has not run). Its samples
     must be at least as dense as record_hz asks: build it with Simulation(scn,
     record_period=record_period(record_hz, scn.dt)) (denser samples are decimated here).
     Per sample: a snapshot (v, w: the command computed at the sample; stopped false, alive true),
@@ -737,12 +703,12 @@ def record_simulation(path, scenario: Scenario, result, record_hz: float | None 
     come from the samples (freeze changes, collisions between consecutive samples); the metrics count
     every step, so with a coarse record_hz they may count collisions that no sample shows.
     """
-    from swarm.sim import Result, Simulation
+    from swarm.core.sim import Result, Simulation
 
     if isinstance(result, Simulation):
         result = result.run()
     if not isinstance(result, Result):
-        raise TypeError(f"record_simulation needs a swarm.sim.Result or Simulation, got {type(result).__name__}")
+        raise TypeError(f"record_simulation needs a swarm.core.sim.Result or Simulation, got {type(result).__name__}")
     scn, rec = scenario, result.recording
     dt = scn.dt
     every = record_every(record_hz, dt)

@@ -1,4 +1,4 @@
-"""Neighbour search on a uniform grid of square cells of side >= R (scalar style, see swarm.law).
+"""Neighbour search on a uniform grid of square cells of side >= R (scalar style, see swarm.core.law).
 
 Cells are (cx, cy) = (floor(x / side), floor(y / side)), the same cells as the zenoh key
 space of DESIGN.md section 5. A spatial hash maps a cell to one of H buckets (H a power

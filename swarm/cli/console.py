@@ -94,3 +94,31 @@ def fmt(value: object, unit: str = "", digits: int = 4) -> str:
     else:
         text = str(value)
     return f"{text} {unit}".rstrip()
+
+
+def summary(m: dict, name: str) -> str:
+    conv = m["converged_at_s"]
+    rows = [
+        ("scenario", f"{name}  ({m['robots']} robots, {m['obstacles']} obstacles, seed {m['seed']}, dt {m['dt']:g} s"
+                     f"{', governor on' if m.get('governor') else ''})"),
+        ("simulated", fmt(m["duration_s"], "s") + ("  (interrupted)" if m["interrupted"] else "")),
+        ("converged at", "not converged" if conv is None else fmt(conv, "s")),
+        ("final errors", f"position {fmt(m['final_position_error_max_m'], 'm', 3)}, "
+                         f"orientation {fmt(m['final_orientation_error_max_rad'], 'rad', 3)}"),
+        ("min distance", f"robot-robot {fmt(m['min_robot_distance_m'], 'm')}, "
+                         f"robot-obstacle {fmt(m['min_obstacle_distance_m'], 'm')}"),
+        ("collisions", str(m["collisions"])),
+        ("last freeze end", fmt(m["last_freeze_end_s"], "s")),
+        *([("lock-step", f"robots outran the wait rule ({m['lockstep_overruns']} pair-ticks): this run may "
+                         "differ from swarm sim (a smaller --dt helps; docs/runtime.md)")]
+          if m.get("lockstep_overruns") else []),
+        ("wall time", fmt(m["wall_s"], "s", 3)),
+    ]
+    return table(rows, "summary")
+
+
+def progress_line(p) -> str:
+    dist = "-" if p.min_distance < 0 else f"{p.min_distance:.3f} m"
+    return (f"{bar(p.t / p.duration if p.duration else 1)} t {p.t:7.2f}/{p.duration:.1f} s"
+            f"  alive {p.alive}/{p.robots}  converged {p.converged}  frozen {p.frozen}  min distance {dist}"
+            f"  misses {p.misses}  bad {p.bad}")

@@ -21,8 +21,8 @@ from matplotlib.colors import BoundaryNorm, ListedColormap
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle
 
-from swarm.scenario import Scenario
-from swarm.sim import Recording
+from swarm.core.scenario import Scenario
+from swarm.core.sim import Recording
 
 LW = 0.6  # line width of per-robot lines
 ERR_FLOOR = 1e-16  # floor for the log plot (l)
@@ -229,7 +229,7 @@ def _paths_size(rec: Recording) -> tuple[float, float]:
 def write_panels(recording: Recording, scenario: Scenario, out_dir) -> list[Path]:
     """Write the 12 panels of Fig. 2 (a_paths.png ... l_errors.png) and fig2.png into out_dir.
 
-    recording: samples of one run (swarm.sim.Recording); scenario: the Scenario that was run.
+    recording: samples of one run (swarm.core.sim.Recording); scenario: the Scenario that was run.
     Returns the paths written, panels first, the overview last.
     """
     out = Path(out_dir)

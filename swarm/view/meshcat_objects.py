@@ -8,7 +8,7 @@ Arrays go as msgpack extension types (0x17 Float32Array, 0x16 Uint32Array), as m
 geometry does. An InstancedMesh is what three.js r129 (bundled with meshcat 0.3.2) loads from
 `count`, `instanceMatrix` (column-major 4x4 per instance) and `instanceColor`; frustum culling is
 off because three.js r129 bounds an InstancedMesh by its one geometry, not by its instances.
-A sink is anything with send(command): meshcat's ViewerWindow, swarm.meshcat_server.MeshcatClient,
+A sink is anything with send(command): meshcat's ViewerWindow, swarm.view.meshcat_server.MeshcatClient,
 or CommandLog (packs and counts, sends nothing: tests and cost measurements).
 """
 

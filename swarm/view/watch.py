@@ -12,7 +12,7 @@ it always takes the newest snapshot and drops the ones in between (counted in `s
 message is dropped and counted (`bad`), never raised.
 
 Robot states: the world's snapshot says alive and stopped; each robot's status says frozen; a
-robot whose newest status is older than `stale_after_s` wall seconds is stale (swarm.viz.state_codes).
+robot whose newest status is older than `stale_after_s` wall seconds is stale (swarm.view.viz.state_codes).
 Without a scenario, the scene (offsets, radii, obstacles) comes from the world's queryables and the
 leader's pose from its reference stream, advanced exactly along its arc to the snapshot's time.
 """
@@ -27,9 +27,10 @@ from typing import Callable
 
 import numpy as np
 
-from swarm import keys, kinematics, protocol
-from swarm.protocol import ProtocolError
-from swarm.viz import STALE_AFTER_S, SceneInfo, Viewer, state_codes
+from swarm.proto import keys, protocol
+from swarm.core import kinematics
+from swarm.proto.protocol import ProtocolError
+from swarm.view.viz import STALE_AFTER_S, SceneInfo, Viewer, state_codes
 
 log = logging.getLogger("swarm.viz")
 
@@ -268,13 +269,13 @@ def fetch_scene(bus, fleet: str, n: int, bad: protocol.BadMessages | None = None
 def play_simulation(sim, viewer: Viewer, speed: float = 1.0, should_stop: Callable[[], bool] | None = None,
                     progress: Callable | None = None, max_hz: float = MAX_HZ,
                     wait: Callable[[float], object] | None = None) -> bool:
-    """Run `sim` (a swarm.sim.Simulation) to its end at `speed` simulated seconds per wall second
+    """Run `sim` (a swarm.core.sim.Simulation) to its end at `speed` simulated seconds per wall second
     (or as fast as it can, if slower), drawing its newest recorded sample at most max_hz times a
     second. Returns True if should_stop() ended it early.
 
     The simulator advances in chunks that take about 50 ms each, so frames keep coming even when
     the simulation is slower than asked. `wait(seconds)` paces frames (default: an Event's wait)."""
-    from swarm.viz import FROZEN, TRACKING
+    from swarm.view.viz import FROZEN, TRACKING
 
     if not speed > 0:
         raise ValueError(f"speed must be > 0, got {speed!r}")

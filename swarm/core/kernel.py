@@ -2,7 +2,7 @@
 
 One call advances a whole swarm by many steps with no Python in between (at N = 37 a
 step costs a few microseconds; a numpy version spends ~100 us a step on call overhead).
-The per-robot law is the compiled copy of swarm.law, the same source a robot process runs.
+The per-robot law is the compiled copy of swarm.core.law, the same source a robot process runs.
 
 Step k (time t_k = k dt), for k = 0 .. K (K = number of steps):
   1. the live leader reference at t_k (exact), a grid of the robots;
@@ -20,11 +20,11 @@ import math
 
 import numpy as np
 
-from swarm import jit
+from swarm.core import jit
 
-law = jit.compiled("swarm.law")
-kin = jit.compiled("swarm.kinematics")
-grid = jit.compiled("swarm.grid")
+law = jit.compiled("swarm.core.law")
+kin = jit.compiled("swarm.core.kinematics")
+grid = jit.compiled("swarm.core.grid")
 
 _robot_command = law.robot_command
 _wrap = law.wrap_angle

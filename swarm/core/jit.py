@@ -1,10 +1,10 @@
 """Compiled copies of the scalar-style modules (the law, kinematics, the grid).
 
 The control law is written once, in plain scalar Python that numba can compile
-(`swarm.law`, `swarm.kinematics`, `swarm.grid`). A robot process imports those
+(`swarm.core.law`, `swarm.core.kinematics`, `swarm.core.grid`). A robot process imports those
 modules as they are and never loads numba. The batched simulator calls
-`compiled("swarm.law")`, which executes the same source file a second time as a
-separate module (`swarm.law_jit`) whose `@_jit` decorator is `numba.njit`. One source,
+`compiled("swarm.core.law")`, which executes the same source file a second time as a
+separate module (`swarm.core.law_jit`) whose `@_jit` decorator is `numba.njit`. One source,
 two executions: there is no second implementation to drift.
 
 Compiled code is cached on disk under a directory named after a hash of every
@@ -22,7 +22,7 @@ from pathlib import Path
 from types import ModuleType
 
 # Every module whose source ends up inside a compiled kernel.
-KERNEL_SOURCES = ("swarm.law", "swarm.kinematics", "swarm.grid", "swarm.kernel")
+KERNEL_SOURCES = ("swarm.core.law", "swarm.core.kinematics", "swarm.core.grid", "swarm.core.kernel")
 
 
 def _source_path(name: str) -> Path:
@@ -71,7 +71,7 @@ def njit(fn):
 
 
 def compiled(name: str) -> ModuleType:
-    """Return the compiled twin of scalar-style module `name` (e.g. "swarm.law")."""
+    """Return the compiled twin of scalar-style module `name` (e.g. "swarm.core.law")."""
     jit_name = name + "_jit"
     mod = sys.modules.get(jit_name)
     if mod is not None:

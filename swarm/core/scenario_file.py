@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from swarm import generators
-from swarm.scenario import THRESHOLDS, Control, Leader, Scenario, ScenarioError, Segment
+from swarm.core import generators
+from swarm.core.scenario import THRESHOLDS, Control, Leader, Scenario, ScenarioError, Segment
 
 BUILTINS = ("paper", "paper-50hz")
 

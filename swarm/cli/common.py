@@ -1,0 +1,274 @@
+"""What every `swarm` command shares: exit codes and errors, the stop signal, the zenoh session,
+the scenario from the command line, output checks. Imported by the parser and the commands alike
+(it imports neither), so no command reaches back into another.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import socket
+import sys
+import threading
+import time
+from pathlib import Path
+
+from swarm.launch.plan import DEFAULT_LISTEN, VIZ_HOST, VizOptions
+from swarm.net.bus import ZENOH_RUNTIME
+from swarm.proto import keys
+
+EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+log = logging.getLogger("swarm")
+
+
+class BadInput(Exception):
+    """A user error: printed as one line, exit code 2."""
+
+
+class Failure(Exception):
+    """A runtime failure: printed as one line, exit code 1."""
+
+
+# --------------------------------------------------------------------------- shared pieces
+
+
+class StopEvent:
+    """SIGINT and SIGTERM set a threading.Event that the process's loop polls. A second Ctrl-C stops at
+    once (KeyboardInterrupt) unless hard_second is False: then the shutdown under way (bounded: it
+    ends with SIGKILL) finishes, so the metrics and a recording are still written. exit_after_s
+    bounds the clean shutdown: that long after the first signal, the process exits anyway.
+
+    The handler takes no lock: it writes the signal to a pipe and a watcher thread sets the event.
+    A handler that called Event.set() itself deadlocked a leader in CI: a second signal came while
+    the first handler held the event's lock (or while the main thread did, inside stop.wait())."""
+
+    def __init__(self, hard_second: bool = True, exit_after_s: float | None = None) -> None:
+        self.event = threading.Event()
+        self.signal: int | None = None
+        self.hard_second = hard_second
+        self.exit_after_s = exit_after_s
+
+    def __enter__(self) -> threading.Event:
+        self._r, self._w = os.pipe()
+        self._watcher = threading.Thread(target=self._watch, name="stop-signals", daemon=True)
+        self._watcher.start()
+        self._old = {s: signal.signal(s, self._handle) for s in (signal.SIGINT, signal.SIGTERM)}
+        return self.event
+
+    def _handle(self, signum, frame) -> None:
+        second = self.signal is not None
+        self.signal = signum
+        if second and signum == signal.SIGINT and self.hard_second:  # a second Ctrl-C
+            raise KeyboardInterrupt
+        try:
+            os.write(self._w, bytes([signum]))
+        except OSError:  # closed: the with block is over
+            pass
+
+    def _watch(self) -> None:
+        timer = None
+        while True:
+            try:
+                got = os.read(self._r, 16)
+            except OSError:
+                return
+            if not got:
+                return
+            if self.event.is_set() and signal.SIGINT in got and not self.hard_second:
+                print("swarm: stopping; the metrics and the recording are being written (a few seconds at most)",
+                      file=sys.stderr, flush=True)
+            if timer is None and self.exit_after_s is not None:
+                timer = threading.Timer(self.exit_after_s, hard_exit, (self.exit_after_s,))
+                timer.daemon = True
+                timer.start()
+            self.event.set()
+
+    def __exit__(self, *exc) -> None:
+        for s, old in self._old.items():
+            signal.signal(s, old)
+        os.close(self._w)  # the watcher reads the end of the pipe and returns
+        self._watcher.join(1.0)
+        os.close(self._r)
+
+
+# A swarm process told to stop (by a signal; by its parent's death through PR_SET_PDEATHSIG) exits
+# within this many seconds even if its clean shutdown hangs: nobody is left to SIGKILL it when the
+# launcher itself was killed.
+CHILD_EXIT_AFTER_S = 5.0
+
+
+def hard_exit(after_s: float) -> None:
+    print(f"swarm: the clean shutdown took more than {after_s:g} s; exiting now", file=sys.stderr, flush=True)
+    os._exit(EXIT_INTERRUPTED)
+
+
+def fleet_of(args) -> str:
+    try:
+        return keys.check_fleet(args.fleet)
+    except keys.KeyError_ as e:
+        raise BadInput(f"--fleet: {e}") from None
+
+
+def check_endpoint(flag: str, ep: str) -> str:
+    proto, sep, rest = ep.partition("/")
+    host, colon, port = rest.rpartition(":")
+    if not sep or not proto or not colon or not host:
+        raise BadInput(f"{flag} {ep!r}: expected an endpoint like tcp/127.0.0.1:7447")
+    if not port.isdigit() or not 0 < int(port) < 65536:
+        raise BadInput(f"{flag} {ep!r}: the port must be an integer in 1..65535, got {port!r}")
+    return ep
+
+
+def bind_error(host: str, port: int) -> str | None:
+    """Why a TCP server could not listen on host:port now (None: it could), binding as servers do
+    (SO_REUSEADDR): a clear exit 2 up front rather than a child that fails later, in its log."""
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except socket.gaierror as e:
+        return f"unknown host {host!r} ({e.strerror})"
+    for family, kind, proto, _, addr in infos:
+        with socket.socket(family, kind, proto) as sock:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                sock.bind(addr)
+            except OSError as e:
+                return e.strerror or str(e)
+    return None
+
+
+def check_listen_free(ep: str) -> None:
+    """A router that cannot bind its port only says so in its log, and the swarm then joins whatever
+    holds the port (another swarm's router): refuse before anything starts."""
+    proto, _, rest = ep.partition("/")
+    if proto != "tcp":
+        return
+    host, _, port = rest.rpartition(":")
+    error = bind_error(host.strip("[]"), int(port))
+    if error is not None:
+        raise BadInput(f"--listen {ep}: cannot listen there ({error}); is another swarm or router running? "
+                       "Give another port with --listen, or join it with --connect")
+
+
+def open_bus(args, mode: str = "client", listen: list[str] | None = None, timeout_s: float = 10.0,
+             stop: threading.Event | None = None, lean: bool = False):
+    """A ZenohBus for this process; a client retries until its router answers or timeout_s passes.
+
+    lean: zenoh's single-worker runtime (recipes/zenoh.md section 8), for the many small robot
+    processes. Not for the world: there one worker thread both receives (running our callbacks,
+    which need the GIL) and sends, and a burst of reliable puts from the main thread (which holds
+    the GIL while it waits for room in the send queue) stalled it until the router closed the
+    link after 5 s ("Unable to push non droppable network message"), once per ~2000 ticks at N = 37.
+    """
+    if lean:
+        os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)  # before zenoh starts its runtime
+    from swarm.net.bus import ZenohBus, zenoh_config
+
+    connect = [check_endpoint("--connect", c) for c in (args.connect or [])]
+    if mode == "client" and not connect:
+        connect = [DEFAULT_LISTEN]
+    cfg_file = getattr(args, "zenoh_config", None)
+    if cfg_file is not None and not Path(cfg_file).is_file():
+        raise BadInput(f"--zenoh-config {cfg_file}: no such file")
+    end = time.monotonic() + timeout_s
+    while True:
+        try:
+            conf = zenoh_config(mode, connect=connect, listen=listen, config_file=cfg_file,
+                                multicast=getattr(args, "multicast", False))
+        except Exception as e:
+            raise BadInput(f"zenoh configuration: {e}") from None
+        try:
+            return ZenohBus(conf)
+        except Exception as e:
+            if mode != "client" or time.monotonic() >= end or (stop is not None and stop.is_set()):
+                where = ", ".join(listen or []) if mode == "router" else ", ".join(connect)
+                raise Failure(f"cannot open a zenoh {mode} session on {where}: {e}") from None
+            time.sleep(0.1)
+
+
+def load_scenario(args):
+    from swarm.core import scenario_file
+    from swarm.core.scenario_file import Overrides
+
+    dt = getattr(args, "dt", None)
+    rate = getattr(args, "rate", None)
+    if rate is not None:
+        if dt is not None:
+            raise BadInput("give --dt or --rate, not both")
+        dt = 1.0 / rate
+    ov = Overrides(robots=getattr(args, "robots", None), seed=getattr(args, "seed", None),
+                   duration=getattr(args, "duration", None), dt=dt, governor=getattr(args, "governor", None))
+    return scenario_file.load(args.scenario, ov)
+
+
+def scenario_args(args) -> tuple[str, ...]:
+    """The scenario flags as given, to pass on to child processes (they resolve the same scenario)."""
+    out = ["--scenario", args.scenario]
+    for flag, value in (("--robots", args.robots), ("--seed", args.seed), ("--duration", args.duration)):
+        if value is not None:
+            out += [flag, str(value) if isinstance(value, int) else repr(value)]
+    if getattr(args, "rate", None) is not None:
+        out += ["--dt", repr(1.0 / args.rate)]
+    elif args.dt is not None:
+        out += ["--dt", repr(args.dt)]
+    if args.governor is not None:
+        out.append("--governor" if args.governor else "--no-governor")
+    return tuple(out)
+
+
+def setup_logging(quiet: bool = False) -> None:
+    logging.basicConfig(level=logging.WARNING if quiet else logging.INFO, stream=sys.stderr,
+                        format="%(asctime)s %(name)s %(levelname)s: %(message)s")
+
+
+def write_json(path: Path, obj: dict) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=2, allow_nan=False) + "\n")
+    tmp.replace(path)
+
+
+def record_rate(args) -> float:
+    """--record-hz (default swarm.view.record.DEFAULT_RECORD_HZ), refused without --record rather than ignored."""
+    if args.record_hz is not None and args.record is None:
+        raise BadInput("--record-hz needs --record PATH.mcap")
+    if args.record_hz is None:
+        from swarm.view.record import DEFAULT_RECORD_HZ
+
+        return DEFAULT_RECORD_HZ
+    return args.record_hz
+
+
+def check_out_dir(flag: str, path: Path | None) -> None:
+    """An output file's directory must exist (and be a directory), and the file must not be a directory."""
+    if path is None:
+        return
+    if not path.parent.exists():
+        raise BadInput(f"{flag} {path}: directory {path.parent} does not exist")
+    if not path.parent.is_dir():
+        raise BadInput(f"{flag} {path}: {path.parent} is not a directory")
+    if path.is_dir():
+        raise BadInput(f"{flag} {path}: is a directory (give a file name)")
+
+
+def viz_options(args, enabled: bool, otherwise: str, extra: tuple[tuple[str, object], ...] = ()) -> VizOptions | None:
+    """The viewer's options from --viz-host/--viz-port/--viz-rings (types already checked by the
+    parser); None when the viewer is off, and then any of those flags is bad input ("--viz-port
+    `otherwise`")."""
+    given = (("--viz-host", args.viz_host), ("--viz-port", args.viz_port), ("--viz-rings", args.viz_rings or None),
+             *extra)
+    if not enabled:
+        for flag, value in given:
+            if value is not None:
+                raise BadInput(f"{flag} {otherwise}")
+        return None
+    return VizOptions(host=args.viz_host or VIZ_HOST, port=args.viz_port or 0, rings=bool(args.viz_rings))
+
+
+def check_viz_port(v: VizOptions) -> None:
+    """A fixed --viz-port must be free now (a clear exit 2 rather than a viewer that fails later)."""
+    if not v.port:
+        return
+    error = bind_error(v.host, v.port)
+    if error is not None:
+        raise BadInput(f"--viz-port {v.port}: cannot listen on {v.host}:{v.port} ({error})")

@@ -1,0 +1,71 @@
+"""`swarm`'s entry point: parse the command line, run the command, turn errors into exit codes.
+
+Exit codes (every command): 0 done, 1 runtime failure, 2 bad input, 130 interrupted.
+A command-line flag beats the scenario file, which beats the built-in default.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import sys
+import time
+from typing import Sequence
+
+from swarm.cli.common import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure
+from swarm.cli.parser import build_parser
+
+
+def run_command(func: str, args, started: float) -> int:
+    """Run the command named "module:function" (imported only now)."""
+    module, _, name = func.partition(":")
+    return getattr(importlib.import_module(module), name)(args, started)
+
+
+def _process_age_s() -> float:
+    """Seconds since this process started (Linux /proc, 10 ms steps; 0.0 where that is not known)."""
+    try:
+        with open("/proc/self/stat") as f:
+            start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])  # field 22, starttime
+        with open("/proc/uptime") as f:
+            uptime = float(f.read().split()[0])
+        return max(0.0, uptime - start_ticks / os.sysconf("SC_CLK_TCK"))
+    except (OSError, ValueError, IndexError):
+        return 0.0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    # wall_s runs from the command's start (DESIGN.md section 7): the interpreter's start and the
+    # imports count too when this is the command (argv None); a caller in-process counts from here
+    started = time.perf_counter() - (_process_age_s() if argv is None else 0.0)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return EXIT_BAD_INPUT
+    from swarm.core.scenario import ScenarioError
+
+    try:
+        return run_command(args.func, args, started)
+    except (ScenarioError, BadInput) as e:
+        print(f"swarm {args.command}: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Failure as e:
+        print(f"swarm {args.command}: failed: {e}", file=sys.stderr)
+        return EXIT_FAILURE
+    except KeyboardInterrupt:
+        print(f"swarm {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_OK
+    except Exception as e:  # a runtime failure: one line, plus the traceback on request
+        if os.environ.get("SWARM_DEBUG"):
+            raise
+        print(f"swarm {args.command}: failed: {type(e).__name__}: {e} (set SWARM_DEBUG=1 for a traceback)",
+              file=sys.stderr)
+        return EXIT_FAILURE
+
+
+if __name__ == "__main__":
+    sys.exit(main())

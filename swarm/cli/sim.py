@@ -1,0 +1,142 @@
+"""`swarm sim` (the compiled simulator in one process) and `swarm scenario show | check`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+from swarm.cli.common import (EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent, check_out_dir, check_viz_port,
+                              record_rate, viz_options)
+from swarm.cli import console
+from swarm.cli.console import summary
+
+
+def _overrides(args: argparse.Namespace):
+    from swarm.core.scenario_file import Overrides
+
+    return Overrides(robots=getattr(args, "robots", None), seed=getattr(args, "seed", None),
+                     duration=getattr(args, "duration", None), dt=getattr(args, "dt", None),
+                     governor=getattr(args, "governor", None))
+
+
+def cmd_sim(args: argparse.Namespace, started: float) -> int:
+    from swarm.core import scenario_file
+    from swarm.core.sim import Simulation
+
+    scn = scenario_file.load(args.scenario, _overrides(args))
+    for note in scenario_file.advisories(scn):
+        print(f"swarm sim: warning: {note}", file=sys.stderr)
+    check_out_dir("--metrics", args.metrics)
+    check_out_dir("--record", args.record)
+    args.record_hz = record_rate(args)
+    if args.plots is not None and args.plots.exists() and not args.plots.is_dir():
+        raise BadInput(f"--plots {args.plots}: exists and is not a directory")
+    viz = viz_options(args, args.viz, "needs --viz", extra=(("--speed", args.speed),))
+    if viz is not None:
+        check_viz_port(viz)
+    status = console.StatusLine(enabled=not args.quiet, log_every=2.0)  # a line every 2 s in a log, as swarm up
+    if not args.quiet and not _kernel_cached():
+        print("compiling the simulation kernel (first run after install only, ~5-10 s)...", file=sys.stderr)
+    if args.record is not None:
+        from swarm.view import record
+
+        sim = Simulation(scn, record_period=record.record_period(args.record_hz, scn.dt))
+    else:
+        sim = Simulation(scn)
+
+    def show(p) -> None:
+        dist = "-" if p.min_distance is None else f"{p.min_distance:.3f} m"
+        status.update(f"{console.bar(p.t / p.duration if p.duration else 1)} t {p.t:7.2f}/{p.duration:.1f} s"
+                      f"  converged {p.converged}/{p.robots}  frozen {p.frozen}  min distance {dist}")
+
+    if viz is not None:
+        return _sim_in_viewer(args, viz, scn, sim, show, status, started)
+    with StopEvent() as stop:
+        result = sim.run(progress=show, should_stop=stop.is_set, started=started)
+    status.close()
+    return _sim_report(args, scn, result)
+
+
+def _sim_report(args: argparse.Namespace, scn, result) -> int:
+    m = result.metrics
+    if args.metrics is not None:
+        args.metrics.write_text(json.dumps(m, indent=2, allow_nan=False) + "\n")
+    if args.plots is not None:
+        from swarm.view.plots import write_panels
+
+        write_panels(result.recording, scn, args.plots)
+    if args.record is not None:
+        from swarm.view.record import RecordError, record_simulation
+
+        try:
+            record_simulation(args.record, scn, result, args.record_hz)
+        except RecordError as e:
+            raise Failure(str(e)) from None
+    if not args.quiet:
+        print(summary(m, scn.name))
+        if args.metrics is not None:
+            print(f"metrics: {args.metrics}")
+        if args.plots is not None:
+            print(f"plots:   {args.plots}/")
+        if args.record is not None:
+            print(f"record:  {args.record}")
+    return EXIT_INTERRUPTED if m["interrupted"] else EXIT_OK
+
+
+def _sim_in_viewer(args: argparse.Namespace, viz, scn, sim, show, status, started: float) -> int:
+    """`swarm sim --viz`: the run paced at --speed in the viewer, then the viewer stays up until Ctrl-C."""
+    from swarm.view.meshcat_server import MeshcatServer, ServerError
+    from swarm.core.sim import Result
+    from swarm.view.viz import SceneInfo, Viewer
+    from swarm.view.watch import play_simulation
+
+    server = MeshcatServer(viz.host, viz.port)
+    try:
+        server.start()
+        print(f"viewer: {server.web_url}", flush=True)
+        viewer = Viewer(server, SceneInfo.from_scenario(scn), rings=viz.rings)
+        with StopEvent() as stop:
+            interrupted = play_simulation(sim, viewer, args.speed or 1.0, should_stop=stop.is_set, progress=show)
+            result = Result(sim.metrics(time.perf_counter() - started, interrupted), sim.recording())
+            status.close()
+            code = _sim_report(args, scn, result)
+            if not interrupted:
+                print(f"viewer: the run is over; the viewer stays at {server.web_url} until Ctrl-C", flush=True)
+                while not stop.wait(0.25):
+                    pass
+    except ServerError as e:
+        raise Failure(f"viewer: {e}") from None
+    finally:
+        server.stop()
+    return code
+
+
+
+def cmd_scenario_show(args: argparse.Namespace, started: float) -> int:
+    from swarm.core import scenario_file
+
+    scn = scenario_file.load(args.source, _overrides(args))
+    sys.stdout.write(scenario_file.to_toml(scn))
+    return EXIT_OK
+
+
+def cmd_scenario_check(args: argparse.Namespace, started: float) -> int:
+    from swarm.core import scenario_file
+
+    for f in args.files:
+        scn = scenario_file.load(f)
+        print(f"{f}: ok ({scn.n} robots, {len(scn.obstacles)} obstacles, {scn.steps} steps of {scn.dt:g} s)")
+        for note in scenario_file.advisories(scn):
+            print(f"{f}: warning: {note}")
+    return EXIT_OK
+
+
+def _kernel_cached() -> bool:
+    from swarm.core import jit
+
+    d = jit.cache_dir()
+    return d.is_dir() and any(d.rglob("*.nbi"))
+
+

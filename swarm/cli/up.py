@@ -1,0 +1,272 @@
+"""`swarm up`: the router, the world, the leader, one process per robot and the viewer, supervised to the end."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import re
+import signal
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from swarm.cli.common import (EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent, check_endpoint,
+                              check_listen_free, check_out_dir, check_viz_port, fleet_of, load_scenario, open_bus,
+                              record_rate, scenario_args, viz_options, write_json)
+from swarm.cli import console
+from swarm.cli.console import progress_line, summary
+from swarm.launch.plan import DEFAULT_LISTEN, RestartPolicy, UpOptions, VizOptions, make_plan
+from swarm.launch.supervisor import Supervisor, compile_project, exit_text
+from swarm.proto import keys
+
+log = logging.getLogger("swarm")
+
+
+class ViewerUrl:
+    """`swarm up`: the URL the viz child prints (`viewer: URL`) in its log, read without blocking;
+    then whether the viz child exits early (the swarm runs on without it)."""
+
+    PATTERN = re.compile(r"^viewer: (\S+)$", re.M)
+
+    def __init__(self, child, timeout_s: float, offset: int = 0):
+        self.child = child
+        self.offset = offset  # where this run's lines start in the log
+        self.end = time.monotonic() + timeout_s
+        self.url: str | None = None
+        self.done = False
+
+    def poll(self) -> str | None:
+        """A line to show when something happened (the URL, or the viewer's end), else None."""
+        if self.done:
+            return None
+        rc = self.child.proc.poll()
+        if self.url is None:
+            m = self.PATTERN.search(self._text())
+            if m:
+                self.url = m.group(1)
+                return f"viewer: {self.url}"
+            if rc is None and time.monotonic() > self.end:
+                self.done = True
+                return f"viewer: no URL after the start timeout; see {self.child.log}"
+        if rc is None:
+            return None
+        self.done = True
+        tail = " | ".join(self._text().strip().splitlines()[-2:])
+        return f"viewer: the viz process exited ({exit_text(rc)}); the swarm goes on without it: {tail}"
+
+    def _text(self) -> str:
+        try:
+            with open(self.child.log, "rb") as f:
+                f.seek(self.offset)
+                return f.read().decode(errors="replace")
+        except OSError:
+            return ""
+
+
+# --------------------------------------------------------------------------- swarm up
+
+
+def cmd_up(args, started: float) -> int:
+    from swarm.proto import protocol
+
+    scn = load_scenario(args)  # bad input is refused here, before anything starts
+    from swarm.core.scenario_file import advisories
+
+    for note in advisories(scn):
+        print(f"swarm up: warning: {note}", file=sys.stderr)
+    fleet = fleet_of(args)
+    if args.connect and args.listen:
+        raise BadInput("give --listen (start a router) or --connect (join one), not both")
+    for ep in args.listen or []:
+        check_endpoint("--listen", ep)
+    for ep in args.connect or []:
+        check_endpoint("--connect", ep)
+    check_out_dir("--metrics", args.metrics)
+    check_out_dir("--trace", args.trace)
+    check_out_dir("--record", args.record)
+    args.record_hz = record_rate(args)
+    if args.mode == "lockstep" and args.speed != 1.0:
+        log.warning("--speed %g has no effect in lock-step, which runs as fast as the robots answer; "
+                    "it applies with --mode realtime", args.speed)
+    if args.log_dir is not None and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
+        raise BadInput(f"--log-dir {args.log_dir}: exists and is not a directory")
+    if args.zenoh_config is not None and not Path(args.zenoh_config).is_file():
+        raise BadInput(f"--zenoh-config {args.zenoh_config}: no such file")
+    log_dir = Path(args.log_dir or os.path.join(tempfile.gettempdir(), f"swarm-{fleet}-{os.getpid()}"))
+    metrics_path = (args.metrics or log_dir / "metrics.json").absolute()
+    viz = viz_options(args, not args.no_viz, "has no effect with --no-viz")
+    if viz is not None:
+        viz = VizOptions(viz.host, viz.port, viz.rings, str((log_dir / "viz-server.log").absolute()))
+    opts = UpOptions(
+        robots=scn.n, scenario_args=scenario_args(args), mode=args.mode, speed=args.speed, fleet=fleet,
+        listen=None if args.connect else (args.listen[0] if args.listen else DEFAULT_LISTEN),
+        connect=args.connect[0] if args.connect else None,
+        zenoh_config=str(Path(args.zenoh_config).absolute()) if args.zenoh_config else None,
+        multicast=args.multicast, metrics=str(metrics_path),
+        trace=str(Path(args.trace).absolute()) if args.trace else None, start_timeout=args.start_timeout,
+        tick_timeout=args.tick_timeout, watchdog=args.watchdog,
+        restart=RestartPolicy(args.restarts, args.restart_window), viz=viz)
+    plan = make_plan(opts)
+    if args.dry_run:
+        print(plan.describe())
+        return EXIT_OK
+    if viz is not None:
+        check_viz_port(viz)
+    if plan.router is not None:
+        check_listen_free(opts.listen)
+    log_dir.mkdir(parents=True, exist_ok=True)
+    try:  # whatever is read back at the end must be this run's: never an earlier run's file
+        metrics_path.unlink(missing_ok=True)
+    except OSError as e:
+        raise BadInput(f"--metrics {metrics_path}: cannot replace it: {e.strerror or e}") from None
+    compile_project()
+    status = console.StatusLine(enabled=not args.quiet, log_every=2.0)
+    say = (lambda text: None) if args.quiet else (lambda text: status.note(text))
+    viewer: list[ViewerUrl] = []
+
+    def watch_viewer() -> None:
+        """The viewer's URL (on stdout, even with --quiet: it is what the user opens), or why not."""
+        note = viewer[0].poll() if viewer else None
+        if note is not None:
+            status.clear()
+            print(note, flush=True)
+    interrupted = False
+    failure: str | None = None
+    launched_s = None
+    say(f"swarm up: {scn.n} robots, scenario {scn.name}, {args.mode}, dt {scn.dt:g} s, "
+        f"{'governor on' if scn.control.governor else 'governor off'}; logs in {log_dir}")
+    recorder = None
+    with StopEvent(hard_second=False) as stop, Supervisor(plan, log_dir) as sup:
+        bus = None
+        try:
+            t0 = time.monotonic()  # launch time: from the first process started to every token seen
+            if plan.router is not None:
+                sup.start(plan.router)
+            if plan.viz is not None:
+                viz_log = sup.log_of(plan.viz)
+                offset = viz_log.stat().st_size if viz_log.exists() else 0
+                viewer.append(ViewerUrl(sup.start(plan.viz), args.start_timeout, offset))
+            bus = open_bus(argparse.Namespace(connect=[plan.endpoint], zenoh_config=opts.zenoh_config,
+                                              multicast=opts.multicast), timeout_s=15.0, stop=stop)
+            alive: set[str] = set()
+            progress: list = [None]
+            bus.watch_alive(keys.alive_any(fleet), lambda k, up: alive.add(k) if up else alive.discard(k))
+            bus.subscribe(keys.world_progress(fleet), lambda k, b: progress.__setitem__(0, b))
+            if args.record is not None:  # subscribed before the world starts: its first snapshot is recorded
+                recorder = _start_recorder(bus, fleet, scn, args)
+            sup.start(plan.world)
+            sup.start(plan.leader)
+            for spec in plan.robots:
+                sup.start(spec)
+            want = {keys.alive(fleet, "world"), keys.alive(fleet, "leader")} | \
+                   {keys.alive(fleet, "robot", i) for i in range(scn.n)}
+            end = time.monotonic() + args.start_timeout
+            while not want <= alive and not stop.is_set():
+                if time.monotonic() > end:
+                    missing = sorted(want - alive, key=lambda k: (len(k), k))
+                    names = [k.split("/alive/")[1].replace("/", " ") for k in missing]
+                    raise launch_failure(f"not alive after {args.start_timeout:g} s: "
+                                         f"{', '.join(names[:12])}{' ...' if len(names) > 12 else ''}", sup)
+                if sup.children["world"].proc.poll() is not None:
+                    raise launch_failure("the world process exited during start-up", sup, "world")
+                status.update(f"starting: {len(alive & want)}/{len(want)} processes alive", force=False)
+                watch_viewer()
+                time.sleep(0.02)
+            if want <= alive:  # a launch cut short (Ctrl-C) has no launch time
+                launched_s = time.monotonic() - t0
+            if not stop.is_set():
+                say(f"all {len(want)} processes alive after {launched_s:.2f} s; router at {plan.endpoint}")
+            world = sup.children["world"]
+            while world.proc.poll() is None:
+                if stop.is_set():
+                    interrupted = True
+                    sup.signal("world", signal.SIGTERM)  # the world writes metrics with interrupted: true
+                    sup.wait("world", 3.0)
+                    break
+                for note in sup.check_robots():
+                    say(note)
+                watch_viewer()
+                if progress[0] is not None:
+                    try:
+                        p = protocol.decode(progress[0], "progress")
+                        status.update(progress_line(p))
+                    except protocol.ProtocolError:
+                        pass
+                stop.wait(0.1)
+            if not interrupted and world.proc.returncode not in (0, EXIT_INTERRUPTED):
+                failure = f"the world process failed ({exit_text(world.proc.returncode)}); see {world.log}"
+            if recorder is not None:  # the world's last messages may still be on their way
+                recorder.wait_for(scn.steps * scn.dt if not interrupted else None, timeout_s=1.0)
+        except Failure as e:
+            failure = str(e)
+        finally:
+            if bus is not None:
+                bus.close()
+            sup.shutdown(first=("world",))
+    status.close()
+    interrupted = interrupted or stop.is_set()
+    metrics = _read_metrics(metrics_path)
+    if metrics is None:
+        metrics = _empty_metrics(scn, args.mode)
+        if failure is None and not interrupted:
+            failure = f"the world wrote no metrics; see {log_dir}/world.log"
+    metrics["wall_s"] = time.perf_counter() - started
+    metrics["interrupted"] = bool(interrupted or metrics.get("interrupted"))
+    metrics["launch_s"] = launched_s
+    metrics["processes"] = len(plan.processes)
+    metrics["robot_restarts"] = sup.restarted
+    write_json(metrics_path, metrics)
+    record_note = _close_recorder(recorder, metrics, args.record)
+    if not args.quiet:
+        print(summary(metrics, scn.name))
+        print(f"metrics: {metrics_path}")
+        if record_note:
+            print(record_note)
+    if failure is not None:
+        print(f"swarm up: failed: {failure}", file=sys.stderr)
+        return EXIT_INTERRUPTED if interrupted else EXIT_FAILURE
+    return EXIT_INTERRUPTED if metrics["interrupted"] else EXIT_OK
+
+
+def _start_recorder(bus, fleet: str, scn, args):
+    from swarm.view.record import BusRecorder, Recorder, RecordError
+
+    try:
+        return BusRecorder(bus, fleet, Recorder(args.record, scn, args.record_hz, source=args.mode, fleet=fleet),
+                           commands_from_snapshots=args.mode == "lockstep")
+    except RecordError as e:
+        raise Failure(str(e)) from None
+
+
+def _close_recorder(recorder, metrics: dict, path) -> str | None:
+    """Finish the recording with the run's final metrics (those written to --metrics)."""
+    if recorder is None:
+        return None
+    recorder.close(metrics)
+    missed = f", {recorder.snapshots_missed} lost on the way" if recorder.snapshots_missed else ""
+    bad = f", {recorder.bad} bad messages dropped" if recorder.bad else ""
+    return f"record:  {path} ({recorder.snapshots} snapshots received{missed}{bad})"
+
+
+def launch_failure(text: str, sup, name: str | None = None) -> Failure:
+    if name is not None and name in sup.children:
+        tail = sup.children[name].log.read_text(errors="replace").strip().splitlines()[-5:]
+        if tail:
+            text += "\n  " + "\n  ".join(tail)
+    return Failure(text)
+
+
+def _read_metrics(path: Path) -> dict | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _empty_metrics(scn, mode: str) -> dict:
+    from world.referee import Referee
+
+    return Referee(scn).metrics(0.0, True, mode)

@@ -1,0 +1,43 @@
+"""`swarm world`: the simulated world and referee (world.world) on a zenoh session."""
+
+from __future__ import annotations
+
+import logging
+
+from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, EXIT_OK, Failure, StopEvent, check_out_dir,
+                              fleet_of, load_scenario, open_bus, setup_logging, write_json)
+from swarm.core.clock import WALL
+from swarm.launch.child import die_with_parent
+
+log = logging.getLogger("swarm")
+
+
+def cmd_world(args, started: float) -> int:
+    from world.world import NotReady, WorldOptions, run_world
+
+    die_with_parent()
+    setup_logging()
+    scn = load_scenario(args)
+    fleet = fleet_of(args)
+    check_out_dir("--metrics", args.metrics)
+    check_out_dir("--trace", args.trace)
+    opts = WorldOptions(lockstep=args.mode == "lockstep", speed=args.speed, watchdog=args.watchdog,
+                        tick_timeout=args.tick_timeout, start_timeout=args.start_timeout, trace=args.trace is not None)
+    with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
+        bus = open_bus(args, stop=stop)
+        try:
+            metrics, world = run_world(bus, WALL, scn, opts, stop, fleet, started)
+        except NotReady as e:
+            raise Failure(str(e)) from None
+        finally:
+            bus.close()
+    metrics["interrupted"] = bool(metrics["interrupted"] or stop.is_set())
+    if args.metrics is not None:
+        write_json(args.metrics, metrics)
+    if args.trace is not None and world.trace is not None:
+        import numpy as np
+
+        np.savez_compressed(args.trace, q=np.array(world.trace).reshape(-1, scn.n, 3), dt=scn.dt)
+    log.info("world: done at t = %s s, converged at %s s, %d collisions, %d misses",
+             metrics["duration_s"], metrics["converged_at_s"], metrics["collisions"], metrics["cmd_misses"])
+    return EXIT_INTERRUPTED if metrics["interrupted"] else EXIT_OK

@@ -1,0 +1,175 @@
+"""`swarm up`'s supervisor: the one place that starts processes (subprocess).
+
+    with Supervisor(plan, log_dir) as sup:
+        sup.start(spec)                # each child in its own process group, its log in log_dir
+        sup.check_robots()             # restart robots that exited, under the plan's RestartPolicy
+                                       # leaving: SIGTERM to every group, SIGKILL after a grace
+
+Children never fork after a zenoh session is open (subprocess starts a fresh interpreter). They
+die with the launcher even if it is SIGKILLed (PR_SET_PDEATHSIG: swarm.launch.child).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+from collections import deque
+from pathlib import Path
+
+from swarm.launch.child import PARENT_ENV
+from swarm.launch.plan import Plan, ProcSpec
+
+# --------------------------------------------------------------------------- children
+
+
+PACKAGES = ("swarm", "agents", "world")  # this project's code, which every child process imports
+
+
+def compile_project() -> None:
+    """Compile this project's modules to bytecode once, here, before forty processes import them.
+
+    Each child would otherwise compile every module of ours it imports (~40 ms of CPU each, twice
+    that on a busy machine) wherever Python does not write bytecode by itself: the first run after
+    an install from source, PYTHONDONTWRITEBYTECODE. That was about 1 s of a 2-core machine's
+    launch. The .pyc files go where Python looks for them (__pycache__ next to the sources); a
+    module is compiled only when its source changed; where the sources are read-only nothing is
+    written (an installed wheel has its bytecode already)."""
+    import compileall
+    import importlib.util
+
+    for name in PACKAGES:
+        spec = importlib.util.find_spec(name)
+        for where in (spec.submodule_search_locations or []) if spec is not None else []:
+            if os.access(where, os.W_OK):
+                try:
+                    compileall.compile_dir(where, quiet=2)
+                except OSError:  # a file we may not write: that module is compiled by each child, as before
+                    pass
+
+
+class Child:
+    def __init__(self, spec: ProcSpec, proc: subprocess.Popen, log: Path):
+        self.spec, self.proc, self.log = spec, proc, log
+        self.restarts: deque[float] = deque()
+        self.given_up = False
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
+
+
+class Supervisor:
+    """Starts children in their own process groups and makes sure none outlives it."""
+
+    def __init__(self, plan: Plan, log_dir: Path, grace_s: float = 3.0):
+        self.plan, self.log_dir, self.grace_s = plan, log_dir, grace_s
+        self.children: dict[str, Child] = {}
+        self.env = {**os.environ, **dict(plan.env), PARENT_ENV: str(os.getpid())}
+        self.restarted = 0
+
+    def __enter__(self) -> "Supervisor":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.shutdown()
+
+    def log_of(self, spec: ProcSpec) -> Path:
+        """The child's log file (appended to: a reused --log-dir keeps earlier runs' lines)."""
+        return self.log_dir / (spec.name.replace(" ", "-") + ".log")
+
+    def start(self, spec: ProcSpec) -> Child:
+        log = self.log_of(spec)
+        with open(log, "ab") as out:
+            proc = subprocess.Popen(spec.argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
+                                    env=self.env, process_group=0)
+        old = self.children.get(spec.name)
+        child = Child(spec, proc, log)
+        if old is not None:
+            child.restarts = old.restarts
+        self.children[spec.name] = child
+        return child
+
+    def pids(self) -> list[int]:
+        return [c.pid for c in self.children.values()]
+
+    def check_robots(self, now: float | None = None) -> list[str]:
+        """Restart robot processes that exited, under the policy. Returns log lines of what happened."""
+        now = time.monotonic() if now is None else now
+        notes = []
+        pol = self.plan.restart
+        for name, c in list(self.children.items()):
+            if c.spec.role != "robot" or c.given_up or c.proc.poll() is None:
+                continue
+            rc = c.proc.returncode
+            while c.restarts and now - c.restarts[0] > pol.window_s:
+                c.restarts.popleft()
+            if len(c.restarts) >= pol.max_restarts:
+                c.given_up = True
+                notes.append(f"{name} exited ({exit_text(rc)}); restarted {len(c.restarts)} times in "
+                             f"{pol.window_s:g} s, giving up on it (log: {c.log})")
+                continue
+            c.restarts.append(now)
+            self.restarted += 1
+            self.start(c.spec)
+            notes.append(f"{name} exited ({exit_text(rc)}); restarted (log: {c.log})")
+        return notes
+
+    def signal(self, name: str, sig: int) -> None:
+        c = self.children.get(name)
+        if c is not None and c.proc.poll() is None:
+            try:
+                os.killpg(c.pid, sig)
+            except ProcessLookupError:
+                pass
+
+    def wait(self, name: str, timeout_s: float) -> int | None:
+        c = self.children.get(name)
+        if c is None:
+            return None
+        try:
+            return c.proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            return None
+
+    def shutdown(self, first: tuple[str, ...] = ()) -> None:
+        """SIGTERM every child's group (`first` ones first, the router last), SIGKILL after the grace."""
+        order = [n for n in first if n in self.children]
+        order += [n for n in self.children if n not in order and n != "router"]
+        if "router" in self.children:
+            order.append("router")
+        for n in order:
+            self.signal(n, signal.SIGTERM)
+            if n == "router":
+                self.wait(n, self.grace_s)
+        end = time.monotonic() + self.grace_s
+        for n in order:
+            c = self.children[n]
+            try:
+                c.proc.wait(max(0.0, end - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                pass
+        for n in order:
+            c = self.children[n]
+            if c.proc.poll() is None:
+                self.signal(n, signal.SIGKILL)
+            try:
+                os.killpg(c.pid, signal.SIGKILL)  # anything the child itself left in its group
+            except (ProcessLookupError, PermissionError):
+                pass
+            try:
+                c.proc.wait(2.0)
+            except subprocess.TimeoutExpired:
+                pass
+
+
+def exit_text(rc: int | None) -> str:
+    if rc is None:
+        return "running"
+    if rc < 0:
+        try:
+            return f"killed by {signal.Signals(-rc).name}"
+        except ValueError:
+            return f"killed by signal {-rc}"
+    return f"exit code {rc}"
