@@ -93,6 +93,45 @@ def world_config_any(fleet: str) -> str:
     return f"{base(fleet)}/world/config/*"
 
 
+def world_run(fleet: str) -> str:
+    """The current run's identity (run id, scenario digest): published at each run's start and served."""
+    return f"{base(fleet)}/world/run"
+
+
+def world_bodies(fleet: str) -> str:
+    """Static bodies: the final poses of robots that are dead or stopped (world -> every agent)."""
+    return f"{base(fleet)}/world/bodies"
+
+
+def world_events(fleet: str) -> str:
+    """Fault and supervision events (world, launcher -> viewers, recorders)."""
+    return f"{base(fleet)}/world/events"
+
+
+def world_claim(fleet: str, claim: str) -> str:
+    """The world's queryable that hands a robot started with --id auto its id; `claim` names the
+    claimant (a hostname, say) so a restarted robot gets its id back."""
+    return f"{base(fleet)}/world/claim/{check_claim(claim)}"
+
+
+def world_claim_any(fleet: str) -> str:
+    return f"{base(fleet)}/world/claim/*"
+
+
+def estop(fleet: str) -> str:
+    """The emergency stop every drive obeys (operator -> drives)."""
+    return f"{base(fleet)}/estop"
+
+
+_CLAIM = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
+
+
+def check_claim(claim: str) -> str:
+    if not isinstance(claim, str) or not _CLAIM.match(claim):
+        raise KeyError_(f"a claim key must be 1-64 characters of letters, digits, '_', '.' or '-', got {claim!r}")
+    return claim
+
+
 def alive(fleet: str, role: str, i: int = 0) -> str:
     if role not in ROLES:
         raise KeyError_(f"role must be one of {', '.join(ROLES)}, got {role!r}")
@@ -134,11 +173,13 @@ def cell_robot(key: str) -> int | None:
 @dataclass(frozen=True)
 class Key:
     fleet: str
-    kind: str  # "ref", "pose", "cmd", "status", "cell", "obstacles", "snapshot", "alive", "clock", "progress", "config"
+    kind: str  # "ref", "pose", "cmd", "status", "cell", "obstacles", "snapshot", "alive", "clock", "progress",
+    #            "config", "run", "bodies", "events", "estop", "claim"
     id: int | None = None
     cx: int | None = None
     cy: int | None = None
     role: str | None = None
+    claim: str | None = None
 
 
 def parse(key: str) -> Key | None:
@@ -159,6 +200,16 @@ def parse(key: str) -> Key | None:
         return Key(fleet, "clock")
     if rest == ["world", "progress"]:
         return Key(fleet, "progress")
+    if rest == ["world", "run"]:
+        return Key(fleet, "run")
+    if rest == ["world", "bodies"]:
+        return Key(fleet, "bodies")
+    if rest == ["world", "events"]:
+        return Key(fleet, "events")
+    if rest == ["estop"]:
+        return Key(fleet, "estop")
+    if len(rest) == 3 and rest[:2] == ["world", "claim"] and _CLAIM.match(rest[2]):
+        return Key(fleet, "claim", claim=rest[2])
     if len(rest) == 3 and rest[:2] == ["world", "config"] and _INT.match(rest[2]):
         return Key(fleet, "config", id=int(rest[2]))
     if len(rest) == 3 and rest[0] == "robot" and _INT.match(rest[1]) and rest[2] in ("pose", "cmd", "status"):
