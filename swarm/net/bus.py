@@ -2,8 +2,10 @@
 
     bus.put(key, payload, reliable=False)      # reliable: congestion control BLOCK
     bus.put(key, payload, loopback=False)      # not to this bus's own subscribers (zenoh: remote only)
+    bus.put(key, payload, attachment=b"...")   # with a zenoh attachment (bytes beside the payload)
     bus.wanted(key)                             # would anyone receive a put on key? (skip costly work if not)
     sub = bus.subscribe(key_expr, fn)           # fn(key: str, payload: bytes), on a bus thread
+    sub = bus.subscribe_raw(key_expr, fn)       # fn(key, payload, attachment: bytes | None), same thread
     box = bus.inbox(key_expr, depth=64)         # kept until box.drain() -> [(key, payload), ...] (newest depth)
     box.wait()                                  # block until something came (or box.wake()); drain() has the rest
     tok = bus.token(key)                        # a liveliness token; tok.close() withdraws it
@@ -16,7 +18,9 @@ Two implementations behind the same narrow interface: ZenohBus (a zenoh session:
 router, or the router itself) and MemoryBus (a process-local network for unit tests:
 several MemoryBus objects on one MemoryNet behave like processes on one router). The
 interface is narrow on purpose so that a fault-injecting wrapper can stand around it.
-Key expressions follow zenoh: `*` is one chunk, `**` any number of chunks.
+Key expressions follow zenoh: `*` is one chunk, `**` any number of chunks. Attachments exist for
+peers that need them (a ROS 2 node under rmw_zenoh drops a sample without one: docs/ros2.md);
+swarm's own messages carry none.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from typing import Callable, Protocol
 
 Handler = Callable[[str, bytes], None]
 AliveHandler = Callable[[str, bool], None]
+RawHandler = Callable[[str, bytes, bytes | None], None]  # key, payload, attachment (None: the sample had none)
 
 
 class Closable(Protocol):
@@ -41,9 +46,11 @@ class Inbox(Protocol):
 
 
 class Bus(Protocol):
-    def put(self, key: str, payload: bytes, reliable: bool = False, loopback: bool = True) -> None: ...
+    def put(self, key: str, payload: bytes, reliable: bool = False, loopback: bool = True,
+            attachment: bytes | None = None) -> None: ...
     def wanted(self, key: str) -> bool: ...
     def subscribe(self, key_expr: str, fn: Handler) -> Closable: ...
+    def subscribe_raw(self, key_expr: str, fn: RawHandler) -> Closable: ...
     def inbox(self, key_expr: str, depth: int = 64) -> Inbox: ...
     def token(self, key: str) -> Closable: ...
     def watch_alive(self, key_expr: str, fn: AliveHandler) -> Closable: ...
@@ -116,6 +123,15 @@ class _MemoryInbox:
             self.handle.close()
 
 
+class _Raw:
+    """A subscribe_raw() handler on a MemoryNet: put() hands it the attachment too."""
+
+    __slots__ = ("fn",)
+
+    def __init__(self, fn: RawHandler) -> None:
+        self.fn = fn
+
+
 class MemoryNet:
     """A process-local 'router': delivers synchronously, in order, to every matching subscriber."""
 
@@ -135,12 +151,17 @@ class MemoryBus:
         self.net = net
         self._handles: list[_Handle] = []
 
-    def put(self, key: str, payload: bytes, reliable: bool = False, loopback: bool = True) -> None:
+    def put(self, key: str, payload: bytes, reliable: bool = False, loopback: bool = True,
+            attachment: bytes | None = None) -> None:
         with self.net.lock:
             targets = [fn for expr, fn, owner in self.net.subs if matches(expr, key) and (loopback or owner is not self)]
             self.net.delivered += len(targets)
+        att = None if attachment is None else bytes(attachment)
         for fn in targets:
-            fn(key, bytes(payload))
+            if type(fn) is _Raw:
+                fn.fn(key, bytes(payload), att)
+            else:
+                fn(key, bytes(payload))
 
     def wanted(self, key: str) -> bool:
         """Whether some subscriber would receive a put on `key` (a publisher may skip costly work if not)."""
@@ -162,6 +183,10 @@ class MemoryBus:
 
     def subscribe(self, key_expr: str, fn: Handler) -> Closable:
         return self._keep(self.net.subs, (key_expr, fn, self))
+
+    def subscribe_raw(self, key_expr: str, fn: RawHandler) -> Closable:
+        """subscribe(), and fn also gets the sample's attachment (None if it had none)."""
+        return self._keep(self.net.subs, (key_expr, _Raw(fn), self))
 
     def inbox(self, key_expr: str, depth: int = 64) -> Inbox:
         box = _MemoryInbox(depth)
@@ -274,8 +299,12 @@ class ZenohBus:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def put(self, key: str, payload: bytes, reliable: bool = False, loopback: bool = True) -> None:
-        self._publisher(key, reliable, loopback).put(payload)
+    def put(self, key: str, payload: bytes, reliable: bool = False, loopback: bool = True,
+            attachment: bytes | None = None) -> None:
+        if attachment is None:
+            self._publisher(key, reliable, loopback).put(payload)
+        else:
+            self._publisher(key, reliable, loopback).put(payload, attachment=attachment)
 
     def wanted(self, key: str) -> bool:
         return bool(self._publisher(key, False).matching_status.matching)
@@ -303,6 +332,14 @@ class ZenohBus:
     def subscribe(self, key_expr: str, fn: Handler) -> Closable:
         def cb(sample) -> None:
             fn(str(sample.key_expr), sample.payload.to_bytes())
+
+        return self._keep(_Undeclare(self.session.declare_subscriber(key_expr, self._handler(cb))))
+
+    def subscribe_raw(self, key_expr: str, fn: RawHandler) -> Closable:
+        """subscribe(), and fn also gets the sample's attachment (None if it had none)."""
+        def cb(sample) -> None:
+            a = sample.attachment
+            fn(str(sample.key_expr), sample.payload.to_bytes(), None if a is None else a.to_bytes())
 
         return self._keep(_Undeclare(self.session.declare_subscriber(key_expr, self._handler(cb))))
 
