@@ -1,0 +1,233 @@
+"""swarm.drives.ros2 on the in-memory bus: discovery from liveliness tokens, the odometry frame anchored
+on the first message, the commands it writes (bytes, attachment, reliability), halt and close."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from swarm.drives.ros2 import HALT_REPEATS, DiscoveryError, Ros2Drive
+from swarm.net.bus import MemoryBus, MemoryNet
+from swarm.proto import ros2
+from swarm.proto.protocol import Cmd
+from world.ros2_fleet import Ros2Fleet
+
+WALL_NS = 1_700_000_000_250_000_000
+
+
+class SpyBus(MemoryBus):
+    """A MemoryBus that remembers every put with its options."""
+
+    def __init__(self, net: MemoryNet) -> None:
+        super().__init__(net)
+        self.puts: list[tuple[str, bytes, bool, bytes | None]] = []
+
+    def put(self, key, payload, reliable=False, loopback=True, attachment=None):
+        self.puts.append((key, bytes(payload), reliable, attachment))
+        super().put(key, payload, reliable, loopback, attachment)
+
+
+class Clock:
+    def __init__(self, t: float | None = 0.0) -> None:
+        self.t = t
+
+    def __call__(self) -> float | None:
+        return self.t
+
+
+def make_drive(net, flavor="bridge", twist="plain", namespace="robot1", initial=(0.0, 0.0, 0.0), now=None, **kw):
+    bus = SpyBus(net)
+    d = Ros2Drive(bus, namespace=namespace, flavor=flavor, twist=twist, initial_pose=initial,
+                  now=now or Clock(), wall_ns=lambda: WALL_NS, discover_timeout_s=kw.pop("discover_timeout_s", 2.0),
+                  **kw)
+    return d, bus
+
+
+def odom(x, y, yaw, stamp=0):
+    return ros2.encode_odometry(ros2.Odometry(stamp, x, y, yaw, 0.0, 0.0))
+
+
+# --------------------------------------------------------------------------- frames
+
+
+def test_the_first_odometry_is_the_start_pose_and_the_rest_follow_it():
+    net = MemoryNet()
+    start = (2.0, 1.0, math.pi / 2)
+    d, _ = make_drive(net, initial=start)
+    d.start()
+    robot = MemoryBus(net)
+    odom0 = (0.3, -0.2, 0.4)  # an odom frame that did not start at zero (IMU yaw, an earlier run)
+    robot.put("robot1/odom", odom(*odom0))
+    [p0] = d.drain()
+    np.testing.assert_allclose((p0.x, p0.y, p0.theta), start, atol=1e-12)
+    # the robot drives 1 m straight ahead and turns 0.3 rad: in the swarm frame it is 1 m along +y
+    moved = ros2.se2_compose(odom0, (1.0, 0.0, 0.3))
+    robot.put("robot1/odom", odom(*moved))
+    [p1] = d.drain()
+    np.testing.assert_allclose((p1.x, p1.y, p1.theta), (2.0, 2.0, math.pi / 2 + 0.3), atol=1e-12)
+    assert (p0.seq, p1.seq) == (0, 1)
+
+
+def test_heading_is_continuous_across_pi():
+    net = MemoryNet()
+    d, _ = make_drive(net, initial=(0.0, 0.0, 3.0))
+    d.start()
+    robot = MemoryBus(net)
+    thetas = []
+    for yaw in np.linspace(0.0, 2.0 * math.pi + 1.0, 40):  # odometry yaw wraps; the swarm's heading must not
+        robot.put("robot1/odom", odom(0.0, 0.0, ros2.wrap(float(yaw))))
+        thetas += [p.theta for p in d.drain()]
+    np.testing.assert_allclose(thetas, 3.0 + np.linspace(0.0, 2.0 * math.pi + 1.0, 40), atol=1e-9)
+
+
+def test_poses_wait_for_the_clock_and_bad_odometry_is_counted():
+    net = MemoryNet()
+    clock = Clock(None)
+    d, _ = make_drive(net, initial=(5.0, 5.0, 0.0), now=clock)
+    d.start()
+    robot = MemoryBus(net)
+    robot.put("robot1/odom", odom(10.0, 0.0, 0.0))  # anchors the frame, but no clock yet: no pose
+    assert d.drain() == [] and d.unclocked == 1
+    robot.put("robot1/odom", b"\x00\x01\x00\x00 not odometry")
+    robot.put("robot1/odom", ros2.encode_twist(1.0, 0.0))
+    assert d.drain() == [] and d.bad.count == 2
+    clock.t = 12.5
+    robot.put("robot1/odom", odom(11.0, 0.0, 0.0))
+    [p] = d.drain()
+    assert (p.t, p.seq) == (12.5, 0)
+    np.testing.assert_allclose((p.x, p.y, p.theta), (6.0, 5.0, 0.0), atol=1e-12)  # anchored on the first message
+
+
+def test_wait_blocks_for_odometry_and_wake_returns_it_empty():
+    import threading
+
+    net = MemoryNet()
+    d, _ = make_drive(net)
+    d.start()
+    out: list = []
+    th = threading.Thread(target=lambda: out.append(d.wait()), daemon=True)
+    th.start()
+    MemoryBus(net).put("robot1/odom", odom(0.0, 0.0, 0.0))
+    th.join(5)
+    assert len(out) == 1 and [p.seq for p in out[0]] == [0]
+    th = threading.Thread(target=lambda: out.append(d.wait()), daemon=True)
+    th.start()
+    d.wake()
+    th.join(5)
+    assert out[1] == [] and not th.is_alive()
+
+
+# --------------------------------------------------------------------------- commands
+
+
+@pytest.mark.parametrize("flavor, twist", [("bridge", "plain"), ("bridge", "stamped"), ("rmw_zenoh", "plain"),
+                                           ("rmw_zenoh", "stamped")])
+def test_commands_bytes_attachment_and_reliability(flavor, twist):
+    net = MemoryNet()
+    fleet = Ros2Fleet(MemoryBus(net), [(0.0, 0.0, 0.0), (0.0, 0.0, 0.0)], flavor, twist)
+    fleet.start()
+    d, bus = make_drive(net, flavor, twist)
+    d.start()
+    d.send(Cmd(t=1.0, seq=1, v=0.15, w=-0.4))
+    d.send(Cmd(t=1.1, seq=2, v=0.2, w=0.0))
+    assert fleet.take_commands() == [(1, 0.15, -0.4), (1, 0.2, 0.0)]
+    (k1, p1, r1, a1), (k2, p2, r2, a2) = bus.puts
+    assert k1 == k2 == fleet.cmd_keys[1] and r1 and r2
+    if twist == "plain":
+        assert p1 == ros2.encode_twist(0.15, -0.4)
+    else:
+        assert p1 == ros2.encode_twist_stamped(0.15, -0.4, WALL_NS, "base_link")
+    if flavor == "bridge":
+        assert a1 is None and a2 is None
+    else:
+        att1, att2 = ros2.decode_attachment(a1), ros2.decode_attachment(a2)
+        assert (att1.seq, att2.seq) == (1, 2) and att1.timestamp_ns == WALL_NS and att1.gid == att2.gid == d.gid
+    assert d.halted is None and d.sent == 2
+
+
+def test_halt_latches_until_the_next_send_and_close_halts_and_releases():
+    net = MemoryNet()
+    fleet = Ros2Fleet(MemoryBus(net), [(0.0, 0.0, 0.0), (0.0, 0.0, 0.0)], "rmw_zenoh", "plain")
+    fleet.start()
+    d, bus = make_drive(net, "rmw_zenoh")
+    assert d.halted == "not started"
+    d.start()
+    d.send(Cmd(t=0.0, seq=0, v=0.2, w=0.1))
+    d.halt("watchdog")
+    assert d.halted == "watchdog"
+    assert fleet.take_commands() == [(1, 0.2, 0.1)] + [(1, 0.0, 0.0)] * HALT_REPEATS
+    d.send(Cmd(t=0.1, seq=1, v=0.1, w=0.0))
+    assert d.halted is None
+    with pytest.raises(ValueError):
+        d.send(Cmd(t=0.2, seq=2, v=math.nan, w=0.0))
+    assert d.halted.startswith("non-finite")
+    assert fleet.take_commands() == [(1, 0.1, 0.0)] + [(1, 0.0, 0.0)] * HALT_REPEATS
+    drive_tokens = [k for k in net.tokens if ros2.parse_liveliness(k).node == "swarm_drive"]
+    assert len(drive_tokens) == 3
+    d.close()
+    assert d.halted == "drive closed" and fleet.take_commands() == [(1, 0.0, 0.0)] * HALT_REPEATS
+    assert not MemoryBus(net).wanted(d.odom_key)  # the odometry subscription is gone
+    assert not [k for k in net.tokens if ros2.parse_liveliness(k).node == "swarm_drive"]
+    seqs = [ros2.decode_attachment(a).seq for _, _, _, a in bus.puts]
+    assert seqs == list(range(1, len(bus.puts) + 1))
+    d.close()  # twice is fine
+    assert len(bus.puts) == len(seqs)
+
+
+def test_send_before_start_is_refused():
+    d, _ = make_drive(MemoryNet())
+    with pytest.raises(RuntimeError):
+        d.send(Cmd(t=0.0, seq=0, v=0.0, w=0.0))
+    d.halt("shutdown")  # halting an unstarted drive only latches
+    assert d.halted == "shutdown"
+
+
+@pytest.mark.parametrize("kw", [dict(flavor="dds"), dict(twist="fast"), dict(namespace="1robot"),
+                                dict(initial=(0.0, math.inf, 0.0)), dict(domain=-1), dict(discover_timeout_s=0)])
+def test_bad_arguments_are_refused(kw):
+    with pytest.raises(ValueError):
+        make_drive(MemoryNet(), **kw)
+
+
+# --------------------------------------------------------------------------- discovery
+
+
+@pytest.mark.parametrize("twist, distro", [("plain", "jazzy"), ("stamped", "jazzy"), ("plain", "humble")])
+def test_discovery_finds_the_exact_keys_of_its_robot(twist, distro):
+    net = MemoryNet()
+    fleet = Ros2Fleet(MemoryBus(net), [(0.0, 0.0, 0.0)] * 3, "rmw_zenoh", twist, domain=4, distro=distro)
+    fleet.start()
+    Ros2Fleet(MemoryBus(net), [(0.0, 0.0, 0.0)] * 3, "rmw_zenoh", twist, domain=5).start()  # another domain
+    d, _ = make_drive(net, "rmw_zenoh", twist, namespace="/robot2", domain=4)
+    d.start()
+    assert (d.cmd_key, d.odom_key) == (fleet.cmd_keys[2], fleet.odom_keys[2])
+    assert d.cmd_key.endswith("TypeHashNotSupported") == (distro == "humble")
+    own = [ros2.parse_liveliness(k) for k in net.tokens if ros2.parse_liveliness(k).node == "swarm_drive"]
+    assert {(e.kind, e.namespace, e.topic) for e in own} == {("NN", "/robot2", None), ("MP", "/robot2", "/robot2/cmd_vel"),
+                                                             ("MS", "/robot2", "/robot2/odom")}
+    assert {e.data_key for e in own if e.topic} == {d.cmd_key, d.odom_key}
+
+
+def test_discovery_names_a_twist_mismatch():
+    net = MemoryNet()
+    Ros2Fleet(MemoryBus(net), [(0.0, 0.0, 0.0)] * 2, "rmw_zenoh", "stamped").start()
+    d, _ = make_drive(net, "rmw_zenoh", "plain", discover_timeout_s=0.2)
+    with pytest.raises(DiscoveryError) as e:
+        d.start()
+    msg = str(e.value)
+    assert msg.startswith("ROS 2 robot robot1: found no subscriber of /robot1/cmd_vel as geometry_msgs/msg/Twist on "
+                          "domain 0 within 0.2 s")
+    assert "use --twist stamped" in msg and "/robot1/turtlebot3_node" in msg
+    assert "publisher of" not in msg  # its odometry was there
+
+
+def test_discovery_with_no_robot_says_what_to_check():
+    net = MemoryNet()
+    d, _ = make_drive(net, "rmw_zenoh", discover_timeout_s=0.2, namespace="robot9")
+    with pytest.raises(DiscoveryError, match="No ROS 2 entity at all.*rmw_zenoh_cpp.*--ros-flavor bridge"):
+        d.start()
+    Ros2Fleet(MemoryBus(net), [(0.0, 0.0, 0.0)] * 2, "rmw_zenoh", "plain").start()
+    with pytest.raises(DiscoveryError, match=r"/robot9/cmd_vel.*/robot9/odom.*Seen 2 node\(s\): /robot0/turtlebot3_node"):
+        d.start()
