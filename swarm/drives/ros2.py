@@ -209,8 +209,10 @@ class Ros2Drive:
     # ------------------------------------------------------------------ poses
 
     def wait(self) -> list[Pose]:
-        """Block until odometry comes (or wake()); the poses it gives (maybe [], then drain() has the rest)."""
-        return self._poses(self._box.wait())
+        """Block until odometry comes (or wake()); the poses of all that came (maybe []: a wake, or
+        odometry that was bad or came before the clock)."""
+        items = self._box.wait()  # zenoh's inbox hands the first sample here and keeps the rest for drain()
+        return self._poses(items + self._box.drain())
 
     def drain(self) -> list[Pose]:
         return self._poses(self._box.drain())
