@@ -1,6 +1,6 @@
 """A resolved scenario: every robot, offset, obstacle and setting as explicit numbers.
 
-`swarm.core.scenario_file` turns a TOML file (DESIGN.md section 6) or a built-in name into a
+`swarm.core.scenario_file` turns a TOML file (docs/scenarios.md) or a built-in name into a
 `Scenario`; everything downstream (simulator, world, agents) reads only this.
 Arrays are row-per-robot: poses (N, 3) x [m], y [m], theta [rad]; offsets (N, 2)
 d_x, d_y [m] (already assigned: robot i's slot is leader + offsets[i]);
@@ -18,7 +18,7 @@ from swarm.core import kinematics, law
 
 THRESHOLDS = {"off": law.THRESHOLD_OFF, "frozen": law.THRESHOLD_FROZEN, "always": law.THRESHOLD_ALWAYS}
 
-# Cell side = the largest R plus this margin (DESIGN.md section 5): bodies closer than
+# Cell side = the largest R plus this margin (docs/runtime.md): bodies closer than
 # the cell side are "known" to a robot (its 3x3 cells hold all of them); those closer than
 # the largest R act on its command. Lock-step equals swarm sim while no robot moves more
 # than a third of the margin in one tick (docs/runtime.md).
@@ -35,7 +35,10 @@ class ScenarioError(ValueError):
 
 @dataclass(frozen=True)
 class Control:
-    """Gains and rules of the law (the [control] table)."""
+    """Gains and rules of the law (the [control] table).
+
+    v_max [m/s] and w_max [rad/s] bound a robot's command (a drive's limits); None means no limit.
+    """
 
     k1: float = 0.5
     k2: float = 0.5
@@ -44,25 +47,35 @@ class Control:
     vt: float = 0.05  # m/s
     threshold: str = "frozen"
     governor: bool = False
+    v_max: float | None = None  # m/s
+    w_max: float | None = None  # rad/s
 
     def __post_init__(self) -> None:
         for name in ("k1", "k2", "k3", "tu"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"control.{name} must be a finite number > 0, got {value!r}")
+        for name in ("v_max", "w_max"):
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and value > 0):
+                raise ValueError(f"control.{name} must be a finite number > 0 (or absent: no limit), got {value!r}")
         if not (math.isfinite(self.vt) and self.vt >= 0):
             raise ValueError(f"control.vt must be a finite number >= 0, got {self.vt!r}")
         if self.threshold not in THRESHOLDS:
             raise ValueError(f"control.threshold must be one of {sorted(THRESHOLDS)}, got {self.threshold!r}")
 
     def vector(self, dt: float, sense: float, reach: float, obstacle_r: float = 0.0) -> np.ndarray:
-        """The law's parameter vector (swarm.core.law P_* layout)."""
+        """The law's parameter vector (swarm.core.law P_* layout); a limit slot holds 0.0 for "no limit"."""
         p = np.zeros(law.P_SIZE)
         p[law.P_K1], p[law.P_K2], p[law.P_K3] = self.k1, self.k2, self.k3
         p[law.P_TU], p[law.P_VT] = self.tu, self.vt
         p[law.P_THRESHOLD] = THRESHOLDS[self.threshold]
         p[law.P_GOVERNOR] = 1.0 if self.governor else 0.0
         p[law.P_DT], p[law.P_SENSE], p[law.P_REACH], p[law.P_OBSTACLE_R] = dt, sense, reach, obstacle_r
+        # the limit slots come with the law that applies them; a law without them has no limits
+        for slot, value in ((getattr(law, "P_V_MAX", None), self.v_max), (getattr(law, "P_W_MAX", None), self.w_max)):
+            if slot is not None:
+                p[slot] = 0.0 if value is None else value
         return p
 
 
@@ -110,6 +123,7 @@ class Scenario:
     offsets: np.ndarray = field(repr=False)  # (N, 2), offsets[i] is robot i's slot
     poses: np.ndarray = field(repr=False)  # (N, 3) initial poses
     obstacles: np.ndarray = field(repr=False)  # (M, 4) x, y, r, R
+    bounds: tuple[float, float, float, float] | None = None  # m, the arena: xmin, xmax, ymin, ymax
 
     @property
     def n(self) -> int:

@@ -1,4 +1,4 @@
-"""Scenario files (DESIGN.md section 6, TOML) and the built-in scenarios.
+"""Scenario files (docs/scenarios.md, TOML) and the built-in scenarios.
 
     load("paper")                      -> Scenario   (a built-in name)
     load("my.toml", Overrides(seed=3)) -> Scenario   (a file; flags beat the file)
@@ -6,9 +6,16 @@
 A file is read into a `Spec` (every key checked: unknown, missing, wrong type,
 non-finite, out of range), the command-line overrides are applied, generators are run
 with the run's seed, and the result is checked as a whole (Assumption 1, start
-separations, list lengths). Every refusal is a ScenarioError naming the file, the key
-and the reason. Built-in scenarios are written as the same dictionaries a TOML file
-parses into, so they pass through the very same checks.
+separations, list lengths, the arena, the law's first command). Every refusal is a
+ScenarioError naming the file, the key and the reason. Built-in scenarios are written as
+the same dictionaries a TOML file parses into, so they pass through the very same checks.
+
+Size: what cannot run is refused before it is built (more than MAX_ROBOTS robots,
+MAX_OBSTACLES obstacles, MAX_STEPS steps, coordinates beyond MAX_COORD), and building and
+checking are O(N log N): pairs are searched on grids (swarm.core.geometry), never over all
+pairs. A large file's pose lists are counted in its text before the TOML parser builds them.
+A build or check that takes more than a second reports its progress on stderr
+(StderrProgress, or the `progress` callable given to load()).
 
 Randomness: one numpy Generator seeded with run.seed draws, in this order, the random
 start poses (robots.random) and then the random assignment of slots to robots.
@@ -17,17 +24,74 @@ start poses (robots.random) and then the random assignment of slots to robots.
 from __future__ import annotations
 
 import math
+import re
+import sys
+import time
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, TextIO
 
 import numpy as np
 
-from swarm.core import generators
+from swarm.core import generators, kinematics, law
+from swarm.core.geometry import Counter, Grid, closest_pair
 from swarm.core.scenario import THRESHOLDS, Control, Leader, Scenario, ScenarioError, Segment
 
 BUILTINS = ("paper", "paper-50hz")
+
+# What a scenario may hold: beyond these a run cannot go (memory, time, float resolution), so a
+# scenario is refused before anything is built.
+MAX_ROBOTS = 100_000
+MAX_OBSTACLES = 1_000_000
+MAX_STEPS = 100_000_000
+MAX_COORD = 1e6  # m: every |coordinate| and every radius or distance of the file (1e-10 m resolution there)
+
+Progress = Callable[[str, int, int], None]  # progress(stage, done, total)
+
+
+class StderrProgress:
+    """The default progress reporter: "scenario: STAGE ...", "scenario: STAGE: DONE of TOTAL" lines on stderr.
+
+    Silent for the first `after_s` seconds (a usual scenario loads in milliseconds and prints
+    nothing), then at most one line every `every_s` seconds per stage, plus the first line of each
+    new stage; finish() closes with the time taken when anything was printed.
+    """
+
+    def __init__(self, stream: TextIO | None = None, after_s: float = 1.0, every_s: float = 1.0,
+                 clock: Callable[[], float] = time.monotonic):
+        self.stream, self.after_s, self.every_s, self.clock = stream, after_s, every_s, clock
+        self.started = clock()
+        self.last = -math.inf
+        self.stage: str | None = None
+        self.printed = False
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        now = self.clock()
+        if now - self.started < self.after_s:
+            return
+        if stage == self.stage and now - self.last < self.every_s:
+            return
+        self.stage, self.last, self.printed = stage, now, True
+        if done <= 0:
+            self._write(f"scenario: {stage} ...")
+        elif done >= total:
+            self._write(f"scenario: {stage}: done")
+        else:
+            self._write(f"scenario: {stage}: {done} of {total}")
+
+    def finish(self) -> None:
+        if self.printed:
+            self._write(f"scenario: ready after {self.clock() - self.started:.1f} s")
+
+    def _write(self, line: str) -> None:
+        stream = self.stream if self.stream is not None else sys.stderr
+        stream.write(line + "\n")
+        stream.flush()
+
+
+def silent(stage: str, done: int, total: int) -> None:
+    """A progress callable that reports nothing (pass progress=silent to load())."""
 
 
 @dataclass(frozen=True)
@@ -61,6 +125,7 @@ class Spec:
     random: dict[str, Any] | None  # count, region, min_separation, obstacle_clearance
     obstacles: np.ndarray  # (M, 4), rows already expanded
     builtin: str | None = None
+    bounds: tuple[float, float, float, float] | None = None  # m, [arena] bounds
 
 
 # --------------------------------------------------------------------------- reading
@@ -86,12 +151,19 @@ class _Reader:
                 raise self.fail(_join(key, k), "missing required key")
         return value
 
-    def number(self, value: Any, key: str, *, gt: float | None = None, ge: float | None = None) -> float:
+    def number(self, value: Any, key: str, *, gt: float | None = None, ge: float | None = None,
+               bound: float | None = None) -> float:
+        """A finite number; gt / ge: lower limits; bound: |x| <= bound."""
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.fail(key, f"must be a number, got {_kind(value)}")
-        x = float(value)
+        try:
+            x = float(value)
+        except OverflowError:  # an integer beyond the float range
+            x = math.inf
         if not math.isfinite(x):
             raise self.fail(key, f"must be finite, got {value}")
+        if bound is not None and abs(x) > bound:
+            raise self.fail(key, f"must be at most {bound:g} in size, got {value}")
         if gt is not None and not x > gt:
             raise self.fail(key, f"must be > {gt:g}, got {value}")
         if ge is not None and not x >= ge:
@@ -115,15 +187,28 @@ class _Reader:
             raise self.fail(key, f"must be one of {', '.join(repr(o) for o in options)}, got {value!r}")
         return value
 
-    def vector(self, value: Any, key: str, length: int, what: str) -> list[float]:
+    def vector(self, value: Any, key: str, length: int, what: str, bound: float | None = None) -> list[float]:
         if not isinstance(value, list) or len(value) != length:
             raise self.fail(key, f"must be a list of {length} numbers [{what}], got {_show(value)}")
-        return [self.number(v, f"{key}[{i}]") for i, v in enumerate(value)]
+        return [self.number(v, f"{key}[{i}]", bound=bound) for i, v in enumerate(value)]
 
-    def vectors(self, value: Any, key: str, length: int, what: str) -> np.ndarray:
+    def vectors(self, value: Any, key: str, length: int, what: str, most: int, bounded: int) -> np.ndarray:
+        """A non-empty list of at most `most` vectors; the first `bounded` numbers of each within MAX_COORD."""
         if not isinstance(value, list) or not value:
             raise self.fail(key, f"must be a non-empty list of [{what}], got {_show(value)}")
-        return np.array([self.vector(v, f"{key}[{i}]", length, what) for i, v in enumerate(value)], float)
+        if len(value) > most:
+            raise self.fail(key, f"lists {len(value)} entries; a scenario has at most {most} robots")
+        out = np.array([self.vector(v, f"{key}[{i}]", length, what) for i, v in enumerate(value)], float)
+        _within(self, out[:, :bounded], key)
+        return out
+
+
+def _within(rd: _Reader, values: np.ndarray, key: str) -> None:
+    """Refuse the first entry of a (K, C) array whose size exceeds MAX_COORD, naming key[k][c]."""
+    bad = np.abs(values) > MAX_COORD
+    if bad.any():
+        k, c = map(int, np.argwhere(bad)[0])
+        raise rd.fail(f"{key}[{k}][{c}]", f"must be at most {MAX_COORD:g} m in size, got {values[k, c]:g}")
 
 
 def _kind(value: Any) -> str:
@@ -141,9 +226,9 @@ def _join(key: str, sub: str) -> str:
 
 
 def parse(doc: dict, where: str, name: str, builtin: str | None = None) -> Spec:
-    """Check a parsed TOML document (DESIGN.md section 6) and return its Spec."""
+    """Check a parsed TOML document (docs/scenarios.md) and return its Spec."""
     rd = _Reader(where)
-    rd.table(doc, "", ("run", "control", "bodies", "leader", "formation", "robots", "obstacles"),
+    rd.table(doc, "", ("run", "control", "bodies", "arena", "leader", "formation", "robots", "obstacles"),
              ("run", "leader", "formation", "robots"))
 
     run = rd.table(doc["run"], "run", ("duration", "dt", "seed"), ("duration",))
@@ -151,7 +236,8 @@ def parse(doc: dict, where: str, name: str, builtin: str | None = None) -> Spec:
     dt = rd.number(run.get("dt", 0.001), "run.dt", gt=0)
     seed = rd.integer(run.get("seed", 0), "run.seed")
 
-    ctl = rd.table(doc.get("control", {}), "control", ("k1", "k2", "k3", "tu", "vt", "threshold", "governor"))
+    ctl = rd.table(doc.get("control", {}), "control",
+                   ("k1", "k2", "k3", "tu", "vt", "threshold", "governor", "v_max", "w_max"))
     defaults = Control()
     control = Control(
         k1=rd.number(ctl.get("k1", defaults.k1), "control.k1", gt=0),
@@ -161,16 +247,28 @@ def parse(doc: dict, where: str, name: str, builtin: str | None = None) -> Spec:
         vt=rd.number(ctl.get("vt", defaults.vt), "control.vt", ge=0),
         threshold=rd.choice(ctl.get("threshold", defaults.threshold), "control.threshold", tuple(THRESHOLDS)),
         governor=rd.boolean(ctl.get("governor", defaults.governor), "control.governor"),
+        v_max=rd.number(ctl["v_max"], "control.v_max", gt=0) if "v_max" in ctl else None,
+        w_max=rd.number(ctl["w_max"], "control.w_max", gt=0) if "w_max" in ctl else None,
     )
 
     bodies = rd.table(doc.get("bodies", {}), "bodies", ("r", "R"))
-    r = rd.number(bodies.get("r", 0.3), "bodies.r", gt=0)
-    R = rd.number(bodies.get("R", 1.2), "bodies.R", gt=0)
+    r = rd.number(bodies.get("r", 0.3), "bodies.r", gt=0, bound=MAX_COORD)
+    R = rd.number(bodies.get("R", 1.2), "bodies.R", gt=0, bound=MAX_COORD)
     if not r < R:
         raise rd.fail("bodies.R", f"must be larger than bodies.r = {r:g}, got {R:g}")
 
+    bounds = None
+    if "arena" in doc:
+        arena = rd.table(doc["arena"], "arena", ("bounds",), ("bounds",))
+        box = rd.vector(arena["bounds"], "arena.bounds", 4, "xmin, xmax, ymin, ymax", bound=MAX_COORD)
+        if not (box[0] < box[1] and box[2] < box[3]):
+            raise rd.fail("arena.bounds", f"must have xmin < xmax and ymin < ymax, got {box}")
+        bounds = tuple(box)
+
     ld = rd.table(doc["leader"], "leader", ("start", "segments"), ("start", "segments"))
     start = rd.vector(ld["start"], "leader.start", 3, "x, y, theta")
+    for c in range(2):
+        rd.number(start[c], f"leader.start[{c}]", bound=MAX_COORD)
     if not isinstance(ld["segments"], list) or not ld["segments"]:
         raise rd.fail("leader.segments", f"must be a non-empty list of {{duration, v, w}}, got {_show(ld['segments'])}")
     segments = []
@@ -186,11 +284,11 @@ def parse(doc: dict, where: str, name: str, builtin: str | None = None) -> Spec:
     if ("offsets" in fm) == ("hex" in fm):
         raise rd.fail("formation", "give exactly one of 'offsets' (a list of [dx, dy]) or 'hex' (a generator)")
     if "offsets" in fm:
-        offsets = rd.vectors(fm["offsets"], "formation.offsets", 2, "dx, dy")
+        offsets = rd.vectors(fm["offsets"], "formation.offsets", 2, "dx, dy", MAX_ROBOTS, 2)
     else:
         hx = rd.table(fm["hex"], "formation.hex", ("count", "spacing"), ("count", "spacing"))
-        hex_ = (rd.integer(hx["count"], "formation.hex.count", ge=1),
-                rd.number(hx["spacing"], "formation.hex.spacing", gt=0))
+        hex_ = (_robot_count(rd, hx["count"], "formation.hex.count"),
+                rd.number(hx["spacing"], "formation.hex.spacing", gt=0, bound=MAX_COORD))
     assignment = rd.choice(fm.get("assignment", "ordered"), "formation.assignment", ("ordered", "random"))
 
     rb = rd.table(doc["robots"], "robots", ("poses", "random"))
@@ -198,65 +296,93 @@ def parse(doc: dict, where: str, name: str, builtin: str | None = None) -> Spec:
     if ("poses" in rb) == ("random" in rb):
         raise rd.fail("robots", "give exactly one of 'poses' (a list of [x, y, theta]) or 'random' (a generator)")
     if "poses" in rb:
-        poses = rd.vectors(rb["poses"], "robots.poses", 3, "x, y, theta")
+        poses = rd.vectors(rb["poses"], "robots.poses", 3, "x, y, theta", MAX_ROBOTS, 2)
     else:
         key = "robots.random"
         rnd = rd.table(rb["random"], key, ("count", "region", "min_separation", "obstacle_clearance"),
                        ("count", "region"))
-        region = rd.vector(rnd["region"], f"{key}.region", 4, "xmin, xmax, ymin, ymax")
+        region = rd.vector(rnd["region"], f"{key}.region", 4, "xmin, xmax, ymin, ymax", bound=MAX_COORD)
         if not (region[0] < region[1] and region[2] < region[3]):
             raise rd.fail(f"{key}.region", f"must have xmin < xmax and ymin < ymax, got {region}")
         random = {
-            "count": rd.integer(rnd["count"], f"{key}.count", ge=1),
+            "count": _robot_count(rd, rnd["count"], f"{key}.count"),
             "region": tuple(region),
-            "min_separation": rd.number(rnd.get("min_separation", 2 * r), f"{key}.min_separation", ge=0),
-            "obstacle_clearance": rd.number(rnd.get("obstacle_clearance", R), f"{key}.obstacle_clearance", ge=0),
+            "min_separation": rd.number(rnd.get("min_separation", 2 * r), f"{key}.min_separation", ge=0,
+                                        bound=MAX_COORD),
+            "obstacle_clearance": rd.number(rnd.get("obstacle_clearance", R), f"{key}.obstacle_clearance", ge=0,
+                                            bound=MAX_COORD),
         }
 
     obstacles = _parse_obstacles(rd, doc.get("obstacles", []), r, R)
     return Spec(where, name, duration, dt, seed, control, r, R, leader, offsets, hex_, assignment,
-                poses, random, obstacles, builtin)
+                poses, random, obstacles, builtin, bounds)
+
+
+def _robot_count(rd: _Reader, value: Any, key: str) -> int:
+    n = rd.integer(value, key, ge=1)
+    if n > MAX_ROBOTS:
+        raise rd.fail(key, f"must be at most {MAX_ROBOTS} (the most robots a scenario can hold), got {n}")
+    return n
 
 
 def _parse_obstacles(rd: _Reader, value: Any, r: float, R: float) -> np.ndarray:
     if not isinstance(value, list):
         raise rd.fail("obstacles", f"must be an array of tables ([[obstacles]]), got {_kind(value)}")
-    rows: list[tuple[float, float, float, float]] = []
+    if len(value) > MAX_OBSTACLES:
+        raise rd.fail("obstacles", f"lists {len(value)} obstacles; a scenario has at most {MAX_OBSTACLES}")
+    parts: list[np.ndarray] = []
+    total = 0
     for i, ob in enumerate(value):
         key = f"obstacles[{i}]"
         rd.table(ob, key, ("center", "row", "r", "R"))
-        orr = rd.number(ob.get("r", r), f"{key}.r", gt=0)
-        oR = rd.number(ob.get("R", R), f"{key}.R", gt=0)
+        orr = rd.number(ob.get("r", r), f"{key}.r", gt=0, bound=MAX_COORD)
+        oR = rd.number(ob.get("R", R), f"{key}.R", gt=0, bound=MAX_COORD)
         if not orr < oR:
             raise rd.fail(f"{key}.R", f"must be larger than r = {orr:g}, got {oR:g}")
         if ("center" in ob) == ("row" in ob):
             raise rd.fail(key, "give exactly one of 'center' = [x, y] or 'row' = {start, end, pitch}")
         if "center" in ob:
-            x, y = rd.vector(ob["center"], f"{key}.center", 2, "x, y")
-            rows.append((x, y, orr, oR))
+            centres = np.array([rd.vector(ob["center"], f"{key}.center", 2, "x, y", bound=MAX_COORD)])
         else:
             row = rd.table(ob["row"], f"{key}.row", ("start", "end", "pitch"), ("start", "end", "pitch"))
-            a = rd.vector(row["start"], f"{key}.row.start", 2, "x, y")
-            b = rd.vector(row["end"], f"{key}.row.end", 2, "x, y")
+            a = rd.vector(row["start"], f"{key}.row.start", 2, "x, y", bound=MAX_COORD)
+            b = rd.vector(row["end"], f"{key}.row.end", 2, "x, y", bound=MAX_COORD)
             pitch = rd.number(row["pitch"], f"{key}.row.pitch", gt=0)
-            rows.extend((float(x), float(y), orr, oR) for x, y in generators.obstacle_row(a, b, pitch))
-    return np.array(rows, float).reshape(-1, 4)
+            intervals = math.dist(a, b) / pitch  # about the row's obstacles, counted before they are made
+            if total + intervals > MAX_OBSTACLES:
+                raise rd.fail(f"{key}.row", f"makes about {intervals:.4g} obstacles (length / pitch), more than "
+                              f"the {MAX_OBSTACLES} a scenario can hold: give a larger pitch")
+            centres = generators.obstacle_row(a, b, pitch)
+        total += len(centres)
+        if total > MAX_OBSTACLES:
+            raise rd.fail(key, f"makes {total} obstacles in all; a scenario has at most {MAX_OBSTACLES}")
+        part = np.empty((len(centres), 4))
+        part[:, :2], part[:, 2], part[:, 3] = centres, orr, oR
+        parts.append(part)
+    return np.concatenate(parts) if parts else np.zeros((0, 4))
 
 
 # --------------------------------------------------------------------------- resolving
 
 
-def resolve(spec: Spec, ov: Overrides = Overrides()) -> Scenario:
-    """Apply the overrides, run the generators and check the scenario as a whole."""
+def resolve(spec: Spec, ov: Overrides = Overrides(), progress: Progress = silent,
+            counter: Counter | None = None) -> Scenario:
+    """Apply the overrides, run the generators and check the scenario as a whole.
+
+    progress(stage, done, total) hears about the long steps; counter adds up the pair checks."""
     rd = _Reader(spec.where)
+    for flag, value in (("--seed", ov.seed), ("--duration", ov.duration), ("--dt", ov.dt), ("--robots", ov.robots)):
+        if value is not None and not (math.isfinite(value) and value > (-1 if flag == "--seed" else 0)):
+            raise ScenarioError("command line", flag, f"must be {'>= 0' if flag == '--seed' else '> 0'}, got {value}")
+    if ov.robots is not None and ov.robots > MAX_ROBOTS:
+        raise ScenarioError("command line", "--robots", f"must be at most {MAX_ROBOTS} (the most robots a scenario "
+                            f"can hold), got {ov.robots}")
     if ov.robots is not None and spec.builtin is not None:
         spec = parse(builtin_document(spec.builtin, ov.robots), spec.where, spec.name, spec.builtin)
     seed = spec.seed if ov.seed is None else ov.seed
     duration = spec.duration if ov.duration is None else ov.duration
     dt = spec.dt if ov.dt is None else ov.dt
-    for flag, value in (("--seed", ov.seed), ("--duration", ov.duration), ("--dt", ov.dt), ("--robots", ov.robots)):
-        if value is not None and not (math.isfinite(value) and value > (-1 if flag == "--seed" else 0)):
-            raise ScenarioError("command line", flag, f"must be {'>= 0' if flag == '--seed' else '> 0'}, got {value}")
+    _check_steps(spec, ov, duration, dt)
     control = spec.control
     if ov.governor is not None:
         control = Control(**{**control.__dict__, "governor": ov.governor})
@@ -276,7 +402,7 @@ def resolve(spec: Spec, ov: Overrides = Overrides()) -> Scenario:
         count = g["count"] if ov.robots is None else ov.robots
         try:
             poses = generators.random_poses(rng, count, g["region"], g["min_separation"], spec.obstacles,
-                                            g["obstacle_clearance"])
+                                            g["obstacle_clearance"], progress=progress, counter=counter)
         except generators.GeneratorError as e:
             raise rd.fail("robots.random", str(e)) from None
     elif ov.robots is not None and len(poses) != ov.robots:
@@ -293,78 +419,233 @@ def resolve(spec: Spec, ov: Overrides = Overrides()) -> Scenario:
 
     scn = Scenario(spec.name, duration, dt, seed, control, spec.r, spec.R, spec.leader,
                    np.ascontiguousarray(offsets, float), np.ascontiguousarray(poses, float),
-                   np.ascontiguousarray(spec.obstacles, float).reshape(-1, 4))
+                   np.ascontiguousarray(spec.obstacles, float).reshape(-1, 4), spec.bounds)
     check(scn, spec.where, offsets_key="formation.hex" if spec.hex else "formation.offsets",
-          poses_key="robots.random" if spec.random else "robots.poses")
+          poses_key="robots.random" if spec.random else "robots.poses", progress=progress, counter=counter)
     return scn
 
 
-def check(scn: Scenario, where: str, offsets_key: str = "formation.offsets", poses_key: str = "robots.poses") -> None:
-    """Assumption 1 and the start separations; raises ScenarioError."""
-    off = scn.offsets
-    i, j, d = _closest_pair(off)
-    if d is not None and d <= scn.R:
+def _check_steps(spec: Spec, ov: Overrides, duration: float, dt: float) -> None:
+    """A run of at least one whole step and at most MAX_STEPS steps; the message names where dt and the
+    duration came from (the file's keys or the flags)."""
+    dt_key = "--dt" if ov.dt is not None else "run.dt"
+    dur_key = "--duration" if ov.duration is not None else "run.duration"
+    where = "command line" if ov.dt is not None and ov.duration is not None else spec.where
+    if dt > duration:
+        raise ScenarioError(where, dt_key, f"dt = {dt:g} s is longer than the run ({dur_key} = {duration:g} s): "
+                            "a run needs dt <= duration")
+    steps = duration / dt
+    if steps > MAX_STEPS:
+        raise ScenarioError(where, f"{dur_key} / {dt_key}", f"{duration:g} s in steps of {dt:g} s is {steps:.4g} "
+                            f"steps; a run has at most {MAX_STEPS:.0e} steps: shorten the run or lengthen dt")
+
+
+def check(scn: Scenario, where: str, offsets_key: str = "formation.offsets", poses_key: str = "robots.poses",
+          progress: Progress = silent, counter: Counter | None = None) -> None:
+    """The scenario as a whole: sizes, the arena, Assumption 1, the start separations and the law's
+    first command (all O(N log N)). Raises ScenarioError naming `where`, the key and the reason."""
+    if scn.n > MAX_ROBOTS:
+        raise ScenarioError(where, poses_key, f"{scn.n} robots; a scenario has at most {MAX_ROBOTS}")
+    for key, what, values in ((offsets_key, "slot offset", scn.offsets), (poses_key, "start", scn.poses[:, :2])):
+        bad = np.abs(values) > MAX_COORD
+        if bad.any():
+            i, c = map(int, np.argwhere(bad)[0])
+            raise ScenarioError(where, key, f"robot {i}'s {what} has {'xy'[c]} = {values[i, c]:g} m; every coordinate "
+                                f"must be at most {MAX_COORD:g} m in size")
+    if scn.bounds is not None:
+        xmin, xmax, ymin, ymax = scn.bounds
+        x, y = scn.poses[:, 0], scn.poses[:, 1]
+        out = np.flatnonzero((x < xmin) | (x > xmax) | (y < ymin) | (y > ymax))
+        if out.size:
+            i = int(out[0])
+            raise ScenarioError(where, poses_key, f"robot {i} starts at ({x[i]:g}, {y[i]:g}), outside arena.bounds "
+                                f"[{xmin:g}, {xmax:g}, {ymin:g}, {ymax:g}] ({out.size} robots outside)")
+    progress("checking the formation's slots", 0, scn.n)
+    pair = closest_pair(scn.offsets, scn.R, counter)
+    if pair is not None:
+        i, j, d = pair
         raise ScenarioError(where, offsets_key, f"slots of robots {i} and {j} are {d:.4g} m apart; "
                             f"formation offsets must be more than R = {scn.R:g} m apart (Assumption 1)")
-    i, j, d = _closest_pair(scn.poses[:, :2])
-    if d is not None and d < scn.r:
+    progress("checking the start separations", 0, scn.n)
+    pair = closest_pair(scn.poses[:, :2], scn.r, counter)
+    if pair is not None and pair[2] < scn.r:
+        i, j, d = pair
         raise ScenarioError(where, poses_key, f"robots {i} and {j} start {d:.4g} m apart, closer than r = {scn.r:g} m")
-    if len(scn.obstacles):
-        dist = _start_obstacle_distances(scn)
-        bad = dist < scn.obstacles[None, :, 2]
+    hit = _obstacles_within(scn, scn.obstacles[:, 2], counter)
+    if hit is not None:
+        i, o, d = hit
+        raise ScenarioError(where, poses_key, f"robot {i} starts {d:.4g} m from obstacle {o} "
+                            f"at ({scn.obstacles[o, 0]:g}, {scn.obstacles[o, 1]:g}), closer than its "
+                            f"r = {scn.obstacles[o, 2]:g} m")
+    _check_first_commands(scn, where, progress, counter)
+
+
+def _obstacles_within(scn: Scenario, limit: np.ndarray, counter: Counter | None) -> tuple[int, int, float] | None:
+    """The first (robot i, obstacle o, distance d [m]) with a start closer than limit[o] [m] to obstacle o's
+    centre, in (i, o) order, or None. Obstacles are searched in groups of like limit (a power of two
+    apart at most), each on a grid of its own cells, so a few huge obstacles do not coarsen the grid
+    of the many small ones."""
+    if not len(scn.obstacles) or not scn.n:
+        return None
+    groups = np.ceil(np.log2(limit)).astype(np.int64)
+    found = []
+    pos = scn.poses[:, :2]
+    for g in np.unique(groups):
+        members = np.flatnonzero(groups == g)
+        side = float(limit[members].max())
+        i, k, d2 = Grid(scn.obstacles[members, :2], side).pairs(pos, side, counter)
+        d = np.sqrt(d2)
+        o = members[k]
+        bad = d < limit[o]
         if bad.any():
-            i, o = map(int, np.argwhere(bad)[0])
-            raise ScenarioError(where, poses_key, f"robot {i} starts {dist[i, o]:.4g} m from obstacle {o} "
-                                f"at ({scn.obstacles[o, 0]:g}, {scn.obstacles[o, 1]:g}), closer than its "
-                                f"r = {scn.obstacles[o, 2]:g} m")
+            found.append((i[bad], o[bad], d[bad]))
+    if not found:
+        return None
+    i, o, d = (np.concatenate(parts) for parts in zip(*found))
+    k = int(np.lexsort((o, i))[0])
+    return int(i[k]), int(o[k]), float(d[k])
 
 
-STEEP_START = 0.02  # share of (R - r): a start this close above r is allowed but warned about
+def _check_first_commands(scn: Scenario, where: str, progress: Progress, counter: Counter | None) -> None:
+    """Refuse a scenario whose law is already non-finite at t = 0 (gains so large that k1 times the
+    distance to the slot overflows, say): the simulator would stop at its first step."""
+    cmd = first_commands(scn, progress, counter)
+    bad = np.flatnonzero(~np.isfinite(cmd).all(axis=1))
+    if bad.size:
+        k, c = int(bad[0]), scn.control
+        x, y = scn.poses[k, :2]
+        xl, yl = scn.leader.start[:2]
+        raise ScenarioError(where, "control", f"robot {k}'s command at t = 0 is not finite (v = {cmd[k, 0]:g} m/s, "
+                            f"w = {cmd[k, 1]:g} rad/s) with k1 = {c.k1:g}, k2 = {c.k2:g}, k3 = {c.k3:g}: it starts "
+                            f"{math.hypot(xl + scn.offsets[k, 0] - x, yl + scn.offsets[k, 1] - y):.4g} m from its "
+                            f"slot ({bad.size} robots so); lower the gains")
 
 
-def advisories(scn: Scenario) -> list[str]:
-    """Valid but risky choices, to warn about (the contract accepts them)."""
-    out = []
-    i, j, d = _closest_pair(scn.poses[:, :2])
-    hint = "" if scn.control.governor else " (the governor, --governor, limits that)"
-    if d is not None and d < scn.r + STEEP_START * (scn.R - scn.r):
-        out.append(f"robots {i} and {j} start {d:.4g} m apart, just outside r = {scn.r:g} m: the repulsion there is "
-                   f"so steep that one step can throw them far apart{hint}")
-    if len(scn.obstacles) and scn.n:
-        dist = _start_obstacle_distances(scn)
-        ro, Ro = scn.obstacles[None, :, 2], scn.obstacles[None, :, 3]
-        steep = dist < ro + STEEP_START * (Ro - ro)
-        if steep.any():
-            i, o = map(int, np.argwhere(steep)[0])
-            out.append(f"robot {i} starts {dist[i, o]:.4g} m from obstacle {o}, just outside its r = "
-                       f"{scn.obstacles[o, 2]:g} m: the repulsion there is so steep that one step can throw the "
-                       f"robot far away{hint}")
+def first_commands(scn: Scenario, progress: Progress = silent, counter: Counter | None = None) -> np.ndarray:
+    """(N, 2) every robot's command v [m/s], w [rad/s] at t = 0, as the simulator's first step computes it.
+
+    The law of swarm.core.law in plain Python, per robot, with its known bodies: the robots and
+    obstacles closer than the cell side, robots by ascending id, then obstacles by ascending index
+    (the summation order of every run). Where plain Python raises (an overflowing exp, say) the
+    compiled law would give inf or nan: the command is then nan. O(N) on grids.
+    """
+    n, p = scn.n, scn.params()
+    sense = float(p[law.P_SENSE])
+    xl, yl, thl, vl, wl = map(float, kinematics.leader_state(scn.leader.table(), 0.0))
+    pos = scn.poses[:, :2]
+    within2 = sense * sense
+    i, j, d2 = Grid(pos, sense).pairs(pos, sense, counter, same=True)
+    near = d2 < within2
+    src = np.concatenate((i[near], j[near]))
+    dst = np.concatenate((j[near], i[near]))
+    order = np.lexsort((dst, src))
+    src, dst = src[order], dst[order]
+    robot_start = np.searchsorted(src, np.arange(n + 1))
+    oi = oo = np.zeros(0, np.int64)
+    if len(scn.obstacles):
+        oi, oo, od2 = Grid(scn.obstacles[:, :2], sense).pairs(pos, sense, counter)
+        near = od2 < within2
+        order = np.lexsort((oo[near], oi[near]))
+        oi, oo = oi[near][order], oo[near][order]
+    obstacle_start = np.searchsorted(oi, np.arange(n + 1))
+    q, off, obs = scn.poses.tolist(), scn.offsets.tolist(), scn.obstacles.tolist()
+    dst, oo = dst.tolist(), oo.tolist()
+    rs, ro = robot_start.tolist(), obstacle_start.tolist()
+    r, R = float(scn.r), float(scn.R)
+    params = p.tolist()
+    out = np.empty((n, 2))
+    for k in range(n):
+        if k % 4096 == 0:
+            progress("evaluating the law at t = 0", k, n)
+        nx, ny, nr, nR, nk = [], [], [], [], []
+        for j in dst[rs[k]:rs[k + 1]]:
+            nx.append(q[j][0]), ny.append(q[j][1]), nr.append(r), nR.append(R), nk.append(law.KIND_ROBOT)
+        for o in oo[ro[k]:ro[k + 1]]:
+            ob = obs[o]
+            nx.append(ob[0]), ny.append(ob[1]), nr.append(ob[2]), nR.append(ob[3]), nk.append(law.KIND_OBSTACLE)
+        mem = [0.0] * law.M_SIZE
+        mem[law.M_SCALE] = 1.0
+        x, y, th = q[k]
+        try:
+            out[k] = law.robot_command(x, y, th, off[k][0], off[k][1], r, 0.0, xl, yl, thl, vl, wl,
+                                       nx, ny, nr, nR, nk, len(nx), mem, params)
+        except (OverflowError, ValueError, ZeroDivisionError):
+            out[k] = math.nan
     return out
 
 
-def _start_obstacle_distances(scn: Scenario) -> np.ndarray:
-    """(N, M) distances from each robot's start to each obstacle's centre [m]."""
-    diff = scn.poses[:, None, :2] - scn.obstacles[None, :, :2]
-    return np.sqrt(np.sum(diff * diff, axis=2))
+STEEP_START = 0.02  # share of (R - r): a start this close above r is allowed but warned about
+FAR_LEADER = MAX_COORD  # m: a leader that may travel farther than this is warned about
 
 
-def _closest_pair(points: np.ndarray) -> tuple[int, int, float | None]:
-    """The closest pair of rows of (K, 2) points (grid-free but chunked: fine to ~10^4)."""
-    n = len(points)
-    if n < 2:
-        return -1, -1, None
-    best = (math.inf, -1, -1)
-    for a in range(0, n, 512):
-        block = points[a:a + 512]
-        d2 = np.sum((block[:, None, :] - points[None, :, :]) ** 2, axis=2)
-        rows = np.arange(len(block))
-        d2[rows, a + rows] = np.inf
-        k = int(np.argmin(d2))
-        bi, bj = divmod(k, n)
-        if d2[bi, bj] < best[0]:
-            best = (float(d2[bi, bj]), a + bi, bj)
-    i, j = sorted((best[1], best[2]))
-    return i, j, math.sqrt(best[0])
+def advisories(scn: Scenario, counter: Counter | None = None) -> list[str]:
+    """Valid but odd or risky choices, to warn about (the contract accepts them)."""
+    out = []
+    hint = "" if scn.control.governor else " (the governor, --governor, limits that)"
+    pair = closest_pair(scn.poses[:, :2], scn.r + STEEP_START * (scn.R - scn.r), counter)
+    if pair is not None and pair[2] < scn.r + STEEP_START * (scn.R - scn.r):
+        i, j, d = pair
+        out.append(f"robots {i} and {j} start {d:.4g} m apart, just outside r = {scn.r:g} m: the repulsion there is "
+                   f"so steep that one step can throw them far apart{hint}")
+    ro, Ro = scn.obstacles[:, 2], scn.obstacles[:, 3]
+    hit = _obstacles_within(scn, ro + STEEP_START * (Ro - ro), counter)
+    if hit is not None:
+        i, o, d = hit
+        out.append(f"robot {i} starts {d:.4g} m from obstacle {o}, just outside its r = "
+                   f"{scn.obstacles[o, 2]:g} m: the repulsion there is so steep that one step can throw the "
+                   f"robot far away{hint}")
+    c, segs = scn.control, scn.leader.segments
+    reach = float(np.max(np.hypot(scn.offsets[:, 0], scn.offsets[:, 1]))) if scn.n else 0.0
+    # slots are the leader's position plus fixed offsets: they move at the leader's v plus w times the offset
+    slot_speed = [abs(s.v) + abs(s.w) * reach for s in segs]
+    fastest = int(np.argmax(slot_speed))
+    if c.v_max is not None and slot_speed[fastest] > c.v_max:
+        out.append(f"leader.segments[{fastest}] moves the formation's slots at up to {slot_speed[fastest]:.4g} m/s, "
+                   f"faster than control.v_max = {c.v_max:g} m/s: the robots cannot keep up")
+    turn = int(np.argmax([abs(s.w) for s in segs]))
+    if c.w_max is not None and abs(segs[turn].w) > c.w_max:
+        out.append(f"leader.segments[{turn}] turns at {abs(segs[turn].w):g} rad/s, faster than control.w_max = "
+                   f"{c.w_max:g} rad/s: the robots cannot turn with it")
+    if scn.duration < c.tu:
+        out.append(f"run.duration = {scn.duration:g} s is shorter than control.tu = {c.tu:g} s: a frozen robot's "
+                   "reference snapshot is never refreshed")
+    step = slot_speed[fastest] * scn.dt
+    share = (scn.cell_side - scn.reach) / 3.0
+    if step > share:
+        out.append(f"at dt = {scn.dt:g} s the slots move up to {step:.4g} m a step (leader.segments[{fastest}]), "
+                   f"more than (cell side - reach) / 3 = {share:.4g} m: robots that keep up move as far, and "
+                   "swarm up's lock-step may then differ from swarm sim (docs/runtime.md)")
+    travel = _leader_travel(scn)
+    if travel > FAR_LEADER:
+        out.append(f"the leader may travel {travel:.4g} m during the run, beyond {FAR_LEADER:g} m: positions "
+                   "lose resolution there and may overflow")
+    if scn.bounds is not None:
+        out.extend(_arena_advisories(scn))
+    return out
+
+
+def _leader_travel(scn: Scenario) -> float:
+    """A bound of the distance [m] the leader covers in the run: the sum of |v| times each segment's time."""
+    total, t = 0.0, 0.0
+    for k, seg in enumerate(scn.leader.segments):
+        last = k == len(scn.leader.segments) - 1
+        span = max(0.0, scn.duration - t) if last else min(seg.duration, max(0.0, scn.duration - t))
+        total += abs(seg.v) * span
+        t += seg.duration
+    return total
+
+
+def _arena_advisories(scn: Scenario) -> list[str]:
+    """The formation's slots leaving the arena, sampled along the leader's path (at most 2001 times)."""
+    xmin, xmax, ymin, ymax = scn.bounds
+    lo, hi = scn.offsets.min(axis=0), scn.offsets.max(axis=0)
+    table = scn.leader.table()
+    for t in np.linspace(0.0, scn.duration, int(min(2001, scn.steps + 1))):
+        x, y = kinematics.leader_state(table, float(t))[:2]
+        if x + lo[0] < xmin or x + hi[0] > xmax or y + lo[1] < ymin or y + hi[1] > ymax:
+            return [f"the formation's slots leave arena.bounds [{xmin:g}, {xmax:g}, {ymin:g}, {ymax:g}] at t = "
+                    f"{t:.4g} s (the leader is at ({x:.4g}, {y:.4g})): the robots follow them out"]
+    return []
 
 
 # --------------------------------------------------------------------------- built-ins
@@ -384,8 +665,8 @@ def builtin_document(name: str, robots: int | None = None) -> dict:
         raise ScenarioError(name, "", f"no such built-in scenario (built-ins: {', '.join(BUILTINS)}; "
                             "or give a path to a .toml file)")
     n = 37 if robots is None else robots
-    if n < 1:
-        raise ScenarioError("command line", "--robots", f"must be >= 1, got {n}")
+    if not 1 <= n <= MAX_ROBOTS:
+        raise ScenarioError("command line", "--robots", f"must be in 1..{MAX_ROBOTS}, got {n}")
     width = math.sqrt(9.0 * n * 2.8)
     height = 9.0 * n / width
     lowest = float(generators.hex_patch(n, 1.5)[:, 1].min())
@@ -413,7 +694,7 @@ def builtin_document(name: str, robots: int | None = None) -> dict:
     }
 
 
-def read_spec(source: str) -> Spec:
+def read_spec(source: str, progress: Progress = silent) -> Spec:
     """A built-in name or a path to a TOML file, checked."""
     if source in BUILTINS:
         return parse(builtin_document(source), f"built-in scenario '{source}'", source, builtin=source)
@@ -422,7 +703,12 @@ def read_spec(source: str) -> Spec:
         hint = "" if source.endswith(".toml") else f" (built-ins: {', '.join(BUILTINS)})"
         raise ScenarioError(source, "", f"no such file{hint}")
     try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+        raw = path.read_bytes()
+        progress(f"reading {source} ({len(raw) / 1e6:.1f} MB)", 0, 1)
+        if len(raw) > PRESCAN_BYTES:
+            _prescan(raw, source)
+        doc = tomllib.loads(raw.decode("utf-8"))
+        progress(f"reading {source} ({len(raw) / 1e6:.1f} MB)", 1, 1)
     except tomllib.TOMLDecodeError as e:
         raise ScenarioError(source, "", f"not valid TOML: {e}") from None
     except (OSError, UnicodeDecodeError) as e:
@@ -430,9 +716,47 @@ def read_spec(source: str) -> Spec:
     return parse(doc, source, path.stem)
 
 
-def load(source: str, overrides: Overrides = Overrides()) -> Scenario:
-    """Read, check and resolve a scenario (a built-in name or a TOML path)."""
-    return resolve(read_spec(source), overrides)
+# A file larger than this is pre-scanned: its pose and offset lists are counted in its text before the
+# TOML parser turns them into objects (~5 s and ~100 MB per 10 MB of text). 10^5 poses need more text.
+PRESCAN_BYTES = 512 * 1024
+_STRINGS_AND_COMMENTS = re.compile(rb'"""[\s\S]*?"""|\'\'\'[\s\S]*?\'\'\'|"(?:[^"\\\n]|\\.)*"|\'[^\'\n]*\'|#[^\n]*')
+_LIST_KEY = re.compile(rb"\b(poses|offsets)\s*=\s*\[")
+_EMPTY_LIST = re.compile(rb"\s*\]")
+_LIST_END = re.compile(rb"\]\s*,?\s*\]")  # the last entry's "]" and the list's own
+_OBSTACLE_TABLE = re.compile(rb"^\s*\[\[\s*obstacles\s*\]\]", re.MULTILINE)
+
+
+def _prescan(raw: bytes, where: str) -> None:
+    """Refuse a file whose `poses` or `offsets` list holds more than MAX_ROBOTS entries, or which has more
+    than MAX_OBSTACLES [[obstacles]] tables, from its text (C-speed regular expressions, ~1 s for 50 MB),
+    before the TOML parser builds them. Strings and comments are blanked first; the counts only
+    refuse what the parsed file would be refused for, so anything else is left to the parser."""
+    text = _STRINGS_AND_COMMENTS.sub(b"", raw)
+    for m in _LIST_KEY.finditer(text):
+        end = _LIST_END.search(text, m.end())
+        if _EMPTY_LIST.match(text, m.end()) or end is None:
+            continue
+        count = text.count(b"[", m.end(), end.start())
+        if count > MAX_ROBOTS:
+            key = "robots.poses" if m.group(1) == b"poses" else "formation.offsets"
+            raise ScenarioError(where, key, f"lists {count} entries; a scenario has at most {MAX_ROBOTS} robots")
+    tables = sum(1 for _ in _OBSTACLE_TABLE.finditer(text))
+    if tables > MAX_OBSTACLES:
+        raise ScenarioError(where, "obstacles", f"lists {tables} obstacles; a scenario has at most {MAX_OBSTACLES}")
+
+
+def load(source: str, overrides: Overrides = Overrides(), progress: Progress | None = None,
+         counter: Counter | None = None) -> Scenario:
+    """Read, check and resolve a scenario (a built-in name or a TOML path).
+
+    progress: called as progress(stage, done, total) during long steps; None: a StderrProgress
+    (lines on stderr only when loading takes more than a second); `silent` for none.
+    counter: adds up the pair checks of the searches (for tests of the work)."""
+    reporter = StderrProgress() if progress is None else progress
+    scn = resolve(read_spec(source, reporter), overrides, reporter, counter)
+    if isinstance(reporter, StderrProgress):
+        reporter.finish()
+    return scn
 
 
 def to_toml(scn: Scenario) -> str:
@@ -450,7 +774,9 @@ def to_toml(scn: Scenario) -> str:
         "[run]", f"duration = {num(scn.duration)}", f"dt = {num(scn.dt)}", f"seed = {scn.seed}", "",
         "[control]", f"k1 = {num(c.k1)}", f"k2 = {num(c.k2)}", f"k3 = {num(c.k3)}", f"tu = {num(c.tu)}",
         f"vt = {num(c.vt)}", f'threshold = "{c.threshold}"', f"governor = {'true' if c.governor else 'false'}", "",
+        *(f"{k} = {num(v)}" for k, v in (("v_max", c.v_max), ("w_max", c.w_max)) if v is not None),
         "[bodies]", f"r = {num(scn.r)}", f"R = {num(scn.R)}", "",
+        *(["[arena]", f"bounds = {vec(scn.bounds)}", ""] if scn.bounds is not None else []),
         "[leader]", f"start = {vec(scn.leader.start)}", "segments = [",
         *[f"  {{ duration = {num(s.duration)}, v = {num(s.v)}, w = {num(s.w)} }}," for s in scn.leader.segments],
         "]", "",
