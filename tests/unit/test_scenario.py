@@ -1,4 +1,4 @@
-"""Scenario files (DESIGN.md section 6): strict refusals, generators, precedence, built-ins."""
+"""Scenario files (docs/scenarios.md): strict refusals, generators, precedence, built-ins."""
 
 from __future__ import annotations
 
@@ -10,9 +10,10 @@ from numpy.testing import assert_allclose
 
 from swarm.core import generators
 from swarm.core import scenario_file as sf
+from swarm.core.geometry import closest_pair
 from swarm.core.scenario import ScenarioError
 
-# The example of DESIGN.md section 6, verbatim.
+# The example of the scenario contract (docs/scenarios.md), as first written.
 DESIGN_EXAMPLE = """
 [run]
 duration = 120.0      # s
@@ -199,6 +200,44 @@ REFUSALS = [
      "robots.random.region", "xmin < xmax"),
     ("random region too small", _set(("robots",), {"random": {"count": 2, "region": [10.0, 10.1, 0.0, 0.1],
                                                               "min_separation": 1.0}}), "robots.random", "larger"),
+    # speed limits and the arena
+    ("zero v_max", _set(("control", "v_max"), 0.0), "control.v_max", "> 0"),
+    ("negative w_max", _set(("control", "w_max"), -1.0), "control.w_max", "> 0"),
+    ("string v_max", _set(("control", "v_max"), "fast"), "control.v_max", "must be a number"),
+    ("inf w_max", _set(("control", "w_max"), INF), "control.w_max", "finite"),
+    ("unknown arena key", _set(("arena",), {"bounds": [0.0, 1.0, 0.0, 1.0], "walls": True}), "arena.walls",
+     "unknown key"),
+    ("arena without bounds", _set(("arena",), {}), "arena.bounds", "missing"),
+    ("arena bounds of 3", _set(("arena",), {"bounds": [0.0, 1.0, 0.0]}), "arena.bounds", "list of 4"),
+    ("arena bounds reversed", _set(("arena",), {"bounds": [10.0, -10.0, -10.0, 10.0]}), "arena.bounds",
+     "xmin < xmax"),
+    ("arena bounds empty in y", _set(("arena",), {"bounds": [-10.0, 10.0, 3.0, 3.0]}), "arena.bounds", "ymin < ymax"),
+    ("start outside the arena", _set(("arena",), {"bounds": [-8.5, 5.0, -5.0, 5.0]}), "robots.poses",
+     "robot 1 starts at (-9, -2)", "outside arena.bounds"),
+    # sizes a run cannot take
+    ("huge start x", _set(("robots", "poses", 1, 0), 1e300), "robots.poses[1][0]", "at most 1e+06 m", "1e+300"),
+    ("start y beyond 1e6", _set(("robots", "poses", 0, 1), -1.5e6), "robots.poses[0][1]", "at most 1e+06 m"),
+    ("huge offset", _set(("formation", "offsets", 1, 1), 2e6), "formation.offsets[1][1]", "at most 1e+06 m"),
+    ("huge obstacle centre", _set(("obstacles", 0, "center", 1), 3e6), "obstacles[0].center[1]", "at most 1e+06"),
+    ("huge leader start", _set(("leader", "start", 0), -7e6), "leader.start[0]", "at most 1e+06"),
+    ("huge bodies R", _set(("bodies", "R"), 2e6), "bodies.R", "at most 1e+06"),
+    ("huge obstacle r", _set(("obstacles", 0, "r"), 1.5e6), "obstacles[0].r", "at most 1e+06"),
+    ("huge row end", _set(("obstacles", 0), {"row": {"start": [0.0, 5.0], "end": [2e6, 5.0], "pitch": 1.0}}),
+     "obstacles[0].row.end[0]", "at most 1e+06"),
+    ("huge region", _set(("robots",), {"random": {"count": 2, "region": [0.0, 5e6, 0.0, 5.0]}}),
+     "robots.random.region[1]", "at most 1e+06"),
+    ("huge arena", _set(("arena",), {"bounds": [-2e6, 10.0, -10.0, 10.0]}), "arena.bounds[0]", "at most 1e+06"),
+    ("huge min_separation", _set(("robots",), {"random": {"count": 2, "region": [0.0, 5.0, 0.0, 5.0],
+                                                          "min_separation": 1e200}}),
+     "robots.random.min_separation", "at most 1e+06"),
+    ("too many hex slots", _set(("formation",), {"hex": {"count": 100_001, "spacing": 1.5}}), "formation.hex.count",
+     "at most 100000"),
+    ("too many random robots", _set(("robots",), {"random": {"count": 10**6, "region": [0.0, 5.0, 0.0, 5.0]}}),
+     "robots.random.count", "at most 100000"),
+    ("a row of 10^12 obstacles", _set(("obstacles", 0), {"row": {"start": [0.0, 5.0], "end": [1000.0, 5.0],
+                                                                 "pitch": 1e-9}}),
+     "obstacles[0].row", "larger pitch"),
+    ("huge integer", _set(("run", "duration"), 10**400), "run.duration", "finite"),
 ]
 
 
@@ -569,3 +608,227 @@ def test_random_poses_gives_up_when_there_is_no_room():
     with pytest.raises(generators.GeneratorError, match="larger"):
         generators.random_poses(np.random.default_rng(19), 50, (0.0, 1.0, 0.0, 1.0), 0.8, np.empty((0, 4)), 1.2,
                                 max_tries=5000)
+
+
+# --------------------------------------------------------------------------- what cannot run (issue 21)
+
+RUN_REFUSALS = [
+    # k1 times the 8 m from robot 0's start to its slot overflows: the simulator stopped with "non-finite state"
+    ("gains that overflow at t = 0", _set(("control", "k1"), 1e308), "control", "robot 0", "not finite",
+     "k1 = 1e+308", "lower the gains"),
+    ("dt longer than the run", _set(("run", "dt"), 200.0), "run.dt", "200 s", "longer than the run",
+     "run.duration = 20 s"),
+    ("more than 1e8 steps", _set(("run", "duration"), 1.5e6), "run.duration / run.dt", "1.5e+08 steps",
+     "at most 1e+08"),
+]
+
+
+@pytest.mark.parametrize("name, edit, key, fragments", [(c[0], c[1], c[2], c[3:]) for c in RUN_REFUSALS],
+                         ids=[c[0] for c in RUN_REFUSALS])
+def test_a_scenario_that_cannot_run_is_refused_at_load(name, edit, key, fragments, base_doc, write_scenario):
+    edit(base_doc)
+    path = write_scenario(base_doc)
+    check_refusal(refused(path), path, key, *fragments)
+
+
+def test_the_law_check_names_the_first_robot_whose_command_overflows(base_doc, write_scenario):
+    base_doc["control"]["k1"] = 1e307
+    base_doc["robots"]["poses"] = [[-1.0, 0.0, 0.0], [-30.0, 1.5, 0.0]]  # 1 m and 31.5 m from their slots
+    path = write_scenario(base_doc)
+    check_refusal(refused(path), path, "control", "robot 1", "31.54 m from its slot",
+                    "1 of the 2 robots")
+    base_doc["robots"]["poses"][1] = [-15.0, 1.5, 0.0]  # 16.5 m: 1.65e308 m/s, the largest float is 1.8e308
+    sf.load(write_scenario(base_doc, "fine.toml"))
+
+
+def test_dt_and_duration_from_flags_are_named_as_flags(base_doc, write_scenario):
+    path = write_scenario(base_doc)
+    check_refusal(refused(path, sf.Overrides(dt=30.0)), path, "--dt", "longer than the run", "run.duration = 20 s")
+    e = refused(path, sf.Overrides(dt=30.0, duration=5.0))
+    assert (e.where, e.key) == ("command line", "--dt") and "--duration = 5 s" in e.reason
+    check_refusal(refused(path, sf.Overrides(dt=1e-9)), path, "run.duration / --dt", "2e+10 steps")
+    e = refused("paper", sf.Overrides(robots=100_001))
+    assert (e.where, e.key) == ("command line", "--robots") and "at most 100000" in e.reason
+    # the limits themselves are fine: dt = duration is one step, 1e8 steps is the most
+    assert sf.load(path, sf.Overrides(dt=20.0)).steps == 1
+    assert sf.load(path, sf.Overrides(duration=1e6, dt=0.01)).steps == 10**8
+
+
+def test_first_commands_are_the_simulators_first_step(base_doc, write_scenario):
+    """The law check evaluates exactly what the compiled simulator's first step computes."""
+    from swarm.core.sim import Simulation
+
+    # robots near each other (within the cell side) and near the obstacle, frozen or governed
+    base_doc["formation"]["offsets"] = [[0.0, 0.0], [1.5, 0.0], [0.0, 1.5], [1.5, 1.5]]
+    base_doc["robots"]["poses"] = [[-3.0, 1.0, 0.3], [-2.0, 1.5, 2.0], [-8.0, 1.0, -1.0], [-7.2, 1.3, 0.0]]
+    for governor in (False, True):
+        base_doc["control"]["governor"] = governor
+        cases = [sf.load(write_scenario(base_doc, f"near{governor}.toml"))]
+        cases += [sf.load(name, sf.Overrides(robots=n, seed=2)) for name, n in (("paper-50hz", 37), ("paper", 61))]
+        near = cases[0]
+        assert closest_pair(near.poses[:, :2], near.cell_side) is not None
+        assert np.hypot(*(near.poses[0, :2] - near.obstacles[0, :2])) < near.cell_side
+        for scn in cases:
+            sim = Simulation(scn)
+            sim.advance(1)
+            assert (sf.first_commands(scn) == sim.cmd).all()
+
+
+# --------------------------------------------------------------------------- speed limits and the arena
+
+
+def test_speed_limits_are_carried_and_written_back(base_doc, write_scenario):
+    base_doc["control"].update({"v_max": 0.8, "w_max": 2})
+    scn = sf.load(write_scenario(base_doc))
+    assert (scn.control.v_max, scn.control.w_max) == (0.8, 2.0) and isinstance(scn.control.w_max, float)
+    text = sf.to_toml(scn)
+    assert "v_max = 0.8" in text and "w_max = 2.0" in text
+    again = sf.load(write_scenario(text, "again.toml"))
+    assert again.control == scn.control
+    del base_doc["control"]["v_max"], base_doc["control"]["w_max"]
+    plain = sf.load(write_scenario(base_doc, "plain.toml"))
+    assert plain.control.v_max is None and plain.control.w_max is None and "v_max" not in sf.to_toml(plain)
+
+
+def test_speed_limits_fill_the_laws_slots_with_0_for_none(monkeypatch):
+    from swarm.core import law
+    from swarm.core.scenario import Control
+
+    if not hasattr(law, "P_V_MAX"):  # the law's slots as they are being added: after its own 11
+        monkeypatch.setattr(law, "P_V_MAX", 11, raising=False)
+        monkeypatch.setattr(law, "P_W_MAX", 12, raising=False)
+        monkeypatch.setattr(law, "P_SIZE", 13)
+    p = Control(v_max=0.7, w_max=1.5).vector(0.02, 1.5, 1.2)
+    assert p.shape == (law.P_SIZE,) and (p[law.P_V_MAX], p[law.P_W_MAX]) == (0.7, 1.5)
+    p = Control().vector(0.02, 1.5, 1.2)
+    assert (p[law.P_V_MAX], p[law.P_W_MAX]) == (0.0, 0.0) and p[law.P_K1] == 0.5
+    with pytest.raises(ValueError, match="v_max"):
+        Control(v_max=0.0)
+
+
+def test_arena_bounds_are_carried_and_written_back(base_doc, write_scenario):
+    base_doc["arena"] = {"bounds": [-20, 20.0, -10.0, 10.0]}
+    scn = sf.load(write_scenario(base_doc))
+    assert scn.bounds == (-20.0, 20.0, -10.0, 10.0)
+    assert "[arena]\nbounds = [-20.0, 20.0, -10.0, 10.0]" in sf.to_toml(scn)
+    assert sf.load(write_scenario(sf.to_toml(scn), "again.toml")).bounds == scn.bounds
+    del base_doc["arena"]
+    assert sf.load(write_scenario(base_doc, "open.toml")).bounds is None
+    # a start on the border is inside
+    base_doc["arena"] = {"bounds": [-9.0, 0.0, -2.0, 1.0]}
+    sf.load(write_scenario(base_doc, "border.toml"))
+
+
+def test_random_starts_outside_the_arena_are_refused(write_scenario):
+    text = GENERATED.format(seed=4, n=19) + "\n[arena]\nbounds = [-10.0, 10.0, -22.0, 5.0]\n"
+    path = write_scenario(text)
+    e = refused(path)
+    assert e.key == "robots.random" and "outside arena.bounds [-10, 10, -22, 5]" in e.reason
+
+
+# --------------------------------------------------------------------------- advisories
+
+
+def test_odd_but_legal_choices_are_warned_about(base_doc, write_scenario):
+    assert sf.advisories(sf.load(write_scenario(base_doc))) == []
+    base_doc["control"].update({"v_max": 0.3, "w_max": 0.05, "tu": 30.0})
+    base_doc["leader"]["segments"].append({"duration": 5.0, "v": 0.2, "w": 0.1})
+    base_doc["arena"] = {"bounds": [-12.0, 4.0, -5.0, 5.0]}
+    notes = sf.advisories(sf.load(write_scenario(base_doc, "odd.toml")))
+    text = "\n".join(notes)
+    assert "leader.segments[0] moves the formation's slots at up to 0.5 m/s, faster than control.v_max = 0.3" in text
+    assert "leader.segments[1] turns at 0.1 rad/s, faster than control.w_max = 0.05" in text
+    assert "run.duration = 20 s is shorter than control.tu = 30 s" in text
+    assert "leave arena.bounds" in text and "t = " in text
+    assert len(notes) == 4
+
+
+def test_a_step_longer_than_the_wait_rule_covers_is_warned_about(base_doc, write_scenario):
+    base_doc["run"]["dt"] = 0.25  # 0.5 m/s: 0.125 m a step, more than (1.5 - 1.2) / 3 = 0.1 m
+    notes = sf.advisories(sf.load(write_scenario(base_doc)))
+    assert any("0.125 m a step" in n and "(cell side - reach) / 3 = 0.1 m" in n for n in notes), notes
+    base_doc["run"]["dt"] = 0.2  # 0.1 m: at the limit, fine
+    assert sf.advisories(sf.load(write_scenario(base_doc, "ok.toml"))) == []
+
+
+def test_a_leader_that_travels_beyond_1e6_m_is_warned_about(base_doc, write_scenario):
+    base_doc["run"].update({"duration": 1e5, "dt": 1.0})
+    base_doc["leader"]["segments"][0]["v"] = 20.0  # 2e6 m in the run
+    notes = sf.advisories(sf.load(write_scenario(base_doc)))
+    assert any("leader may travel 2e+06 m" in n for n in notes), notes
+
+
+# --------------------------------------------------------------------------- progress
+
+
+class FakeClock:
+    def __init__(self):
+        self.t = 100.0
+
+    def __call__(self):
+        return self.t
+
+
+def test_the_progress_reporter_stays_silent_for_a_second_then_reports(capsys):
+    clock = FakeClock()
+    rep = sf.StderrProgress(clock=clock)
+    rep("checking the start separations", 0, 10)
+    clock.t += 0.9
+    rep("checking the start separations", 5, 10)
+    rep.finish()
+    assert capsys.readouterr().err == ""  # a quick load prints nothing
+    clock.t += 0.2
+    rep("evaluating the law at t = 0", 0, 10)
+    rep("evaluating the law at t = 0", 4, 10)  # the same stage within a second: not again
+    clock.t += 1.0
+    rep("evaluating the law at t = 0", 8, 10)
+    rep("evaluating the law at t = 0", 10, 10)
+    rep.finish()
+    assert capsys.readouterr().err.splitlines() == [
+        "scenario: evaluating the law at t = 0 ...",
+        "scenario: evaluating the law at t = 0: 8 of 10",
+        "scenario: ready after 2.1 s",
+    ]
+
+
+def test_load_reports_its_stages_to_a_progress_callable():
+    seen = []
+    sf.load("paper-50hz", sf.Overrides(robots=5000), progress=lambda stage, done, total: seen.append(stage))
+    for stage in ("drawing random starts", "checking the formation's slots", "checking the start separations",
+                  "evaluating the law at t = 0"):
+        assert stage in seen, seen
+
+
+# --------------------------------------------------------------------------- large files
+
+
+def test_a_file_of_too_many_poses_is_refused_from_its_text(tmp_path, base_doc):
+    from tests.conftest import toml_text
+
+    poses = "\n".join(f"  [{i % 1000 * 2.0}, {i // 1000 * 2.0}, 0.0]," for i in range(100_001))
+    text = toml_text(base_doc).replace('poses = [[-8.0, 1.0, 0.3], [-9.0, -2.0, 1.2]]', f"poses = [\n{poses}\n]")
+    assert "poses = [\n" in text
+    path = tmp_path / "many.toml"
+    path.write_text(text)
+    e = refused(str(path))
+    assert e.key == "robots.poses" and "lists 100001 entries" in e.reason
+
+
+def test_the_prescan_skips_strings_and_comments(tmp_path, base_doc):
+    """Brackets in comments and strings are not entries; a large valid file loads."""
+    from tests.conftest import toml_text
+
+    n = 30_000
+    poses = "\n".join(f"  [{i % 200 * 2.0}, {-10.0 - i // 200 * 2.0}, 0.0],  # [[ not [an] entry ]]"
+                      for i in range(n))
+    offsets = "\n".join(f"  [{i % 200 * 1.5}, {i // 200 * 1.5}]," for i in range(n))
+    base_doc["formation"]["offsets"] = [[0.0, 0.0]]
+    base_doc["robots"]["poses"] = [[0.0, 0.0, 0.0]]
+    text = toml_text(base_doc).replace("offsets = [[0.0, 0.0]]", f"offsets = [\n{offsets}\n]")
+    text = text.replace("poses = [[0.0, 0.0, 0.0]]", f"poses = [\n{poses}\n]")
+    text = f'# "[" {"[" * 200_000}\n' + text
+    path = tmp_path / "large.toml"
+    path.write_text(text)
+    assert path.stat().st_size > sf.PRESCAN_BYTES
+    scn = sf.load(str(path), progress=sf.silent)
+    assert scn.n == n
