@@ -302,9 +302,11 @@ def access_control(fleet: str, robots: int, extra_robot_keys: tuple[str, ...] = 
         subjects.append({"id": cn, "cert_common_names": [cn]})
         if ids:
             policies.append({"id": cn, "rules": ids, "subjects": [cn]})
-    if revoked:
+    if revoked:  # default deny already refuses them everything; this says so, and wins over any allow
+        # ("**" does not match chunks that start with "@", such as ROS 2's @ros2_lv: their extra keys too)
+        extra = sorted({roles.extra_expression(t, i) for t in extra_robot_keys for i in revoked})
         rules.append({"id": "revoked", "permission": "deny", "flows": ["ingress", "egress"],
-                      "messages": list(ALL_MESSAGES), "key_exprs": ["**"]})
+                      "messages": list(ALL_MESSAGES), "key_exprs": ["**", *extra]})
         subjects.append({"id": "revoked", "cert_common_names": [roles.common_name("robot", i) for i in sorted(revoked)]})
         policies.append({"id": "revoked", "rules": ["revoked"], "subjects": ["revoked"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
@@ -317,7 +319,7 @@ def _client_doc(connect: list[str]) -> dict:
         "scouting": {"multicast": {"enabled": False}},
         "transport": {"link": {"protocols": ["tls"], "tls": {
             "root_ca_certificate": CA, "connect_certificate": CERT, "connect_private_key": KEY,
-            "enable_mtls": True, "verify_name_on_connect": True}}},
+            "enable_mtls": True, "verify_name_on_connect": True, "close_link_on_expiration": True}}},
     }
 
 
@@ -329,7 +331,7 @@ def _router_doc(listen: list[str], acl: dict) -> dict:
         "transport": {"link": {"protocols": ["tls"], "tls": {
             "root_ca_certificate": CA, "listen_certificate": CERT, "listen_private_key": KEY,
             "connect_certificate": CERT, "connect_private_key": KEY,
-            "enable_mtls": True, "verify_name_on_connect": True}}},
+            "enable_mtls": True, "verify_name_on_connect": True, "close_link_on_expiration": True}}},
         "access_control": acl,
     }
 
