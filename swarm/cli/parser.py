@@ -186,6 +186,36 @@ def build_parser() -> argparse.ArgumentParser:
     check = scn_sub.add_parser("check", help="check scenario files; exit 2 at the first bad one")
     check.add_argument("files", nargs="+", metavar="FILE")
     check.set_defaults(func="swarm.cli.sim:cmd_scenario_check")
+
+    sec = sub.add_parser("secure", help="credentials for --secure: a CA, a certificate per process, the router's rules",
+                         description="Make the credentials that --secure uses (docs/security.md).")
+    sec_sub = sec.add_subparsers(dest="action", metavar="ACTION", required=True)
+    sec_init = sec_sub.add_parser(
+        "init", help="write a fleet directory: CA, certificates, zenoh configs, the router's access control",
+        description="Write DIR: a certificate authority, a certificate for the router and for every role (launcher, "
+                    "world, leader, viz, recorder, operator) and robot, and a zenoh config per identity with mutual "
+                    "TLS; the router's carries the access control generated from the role table. Each robot's "
+                    "files are in a folder of their own (DIR/robot-I), to copy to that robot's machine alone.",
+        epilog="Examples: swarm secure init fleet/ --robots 7 | swarm secure init fleet/ --robots 12 --router-host "
+               "192.168.1.10 | swarm secure init fleet/ --robots 8 --update --revoke 3")
+    sec_init.add_argument("directory", type=Path, metavar="DIR")
+    sec_init.add_argument("--robots", type=_count, required=True, metavar="N", help="robots 0..N-1 get a certificate")
+    sec_init.add_argument("--fleet", metavar="NAME", help="the swarm's name, as given to --fleet (default: default)")
+    sec_init.add_argument("--router-host", action="append", default=[], metavar="H",
+                          help="a name or address other machines reach the router by (in its certificate; the router "
+                               "then listens on every interface; robots, viewers and operators connect to the first); "
+                               "repeatable")
+    sec_init.add_argument("--port", type=_int_at_least(1), metavar="P", help="the router's TLS port (default 7447)")
+    sec_init.add_argument("--extra-robot-keys", action="append", default=[], metavar="EXPR",
+                          help="a key expression outside swarm/ that robot I may use (a ROS 2 drive's topics); "
+                               "{id} stands for I, e.g. 'robot{id}/**'; repeatable")
+    how = sec_init.add_mutually_exclusive_group()
+    how.add_argument("--force", action="store_true", help="DIR is not empty: replace its credentials (a new CA)")
+    how.add_argument("--update", action="store_true",
+                     help="keep DIR's CA and certificates: add robots up to N, apply --revoke, rewrite the configs")
+    sec_init.add_argument("--revoke", action="append", type=_int_at_least(0), default=[], metavar="I",
+                          help="with --update: robot I loses its folder and the router denies it; repeatable")
+    sec_init.set_defaults(func="swarm.cli.secure:cmd_secure_init")
     _add_runtime_parsers(sub)
     return parser
 
