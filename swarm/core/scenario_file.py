@@ -518,7 +518,7 @@ def _check_first_commands(scn: Scenario, where: str, progress: Progress, counter
         raise ScenarioError(where, "control", f"robot {k}'s command at t = 0 is not finite (v = {cmd[k, 0]:g} m/s, "
                             f"w = {cmd[k, 1]:g} rad/s) with k1 = {c.k1:g}, k2 = {c.k2:g}, k3 = {c.k3:g}: it starts "
                             f"{math.hypot(xl + scn.offsets[k, 0] - x, yl + scn.offsets[k, 1] - y):.4g} m from its "
-                            f"slot ({bad.size} robots so); lower the gains")
+                            f"slot ({bad.size} of the {scn.n} robots are); lower the gains")
 
 
 def first_commands(scn: Scenario, progress: Progress = silent, counter: Counter | None = None) -> np.ndarray:
