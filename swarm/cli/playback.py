@@ -7,6 +7,8 @@ Replay waits for a browser page to connect (--wait; the default on a terminal), 
 from the recorded alive, stopped and frozen flags), paced by their simulated time at --speed and
 at most MAX_HZ frames a wall second (a frame whose successor is already due is skipped, never
 drawn late). The reading itself is swarm.view.report's, so a replay and a report see the same data.
+A recording without its footer (a killed run) is read up to its last complete chunk, and both
+commands say on stderr how much came back (swarm.view.report.Recovery).
 """
 
 from __future__ import annotations
@@ -56,9 +58,12 @@ def cmd_replay(args, started: float) -> int:
 
     path = _recording(args.recording)
     try:
+        recovered = report.recovery(path)
         scn, info = report.read_scenario(path)
     except report.ReportError as e:
         raise BadInput(str(e)) from None
+    if recovered is not None:
+        print(f"swarm replay: warning: {path}: {recovered.message()}", file=sys.stderr, flush=True)
     viz = viz_options(args, True, "")
     check_viz_port(viz)
     with StopEvent() as stop:
@@ -111,6 +116,9 @@ def cmd_report(args, started: float) -> int:
     if args.out.exists() and not args.out.is_dir():
         raise BadInput(f"-o {args.out}: exists and is not a directory")
     try:
+        recovered = report.recovery(path)
+        if recovered is not None:
+            print(f"swarm report: warning: {path}: {recovered.message()}", file=sys.stderr, flush=True)
         files = report.write_report(path, args.out)
     except report.ReportError as e:
         raise BadInput(str(e)) from None

@@ -21,6 +21,11 @@ derived from every message received, never from the decimated ones only.
 
 Cost: a bus callback only appends the raw payload to a deque; one worker thread decodes
 (swarm.proto.protocol.decode), derives the events and writes (bench/record_cost.py measures it).
+
+Crashes: MCAP keeps its index and statistics in a footer written at the end, so a killed run's file
+has none. The writer therefore closes its chunk and flushes the file at least every FLUSH_S wall
+seconds (and right after the scenario): a run killed at any moment leaves every message up to the
+last flush readable, in complete chunks that swarm.view.report reads sequentially.
 """
 
 from __future__ import annotations
@@ -49,6 +54,7 @@ STATUS_PERIOD_S = 0.1  # record_simulation writes statuses at the agents' status
 MAX_BAD_EVENTS = 100  # bad messages beyond this are counted, not written one by one
 MAX_PENDING = 200_000  # BusRecorder: received messages not yet written; a callback waits beyond this
 POLL_S = 0.02  # BusRecorder: the worker's wake-up period [wall s]
+FLUSH_S = 1.0  # Recorder: wall seconds between chunk flushes (what a killed run loses at most)
 
 TOPIC_SCENARIO = "/scenario"
 TOPIC_SNAPSHOT = "/world/snapshot"
@@ -61,7 +67,7 @@ TOPIC_METRICS = "/metrics"
 EVENT_KINDS = ("freeze_start", "freeze_end", "collision", "robot_dead", "robot_alive", "robot_stopped",
                "robot_resumed", "snapshots_missed", "bad_message")
 
-# Keys of DESIGN.md section 7 that every metrics message carries (extra keys are allowed).
+# Keys of the metrics contract (docs/design.md, Metrics) that every metrics message carries (extra keys are allowed).
 METRIC_KEYS = ("robots", "obstacles", "duration_s", "dt", "seed", "converged_at_s", "final_position_error_max_m",
                "final_orientation_error_max_rad", "min_robot_distance_m", "min_obstacle_distance_m", "collisions",
                "last_freeze_end_s", "wall_s", "messages_dropped", "cmd_misses", "bad_messages", "interrupted")
@@ -86,7 +92,7 @@ def _schema(title: str, description: str, props: dict, optional: tuple[str, ...]
             "additionalProperties": extra}
 
 
-# Metrics that may be null (DESIGN.md section 7): not declared below, since a JSON Schema type list such as
+# Metrics that may be null (docs/design.md, Metrics): not declared below, since a JSON Schema type list such as
 # ["number", "null"] is valid JSON Schema but Foxglove's schema reader refuses it (one type per field).
 NULLABLE_METRICS = ("converged_at_s", "final_position_error_max_m", "final_orientation_error_max_rad",
                     "min_robot_distance_m", "min_obstacle_distance_m", "last_freeze_end_s")
@@ -120,7 +126,7 @@ SCHEMAS: dict[str, tuple[str, dict]] = {
                        "t": _NUM, "kind": {"type": "string", "enum": list(EVENT_KINDS)}, "robot": _INT,
                        "other": _INT, "obstacle": _INT, "distance": _NUM, "detail": _STR},
                    optional=("robot", "other", "obstacle", "distance"))),
-    TOPIC_METRICS: ("swarm.Metrics", _schema("swarm.Metrics", "The run's metrics (DESIGN.md section 7), exactly "
+    TOPIC_METRICS: ("swarm.Metrics", _schema("swarm.Metrics", "The run's metrics (docs/design.md, Metrics), exactly "
                     "the metrics JSON (extra keys included); written once at the end. Also there, as a number or "
                     "null: " + ", ".join(NULLABLE_METRICS) + ".", {
                         "robots": _INT, "obstacles": _INT, "duration_s": _NUM, "dt": _NUM, "seed": _INT,
@@ -204,7 +210,7 @@ class Event:
 class EventDeriver:
     """Derives events from a sequence of snapshots and freeze flags (pure: no I/O, no clock).
 
-    Collisions follow DESIGN.md section 7: an unordered pair whose centre distance goes from >= r to
+    Collisions follow the metrics contract (docs/design.md): an unordered pair whose centre distance goes from >= r to
     < r between consecutive snapshots (r: the larger of two robots' r, the obstacle's r for a
     robot-obstacle pair); a pair already inside at the first snapshot counts once. A robot whose
     pose is not finite (missing from a snapshot) is in no pair.
@@ -316,11 +322,14 @@ class Recorder:
     status_period: simulated seconds between kept statuses of a robot (None: as record_hz);
     presampled: the caller already picked the samples (record_simulation): snapshots, references and
     commands are all written, record_hz is only noted in /scenario.
+    flush_s: wall seconds between chunk flushes (the most a killed run loses; None: a chunk is closed
+    only when it holds chunk_size bytes, and a killed run loses up to that); clock: wall time [s].
     """
 
     def __init__(self, path, scenario: Scenario, record_hz: float | None = DEFAULT_RECORD_HZ,
                  source: str = "live", fleet: str | None = None, status_period: float | None = None,
-                 presampled: bool = False, chunk_size: int = 1 << 20):
+                 presampled: bool = False, chunk_size: int = 1 << 20, flush_s: float | None = FLUSH_S,
+                 clock=time.monotonic):
         from mcap.writer import CompressionType, Writer
 
         from swarm.core import scenario_file
@@ -343,6 +352,11 @@ class Recorder:
         self.last_t = 0.0
         self.counts = {topic: 0 for topic in TOPICS}
         self.closed = False
+        self._flushed = clock()
+        if flush_s is not None and not (math.isfinite(flush_s) and flush_s > 0):
+            raise RecordError(f"flush_s must be a number > 0 (or None), got {flush_s!r}")
+        self.flush_s, self._clock = flush_s, clock
+        self.flushes = 0  # chunks closed by the flush period
         try:
             self._file = open(self.path, "wb")
         except OSError as e:
@@ -363,6 +377,7 @@ class Recorder:
                 "duration": scn.duration, "seed": scn.seed, "r": scn.r, "R": scn.R, "source": source,
                 "record_hz": self.record_hz, "record_every": self.every, **({"fleet": fleet} if fleet else {}),
                 "toml": scenario_file.to_toml(scn)}))
+            self._flush()  # a file killed at once still says what it is
         except BaseException:
             self._file.close()
             raise
@@ -375,6 +390,24 @@ class Recorder:
         self.counts[topic] += 1
         if t > self.last_t:
             self.last_t = t
+        self._flush_if_due()
+
+    def _flush_if_due(self) -> None:
+        if self.flush_s is not None and self._clock() - self._flushed >= self.flush_s:
+            self._flush()
+            self.flushes += 1
+
+    def flush_if_due(self) -> None:
+        """Flush if FLUSH_S has passed since the last flush: for a writer that may stay idle (a stalled
+        run), so that what it wrote before is on disk when it is killed."""
+        with self._lock:
+            if not self.closed:
+                self._flush_if_due()
+
+    def _flush(self) -> None:
+        """Close the chunk in progress and hand everything to the OS (survives a SIGKILL, not a power cut)."""
+        self._w.flush()
+        self._flushed = self._clock()
 
     def _keep(self, grid: _Grid, t: float) -> bool:
         return grid.keep(t) or t >= self._final_t - self._tol
@@ -553,6 +586,12 @@ class BusRecorder:
             self.drain()
             if closing:
                 return
+            try:
+                self.rec.flush_if_due()
+            except Exception:  # a full disk, say: the next message's write reports it; keep draining
+                self.errors += 1
+                if self.errors <= 3:
+                    log.exception("recorder: failed to flush the recording")
             self._closing.wait(POLL_S)
 
     def process(self, topic: str, key: str, payload: bytes) -> None:

@@ -6,7 +6,9 @@
     write_report("run.mcap", "out/")      # Fig. 2 panels (swarm.view.plots) + index.html
 
 The same reader serves a live recording (`swarm up --record`) and an in-process one (`swarm sim
---record`): both have the channels of swarm.view.record. The samples' errors are recomputed against the
+--record`): both have the channels of swarm.view.record. A file without its footer (a run killed before
+the recorder finished it) is read sequentially up to its last complete chunk; `recovery(path)` and
+Run.recovered say how much of it came back. The samples' errors are recomputed against the
 live leader reference of the stored scenario, exactly as the simulator computes them (swarm.core.kernel:
 p = (x_l + d_i) - x_i, e_theta = wrap(theta_l - theta_i)), never taken from a frozen snapshot.
 Every failure to read is a ReportError naming the file and the reason.
@@ -39,6 +41,26 @@ class ReportError(ValueError):
     """A file that cannot be read as a swarm recording; the message names the file and the reason."""
 
 
+@dataclass(frozen=True)
+class Recovery:
+    """What came back from a recording without its footer: the snapshots read, the last one's time [s],
+    the run's planned duration [s] (None: the scenario was lost too), the bytes read and the file's size."""
+
+    snapshots: int
+    last_t: float | None
+    duration: float | None
+    bytes_read: int
+    size: int
+
+    def message(self) -> str:
+        upto = "" if self.last_t is None else f" up to t = {self.last_t:.4g} s"
+        of = "" if self.duration is None else f" of the {self.duration:g} s run"
+        lost = self.size - self.bytes_read
+        tail = f"; its last {lost} bytes, an incomplete chunk, are lost" if lost > 0 else ""
+        return (f"recovered {self.snapshots} snapshots{upto}{of}: the recording has no footer (the run was killed "
+                f"or crashed before the recorder finished the file){tail}")
+
+
 @dataclass
 class Run:
     """A recording read back. recording: samples at the recorded snapshots (swarm.core.sim.Recording);
@@ -52,6 +74,7 @@ class Run:
     events: list[dict]
     info: dict
     counts: dict[str, int]  # messages per topic in the file
+    recovered: Recovery | None = None  # set when the file had no footer
 
 
 @dataclass(frozen=True)
@@ -70,10 +93,13 @@ class Frame:
 # --------------------------------------------------------------------------- reading
 
 
-def _messages(path: Path, topics: list[str] | None = None,
-              counts: dict[str, int] | None = None) -> Iterator[tuple[str, int, dict]]:
+def _messages(path: Path, topics: list[str] | None = None, counts: dict[str, int] | None = None,
+              salvage: dict | None = None) -> Iterator[tuple[str, int, dict]]:
     """(topic, log_time [ns], decoded JSON) of every message of `topics` (None: all), in log-time order;
-    ReportError on any fault. counts, if given, receives the file's message count per topic."""
+    ReportError on any fault. counts, if given, receives the file's message count per topic.
+
+    A file that starts as MCAP but has no footer (the run was killed) is read sequentially, up to its
+    last complete chunk; then `salvage`, if given, receives "bytes_read" and "size"."""
     from mcap.reader import make_reader
 
     try:
@@ -88,10 +114,11 @@ def _messages(path: Path, topics: list[str] | None = None,
             raise ReportError(f"{path}: empty file, not an MCAP recording")
         if head != _MAGIC:
             raise ReportError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
-        f.seek(-min(len(_MAGIC), path.stat().st_size), 2)
-        if f.read() != _MAGIC or path.stat().st_size < 2 * len(_MAGIC):
-            raise ReportError(f"{path}: truncated MCAP file (no footer: the recorder did not finish it, "
-                              "was the run killed?)")
+        size = path.stat().st_size
+        f.seek(-min(len(_MAGIC), size), 2)
+        if f.read() != _MAGIC or size < 2 * len(_MAGIC):
+            yield from _salvaged(path, f, size, topics, counts, salvage)
+            return
         f.seek(0)
         try:
             reader = make_reader(f)
@@ -106,16 +133,54 @@ def _messages(path: Path, topics: list[str] | None = None,
                     counts[summary.channels[cid].topic] = counts.get(summary.channels[cid].topic, 0) + c
         try:
             for _schema, channel, message in reader.iter_messages(topics=topics):
-                try:
-                    data = json.loads(message.data)
-                except ValueError as e:
-                    raise ReportError(f"{path}: {channel.topic} message at log time {message.log_time} ns is "
-                                      f"not JSON: {e}") from None
-                yield channel.topic, message.log_time, data
+                yield channel.topic, message.log_time, _json(path, channel.topic, message)
         except ReportError:
             raise
         except Exception as e:
             raise ReportError(f"{path}: corrupt or truncated MCAP file ({type(e).__name__}: {e})") from None
+
+
+def _json(path: Path, topic: str, message) -> dict:
+    try:
+        return json.loads(message.data)
+    except ValueError as e:
+        raise ReportError(f"{path}: {topic} message at log time {message.log_time} ns is not JSON: {e}") from None
+
+
+def _salvaged(path: Path, f, size: int, topics: list[str] | None, counts: dict[str, int] | None,
+              salvage: dict | None) -> Iterator[tuple[str, int, dict]]:
+    """The messages of a file without a footer, read record by record (mcap's non-seeking StreamReader)
+    until the first incomplete or damaged record, then in log-time order (stable) like the indexed
+    reader gives them. The recorder flushes complete chunks at least every second (swarm.view.record),
+    so this is the run up to about a second before it was killed."""
+    from mcap.records import Channel, Message
+    from mcap.stream_reader import StreamReader
+
+    f.seek(0)
+    stream = StreamReader(f, skip_magic=False)
+    channels: dict[int, str] = {}
+    kept: list[tuple[int, int, str, Message]] = []
+    read_to = len(_MAGIC)
+    try:
+        for record in stream.records:
+            if isinstance(record, Channel):
+                channels[record.id] = record.topic
+            elif isinstance(record, Message):
+                topic = channels.get(record.channel_id)
+                if topic is None:
+                    continue
+                if counts is not None:
+                    counts[topic] = counts.get(topic, 0) + 1
+                if topics is None or topic in topics:
+                    kept.append((record.log_time, len(kept), topic, record))
+            read_to = f.tell()
+    except Exception:  # the incomplete end (EndOfFile), or damage: what came before stands
+        pass
+    if salvage is not None:
+        salvage["bytes_read"], salvage["size"] = min(read_to, size), size
+    kept.sort(key=lambda m: (m[0], m[1]))
+    for log_time, _k, topic, message in kept:
+        yield topic, log_time, _json(path, topic, message)
 
 
 def _scenario(path: Path, msg: dict | None) -> tuple[Scenario, dict]:
@@ -136,8 +201,12 @@ def _scenario(path: Path, msg: dict | None) -> tuple[Scenario, dict]:
 def read_scenario(path) -> tuple[Scenario, dict]:
     """The recorded Scenario and the /scenario message's other fields (reads only that channel)."""
     path = Path(path)
-    for _topic, _t, data in _messages(path, [TOPIC_SCENARIO]):
+    salvage: dict = {}
+    for _topic, _t, data in _messages(path, [TOPIC_SCENARIO], None, salvage):
         return _scenario(path, data)
+    if salvage:
+        raise ReportError(f"{path}: no {TOPIC_SCENARIO} message came back: the recording has no footer (the run "
+                          "was killed or crashed before the recorder finished the file)")
     return _scenario(path, None)
 
 
@@ -195,8 +264,9 @@ def read_recording(path) -> Run:
     events: list[dict] = []
     metrics = None
     counts: dict[str, int] = {}
+    salvage: dict = {}
     for topic, _t, d in _messages(path, [TOPIC_SCENARIO, TOPIC_SNAPSHOT, TOPIC_CMD, TOPIC_EVENTS, TOPIC_METRICS],
-                                  counts):
+                                  counts, salvage):
         if topic == TOPIC_SNAPSHOT:
             snaps.append(d)
         elif topic == TOPIC_CMD:
@@ -210,6 +280,14 @@ def read_recording(path) -> Run:
             metrics = d
         elif topic == TOPIC_SCENARIO and scn_msg is None:
             scn_msg = d
+    recovered = None
+    if salvage:
+        last = max((float(d["t"]) for d in snaps if isinstance(d.get("t"), (int, float))), default=None)
+        duration = scn_msg.get("duration") if isinstance(scn_msg, dict) else None
+        recovered = Recovery(len(snaps), last, duration if isinstance(duration, (int, float)) else None,
+                             salvage["bytes_read"], salvage["size"])
+        if scn_msg is None or not snaps:
+            raise ReportError(f"{path}: {recovered.message()}")
     scn, info = _scenario(path, scn_msg)
     if not snaps:
         raise ReportError(f"{path}: no {TOPIC_SNAPSHOT} messages: nothing was recorded")
@@ -239,7 +317,35 @@ def read_recording(path) -> Run:
         cmd[has, i, :] = vw[at[has]]
     err, leader = live_errors(scn, t, q)
     events.sort(key=lambda e: e.get("t", 0.0) if isinstance(e.get("t"), (int, float)) else 0.0)
-    return Run(path, scn, Recording(t, q, err, cmd, frozen, leader), metrics, events, info, counts)
+    return Run(path, scn, Recording(t, q, err, cmd, frozen, leader), metrics, events, info, counts, recovered)
+
+
+def recovery(path) -> Recovery | None:
+    """None for a finished recording; for one without its footer (a killed run), what can be read back:
+    ReportError if not even its scenario and one snapshot came back."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            size = path.stat().st_size
+            if size >= 2 * len(_MAGIC) and f.read(len(_MAGIC)) == _MAGIC:
+                f.seek(-len(_MAGIC), 2)
+                if f.read() == _MAGIC:
+                    return None
+    except OSError as e:
+        raise ReportError(f"{path}: cannot read: {e.strerror or e}") from None
+    salvage: dict = {}
+    snapshots, last, duration, named = 0, None, None, False
+    for topic, _t, d in _messages(path, [TOPIC_SCENARIO, TOPIC_SNAPSHOT], None, salvage):
+        if topic == TOPIC_SCENARIO:
+            named = True
+            duration = d.get("duration") if isinstance(d.get("duration"), (int, float)) else None
+        elif isinstance(d.get("t"), (int, float)):
+            snapshots += 1
+            last = float(d["t"]) if last is None else max(last, float(d["t"]))
+    found = Recovery(snapshots, last, duration, salvage.get("bytes_read", 0), salvage.get("size", 0))
+    if not named or not snapshots:
+        raise ReportError(f"{path}: {found.message()}")
+    return found
 
 
 def iter_frames(path) -> Iterator[Frame]:
@@ -247,13 +353,19 @@ def iter_frames(path) -> Iterator[Frame]:
     path = Path(path)
     scn, _info = read_scenario(path)
     n = scn.n
-    for _topic, _t, d in _messages(path, [TOPIC_SNAPSHOT]):
+    salvage: dict = {}
+    frames = 0
+    for _topic, _t, d in _messages(path, [TOPIC_SNAPSHOT], None, salvage):
         x, y, th, _v, _w, stopped, alive, frozen = _columns(path, d, n)
         try:
             t, seq = float(d["t"]), int(d["seq"])
         except (KeyError, TypeError, ValueError) as e:
             raise ReportError(f"{path}: bad {TOPIC_SNAPSHOT} message: {e}") from None
+        frames += 1
         yield Frame(t, seq, np.stack([x, y, th], axis=1), stopped, alive, frozen)
+    if salvage and not frames:
+        found = Recovery(0, None, scn.duration, salvage["bytes_read"], salvage["size"])
+        raise ReportError(f"{path}: {found.message()}")
 
 
 def pace(frames, speed: float = 1.0, max_hz: float | None = None, clock: Callable[[], float] = time.monotonic,
@@ -316,7 +428,7 @@ _CSS = """body{font-family:sans-serif;margin:1.5em;max-width:1400px}
 table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:2px 8px;text-align:left}
 th{background:#f0f0f0}pre{background:#f7f7f7;padding:0.5em;overflow:auto;max-height:30em}
 .panels{display:flex;flex-wrap:wrap;gap:8px}.panels figure{margin:0;width:32%}.panels img{width:100%}
-img.wide{width:100%}figcaption{font-size:small}"""
+img.wide{width:100%}figcaption{font-size:small}.warning{background:#fff3cd;padding:0.5em}"""
 
 
 def _html(run: Run, panels: list[Path], extra: list[Path]) -> str:
@@ -332,8 +444,10 @@ def _html(run: Run, panels: list[Path], extra: list[Path]) -> str:
                         f"{esc(_fmt(run.info.get('record_hz')))})"),
             ("messages", esc(", ".join(f"{k} {v}" for k, v in sorted(run.counts.items()))))]
     parts = [f"<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>{esc(title)}</title>",
-             f"<style>{_CSS}</style></head><body>", f"<h1>{esc(title)}</h1>", _table(head, ("run", "")),
-             "<h2>Metrics</h2>"]
+             f"<style>{_CSS}</style></head><body>", f"<h1>{esc(title)}</h1>"]
+    if run.recovered is not None:
+        parts.append(f"<p class='warning'><b>Incomplete recording:</b> {esc(run.recovered.message())}.</p>")
+    parts += [_table(head, ("run", "")), "<h2>Metrics</h2>"]
     if m is None:
         parts.append("<p>No metrics: the run ended before it wrote them.</p>")
     else:

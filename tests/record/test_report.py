@@ -123,7 +123,7 @@ SNAP = {"t": 0.0, "seq": 0, "id": [0], "x": [0.0], "y": [0.0], "theta": [0.0], "
     ("missing", "no such file"),
     ("empty", "empty file"),
     ("text", "not an MCAP file"),
-    ("truncated", "truncated"),
+    ("truncated", "no footer"),  # cut before its first snapshot's chunk: nothing to recover
     ("no_scenario", "no /scenario message"),
     ("bad_toml", "the recorded scenario cannot be rebuilt"),
 ])
