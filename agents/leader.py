@@ -16,13 +16,16 @@ import logging
 import queue
 import threading
 
-from swarm.proto import keys, protocol
+from swarm.proto import keys, protocol, window
 from swarm.core import kinematics
 from swarm.core.clock import WALL
 from swarm.proto.protocol import ProtocolError, Ref
 
 log = logging.getLogger("swarm.leader")
 
+WATCHDOG_S = 0.5  # the windows on the clock's t and seq cover twice the watchdog, at least 2 s
+_WORLD_BACK = "world token"  # an inbox item: the world's liveliness token is new
+_CLOCK0 = protocol.encode(protocol.Clock(t=0.0, seq=0, epoch=0.0, speed=1.0))
 REF_PERIOD_S = 0.1  # real time: simulated seconds between references (plus one at every segment start)
 
 
@@ -39,11 +42,15 @@ class Leader:
         self.epoch: float | None = None
         self.speed = 1.0
         self.sent = 0
+        self.w_clock = window.Window(*window.spans(dt, WATCHDOG_S))  # the world's clock: forward, within a window
+        self.ended = False  # the run is over (a new one began): run() returns
         self._handles: list = []
 
     def start(self) -> None:
         self._handles.append(self.bus.subscribe(keys.world_clock(self.fleet),
                                                 lambda k, b: self.inbox.put((k, b))))
+        self._handles.append(self.bus.watch_alive(keys.alive(self.fleet, "world"),
+                                                  lambda k, up: up and self.inbox.put((_WORLD_BACK, _CLOCK0))))
         self._handles.append(self.bus.token(keys.alive(self.fleet, "leader")))
 
     def close(self) -> None:
@@ -63,17 +70,22 @@ class Leader:
         except ProtocolError as e:
             self.bad.reject(key, e)
             return
+        if key == _WORLD_BACK:  # the world's token is new (a restarted world): its clock counts afresh
+            self.w_clock.reset()
+            return
+        if not self.bad.verdict(key, self.w_clock.check(c.t, c.seq), "the clock's t or seq"):
+            return
         if self.lockstep:
             if self.next_seq < c.seq:  # started (or restarted) mid-run: catch up from now
                 self.next_seq = c.seq
             while self.next_seq <= c.seq + 1:
                 self.publish(self.next_seq * self.dt, self.next_seq)
                 self.next_seq += 1
-        elif c.epoch > 0:
+        elif c.epoch > 0 and self.epoch is None:  # the run's epoch, once (a new run is a new leader)
             self.epoch, self.speed = c.epoch, c.speed
 
     def run(self, stop: threading.Event) -> None:
-        while not stop.is_set():
+        while not stop.is_set() and not self.ended:
             if self.lockstep or self.epoch is None:
                 try:
                     self.on_clock(*self.inbox.get(timeout=0.2))
@@ -87,7 +99,7 @@ class Leader:
             self.next_seq += 1
             t_next = min([(t // self.period + 1) * self.period] + [s for s in self.switches if s > t])
             wake = self.epoch + t_next / self.speed
-            while not stop.is_set():
+            while not stop.is_set() and not self.ended:
                 left = wake - self.clock.time()
                 if left <= 0:
                     break
@@ -97,13 +109,54 @@ class Leader:
                     break
 
 
-def run_leader(bus, clock, scn, fleet: str = "default", lockstep: bool = True, stop: threading.Event | None = None) -> Leader:
-    """Publish scenario `scn`'s reference on `bus` until `stop` is set; returns the leader (its counters)."""
+def run_leader(bus, clock, scn, fleet: str = "default", lockstep: bool | None = None,
+               stop: threading.Event | None = None, start_timeout: float = 60.0, once: bool = False) -> list[Leader]:
+    """Publish scenario `scn`'s reference on `bus` for every run the world announces, until `stop` is
+    set: a fresh leader per run (sequence numbers and clock from zero). A run of another scenario is
+    refused (RunRefused, naming the first difference). lockstep: None follows the run's mode.
+    Returns the leaders of the runs served (their counters)."""
+    from agents.follow import RunFollower, check_run
+    from swarm.core import runid
+
     stop = stop or threading.Event()
-    lead = Leader(bus, scn.leader.table(), scn.dt, fleet, lockstep=lockstep, clock=clock)
-    lead.start()
+    current: list[Leader] = []
+
+    def on_new(run) -> None:  # bus thread: the leader of the run under way stops
+        for lead in list(current):
+            lead.ended = True
+
+    runs = RunFollower(bus, fleet, on_new)
+    mine = runid.canonical(scn)
+    served: list[Leader] = []
     try:
-        lead.run(stop)
+        run = runs.current(start_timeout, stop)
+        while not stop.is_set():
+            if not run.scenario:
+                run = runs.complete(run, start_timeout, stop)
+            check_run(run, mine)
+            mode = run.lockstep if lockstep is None else lockstep
+            if mode != run.lockstep:
+                log.warning("leader: --mode says %s but run %s is %s; following the run", "lockstep" if mode else
+                            "realtime", run.run, "lock-step" if run.lockstep else "real time")
+                mode = run.lockstep
+            lead = Leader(bus, scn.leader.table(), scn.dt, fleet, lockstep=mode, clock=clock)
+            current[:] = [lead]
+            if runs.latest is not None and runs.latest.run != run.run:
+                lead.ended = True
+            log.info("leader: run %s", run.run)
+            lead.start()
+            try:
+                lead.run(stop)
+            finally:
+                lead.close()
+                current.clear()
+            served.append(lead)
+            if once:
+                break
+            nxt = runs.next(after=run.run, stop=stop)
+            if nxt is None:
+                break
+            run = nxt
     finally:
-        lead.close()
-    return lead
+        runs.close()
+    return served

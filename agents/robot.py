@@ -44,9 +44,12 @@ import time
 
 from swarm.proto import keys, protocol
 from swarm.core import kinematics, law
+from swarm.core import runid
 from swarm.core.clock import WALL
 from swarm.launch.child import settle_heap
-from swarm.proto.protocol import Cmd, Config, ProtocolError, State, Status
+from agents.follow import NoAnswer, RunFollower, check_run, query_until  # noqa: F401  (NoAnswer: for callers)
+from swarm.proto import window
+from swarm.proto.protocol import Cmd, Config, Limits, ProtocolError, State, Status
 
 log = logging.getLogger("swarm.robot")
 
@@ -56,6 +59,7 @@ STALE_AFTER_S = 0.5  # real time: a neighbour state older than this (simulated s
 FORGET_AFTER_S = 2.0  # real time: a live neighbour not heard for this long is dropped
 HORIZON_CAP_S = 0.5  # real time: the governor's horizon is at most the control period plus this
 LISTEN_PERIODS = 3  # real time: control periods a robot listens (commands 0) after its first pose
+WATCHDOG_S = 0.5  # the world's (or a drive's) watchdog: the windows on t and seq cover twice that, at least 2 s
 
 
 def block(cx: int, cy: int) -> set[tuple[int, int]]:
@@ -87,6 +91,7 @@ class Agent:
         self.p[law.P_TU], self.p[law.P_VT], self.p[law.P_THRESHOLD] = cfg.tu, cfg.vt, float(cfg.threshold)
         self.p[law.P_GOVERNOR] = 1.0 if cfg.governor else 0.0
         self.p[law.P_DT], self.p[law.P_SENSE], self.p[law.P_REACH] = cfg.dt, cfg.sense, cfg.reach
+        self.p[law.P_V_MAX], self.p[law.P_W_MAX] = cfg.v_max, cfg.w_max
         self.mem = [0.0] * law.M_SIZE
         self.mem[law.M_SCALE] = 1.0
         self.side = cfg.sense
@@ -106,6 +111,18 @@ class Agent:
         self.epoch: float | None = None
         self.speed = 1.0
         self.bad = protocol.BadMessages(log)
+        # what this robot accepts: the scenario's ids and radii (swarm.proto.protocol.Limits), and from each
+        # sender only times and sequence numbers that move forward within a window (swarm.proto.window)
+        self.limits = Limits.of(cfg.robots, cfg.reach)
+        self._spans = window.spans(cfg.dt, WATCHDOG_S)
+        self.w_pose = window.Window(*self._spans)  # the world (or localization)
+        self.w_clock = window.Window(*self._spans)  # the world
+        self.w_ref = window.Window(*self._spans)  # the leader
+        self.w_state: dict[int, window.Window] = {}  # robot j
+        self.ended = False  # the run this agent serves is over (a new run began): ignore everything
+        self.leader_alive = False
+        self.leader_ups = 0  # times the leader's token appeared (a restarted leader during a tick)
+        self._leader_ups_seen = 0
         # lock-step tick state
         self.k_done = -1
         self.k_started = -1
@@ -148,7 +165,7 @@ class Agent:
             self._ref_inbox = self.bus.inbox(keys.leader_ref(f))
             self._handles += [self._pose_inbox, self._ref_inbox]
         self._clock_sub = self.bus.subscribe(keys.world_clock(f), self._on_clock_msg)
-        self._handles.append(self.bus.watch_alive(keys.alive_any(f, "robot"), self._on_alive_msg))
+        self._handles.append(self.bus.watch_alive(keys.alive_any(f), self._on_alive_msg))
         self._move_cells(self.cfg.x, self.cfg.y)
         self._handles.append(self.bus.token(keys.alive(f, "robot", self.id)))
 
@@ -168,6 +185,12 @@ class Agent:
             idx = sorted(m for c in block(*cell) for m in self._ocells.get(c, ()))
             near = self._onear[cell] = [self.obstacles[m] for m in idx]
         return near
+
+    def end(self) -> None:
+        """The run this agent serves is over (any thread): it ignores everything from now on and its
+        loop returns."""
+        self.ended = True
+        self.wake.set()
 
     def close(self) -> None:
         self.drop_clock()
@@ -226,25 +249,44 @@ class Agent:
         self._receive(key, data, "clock", None, self._on_clock)
 
     def _on_alive_msg(self, key: str, up: bool) -> None:
+        """A liveliness token came or went. A robot's: it is alive, or dead (a static body). A new token
+        of the world, the leader or a robot restarts that sender's windows (a restarted process counts
+        from 0 again)."""
         parsed = keys.parse(key)
-        if parsed is not None and parsed.kind == "alive" and parsed.id != self.id:
-            with self.lock:
+        if parsed is None or parsed.kind != "alive" or self.ended:
+            return
+        with self.lock:
+            if parsed.role == "robot":
+                if parsed.id == self.id or parsed.id >= self.cfg.robots:
+                    return
                 self._on_alive(parsed.id, up)
-                due = self._due()
-            if due:
-                self.wake.set()
+                if up and parsed.id in self.w_state:
+                    self.w_state[parsed.id].reset()
+            elif parsed.role == "world" and up:
+                self.w_pose.reset()
+                self.w_clock.reset()
+            elif parsed.role == "leader":
+                self.leader_alive = up
+                if up:
+                    self.w_ref.reset()
+                    self.leader_ups += 1
+            due = self._due()
+        if due:
+            self.wake.set()
 
     def _receive(self, key: str, data: bytes, kind: str, key_id: int | None, apply) -> None:
+        if self.ended:
+            return
         try:
             if kind == "state" and key_id is None:
                 raise ProtocolError(f"not a cell key: {key!r}")
-            msg = protocol.decode(data, kind, key_id)
+            msg = protocol.decode(data, kind, key_id, self.limits)
         except ProtocolError as e:
             with self.lock:
                 self.bad.reject(key, e)
             return
         with self.lock:
-            apply(msg)
+            apply(msg, key)
             due = self._due()
         if due:
             self.wake.set()
@@ -253,13 +295,13 @@ class Agent:
         """Real time (loop thread): the poses from the pose inbox; the newest is kept."""
         for key, data in items:
             try:
-                pose = protocol.decode(data, "pose")
+                pose = protocol.decode(data, "pose", None, self.limits)
             except ProtocolError as e:
                 with self.lock:
                     self.bad.reject(key, e)
                 continue
             with self.lock:
-                self._on_pose(pose)
+                self._on_pose(pose, key)
 
     def _take_inboxes(self) -> None:
         """Real time (loop thread): decode the references and neighbour states waiting in the inboxes,
@@ -267,9 +309,10 @@ class Agent:
         self.take_poses(self._pose_inbox.drain())  # one that came since the loop woke (the newest wins)
         decode, bad = protocol.decode, []
         refs, states = [], []
+        limits = self.limits
         for key, data in self._ref_inbox.drain():
             try:
-                refs.append(decode(data, "ref"))
+                refs.append((decode(data, "ref", None, limits), key))
             except ProtocolError as e:
                 bad.append((key, e))
         for box in self._cells.values():
@@ -278,14 +321,14 @@ class Agent:
                     j = keys.cell_robot(key)
                     if j is None:
                         raise ProtocolError(f"not a cell key: {key!r}")
-                    states.append(decode(data, "state", j))
+                    states.append((decode(data, "state", j, limits), key))
                 except ProtocolError as e:
                     bad.append((key, e))
         with self.lock:
-            for ref in refs:
-                self._on_ref(ref)
-            for st in states:
-                self._on_state(st)
+            for ref, key in refs:
+                self._on_ref(ref, key)
+            for st, key in states:
+                self._on_state(st, key)
             for key, e in bad:
                 self.bad.reject(key, e)
 
@@ -304,18 +347,22 @@ class Agent:
     _clock_needed = 0  # lock-step: clock_0 is the start barrier; later ticks need no clock message
     _rt_seq = -1  # real time: seq of the pose the last command was computed from
 
-    def _on_clock(self, c: protocol.Clock) -> None:
+    def _on_clock(self, c: protocol.Clock, key: str = "") -> None:
+        if not self.bad.verdict(key, self.w_clock.check(c.t, c.seq), "the clock's t or seq"):
+            return
         self.clock_seq = max(self.clock_seq, c.seq)
-        if c.epoch > 0:
+        if c.epoch > 0 and self.epoch is None:  # real time: the run's epoch, once (a new run is a new agent)
             self.epoch, self.speed = c.epoch, c.speed
 
-    def _on_state(self, s: State) -> None:
+    def _on_state(self, s: State, key: str = "") -> None:
         if s.id == self.id:
             return
+        w = self.w_state.get(s.id)
+        if w is None:
+            w = self.w_state[s.id] = window.Window(*self._spans)
+        if not self.bad.verdict(key, w.check(s.t, s.seq), f"robot {s.id}'s t or seq"):
+            return
         self.states_received += 1
-        old = self.table.get(s.id)
-        if old is not None and (s.t, s.seq) <= (old.t, old.seq) and s.id not in self.dead:
-            return  # a duplicate (old and new cell during a move) or an older message
         self.table[s.id] = s
         if self.cfg.lockstep and s.seq == self.k_started:
             self.waiting.discard(s.id)
@@ -327,14 +374,15 @@ class Agent:
             self.dead.add(j)
             self.waiting.discard(j)
 
-    def _on_ref(self, ref: protocol.Ref) -> None:
-        if self.ref is None or (ref.t, ref.seq) >= (self.ref.t, self.ref.seq):
-            self.ref = ref
-        if self.cfg.lockstep:
+    def _on_ref(self, ref: protocol.Ref, key: str = "") -> None:
+        if not self.bad.verdict(key, self.w_ref.check(ref.t, ref.seq), "the reference's t or seq"):
+            return
+        self.ref = ref
+        if self.cfg.lockstep and ref.seq > self.k_done:
             self.refs[ref.seq] = ref
 
-    def _on_pose(self, pose: protocol.Pose) -> None:
-        if self.pose is not None and (pose.t, pose.seq) <= (self.pose.t, self.pose.seq):
+    def _on_pose(self, pose: protocol.Pose, key: str = "") -> None:
+        if not self.bad.verdict(key, self.w_pose.check(pose.t, pose.seq), "the pose's t or seq"):
             return
         self.pose = pose
 
@@ -348,10 +396,13 @@ class Agent:
             self.waiting = set()
             dead = self.dead
             reach2 = self._wait_reach * self._wait_reach
+            for j in [j for j, nb in self.table.items() if nb.seq < k - 1 and j not in dead]:
+                del self.table[j]  # never used again (bounded state): a live robot counts only with state_k or state_(k-1)
             for j, nb in self.table.items():
                 if nb.seq == k - 1 and j not in dead and (px - nb.x) ** 2 + (py - nb.y) ** 2 < reach2:
                     self.waiting.add(j)
             self.deadline = self.clock.monotonic() + self.wait_timeout
+            self._leader_ups_seen = self.leader_ups
             self.k_started = k
 
     # ------------------------------------------------------------------ control
@@ -378,6 +429,7 @@ class Agent:
         oldest = 0.0
         table, dead, waiting = self.table, self.dead, self.waiting
         dead_near = []
+        forgotten: list[int] = []
         for j in sorted(table):
             nb = table[j]
             if j in dead:
@@ -391,6 +443,7 @@ class Agent:
             else:
                 age = t - nb.t
                 if age > FORGET_AFTER_S:
+                    forgotten.append(j)
                     continue
                 is_stale = age > STALE_AFTER_S
             dx = x - nb.x
@@ -410,6 +463,8 @@ class Agent:
             dy = y - nb.y
             if dx * dx + dy * dy < r2:
                 nx.append(nb.x), ny.append(nb.y), nr.append(nb.r), nR.append(nb.R), nk.append(law.KIND_OBSTACLE)
+        for j in forgotten:  # real time: not heard for FORGET_AFTER_S (bounded state)
+            del table[j]
         self.oldest_state_s = oldest
         return nx, ny, nr, nR, nk, robots, stale
 
@@ -459,6 +514,12 @@ class Agent:
             k = self.k_started
             pose = self.pose if self.pose.seq == k else pose
             overdue = self.clock.monotonic() >= self.deadline
+            if overdue and k not in self.refs and (not self.leader_alive or self.leader_ups != self._leader_ups_seen):
+                # no reference because the leader is away, or came back during the tick and is catching up:
+                # wait for it (the world holds the tick and ends the run if it does not come back)
+                self._leader_ups_seen = self.leader_ups
+                self.deadline = self.clock.monotonic() + self.wait_timeout
+                return False
             if not self._inputs_complete(k) and not overdue:
                 return False
             ref = self.refs.get(k)
@@ -523,58 +584,81 @@ class Agent:
 # ---------------------------------------------------------------------- process level
 
 
-def fetch_config(bus, fleet: str, robot_id: int, timeout_s: float, stop: threading.Event | None = None) -> Config:
-    """Ask the world's configuration queryable for this robot's slice, retrying until timeout_s."""
+def fetch_config(bus, fleet: str, robot_id: int, timeout_s: float, stop: threading.Event | None = None,
+                 run: str | None = None) -> Config:
+    """Ask the world's configuration queryable for this robot's slice (of run `run`, if given),
+    retrying until timeout_s (NoAnswer)."""
     key = keys.world_config(fleet, robot_id)
-    return _query_until(bus, key, "config", robot_id, timeout_s, stop, what=f"the configuration of robot {robot_id}")
+    return query_until(bus, key, "config", robot_id, timeout_s, stop, what=f"the configuration of robot {robot_id}",
+                       accept=None if run is None else (lambda c: c.run == run))
 
 
 def fetch_obstacles(bus, fleet: str, timeout_s: float, stop: threading.Event | None = None) -> list[protocol.Obstacle]:
-    msg = _query_until(bus, keys.world_obstacles(fleet), "obstacles", None, timeout_s, stop, what="the obstacles")
+    msg = query_until(bus, keys.world_obstacles(fleet), "obstacles", None, timeout_s, stop, what="the obstacles")
     return list(msg.obstacles)
 
 
-class NoAnswer(RuntimeError):
-    """Nobody answered a query in time."""
-
-
-def _query_until(bus, key: str, kind: str, key_id, timeout_s: float, stop, what: str):
-    end = time.monotonic() + timeout_s
-    last_error = "no reply"
-    while True:
-        left = end - time.monotonic()
-        for rkey, payload in bus.query(key, timeout_s=max(0.05, min(1.0, left))):
-            try:
-                return protocol.decode(payload, kind, key_id)
-            except ProtocolError as e:
-                last_error = f"bad reply on {rkey}: {e}"
-        if time.monotonic() >= end or (stop is not None and stop.is_set()):
-            raise NoAnswer(f"no answer for {what} on {key} within {timeout_s:g} s ({last_error}); "
-                           "is the world running on this fleet and router?")
-        time.sleep(0.1)
-
-
-def run_robot(bus, clock, cfg: Config, fleet: str = "default", stop: threading.Event | None = None,
-              obstacles: list[protocol.Obstacle] | None = None, wait_timeout: float = WAIT_TIMEOUT_S) -> Agent:
-    """Run one robot on `bus` until `stop` is set; returns the agent (its counters) after closing it.
-    clock: swarm.core.clock (WALL in a process; a fake in tests)."""
+def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading.Event | None = None,
+              scenario=None, start_timeout: float = 60.0, wait_timeout: float = WAIT_TIMEOUT_S,
+              once: bool = False) -> list[Agent]:
+    """Serve runs as robot `robot_id` on `bus` until `stop` is set: for every run the world announces,
+    a fresh agent (tick state, windows, controller) with this robot's slice of the run's scenario:
+    from `scenario` (this process's own; a run of another scenario is refused: RunRefused) or from
+    the world's configuration queryable. NoAnswer if no world answers within start_timeout. Returns
+    the agents of the runs served (their counters). clock: swarm.core.clock (WALL in a process).
+    once: serve one run only."""
     stop = stop or threading.Event()
-    agent = Agent(bus, cfg, fleet, wait_timeout=wait_timeout, clock=clock)
-    agent.start(obstacles)
-    settle_heap()
+    current: list[Agent] = []
+
+    def on_new(run) -> None:  # on the bus's thread: the agent of the run under way ends (its loop returns)
+        for a in list(current):
+            a.end()
+
+    runs = RunFollower(bus, fleet, on_new)
+    mine = runid.canonical(scenario) if scenario is not None else None
+    served: list[Agent] = []
     try:
-        if cfg.lockstep:
-            _loop_lockstep(agent, stop)
-        else:
-            _loop_realtime(agent, stop, clock.time)
+        run = runs.current(start_timeout, stop)
+        while not stop.is_set():
+            if mine is not None and not run.scenario:
+                run = runs.complete(run, start_timeout, stop)  # to name the first difference, if any
+            check_run(run, mine, robot_id)
+            if scenario is not None:
+                cfg = runid.robot_config(scenario, robot_id, run.lockstep, run.run, run.digest)
+            else:
+                cfg = fetch_config(bus, fleet, robot_id, start_timeout, stop, run=run.run)
+            obstacles = fetch_obstacles(bus, fleet, start_timeout, stop)
+            agent = Agent(bus, cfg, fleet, wait_timeout=wait_timeout, clock=clock)
+            current[:] = [agent]
+            if runs.latest is not None and runs.latest.run != run.run:
+                agent.end()  # another run began while this one was being set up
+            log.info("robot %d: run %s (%s, %d robots)", robot_id, run.run, "lock-step" if run.lockstep else "real time",
+                     run.robots)
+            agent.start(obstacles)
+            settle_heap()
+            try:
+                if cfg.lockstep:
+                    _loop_lockstep(agent, stop)
+                else:
+                    _loop_realtime(agent, stop, clock.time)
+            finally:
+                agent.close()
+                current.clear()
+            served.append(agent)
+            if once:
+                break
+            nxt = runs.next(after=run.run, stop=stop)
+            if nxt is None:
+                break
+            run = nxt
     finally:
-        agent.close()
-    return agent
+        runs.close()
+    return served
 
 
 def _loop_lockstep(agent: Agent, stop: threading.Event) -> None:
     cpu = time.thread_time
-    while not stop.is_set():
+    while not stop.is_set() and not agent.ended:
         agent.wake.wait(min(0.2, agent.next_wakeup()))
         c0 = cpu()
         agent.wake.clear()
@@ -590,12 +674,12 @@ def _loop_realtime(agent: Agent, stop: threading.Event, wall) -> None:
     The loop blocks on its pose inbox: zenoh's receiving thread runs no Python and hands the pose
     straight to this thread (no callback, no GIL hand-over, no event). A helper thread wakes it on stop."""
     done = threading.Event()
-    waker = threading.Thread(target=_wake_on_stop, args=(stop, done, agent._pose_inbox), daemon=True,
+    waker = threading.Thread(target=_wake_on_stop, args=(stop, done, agent._pose_inbox, agent), daemon=True,
                              name=f"robot-{agent.id}-waker")
     waker.start()
     cpu = time.thread_time
     try:
-        while not stop.is_set():
+        while not stop.is_set() and not agent.ended:
             got = agent._pose_inbox.wait()
             c0 = cpu()
             agent.take_poses(got)
@@ -611,9 +695,9 @@ def _loop_realtime(agent: Agent, stop: threading.Event, wall) -> None:
         waker.join(1.0)
 
 
-def _wake_on_stop(stop: threading.Event, done: threading.Event, box) -> None:
+def _wake_on_stop(stop: threading.Event, done: threading.Event, box, agent: Agent) -> None:
     while not done.is_set():
-        if stop.wait(0.5):
+        if stop.wait(0.2) or agent.ended:
             try:
                 box.wake()
             except Exception as e:  # the session is already closing: the loop is on its way out anyway

@@ -60,7 +60,7 @@ class Referee:
         ok = (pe < CONVERGED_POSITION_M) & (ee < CONVERGED_ANGLE_RAD)
         self.converged_now = int(np.count_nonzero(ok & live))
         self.alive_now = int(np.count_nonzero(live))
-        if self.converged_now < self.alive_now:
+        if self.converged_now < self.alive_now or self.alive_now == 0:  # no live robot is never "converged"
             self.good_since = None
         elif self.good_since is None:
             self.good_since = t
@@ -112,8 +112,8 @@ class Referee:
     def metrics(self, wall_s: float, interrupted: bool, mode: str, **extra) -> dict:
         return metrics.record(
             self.scn, duration_s=self.last_t or 0.0, converged_at_s=self.converged_at(),
-            position_error_max=self.pmax if self.samples else None,
-            orientation_error_max=self.emax if self.samples else None, min_robot_distance=self.min_rr, min_obstacle_distance=self.min_ro,
+            position_error_max=self.pmax if self.samples and self.alive_now else None,
+            orientation_error_max=self.emax if self.samples and self.alive_now else None, min_robot_distance=self.min_rr, min_obstacle_distance=self.min_ro,
             collisions=self.collisions, last_freeze_end_s=self.last_frozen_t, wall_s=wall_s,
             interrupted=interrupted, mode=mode, freeze_intervals=self.freeze_intervals, samples=self.samples,
             **extra)

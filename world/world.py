@@ -31,11 +31,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from swarm.proto import keys, protocol
-from swarm.core import kinematics
+from swarm.proto import keys, protocol, window
+from swarm.core import kinematics, runid
 from swarm.core.clock import WALL
 from swarm.launch.child import settle_heap
-from swarm.proto.protocol import Clock, Obstacle, Obstacles, Pose, ProtocolError, RobotSnap, Snapshot
+from swarm.proto.protocol import Clock, Obstacle, Obstacles, Pose, ProtocolError, RobotSnap, Run, Snapshot
 from swarm.core.geometry import pairs_within
 from swarm.core.scenario import Scenario
 from world.referee import Referee
@@ -44,6 +44,7 @@ log = logging.getLogger("swarm.world")
 
 WATCHDOG_S = 0.5
 TICK_TIMEOUT_S = 1.0
+LOST_TIMEOUT_S = 10.0  # s: a leader (or every robot) away this long ends the run with a failure
 FINE_DT_S = 0.001
 PROGRESS_PERIOD_S = 0.25  # wall seconds between progress messages
 ROUND_TRIP_HISTORY_S = 5.0  # real time: poses remembered for round trips (simulated s; far past the watchdog)
@@ -61,12 +62,25 @@ class NotReady(RuntimeError):
 class World:
     def __init__(self, bus, scn: Scenario, fleet: str = "default", lockstep: bool = True, speed: float = 1.0,
                  watchdog: float = WATCHDOG_S, tick_timeout: float = TICK_TIMEOUT_S, fine_dt: float = FINE_DT_S,
-                 trace: bool = False, progress=None, clock=WALL):
+                 trace: bool = False, progress=None, clock=WALL, lost_timeout: float = LOST_TIMEOUT_S):
         self.bus, self.scn, self.fleet = bus, scn, fleet
         self.clock = clock
         self.lockstep, self.speed = lockstep, speed
         self.watchdog, self.tick_timeout, self.fine_dt = watchdog, tick_timeout, fine_dt
         self.on_progress = progress  # optional callable(protocol.Progress), for a local display
+        self.run_id = runid.new_run_id(clock)
+        self.digest = runid.digest(scn)
+        self.leader_timeout = lost_timeout  # s: how long a lost leader (or every robot) may be away before the run ends
+        c = scn.control
+        self.limits = protocol.Limits.of(scn.n, scn.reach, getattr(c, "v_max", None), getattr(c, "w_max", None))
+        self._spans = window.spans(scn.dt, watchdog)
+        self.w_cmd = [window.Window(*self._spans) for _ in range(scn.n)]  # real time: each robot's commands
+        self.w_status = [window.Window(*self._spans) for _ in range(scn.n)]
+        self.failure: str | None = None  # what ended the run early (metrics "failure")
+        self.lost: set[int] = set()  # robots whose token went away during the run
+        self.lost_events = 0  # token losses during the run (a robot lost twice counts twice)
+        self._strangers: set[int] = set()  # alive robots outside the scenario, already named in the log
+        self._running = False
         n = scn.n
         self.n = n
         self.q = [list(map(float, row)) for row in scn.poses]
@@ -110,6 +124,9 @@ class World:
         f, ev = self.fleet, self.event
         self._handles.append(self.bus.serve(keys.world_obstacles(f), lambda key: self._obstacles))
         self._handles.append(self.bus.serve(keys.world_config_any(f), self._config))
+        self._run_reply = protocol.encode(Run(run=self.run_id, digest=self.digest, robots=self.n,
+                                              lockstep=self.lockstep, scenario=runid.canonical(self.scn)))
+        self._handles.append(self.bus.serve(keys.world_run(f), lambda key: self._run_reply))
         if self.lockstep:
             self._handles.append(self.bus.subscribe(keys.robot_any(f, "cmd"), lambda k, b: ev(("cmd", k, b))))
             self._handles.append(self.bus.subscribe(keys.robot_any(f, "status"), lambda k, b: ev(("status", k, b))))
@@ -125,6 +142,13 @@ class World:
         # subscribed by tick 0 (wanted() would otherwise say no for the first snapshot)
         self.bus.wanted(keys.world_snapshot(f))
         self._handles.append(self.bus.token(keys.alive(f, "world")))
+        self.publish_run()
+
+    def publish_run(self) -> None:
+        """Say that a run begins (robots and the leader of an earlier run start afresh on it)."""
+        self.bus.put(keys.world_run(self.fleet), protocol.encode(
+            Run(run=self.run_id, digest=self.digest, robots=self.n, lockstep=self.lockstep, scenario="")),
+            reliable=True)
 
     def close(self) -> None:
         if self._prime is not None:
@@ -138,7 +162,7 @@ class World:
         parsed = keys.parse(key)
         if parsed is None or parsed.kind != "config" or parsed.id >= self.n:
             return None
-        return protocol.encode(self.scn.robot_config(parsed.id, lockstep=self.lockstep))
+        return protocol.encode(runid.robot_config(self.scn, parsed.id, self.lockstep, self.run_id, self.digest))
 
     # ------------------------------------------------------------------ events
 
@@ -151,6 +175,9 @@ class World:
         if due:
             self.wake.set()
 
+    _leader_back = False  # the leader's token came back during the run (lock-step: repeat the clock for it)
+    leader_ups = 0  # times the leader's token appeared
+
     def _missing(self) -> list[int]:
         """Live robots whose command for the awaited tick has not come (call under the lock)."""
         k = self._await
@@ -160,30 +187,61 @@ class World:
         tag, key, data = item
         try:
             if tag in ("alive", "leader"):
-                parsed = keys.parse(key)
-                if parsed is None or parsed.kind != "alive":
-                    return
-                if tag == "leader":
-                    self.leader_alive = data
-                elif parsed.id < self.n:
-                    self.alive[parsed.id] = data
+                self._on_alive(tag, key, data)
                 return
             parsed = keys.parse(key)
             if parsed is None or parsed.id is None or parsed.id >= self.n:
                 raise ProtocolError(f"not a robot of this world: {key!r}")
             i = parsed.id
             if tag == "cmd":  # lock-step (real time takes its commands in _take_commands)
-                c = protocol.decode(data, "cmd")
-                if c.seq > self.cmd_seq[i]:
+                c = protocol.decode(data, "cmd", None, self.limits)
+                # lock-step: only the command of the tick under way counts (the world publishes tick k
+                # before anyone can answer it); a later seq is refused, an earlier one is late (stale)
+                if c.seq == self.k and c.seq > self.cmd_seq[i]:
                     self.cmd_seq[i] = c.seq
                     self._pending[i] = (c.v, c.w)
+                elif c.seq > self.k:
+                    raise ProtocolError(f"a command for tick {c.seq} while the world is at tick {self.k}")
+                else:
+                    self.bad.stale += 1
             elif tag == "status":
-                self.robot_bad[i] = protocol.decode(data, "status").bad
+                s = protocol.decode(data, "status", None, self.limits)
+                if self.bad.verdict(key, self.w_status[i].check(s.t, int(round(s.t / self.scn.dt))), "the status's t"):
+                    self.robot_bad[i] = s.bad
             elif tag == "state":
-                if protocol.decode(data, "state", i).seq == 0:
+                if protocol.decode(data, "state", i, self.limits).seq == 0:
                     self._state0.add(i)
         except ProtocolError as e:
             self.bad.reject(key, e)
+
+    def _on_alive(self, tag: str, key: str, up: bool) -> None:
+        """Liveliness (under the lock): robots and the leader come and go. A robot id outside the
+        scenario is named once in the log; a robot lost during the run is counted."""
+        parsed = keys.parse(key)
+        if parsed is None or parsed.kind != "alive":
+            return
+        if tag == "leader":
+            self.leader_alive = up
+            if up:
+                self.leader_ups += 1
+                if self._running:
+                    self._leader_back = True
+            return
+        i = parsed.id
+        if i >= self.n:
+            if up and i not in self._strangers:
+                self._strangers.add(i)
+                log.warning("robot %d is alive but not in this world's scenario (%d robots: 0..%d); it takes no "
+                            "part in the run (started with another scenario or fleet?)", i, self.n, self.n - 1)
+            return
+        if not up and self.alive[i] and self._running:
+            self.lost.add(i)
+            self.lost_events += 1
+            log.warning("robot %d lost at t = %g s (its liveliness token is gone)", i, self.t)
+        self.alive[i] = up
+        if up:
+            self.w_cmd[i].reset()
+            self.w_status[i].reset()
 
     def wait_ready(self, timeout_s: float, stop: threading.Event | None = None) -> None:
         """Wait until every robot and the leader are alive; NotReady names the missing ones."""
@@ -240,10 +298,16 @@ class World:
     def progress(self) -> protocol.Progress:
         ref = self.referee
         d = ref.min_rr
+        conv = ref.converged_at()
         return protocol.Progress(t=self.t, seq=self.k, duration=self.scn.duration, robots=self.n,
                                  alive=int(self.alive.sum()), converged=ref.converged_now, frozen=ref.frozen_now,
                                  min_distance=d if math.isfinite(d) else -1.0, misses=self.misses,
-                                 bad=self.bad_total())
+                                 bad=self.bad_total(), collisions=ref.collisions, overruns=self.overruns,
+                                 min_obstacle=ref.min_ro if math.isfinite(ref.min_ro) else -1.0,
+                                 position_error=ref.pmax if ref.samples and ref.alive_now else -1.0,
+                                 orientation_error=ref.emax if ref.samples and ref.alive_now else -1.0,
+                                 converged_at=-1.0 if conv is None else conv,
+                                 last_freeze=-1.0 if ref.last_frozen_t is None else ref.last_frozen_t)
 
     def bad_total(self) -> int:
         return self.bad.count + sum(self.robot_bad.values())
@@ -260,24 +324,74 @@ class World:
     # ------------------------------------------------------------------ the run
 
     def run(self, stop: threading.Event | None = None, started: float | None = None) -> dict:
-        """Run to the scenario's duration (or until stop is set); returns the metrics."""
+        """Run to the scenario's duration (or until stop is set, or a failure ends it); returns the
+        metrics, with `failure` saying what ended the run early (None if nothing did)."""
         stop = stop or threading.Event()
         started = time.perf_counter() if started is None else started
         self._run_started = time.perf_counter()
         interrupted = False
+        self._running = False  # from the start barrier on (robots of an earlier run turn to this one before it)
         try:
             if self.lockstep:
                 interrupted = self._run_lockstep(stop)
             else:
                 interrupted = self._run_realtime(stop)
         finally:
+            self._running = False
             self._report(force=True)
+        if self.failure:
+            log.error("world: the run ended early: %s", self.failure)
+        if not self.alive.any():  # the last step had no live robot: nothing is converged, no final error
+            self.referee.alive_now = 0
+            self.referee.good_since = None
         return self.referee.metrics(
             time.perf_counter() - started, interrupted, "lockstep" if self.lockstep else "realtime",
             cmd_misses=self.misses, bad_messages=self.bad_total(), steps=self.k,
             **({"lockstep_overruns": self.overruns} if self.lockstep else {}),
-            robots_alive_at_end=int(self.alive.sum()), run_wall_s=time.perf_counter() - self._run_started,
-            **self._latency())
+            robots_alive_at_end=int(self.alive.sum()), robots_lost=self.lost_events,
+            run_wall_s=time.perf_counter() - self._run_started, failure=self.failure, run_id=self.run_id,
+            scenario_digest=self.digest, stale_messages=self.bad.stale, **self._latency())
+
+    def _absent(self) -> str | None:
+        """What the run cannot go on without, now: the leader, or every robot (None if both are here)."""
+        with self.lock:
+            if not self.leader_alive:
+                return "leader"
+            if self.n and not self.alive.any():
+                return "robots"
+        return None
+
+    def _hold(self, stop: threading.Event) -> bool:
+        """Lock-step, before a tick: while the leader (or every robot) is away, hold the tick, up to
+        leader_timeout; a restarted leader is given the clock again so it catches up. False if they did
+        not come back (self.failure says who) or stop was set."""
+        what = self._absent()
+        if what is None:
+            return True
+        log.warning("world: %s away at t = %g s; holding tick %d for up to %g s", "the leader" if what == "leader"
+                    else "every robot", self.t, self.k, self.leader_timeout)
+        end = self.clock.monotonic() + self.leader_timeout
+        while not stop.is_set():
+            what = self._absent()
+            if what is None:
+                self._resend_clock()
+                return True
+            if self.clock.monotonic() >= end:
+                self.failure = (f"leader lost at t = {self.t:g} s" if what == "leader"
+                                else f"no robot alive at t = {self.t:g} s")
+                return False
+            self.wake.wait(0.1)
+            self.wake.clear()
+        return False
+
+    def _resend_clock(self) -> None:
+        """Lock-step: the current tick's clock again, for a leader that restarted (it publishes the
+        references from this tick on when it hears the clock)."""
+        with self.lock:
+            back, self._leader_back = self._leader_back, False
+        if back:
+            self.bus.put(keys.world_clock(self.fleet), protocol.encode(
+                Clock(t=self.t, seq=max(0, self.k - 1), epoch=0.0, speed=1.0)), reliable=True)
 
     def _latency(self) -> dict:
         if not self.round_trips:
@@ -289,13 +403,21 @@ class World:
     def _run_lockstep(self, stop: threading.Event) -> bool:
         scn, dt = self.scn, self.scn.dt
         n_steps = scn.steps
-        # start barrier: pose_0 to everyone, then wait until every live robot's state_0 is delivered
+        # start barrier: pose_0 to everyone, then wait until every robot's state_0 is delivered; pose_0 is
+        # repeated for robots still missing (a robot of an earlier run may have ignored the first one while
+        # it turned to this run)
         self._publish_poses(0.0, 0)
         end = self.clock.monotonic() + max(5.0, 5 * self.tick_timeout)
+        again = self.clock.monotonic() + 0.25
         while not stop.is_set() and self.clock.monotonic() < end:
             with self.lock:
-                if all(i in self._state0 for i in np.flatnonzero(self.alive)):
-                    break
+                missing = [i for i in range(self.n) if i not in self._state0]
+            if not missing:
+                break
+            if self.clock.monotonic() >= again:
+                again = self.clock.monotonic() + 0.25
+                for i in missing:
+                    self._publish_pose(i, 0.0, 0)
             self.wake.wait(0.05)
             self.wake.clear()
         if self._prime is not None:
@@ -303,10 +425,14 @@ class World:
             self._prime = None
         self.bus.put(keys.world_clock(self.fleet), protocol.encode(Clock(t=0.0, seq=0, epoch=0.0, speed=1.0)),
                      reliable=True)
+        with self.lock:
+            self._running = True
         for k in range(n_steps + 1):
             self.k, self.t = k, k * dt
             t = self.t
             if k > 0:
+                if not self._hold(stop):
+                    return stop.is_set()
                 self._publish_tick(t, k)
             self._sample(t)
             self._report()
@@ -316,9 +442,11 @@ class World:
             deadline = self.clock.monotonic() + self.tick_timeout
             with self.lock:
                 self._await = k
+                ups = self.leader_ups
             while True:
                 if stop.is_set():
                     return True
+                self._resend_clock()  # a leader that came back during this tick hears the clock at once
                 with self.lock:
                     waiting = self._missing()
                     if not waiting:
@@ -326,11 +454,20 @@ class World:
                         pending, self._pending = self._pending, {}
                         break
                     left = deadline - self.clock.monotonic()
-                    if left <= 0:
+                    # no reference without the leader: a tick whose leader is away, or came back during it,
+                    # is held (no miss) until the leader is back and answered
+                    away = left <= 0 and (not self.leader_alive or self.leader_ups != ups)
+                    ups = self.leader_ups
+                    if left <= 0 and not away:
                         self.misses += len(waiting)
                         self._await = -1
                         pending, self._pending = self._pending, {}
                         break
+                if away:  # no reference without the leader: hold the tick until it is back (no miss)
+                    if not self._hold(stop):
+                        return stop.is_set()
+                    deadline = self.clock.monotonic() + self.tick_timeout
+                    continue
                 self.wake.wait(min(left, 0.5))
                 self.wake.clear()
             before = np.array(self.q)[:, :2]
@@ -345,7 +482,9 @@ class World:
                 v, w = self.cmd[i]
                 kinematics.step_pose(self.q[i], self.comp[i], v, w, dt)
                 if not all(math.isfinite(a) for a in self.q[i]):
-                    raise RuntimeError(f"robot {i} reached a non-finite pose at t = {t + dt:g} s")
+                    self.failure = (f"robot {i}'s pose became non-finite at tick {k + 1} (t = {t + dt:g} s): "
+                                    f"x, y, theta = {self.q[i]} after the command (v {v:g}, w {w:g})")
+                    return stop.is_set()
             self._check_wait_rule(t + dt, before)
         return stop.is_set()
 
@@ -427,6 +566,7 @@ class World:
         self.t = 0.0
         self._publish_clock_rt(epoch)
         watch_t = -math.inf
+        absent_since: float | None = None
         while not stop.is_set():
             fine_k = max(fine_k, min(end_k, int(math.floor((self.clock.time() - epoch) * self.speed / fine + 1e-9))))
             t = self.t = round(fine_k * fine, 9)
@@ -463,6 +603,18 @@ class World:
                 self._sample(t)
                 self._report()
                 t_pub = (seq + 1) * period
+                if not self._running and (self.alive.all() or t >= 1.0):
+                    with self.lock:
+                        self._running = True  # real time's start barrier: every robot there (or 1 s gone)
+                what = self._absent()  # the leader or every robot away longer than leader_timeout ends the run
+                if what is None:
+                    absent_since = None
+                elif absent_since is None:
+                    absent_since = mono
+                    log.warning("world: %s away at t = %g s", "the leader" if what == "leader" else "every robot", t)
+                elif mono - absent_since > self.leader_timeout:
+                    self.failure = (f"leader lost at t = {t:g} s" if what == "leader" else f"no robot alive at t = {t:g} s")
+                    return False
             if fine_k >= end_k:
                 return False
             left = epoch + (t + fine) / self.speed - self.clock.time()  # the next fine step (every event is on the grid)
@@ -480,9 +632,13 @@ class World:
             try:
                 if i is None:
                     raise ProtocolError(f"not a robot of this world: {key!r}")
-                c = protocol.decode(data, "cmd")
+                c = protocol.decode(data, "cmd", None, self.limits)
             except ProtocolError as e:
                 self.bad.reject(key, e)
+                continue
+            with self.lock:
+                fresh = self.bad.verdict(key, self.w_cmd[i].check(c.t, c.seq), f"robot {i}'s command t or seq")
+            if not fresh:
                 continue
             advance(i, t)
             self.cmd[i] = (c.v, c.w)
@@ -506,6 +662,7 @@ class WorldOptions:
     speed: float = 1.0  # real time: simulated seconds per wall second
     watchdog: float = WATCHDOG_S
     tick_timeout: float = TICK_TIMEOUT_S
+    lost_timeout: float = LOST_TIMEOUT_S
     start_timeout: float = 60.0
     trace: bool = False
 
@@ -517,7 +674,7 @@ def run_world(bus, clock, scn: Scenario, opts: WorldOptions = WorldOptions(), st
     stop = stop or threading.Event()
     started = time.perf_counter() if started is None else started
     world = World(bus, scn, fleet, lockstep=opts.lockstep, speed=opts.speed, watchdog=opts.watchdog,
-                  tick_timeout=opts.tick_timeout, trace=opts.trace, clock=clock)
+                  tick_timeout=opts.tick_timeout, trace=opts.trace, clock=clock, lost_timeout=opts.lost_timeout)
     world.start()
     try:
         log.info("world: %d robots, %d obstacles, %s, waiting for robots and leader", scn.n, len(scn.obstacles),

@@ -97,24 +97,60 @@ def fmt(value: object, unit: str = "", digits: int = 4) -> str:
 
 
 def summary(m: dict, name: str) -> str:
+    """The end-of-run table: the contract's results, then every counter that makes this run differ
+    from a clean one (or a lock-step run from swarm sim), then what the exit code will say."""
+    from swarm.core.metrics import nondeterminism, violations
+
     conv = m["converged_at_s"]
+    alive = m.get("robots_alive_at_end")
+    if conv is None:
+        conv_text = "not converged" + (" (no robot alive)" if alive == 0 else "")
+    else:
+        conv_text = fmt(conv, "s")
     rows = [
         ("scenario", f"{name}  ({m['robots']} robots, {m['obstacles']} obstacles, seed {m['seed']}, dt {m['dt']:g} s"
                      f"{', governor on' if m.get('governor') else ''})"),
         ("simulated", fmt(m["duration_s"], "s") + ("  (interrupted)" if m["interrupted"] else "")),
-        ("converged at", "not converged" if conv is None else fmt(conv, "s")),
+        ("converged at", conv_text),
         ("final errors", f"position {fmt(m['final_position_error_max_m'], 'm', 3)}, "
                          f"orientation {fmt(m['final_orientation_error_max_rad'], 'rad', 3)}"),
         ("min distance", f"robot-robot {fmt(m['min_robot_distance_m'], 'm')}, "
                          f"robot-obstacle {fmt(m['min_obstacle_distance_m'], 'm')}"),
         ("collisions", str(m["collisions"])),
         ("last freeze end", fmt(m["last_freeze_end_s"], "s")),
-        *([("lock-step", f"robots outran the wait rule ({m['lockstep_overruns']} pair-ticks): this run may "
-                         "differ from swarm sim (a smaller --dt helps; docs/runtime.md)")]
-          if m.get("lockstep_overruns") else []),
-        ("wall time", fmt(m["wall_s"], "s", 3)),
     ]
+    if alive is not None and alive != m["robots"]:
+        rows.append(("robots alive", f"{alive} of {m['robots']} at the end"))
+    for key, label in (("cmd_misses", "missed commands"), ("bad_messages", "bad messages"),
+                       ("messages_dropped", "messages dropped"), ("robot_restarts", "robot restarts"),
+                       ("robots_lost", "robots lost"), ("lockstep_overruns", "lock-step overruns")):
+        if m.get(key):
+            rows.append((label, str(m[key])))
+    nd = nondeterminism(m)
+    if nd:
+        rows.append(("lock-step", f"NOT deterministic: {', '.join(nd)}; this run may differ from swarm sim "
+                                  "(docs/runtime.md)"))
+    if m.get("failure"):
+        rows.append(("FAILED", str(m["failure"])))
+    v = violations(m)
+    if v:
+        rows.append(("CHECKS FAILED", ", ".join(v)))
+    rows.append(("wall time", fmt(m["wall_s"], "s", 3)))
     return table(rows, "summary")
+
+
+def exit_status(m: dict, allow_violations: bool = False) -> int:
+    """The exit code of a finished command from its metrics: 130 interrupted, 1 a failure, 3 a check
+    failed (unless allow_violations), else 0."""
+    from swarm.core.metrics import violations
+
+    if m.get("interrupted"):
+        return 130
+    if m.get("failure"):
+        return 1
+    if violations(m) and not allow_violations:
+        return 3
+    return 0
 
 
 def progress_line(p) -> str:

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, StopEvent, fleet_of, load_scenario, open_bus,
+from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, BadInput, Failure, StopEvent, fleet_of, load_scenario, open_bus,
                               setup_logging)
 from swarm.core.clock import WALL
 from swarm.launch.child import die_with_parent
 
 
 def cmd_leader(args, started: float) -> int:
+    from agents.follow import NoAnswer, RunRefused
     from agents.leader import run_leader
 
     die_with_parent()
@@ -18,7 +19,14 @@ def cmd_leader(args, started: float) -> int:
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, stop=stop, lean=True)
         try:
-            run_leader(bus, WALL, scn, fleet, lockstep=args.mode == "lockstep", stop=stop)
+            try:
+                run_leader(bus, WALL, scn, fleet, stop=stop, start_timeout=args.start_timeout)
+            except NoAnswer as e:
+                if stop.is_set():
+                    return EXIT_INTERRUPTED
+                raise Failure(str(e)) from None
+            except RunRefused as e:
+                raise BadInput(f"the leader refuses the run: {e}") from None
         finally:
             bus.close()
     return EXIT_INTERRUPTED

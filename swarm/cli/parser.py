@@ -151,7 +151,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="swarm",
         description="Decentralized formation control of differential-drive robots (Eclipse Zenoh, meshcat).",
-        epilog="Exit codes: 0 done, 1 runtime failure, 2 bad input, 130 interrupted. "
+        epilog="Exit codes: 0 done, 1 runtime failure, 2 bad input, 3 finished but a check failed (collisions, "
+               "missed commands, lock-step overruns, robots lost; --allow-violations: 0), 130 interrupted. "
                "Docs: README.md and docs/ in the repository.",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -169,6 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
     out.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (its keys: docs/design.md, Metrics)")
     out.add_argument("--plots", type=Path, metavar="DIR", help="write the panels of the paper's Fig. 2 as PNG")
     out.add_argument("--quiet", action="store_true", help="no progress bar and no summary table")
+    _add_violation_flag(out)
     _add_record_flags(out)
     _add_viz_flags(sim, "--viz")
     sim.set_defaults(func="swarm.cli.sim:cmd_sim")
@@ -251,13 +253,23 @@ def _add_run_flags(p: argparse.ArgumentParser, up: bool = False) -> None:
         g.add_argument("--tick-timeout", type=_positive_float, default=1.0, metavar="S",
                        help="lock-step: wall seconds to wait for a tick's commands before counting misses "
                             "(default 1)")
+        g.add_argument("--lost-timeout", type=_positive_float, default=10.0, metavar="S",
+                       help="how long the leader, or every robot at once, may be away before the run ends with a "
+                            "failure (lock-step holds its tick meanwhile; default 10)")
         g.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (its keys: docs/design.md, Metrics); swarm up always writes it to the log directory too")
         g.add_argument("--trace", type=Path, metavar="PATH.npz",
                        help="write every robot's pose at every sample (numpy .npz: q[k, i] = x, y, theta)")
+        _add_violation_flag(g)
         if up:
             _add_record_flags(g)
     g.add_argument("--start-timeout", type=_positive_float, default=60.0, metavar="S",
                    help="seconds to wait for the other processes at start (default 60)")
+
+
+def _add_violation_flag(g) -> None:
+    g.add_argument("--allow-violations", action="store_true",
+                   help="exit 0 even when a check failed (collisions, missed commands, lock-step overruns, robots "
+                        "lost); without it such a run exits 3")
 
 
 def _add_runtime_parsers(sub) -> None:

@@ -7,10 +7,10 @@ import json
 import sys
 import time
 
-from swarm.cli.common import (EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent, check_out_dir, check_viz_port,
+from swarm.cli.common import (EXIT_OK, BadInput, Failure, StopEvent, check_out_dir, check_viz_port,
                               record_rate, viz_options)
 from swarm.cli import console
-from swarm.cli.console import summary
+from swarm.cli.console import exit_status, summary
 
 
 def _overrides(args: argparse.Namespace):
@@ -82,7 +82,7 @@ def _sim_report(args: argparse.Namespace, scn, result) -> int:
             print(f"plots:   {args.plots}/")
         if args.record is not None:
             print(f"record:  {args.record}")
-    return EXIT_INTERRUPTED if m["interrupted"] else EXIT_OK
+    return exit_status(m, args.allow_violations)
 
 
 def _sim_in_viewer(args: argparse.Namespace, viz, scn, sim, show, status, started: float) -> int:

@@ -13,11 +13,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from swarm.cli.common import (EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent, check_endpoint,
+from swarm.cli.common import (EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent, check_endpoint,
                               check_listen_free, check_out_dir, check_viz_port, fleet_of, load_scenario, open_bus,
                               record_rate, scenario_args, viz_options, write_json)
 from swarm.cli import console
-from swarm.cli.console import progress_line, summary
+from swarm.cli.console import exit_status, progress_line, summary
+from swarm.core.metrics import violations
 from swarm.launch.plan import DEFAULT_LISTEN, RestartPolicy, UpOptions, VizOptions, make_plan
 from swarm.launch.supervisor import Supervisor, compile_project, exit_text
 from swarm.proto import keys
@@ -70,8 +71,6 @@ class ViewerUrl:
 
 
 def cmd_up(args, started: float) -> int:
-    from swarm.proto import protocol
-
     scn = load_scenario(args)  # bad input is refused here, before anything starts
     from swarm.core.scenario_file import advisories
 
@@ -107,7 +106,7 @@ def cmd_up(args, started: float) -> int:
         zenoh_config=str(Path(args.zenoh_config).absolute()) if args.zenoh_config else None,
         multicast=args.multicast, metrics=str(metrics_path),
         trace=str(Path(args.trace).absolute()) if args.trace else None, start_timeout=args.start_timeout,
-        tick_timeout=args.tick_timeout, watchdog=args.watchdog,
+        tick_timeout=args.tick_timeout, lost_timeout=args.lost_timeout, watchdog=args.watchdog,
         restart=RestartPolicy(args.restarts, args.restart_window), viz=viz)
     plan = make_plan(opts)
     if args.dry_run:
@@ -136,6 +135,7 @@ def cmd_up(args, started: float) -> int:
     interrupted = False
     failure: str | None = None
     launched_s = None
+    last = None  # the world's last progress message (the run as far as the launcher saw it)
     say(f"swarm up: {scn.n} robots, scenario {scn.name}, {args.mode}, dt {scn.dt:g} s, "
         f"{'governor on' if scn.control.governor else 'governor off'}; logs in {log_dir}")
     recorder = None
@@ -186,18 +186,22 @@ def cmd_up(args, started: float) -> int:
                     sup.signal("world", signal.SIGTERM)  # the world writes metrics with interrupted: true
                     sup.wait("world", 3.0)
                     break
-                for note in sup.check_robots():
+                for note in sup.check_restarts():
                     say(note)
                 watch_viewer()
-                if progress[0] is not None:
-                    try:
-                        p = protocol.decode(progress[0], "progress")
-                        status.update(progress_line(p))
-                    except protocol.ProtocolError:
-                        pass
+                last = _progress(progress[0]) or last
+                if last is not None:
+                    status.update(progress_line(last))
+                if plan.router is not None and sup.children["router"].proc.poll() is not None:
+                    failure = f"router lost at t = {_t(last)} ({exit_text(sup.children['router'].proc.returncode)})"
+                    sup.signal("world", signal.SIGTERM)  # the world writes the metrics it has
+                    sup.wait("world", 3.0)
+                    break
                 stop.wait(0.1)
-            if not interrupted and world.proc.returncode not in (0, EXIT_INTERRUPTED):
-                failure = f"the world process failed ({exit_text(world.proc.returncode)}); see {world.log}"
+            last = _progress(progress[0]) or last
+            rc = world.proc.returncode
+            if not interrupted and failure is None and rc not in (0, 1, 3, EXIT_INTERRUPTED):
+                failure = f"world lost at t = {_t(last)} ({exit_text(rc)}); see {world.log}"
             if recorder is not None:  # the world's last messages may still be on their way
                 recorder.wait_for(scn.steps * scn.dt if not interrupted else None, timeout_s=1.0)
         except Failure as e:
@@ -209,15 +213,20 @@ def cmd_up(args, started: float) -> int:
     status.close()
     interrupted = interrupted or stop.is_set()
     metrics = _read_metrics(metrics_path)
-    if metrics is None:
-        metrics = _empty_metrics(scn, args.mode)
+    if metrics is None:  # the world wrote nothing: the run as far as the launcher saw it
+        metrics = metrics_from_progress(scn, args.mode, last)
         if failure is None and not interrupted:
-            failure = f"the world wrote no metrics; see {log_dir}/world.log"
+            rc = sup.children["world"].proc.returncode if "world" in sup.children else None
+            failure = f"world lost at t = {_t(last)} ({exit_text(rc)}, no metrics written); see {log_dir}/world.log"
     metrics["wall_s"] = time.perf_counter() - started
-    metrics["interrupted"] = bool(interrupted or metrics.get("interrupted"))
+    metrics["interrupted"] = bool(interrupted or (metrics.get("interrupted") and failure is None))
+    if failure is not None:
+        metrics["failure"] = failure
+    metrics.setdefault("failure", None)
     metrics["launch_s"] = launched_s
     metrics["processes"] = len(plan.processes)
     metrics["robot_restarts"] = sup.restarted
+    metrics["leader_restarts"] = sup.leader_restarted
     write_json(metrics_path, metrics)
     record_note = _close_recorder(recorder, metrics, args.record)
     if not args.quiet:
@@ -225,10 +234,29 @@ def cmd_up(args, started: float) -> int:
         print(f"metrics: {metrics_path}")
         if record_note:
             print(record_note)
-    if failure is not None:
-        print(f"swarm up: failed: {failure}", file=sys.stderr)
-        return EXIT_INTERRUPTED if interrupted else EXIT_FAILURE
-    return EXIT_INTERRUPTED if metrics["interrupted"] else EXIT_OK
+    code = exit_status(metrics, args.allow_violations)
+    if metrics.get("failure") and not metrics["interrupted"]:
+        print(f"swarm up: failed: {metrics['failure']}", file=sys.stderr)
+    elif code == 3:
+        print(f"swarm up: checks failed: {', '.join(violations(metrics))} (exit 3; --allow-violations: 0)",
+              file=sys.stderr)
+    return code
+
+
+def _progress(payload: bytes | None):
+    """The world's last progress message, decoded (None if none or bad)."""
+    from swarm.proto import protocol
+
+    if payload is None:
+        return None
+    try:
+        return protocol.decode(payload, "progress")
+    except protocol.ProtocolError:
+        return None
+
+
+def _t(p) -> str:
+    return "0 s (before the first tick)" if p is None else f"{p.t:g} s"
 
 
 def _start_recorder(bus, fleet: str, scn, args):
@@ -266,7 +294,21 @@ def _read_metrics(path: Path) -> dict | None:
         return None
 
 
-def _empty_metrics(scn, mode: str) -> dict:
+def metrics_from_progress(scn, mode: str, p) -> dict:
+    """The metrics of a run whose world wrote none (it was lost): what its last progress message said,
+    null where it said nothing."""
     from world.referee import Referee
 
-    return Referee(scn).metrics(0.0, True, mode)
+    m = Referee(scn).metrics(0.0, False, mode)
+    if p is None:
+        return m
+
+    def opt(x: float):
+        return None if x < 0 else x
+
+    m.update(duration_s=p.t, converged_at_s=opt(p.converged_at), final_position_error_max_m=opt(p.position_error),
+             final_orientation_error_max_rad=opt(p.orientation_error), min_robot_distance_m=opt(p.min_distance),
+             min_obstacle_distance_m=opt(p.min_obstacle), collisions=p.collisions, last_freeze_end_s=opt(p.last_freeze),
+             cmd_misses=p.misses, bad_messages=p.bad, messages_dropped=p.dropped, steps=p.seq,
+             robots_alive_at_end=p.alive, **({"lockstep_overruns": p.overruns} if mode == "lockstep" else {}))
+    return m

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import logging
 
-from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, EXIT_OK, Failure, StopEvent, check_out_dir,
+from swarm.cli.common import (CHILD_EXIT_AFTER_S, Failure, StopEvent, check_out_dir,
                               fleet_of, load_scenario, open_bus, setup_logging, write_json)
+from swarm.cli.console import exit_status
 from swarm.core.clock import WALL
+from swarm.core.metrics import violations
 from swarm.launch.child import die_with_parent
 
 log = logging.getLogger("swarm")
@@ -22,7 +24,8 @@ def cmd_world(args, started: float) -> int:
     check_out_dir("--metrics", args.metrics)
     check_out_dir("--trace", args.trace)
     opts = WorldOptions(lockstep=args.mode == "lockstep", speed=args.speed, watchdog=args.watchdog,
-                        tick_timeout=args.tick_timeout, start_timeout=args.start_timeout, trace=args.trace is not None)
+                        tick_timeout=args.tick_timeout, lost_timeout=args.lost_timeout,
+                        start_timeout=args.start_timeout, trace=args.trace is not None)
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, stop=stop)
         try:
@@ -38,6 +41,10 @@ def cmd_world(args, started: float) -> int:
         import numpy as np
 
         np.savez_compressed(args.trace, q=np.array(world.trace).reshape(-1, scn.n, 3), dt=scn.dt)
-    log.info("world: done at t = %s s, converged at %s s, %d collisions, %d misses",
-             metrics["duration_s"], metrics["converged_at_s"], metrics["collisions"], metrics["cmd_misses"])
-    return EXIT_INTERRUPTED if metrics["interrupted"] else EXIT_OK
+    log.info("world: done at t = %s s, converged at %s s, %d collisions, %d misses%s",
+             metrics["duration_s"], metrics["converged_at_s"], metrics["collisions"], metrics["cmd_misses"],
+             f"; FAILED: {metrics['failure']}" if metrics.get("failure") else "")
+    bad = violations(metrics)
+    if bad and not metrics["interrupted"] and not metrics.get("failure"):
+        log.warning("world: checks failed: %s%s", ", ".join(bad), "" if args.allow_violations else " (exit 3)")
+    return exit_status(metrics, args.allow_violations)

@@ -44,7 +44,15 @@ P_DT = 7  # s, the control period
 P_SENSE = 8  # m, bodies closer than this are known (the cell side): callers pass them to the law
 P_REACH = 9  # m, bodies closer than this act on the command (the largest R); farther known ones are ignored
 P_OBSTACLE_R = 10  # m, the largest r of any obstacle (0 without obstacles): bounds a step toward unseen ones
-P_SIZE = 11
+P_V_MAX = 11  # m/s, the speed bound control.v_max (0: none but the physical bound MAX_SPEED)
+P_W_MAX = 12  # rad/s, control.w_max (0: none but MAX_TURN)
+P_SIZE = 13
+
+# The physical bounds every command respects (the protocol refuses anything beyond them): with no
+# speed bound set, (v, w) is still scaled down to these. They bind only inside a collision, where
+# the clamped repulsion is huge; the paper's runs never reach them.
+MAX_SPEED = 100.0  # m/s
+MAX_TURN = 100.0  # rad/s
 
 # Layout of the per-robot memory vector `mem` (freeze state), updated in place.
 M_FROZEN = 0  # 1.0 while frozen
@@ -182,6 +190,20 @@ def freeze_update(mem, inside, t, xl, yl, thl, tu):
 
 
 @_jit
+def speed_bound_scale(v, w, v_max, w_max):
+    """The factor in (0, 1] that brings |v| under v_max and |w| under w_max together (0 bound: the
+    physical one), keeping the curvature w / v; 1.0 when (v, w) is within both."""
+    vb = v_max if v_max > 0.0 else MAX_SPEED
+    wb = w_max if w_max > 0.0 else MAX_TURN
+    s = 1.0
+    if abs(v) > vb:
+        s = vb / abs(v)
+    if abs(w) * s > wb:
+        s = wb / abs(w)
+    return s
+
+
+@_jit
 def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, dt, reach, sense, obstacle_r):
     """Largest |v| [m/s] with which one step of length dt keeps every body safe.
 
@@ -218,7 +240,7 @@ def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, dt, reach, sense, obst
 
 @_jit
 def robot_command(x, y, th, ox, oy, r_self, t, xl, yl, thl, vl, wl, nx, ny, nr, nR, nk, n, mem, p):
-    """One control step of one robot: freeze rule, law, threshold, governor.
+    """One control step of one robot: freeze rule, law, threshold, speed bound, governor.
 
     x, y, th: the robot's pose; (ox, oy): its formation offset d_i; r_self: its radius;
     t: the step time [s]; (xl, yl, thl, vl, wl): the live leader reference;
@@ -253,6 +275,10 @@ def robot_command(x, y, th, ox, oy, r_self, t, xl, yl, thl, vl, wl, nx, ny, nr, 
             x, y, th, xl + ox, yl + oy, thl, vl, wl, gx, gy, p[P_K1], p[P_K2], p[P_K3]
         )
     v = apply_threshold(v, p[P_VT], int(p[P_THRESHOLD]), frozen)
+    bound = speed_bound_scale(v, w, p[P_V_MAX], p[P_W_MAX])
+    if bound < 1.0:  # the speed bound: after the threshold, before the governor
+        v *= bound
+        w *= bound
     scale = 1.0
     if p[P_GOVERNOR] != 0.0:
         limit = governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, p[P_DT], p[P_REACH], p[P_SENSE],

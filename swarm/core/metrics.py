@@ -49,3 +49,31 @@ def record(scn, *, duration_s: float, converged_at_s: float | None, position_err
         "governor": scn.control.governor,
         **extra,
     }
+
+
+def violations(m: dict) -> list[str]:
+    """The checks a finished run failed (exit code 3 unless --allow-violations): collisions, command
+    misses no fault scheduled, lock-step overruns, robots lost that no fault scheduled. [] if none."""
+    out = []
+    if m.get("collisions"):
+        out.append(f"{m['collisions']} collision{'s' if m['collisions'] != 1 else ''}")
+    if m.get("cmd_misses"):
+        out.append(f"{m['cmd_misses']} missed command{'s' if m['cmd_misses'] != 1 else ''}")
+    if m.get("lockstep_overruns"):
+        out.append(f"{m['lockstep_overruns']} lock-step overrun{'s' if m['lockstep_overruns'] != 1 else ''}")
+    if m.get("robots_lost"):
+        out.append(f"{m['robots_lost']} robot{'s' if m['robots_lost'] != 1 else ''} lost")
+    return out
+
+
+def nondeterminism(m: dict) -> list[str]:
+    """Why a lock-step run may differ from `swarm sim` (what happened outside the schedule). [] if
+    nothing did (or the run was not lock-step)."""
+    if m.get("mode") != "lockstep":
+        return []
+    out = []
+    for key, what in (("cmd_misses", "missed commands"), ("lockstep_overruns", "overruns"),
+                      ("robot_restarts", "robot restarts"), ("robots_lost", "robots lost")):
+        if m.get(key):
+            out.append(f"{m[key]} {what}")
+    return out

@@ -53,6 +53,7 @@ class UpOptions:
     trace: str | None = None
     start_timeout: float = 60.0
     tick_timeout: float = 1.0
+    lost_timeout: float = 10.0
     watchdog: float = 0.5
     restart: RestartPolicy = RestartPolicy()
     viz: VizOptions | None = None  # None: no viewer
@@ -116,6 +117,7 @@ def make_plan(o: UpOptions, python: str = sys.executable) -> Plan:
         router = ProcSpec("router", "router", 0, tuple(r_argv))
     w_argv = [*base, "world", *o.scenario_args, "--mode", o.mode, "--speed", repr(o.speed),
               "--start-timeout", repr(o.start_timeout), "--tick-timeout", repr(o.tick_timeout),
+              "--lost-timeout", repr(o.lost_timeout),
               "--watchdog", repr(o.watchdog), *net]
     if o.metrics:
         w_argv += ["--metrics", o.metrics]

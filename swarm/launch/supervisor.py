@@ -2,7 +2,7 @@
 
     with Supervisor(plan, log_dir) as sup:
         sup.start(spec)                # each child in its own process group, its log in log_dir
-        sup.check_robots()             # restart robots that exited, under the plan's RestartPolicy
+        sup.check_restarts()           # restart robots and the leader that exited (RestartPolicy)
                                        # leaving: SIGTERM to every group, SIGKILL after a grace
 
 Children never fork after a zenoh session is open (subprocess starts a fresh interpreter). They
@@ -67,7 +67,8 @@ class Supervisor:
         self.plan, self.log_dir, self.grace_s = plan, log_dir, grace_s
         self.children: dict[str, Child] = {}
         self.env = {**os.environ, **dict(plan.env), PARENT_ENV: str(os.getpid())}
-        self.restarted = 0
+        self.restarted = 0  # robot processes restarted
+        self.leader_restarted = 0
 
     def __enter__(self) -> "Supervisor":
         return self
@@ -94,13 +95,17 @@ class Supervisor:
     def pids(self) -> list[int]:
         return [c.pid for c in self.children.values()]
 
-    def check_robots(self, now: float | None = None) -> list[str]:
-        """Restart robot processes that exited, under the policy. Returns log lines of what happened."""
+    RESTARTED_ROLES = ("robot", "leader")
+
+    def check_restarts(self, now: float | None = None) -> list[str]:
+        """Restart robot and leader processes that exited, under the policy. Returns log lines of what
+        happened. Only an exit (the child's PID is gone) restarts a process: never a lapsed liveliness
+        token (a robot behind a network cut, or stopped, is still running: a second copy would fight it)."""
         now = time.monotonic() if now is None else now
         notes = []
         pol = self.plan.restart
         for name, c in list(self.children.items()):
-            if c.spec.role != "robot" or c.given_up or c.proc.poll() is None:
+            if c.spec.role not in self.RESTARTED_ROLES or c.given_up or c.proc.poll() is None:
                 continue
             rc = c.proc.returncode
             while c.restarts and now - c.restarts[0] > pol.window_s:
@@ -111,7 +116,10 @@ class Supervisor:
                              f"{pol.window_s:g} s, giving up on it (log: {c.log})")
                 continue
             c.restarts.append(now)
-            self.restarted += 1
+            if c.spec.role == "leader":
+                self.leader_restarted += 1
+            else:
+                self.restarted += 1
             self.start(c.spec)
             notes.append(f"{name} exited ({exit_text(rc)}); restarted (log: {c.log})")
         return notes

@@ -75,6 +75,30 @@ def matches(expr: str, key: str) -> bool:
     return go(0, 0)
 
 
+def guarded(fn, errors, what: str, default=None):
+    """fn wrapped so that no exception escapes into the bus's thread: it is counted in `errors` (a
+    swarm.proto.protocol.BadMessages), logged (rate-limited) with the key, and the callback returns
+    `default`. Every callback a bus runs goes through this: a message that trips a bug in a handler
+    costs that message, never the process or zenoh's thread."""
+
+    def call(key, *args):
+        try:
+            return fn(key, *args)
+        except Exception as e:
+            errors.reject(key, RuntimeError(f"{what} raised {type(e).__name__}: {e}"))
+            return default
+
+    return call
+
+
+def _errors():
+    import logging
+
+    from swarm.proto.protocol import BadMessages
+
+    return BadMessages(logging.getLogger("swarm.bus"))
+
+
 # --------------------------------------------------------------------------- in memory
 
 
@@ -150,6 +174,7 @@ class MemoryBus:
     def __init__(self, net: MemoryNet):
         self.net = net
         self._handles: list[_Handle] = []
+        self.errors = _errors()  # exceptions of this bus's callbacks, counted (see guarded)
 
     def put(self, key: str, payload: bytes, reliable: bool = False, loopback: bool = True,
             attachment: bytes | None = None) -> None:
@@ -182,11 +207,11 @@ class MemoryBus:
         return h
 
     def subscribe(self, key_expr: str, fn: Handler) -> Closable:
-        return self._keep(self.net.subs, (key_expr, fn, self))
+        return self._keep(self.net.subs, (key_expr, guarded(fn, self.errors, "a subscriber"), self))
 
     def subscribe_raw(self, key_expr: str, fn: RawHandler) -> Closable:
         """subscribe(), and fn also gets the sample's attachment (None if it had none)."""
-        return self._keep(self.net.subs, (key_expr, _Raw(fn), self))
+        return self._keep(self.net.subs, (key_expr, _Raw(guarded(fn, self.errors, "a subscriber")), self))
 
     def inbox(self, key_expr: str, depth: int = 64) -> Inbox:
         box = _MemoryInbox(depth)
@@ -218,6 +243,7 @@ class MemoryBus:
         return h
 
     def watch_alive(self, key_expr: str, fn: AliveHandler) -> Closable:
+        fn = guarded(fn, self.errors, "a liveliness watcher")
         with self.net.lock:
             current = [k for k in self.net.tokens if matches(key_expr, k)]
         for k in sorted(current):
@@ -225,7 +251,7 @@ class MemoryBus:
         return self._keep(self.net.watchers, (key_expr, fn))
 
     def serve(self, key_expr: str, fn: Callable[[str], bytes]) -> Closable:
-        return self._keep(self.net.queryables, (key_expr, fn))
+        return self._keep(self.net.queryables, (key_expr, guarded(fn, self.errors, "a queryable")))
 
     def query(self, key_expr: str, timeout_s: float = 2.0) -> list[tuple[str, bytes]]:
         with self.net.lock:
@@ -261,11 +287,30 @@ def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen:
     # small batches: lock-step traffic is many ~100-byte messages (+8-30 % ticks/s, recipes/zenoh.md)
     conf.insert_json5("transport/link/tx/batch_size", "4096")
     conf.insert_json5("transport/link/rx/buffer_size", "4096")
+    # payloads beyond the codec's limits are dropped by zenoh itself, on the way in and out, so an
+    # oversized payload never reaches a subscriber (the codec would refuse it, but only after it came)
+    conf.insert_json5("low_pass_filter", json.dumps(size_limits()))
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps(connect))
     if listen is not None:
         conf.insert_json5("listen/endpoints", json.dumps(listen))
     return conf
+
+
+def size_limits() -> list[dict]:
+    """zenoh low_pass_filter rules: the large kinds (snapshot, obstacles, run, bodies) up to the
+    codec's large limit, every other swarm key and the ROS 2 topics a drive uses up to the small one."""
+    from swarm.proto.protocol import MAX_LARGE_PAYLOAD, MAX_PAYLOAD
+
+    large = [f"swarm/*/world/{k}" for k in ("snapshot", "obstacles", "run", "bodies")]
+    small = ["swarm/*/robot/**", "swarm/*/cell/**", "swarm/*/leader/**", "swarm/*/alive/**", "swarm/*/estop",
+             "swarm/*/world/clock", "swarm/*/world/progress", "swarm/*/world/config/*", "swarm/*/world/events",
+             "swarm/*/world/claim/*", "**/cmd_vel/**", "**/cmd_vel", "**/odom/**", "**/odom"]
+    everything = ["put", "delete", "query", "reply"]
+    return [{"id": "swarm-small", "flows": ["ingress", "egress"], "messages": everything, "key_exprs": small,
+             "size_limit": MAX_PAYLOAD},
+            {"id": "swarm-large", "flows": ["ingress", "egress"], "messages": everything, "key_exprs": large,
+             "size_limit": MAX_LARGE_PAYLOAD}]
 
 
 # The zenoh runtime setting of recipes/zenoh.md section 8: one worker thread, the other pools
@@ -292,6 +337,7 @@ class ZenohBus:
         self._closed = False
         self._pubs: OrderedDict[tuple[str, bool, bool], object] = OrderedDict()
         self._pub_lock = threading.Lock()
+        self.errors = _errors()  # exceptions of this bus's callbacks, counted (see guarded)
 
     def __enter__(self) -> "ZenohBus":
         return self
@@ -330,6 +376,8 @@ class ZenohBus:
         return h
 
     def subscribe(self, key_expr: str, fn: Handler) -> Closable:
+        fn = guarded(fn, self.errors, "a subscriber")
+
         def cb(sample) -> None:
             fn(str(sample.key_expr), sample.payload.to_bytes())
 
@@ -337,6 +385,8 @@ class ZenohBus:
 
     def subscribe_raw(self, key_expr: str, fn: RawHandler) -> Closable:
         """subscribe(), and fn also gets the sample's attachment (None if it had none)."""
+        fn = guarded(fn, self.errors, "a subscriber")
+
         def cb(sample) -> None:
             a = sample.attachment
             fn(str(sample.key_expr), sample.payload.to_bytes(), None if a is None else a.to_bytes())
@@ -360,6 +410,7 @@ class ZenohBus:
 
     def watch_alive(self, key_expr: str, fn: AliveHandler) -> Closable:
         put_kind = self._z.SampleKind.PUT
+        fn = guarded(fn, self.errors, "a liveliness watcher")
 
         def cb(sample) -> None:
             fn(str(sample.key_expr), sample.kind == put_kind)
@@ -368,11 +419,17 @@ class ZenohBus:
                                                                                   history=True)))
 
     def serve(self, key_expr: str, fn: Callable[[str], bytes]) -> Closable:
-        def cb(query) -> None:
-            asked = str(query.key_expr)
+        fn = guarded(fn, self.errors, "a queryable")
+
+        def answer(asked: str, query) -> None:
             reply = fn(asked)
             if reply is not None:
                 query.reply(asked if "*" not in asked else key_expr, reply)
+
+        answer = guarded(answer, self.errors, "a queryable's reply")
+
+        def cb(query) -> None:
+            answer(str(query.key_expr), query)
 
         return self._keep(_Undeclare(self.session.declare_queryable(key_expr, cb)))
 

@@ -5,9 +5,13 @@
 
 Every payload is a msgpack map {"v": 1, "kind": ..., fields}. decode() validates at the
 boundary: size, msgpack, version, kind, the exact set of fields, types (bool is not a
-number), finite numbers, ranges (ids and seq >= 0, 0 < r < R), and the id in the key
-equal to the id in the payload. Anything wrong raises ProtocolError with a reason; a
-process drops and counts such a message (swarm.proto.protocol.BadMessages) and goes on.
+number), finite numbers, ranges (ids and seq >= 0, 0 < r < R, speeds, coordinates and times
+within physical bounds), and the id in the key equal to the id in the payload; with `limits`
+(a Limits from the scenario) also the scenario's ids, radii, speed bounds and arena. Anything
+wrong raises ProtocolError with a reason, and nothing else: a crafted payload of any shape
+cannot make decode() raise another exception. A process drops and counts such a message
+(swarm.proto.protocol.BadMessages) and goes on. The bounds and the windows that receivers keep
+per sender (swarm.proto.window) are in docs/protocol.md.
 """
 
 from __future__ import annotations
@@ -20,8 +24,16 @@ from dataclasses import dataclass, fields
 import msgpack
 
 VERSION = 1
-MAX_PAYLOAD = 1 << 20  # bytes: a snapshot of ~10 000 robots; anything larger is refused unread
+MAX_PAYLOAD = 64 << 10  # bytes: any message but the large kinds (a state is ~100 bytes); larger is refused unread
+MAX_LARGE_PAYLOAD = 16 << 20  # bytes: snapshot, obstacles, run (a snapshot of 100 000 robots is ~10 MB)
+LARGE_KINDS = ("snapshot", "obstacles", "run")
 MAX_ROBOTS = 100_000
+MAX_SPEED = 100.0  # m/s: |vel| of any command, reference or snapshot
+MAX_TURN = 100.0  # rad/s: |w|
+MAX_COORD = 1e6  # m: |x|, |y| of any position (poses, states, references, obstacles, offsets)
+MAX_ANGLE = 1e6  # rad: |theta| (the leader's heading is not wrapped)
+MAX_TIME = 1e9  # s: |t|
+MAX_TEXT = 256  # characters of a short string field (run id, digest)
 
 
 class ProtocolError(ValueError):
@@ -163,6 +175,25 @@ class Config:
     sense: float  # cell side = sensing range [m]
     reach: float  # the largest R of any body [m]: bodies closer than this act on the command (R <= reach < sense)
     lockstep: bool
+    robots: int = 1  # robots in the scenario: ids are 0 .. robots - 1
+    v_max: float = 0.0  # the speed bound control.v_max [m/s]; 0: none
+    w_max: float = 0.0  # control.w_max [rad/s]; 0: none
+    run: str = ""  # the run this configuration belongs to (Run.run)
+    digest: str = ""  # the digest of the run's resolved scenario (Run.digest)
+
+
+@dataclass(frozen=True)
+class Run:
+    """A run's identity (world -> everyone, and the world's run queryable): a new id at every run's
+    start; digest = sha256 of the resolved scenario (faults included) as canonical TOML. The
+    queryable's reply also carries that TOML in `scenario` (so a robot can name the first
+    difference from its own); the publication leaves it empty."""
+
+    run: str
+    digest: str
+    robots: int
+    lockstep: bool
+    scenario: str
 
 
 @dataclass(frozen=True)
@@ -179,11 +210,19 @@ class Progress:
     min_distance: float
     misses: int
     bad: int
+    collisions: int = 0
+    overruns: int = 0
+    min_obstacle: float = -1.0  # m; < 0: none yet
+    position_error: float = -1.0  # m, the largest over live robots at t; < 0: not known
+    orientation_error: float = -1.0  # rad
+    converged_at: float = -1.0  # s; < 0: not converged (so far)
+    last_freeze: float = -1.0  # s; < 0: no freeze yet
+    dropped: int = 0  # messages dropped by scheduled faults
 
 
 KINDS: dict[str, type] = {"ref": Ref, "pose": Pose, "cmd": Cmd, "state": State, "status": Status,
                           "obstacles": Obstacles, "snapshot": Snapshot, "clock": Clock, "config": Config,
-                          "progress": Progress}
+                          "progress": Progress, "run": Run}
 _KIND_OF = {cls: kind for kind, cls in KINDS.items()}
 
 
@@ -236,6 +275,15 @@ def _int(d: dict, name: str, limit: int = 2**53) -> int:
     return x
 
 
+def _text(d: dict, name: str, limit: int = MAX_TEXT) -> str:
+    x = d[name]
+    if not isinstance(x, str):
+        raise ProtocolError(f"field {name!r} must be a string, got {type(x).__name__}")
+    if len(x) > limit:
+        raise ProtocolError(f"field {name!r} must be at most {limit} characters, got {len(x)}")
+    return x
+
+
 def _bool(d: dict, name: str) -> bool:
     x = d[name]
     if not isinstance(x, bool):
@@ -268,9 +316,13 @@ _SPEC: dict[str, tuple[tuple[str, str], ...]] = {
     "clock": (("t", "n"), ("seq", "i"), ("epoch", "n"), ("speed", "n")),
     "config": (("id", "id"), ("x", "n"), ("y", "n"), ("theta", "n"), ("dx", "n"), ("dy", "n"), ("r", "n"),
                ("R", "n"), ("k1", "n"), ("k2", "n"), ("k3", "n"), ("tu", "n"), ("vt", "n"), ("threshold", "i"),
-               ("governor", "b"), ("dt", "n"), ("sense", "n"), ("reach", "n"), ("lockstep", "b")),
+               ("governor", "b"), ("dt", "n"), ("sense", "n"), ("reach", "n"), ("lockstep", "b"), ("robots", "i"),
+               ("v_max", "n"), ("w_max", "n"), ("run", "s"), ("digest", "s")),
     "progress": (("t", "n"), ("seq", "i"), ("duration", "n"), ("robots", "i"), ("alive", "i"),
-                 ("converged", "i"), ("frozen", "i"), ("min_distance", "n"), ("misses", "i"), ("bad", "i")),
+                 ("converged", "i"), ("frozen", "i"), ("min_distance", "n"), ("misses", "i"), ("bad", "i"),
+                 ("collisions", "i"), ("overruns", "i"), ("min_obstacle", "n"), ("position_error", "n"),
+                 ("orientation_error", "n"), ("converged_at", "n"), ("last_freeze", "n"), ("dropped", "i")),
+    "run": (("run", "s"), ("digest", "s"), ("robots", "i"), ("lockstep", "b"), ("scenario", "S")),
 }
 # DESIGN.md section 5 names both the protocol version and the linear velocity of ref and cmd
 # "v"; one map cannot hold both. "v" stays the version (a decoder needs it before the kind);
@@ -278,7 +330,8 @@ _SPEC: dict[str, tuple[tuple[str, str], ...]] = {
 _WIRE = {"v": "vel"}
 _FIELD = {"vel": "v"}
 _WIRE_NAMES = {k: tuple((f.name, _WIRE.get(f.name, f.name)) for f in fields(cls)) for k, cls in KINDS.items()}
-_READ = {"n": _num, "i": _int, "b": _bool, "id": lambda d, n: _int(d, n, MAX_ROBOTS - 1)}
+_READ = {"n": _num, "i": _int, "b": _bool, "id": lambda d, n: _int(d, n, MAX_ROBOTS - 1), "s": _text,
+         "S": lambda d, n: _text(d, n, MAX_LARGE_PAYLOAD)}
 
 
 def _compile_fast(kind: str):
@@ -305,6 +358,9 @@ def _compile_fast(kind: str):
             body.append(f"    if type({a}) is not float: return None")
         elif t == "b":
             body.append(f"    if type({a}) is not bool: return None")
+        elif t in ("s", "S"):
+            limit = MAX_TEXT if t == "s" else MAX_LARGE_PAYLOAD
+            body.append(f"    if type({a}) is not str or len({a}) > {limit}: return None")
         else:
             limit = MAX_ROBOTS - 1 if t == "id" else 2**53
             body.append(f"    if type({a}) is not int or not 0 <= {a} <= {limit}: return None")
@@ -335,12 +391,27 @@ _FAST_ENCODE: dict[type, object] = {}
 _unpackb = msgpack.unpackb
 
 
-def decode(payload: bytes, kind: str | None = None, key_id: int | None = None):
-    """Validate and decode a payload; `kind` is the expected kind, `key_id` the id in its key."""
+def decode(payload: bytes, kind: str | None = None, key_id: int | None = None, limits: "Limits | None" = None):
+    """Validate and decode a payload; `kind` is the expected kind, `key_id` the id in its key, `limits`
+    the scenario's bounds (ids, radii, speeds, arena) on top of the physical ones. Raises only
+    ProtocolError."""
+    try:
+        msg = _decode(payload, kind, key_id)
+        if limits is not None:
+            limits.check(msg)
+        return msg
+    except ProtocolError:
+        raise
+    except Exception as e:  # never anything but ProtocolError, whatever the bytes (defence in depth)
+        raise ProtocolError(f"malformed payload ({type(e).__name__})") from None
+
+
+def _decode(payload, kind: str | None, key_id: int | None):
     if not isinstance(payload, (bytes, bytearray, memoryview)):
         raise ProtocolError(f"payload must be bytes, got {type(payload).__name__}")
-    if len(payload) > MAX_PAYLOAD:
-        raise ProtocolError(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD}")
+    limit = MAX_LARGE_PAYLOAD if kind is None or kind in LARGE_KINDS else MAX_PAYLOAD
+    if len(payload) > limit:
+        raise ProtocolError(f"payload of {len(payload)} bytes exceeds {limit}")
     try:
         d = _unpackb(payload, raw=False, strict_map_key=True)
     except Exception as e:  # msgpack raises several types for garbage
@@ -364,11 +435,11 @@ def decode(payload: bytes, kind: str | None = None, key_id: int | None = None):
 
 def _decode_map(d: dict, kind: str | None, key_id: int | None):
     """The general path: every check in turn, with a reason for the first that fails."""
-    if d.get("v") != VERSION or isinstance(d.get("v"), bool):
-        raise ProtocolError(f"unsupported protocol version {d.get('v')!r} (this side speaks {VERSION})")
+    if type(d.get("v")) is not int or d.get("v") != VERSION:
+        raise ProtocolError(f"unsupported protocol version {str(d.get('v'))[:20]} (this side speaks {VERSION})")
     k = d.get("kind")
-    if k not in KINDS:
-        raise ProtocolError(f"unknown kind {k!r}")
+    if not isinstance(k, str) or k not in KINDS:
+        raise ProtocolError(f"unknown kind {str(k)[:40]!r}")
     if kind is not None and k != kind:
         raise ProtocolError(f"expected kind {kind!r}, got {k!r}")
     if k == "obstacles":
@@ -407,11 +478,124 @@ def _check_config(c: Config) -> None:
         raise ProtocolError(f"fields must hold R <= reach < sense, got R {c.R}, reach {c.reach}, sense {c.sense}")
 
 
+def _within(msg, limit: float, *names: str) -> None:
+    """|field| <= limit for each named field (physical bounds: a finite but absurd value is refused)."""
+    for name in names:
+        x = getattr(msg, name)
+        if not -limit <= x <= limit:
+            raise ProtocolError(f"field {_WIRE.get(name, name)!r} must be within +-{limit:g}, got {x:g}")
+
+
+def _check_ref(m: Ref) -> None:
+    _within(m, MAX_TIME, "t")
+    _within(m, MAX_COORD, "x", "y")
+    _within(m, MAX_ANGLE, "theta")
+    _within(m, MAX_SPEED, "v")
+    _within(m, MAX_TURN, "w")
+
+
+def _check_pose(m: Pose) -> None:
+    _within(m, MAX_TIME, "t")
+    _within(m, MAX_COORD, "x", "y")
+    _within(m, MAX_ANGLE, "theta")
+
+
+def _check_cmd(m: Cmd) -> None:
+    _within(m, MAX_TIME, "t")
+    _within(m, MAX_SPEED, "v")
+    _within(m, MAX_TURN, "w")
+
+
+def _check_state(m: State) -> None:
+    _radii(m.r, m.R)
+    _within(m, MAX_COORD, "R")
+    _check_pose(m)
+
+
+def _check_status(m: Status) -> None:
+    _within(m, MAX_TIME, "t")
+    _within(m, 2 * MAX_COORD, "ex", "ey")
+    _within(m, MAX_ANGLE, "etheta")
+
+
+def _check_clock(m: Clock) -> None:
+    _positive(m, "speed")
+    _nonnegative(m, "epoch")
+    _within(m, MAX_TIME, "t")
+    _within(m, 1e6, "speed")
+    _within(m, 1e11, "epoch")
+
+
+def _check_config_bounds(c: Config) -> None:
+    _check_config(c)
+    _within(c, MAX_COORD, "x", "y", "dx", "dy", "R", "sense")
+    _within(c, MAX_ANGLE, "theta")
+    _within(c, MAX_SPEED, "v_max")
+    _within(c, MAX_TURN, "w_max")
+    _nonnegative(c, "v_max", "w_max")
+    if not 1 <= c.robots <= MAX_ROBOTS or c.id >= c.robots:
+        raise ProtocolError(f"fields must hold 1 <= robots <= {MAX_ROBOTS} and id < robots, "
+                            f"got id {c.id}, robots {c.robots}")
+
+
+def _check_run(m: Run) -> None:
+    if not 1 <= m.robots <= MAX_ROBOTS:
+        raise ProtocolError(f"field 'robots' must be in 1..{MAX_ROBOTS}, got {m.robots}")
+    if not m.run:
+        raise ProtocolError("field 'run' must not be empty")
+
+
 _CHECK = {
-    "state": lambda m: _radii(m.r, m.R),
-    "config": _check_config,
-    "clock": lambda m: (_positive(m, "speed"), _nonnegative(m, "epoch")),
+    "ref": _check_ref,
+    "pose": _check_pose,
+    "cmd": _check_cmd,
+    "state": _check_state,
+    "status": _check_status,
+    "config": _check_config_bounds,
+    "clock": _check_clock,
+    "progress": lambda m: _within(m, MAX_TIME, "t", "duration"),
+    "run": _check_run,
 }
+
+
+@dataclass(frozen=True)
+class Limits:
+    """A scenario's bounds on incoming messages, on top of the physical ones: robot ids below
+    `robots`, radii at most `radius` (the largest R of any body), commands within the speed bounds,
+    positions inside `bounds` (the arena grown by a margin; None: only |x|, |y| <= MAX_COORD)."""
+
+    robots: int
+    radius: float
+    v_max: float = MAX_SPEED
+    w_max: float = MAX_TURN
+    bounds: tuple[float, float, float, float] | None = None
+
+    @classmethod
+    def of(cls, robots: int, radius: float, v_max: float | None = None, w_max: float | None = None,
+           arena: tuple[float, float, float, float] | None = None, margin: float = 0.0) -> "Limits":
+        """From a scenario's numbers (v_max/w_max None or 0: only the physical bounds); arena grown by margin [m]."""
+        bounds = None
+        if arena is not None:
+            xmin, xmax, ymin, ymax = arena
+            bounds = (xmin - margin, xmax + margin, ymin - margin, ymax + margin)
+        return cls(robots, radius, v_max or MAX_SPEED, w_max or MAX_TURN, bounds)
+
+    def check(self, msg) -> None:
+        tol = 1 + 1e-9
+        if isinstance(msg, (State, RobotSnap)) and msg.id >= self.robots:
+            raise ProtocolError(f"robot id {msg.id} is not in the scenario ({self.robots} robots)")
+        if isinstance(msg, State) and msg.R > self.radius * tol:
+            raise ProtocolError(f"radius R = {msg.R:g} exceeds the scenario's largest R = {self.radius:g}")
+        if isinstance(msg, Cmd) and (abs(msg.v) > self.v_max * tol or abs(msg.w) > self.w_max * tol):
+            raise ProtocolError(f"command (vel {msg.v:g}, w {msg.w:g}) beyond the scenario's speed bounds "
+                                f"({self.v_max:g} m/s, {self.w_max:g} rad/s)")
+        if self.bounds is not None and isinstance(msg, (Pose, State)):
+            xmin, xmax, ymin, ymax = self.bounds
+            if not (xmin <= msg.x <= xmax and ymin <= msg.y <= ymax):
+                raise ProtocolError(f"position ({msg.x:g}, {msg.y:g}) outside the arena {self.bounds}")
+        if isinstance(msg, Snapshot):
+            for s in msg.robots:
+                self.check(s)
 
 _SNAP_FIELDS = ("id", "x", "y", "theta", "v", "w", "stopped", "alive")
 
@@ -436,6 +620,7 @@ def _obstacles(d: dict) -> Obstacles:
         o = _item(row, f"obstacles[{i}]", ("x", "y", "r", "R"))
         ob = Obstacle(_num(o, "x"), _num(o, "y"), _num(o, "r"), _num(o, "R"))
         _radii(ob.r, ob.R)
+        _within(ob, MAX_COORD, "x", "y", "R")
         out.append(ob)
     return Obstacles(tuple(out))
 
@@ -448,18 +633,31 @@ def _snapshot(d: dict) -> Snapshot:
     out = []
     for i, row in enumerate(rows):
         r = _item(row, f"robots[{i}]", _SNAP_FIELDS)
-        out.append(RobotSnap(_int(r, "id", MAX_ROBOTS - 1), _num(r, "x"), _num(r, "y"), _num(r, "theta"),
-                             _num(r, "v"), _num(r, "w"), _bool(r, "stopped"), _bool(r, "alive")))
-    return Snapshot(_num(d, "t"), _int(d, "seq"), tuple(out))
+        s = RobotSnap(_int(r, "id", MAX_ROBOTS - 1), _num(r, "x"), _num(r, "y"), _num(r, "theta"),
+                      _num(r, "v"), _num(r, "w"), _bool(r, "stopped"), _bool(r, "alive"))
+        _within(s, MAX_COORD, "x", "y")
+        _within(s, MAX_ANGLE, "theta")
+        _within(s, MAX_SPEED, "v")
+        _within(s, MAX_TURN, "w")
+        out.append(s)
+    snap = Snapshot(_num(d, "t"), _int(d, "seq"), tuple(out))
+    _within(snap, MAX_TIME, "t")
+    return snap
 
 
 class BadMessages:
-    """Counts rejected messages and logs them, at most one line per `every` seconds."""
+    """Counts refused messages and logs them, at most one line per `every` seconds.
+
+    count: bad messages (malformed, out of bounds, a jump beyond a sender's window, a key that names
+    no robot of the scenario); stale: older than what the receiver has from that sender (not
+    adopted); duplicates: the same (t, seq) again. Only `count` is what a run reports as bad."""
 
     def __init__(self, log: logging.Logger, every: float = 5.0):
         self.log = log
         self.every = every
         self.count = 0
+        self.stale = 0
+        self.duplicates = 0
         self._last = -math.inf
         self._quiet = 0
 
@@ -473,3 +671,15 @@ class BadMessages:
             self._quiet = 0
         else:
             self._quiet += 1
+
+    def verdict(self, key: str, verdict: str, what: str = "") -> bool:
+        """Account for a window's verdict (swarm.proto.window); True if the message is to be adopted."""
+        if verdict == "ok":
+            return True
+        if verdict == "stale":
+            self.stale += 1
+        elif verdict == "duplicate":
+            self.duplicates += 1
+        else:
+            self.reject(key, ProtocolError(f"{what or 'seq or t'} jumps beyond the sender's window"))
+        return False

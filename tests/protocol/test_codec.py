@@ -23,9 +23,12 @@ MESSAGES = [
                                         p.RobotSnap(4, 0.0, 0.0, 0.0, 0.0, 0.0, True, False))),
     p.Clock(t=1.0, seq=50, epoch=1.7e9, speed=2.0),
     p.Config(id=3, x=1.0, y=2.0, theta=0.1, dx=1.5, dy=0.0, r=0.3, R=1.2, k1=0.5, k2=0.5, k3=1.0, tu=1.0, vt=0.05,
-             threshold=1, governor=True, dt=0.02, sense=1.5, reach=1.2, lockstep=True),
+             threshold=1, governor=True, dt=0.02, sense=1.5, reach=1.2, lockstep=True, robots=37, v_max=0.22,
+             w_max=2.84, run="run-1", digest="ab" * 32),
     p.Progress(t=1.0, seq=50, duration=120.0, robots=37, alive=37, converged=3, frozen=2, min_distance=-1.0,
-               misses=0, bad=0),
+               misses=0, bad=0, collisions=1, overruns=0, min_obstacle=0.5, position_error=0.1, orientation_error=0.2,
+               converged_at=-1.0, last_freeze=0.5, dropped=3),
+    p.Run(run="20261202T024115-5f3a", digest="cd" * 32, robots=37, lockstep=True, scenario="[run]\nduration = 1.0\n"),
 ]
 
 
@@ -89,7 +92,18 @@ REJECTED = [
     ("obstacle list item", msgpack.packb({"v": 1, "kind": "obstacles", "obstacles": [[1, 2, 0.3, 1.2]]}), "map"),
     ("snapshot bad robot", msgpack.packb({"v": 1, "kind": "snapshot", "t": 0.0, "seq": 0,
                                           "robots": [{"id": 0}]}), "missing"),
-    ("too large", b"\x00" * (p.MAX_PAYLOAD + 1), "exceeds"),
+    ("too large", b"\x00" * (p.MAX_LARGE_PAYLOAD + 1), "exceeds"),
+    # crafted: each of these crashed a process or passed before the hardening (docs/protocol.md)
+    ("unhashable kind", msgpack.packb({"v": 1, "kind": [1]}), "unknown kind"),
+    ("map kind", msgpack.packb({"v": 1, "kind": {"a": 1}}), "unknown kind"),
+    ("list version", msgpack.packb({"v": [1], "kind": "cmd"}), "version"),
+    ("absurd speed", msgpack.packb(_cmd(vel=1.7e308)), "within"),
+    ("absurd turn", msgpack.packb(_cmd(w=-101.0)), "within"),
+    ("absurd time", msgpack.packb(_cmd(t=1e12)), "within"),
+    ("absurd position", msgpack.packb(_state(x=2e6)), "within"),
+    ("absurd radius", msgpack.packb(_state(R=1e300)), "within"),
+    ("nested bomb", msgpack.packb({"v": 1, "kind": "cmd", "t": [[[[[[[[1]]]]]]]], "seq": 1, "vel": 0.1, "w": 0.0}),
+     "must be a number"),
 ]
 
 
@@ -97,6 +111,44 @@ REJECTED = [
 def test_rejected(name, payload, reason):
     with pytest.raises(p.ProtocolError, match=reason):
         p.decode(payload)
+
+
+def test_small_kinds_are_refused_past_their_size_unread():
+    big = msgpack.packb(_cmd(boost="x" * (p.MAX_PAYLOAD + 10)))
+    with pytest.raises(p.ProtocolError, match="exceeds"):
+        p.decode(big, kind="cmd")
+
+
+def test_scenario_limits():
+    lim = p.Limits.of(robots=5, radius=1.2, v_max=0.22, w_max=2.84, arena=(-10.0, 10.0, -5.0, 5.0), margin=1.0)
+    ok = p.encode(p.Cmd(t=1.0, seq=2, v=0.22, w=-2.84))
+    assert p.decode(ok, "cmd", limits=lim).v == 0.22
+    for msg, reason in ((p.Cmd(t=1.0, seq=2, v=0.3, w=0.0), "speed bounds"),
+                        (p.State(id=5, t=1.0, seq=1, x=0.0, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False), "not in the scenario"),
+                        (p.State(id=1, t=1.0, seq=1, x=0.0, y=0.0, theta=0.0, r=0.3, R=2.0, frozen=False), "largest R"),
+                        (p.Pose(t=1.0, seq=1, x=11.5, y=0.0, theta=0.0), "outside the arena")):
+        with pytest.raises(p.ProtocolError, match=reason):
+            p.decode(p.encode(msg), limits=lim)
+    assert p.decode(p.encode(p.Pose(t=1.0, seq=1, x=10.5, y=0.0, theta=0.0)), limits=lim).x == 10.5  # the margin
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.recursive(st.one_of(st.none(), st.booleans(), st.integers(-2**63, 2**64 - 1), st.floats(), st.text(max_size=4),
+                              st.binary(max_size=4)),
+                    lambda inner: st.one_of(st.lists(inner, max_size=3),
+                                            st.dictionaries(st.one_of(st.text(max_size=4), st.sampled_from(["v", "kind"])),
+                                                            inner, max_size=3)), max_leaves=12),
+       st.sampled_from([None, *p.KINDS]))
+def test_fuzz_any_structure_raises_only_protocol_errors(obj, kind):
+    """Any msgpack value, nested any way, for any expected kind: a message or a ProtocolError."""
+    try:
+        data = msgpack.packb(obj, use_bin_type=True)
+    except Exception:
+        return
+    try:
+        p.decode(data, kind)
+    except p.ProtocolError:
+        pass
 
 
 def test_wrong_kind_for_the_key():
@@ -157,7 +209,7 @@ def test_clock_ranges(change, message):
 
 
 def test_config_ranges_and_key_id():
-    good = p.encode(MESSAGES[-2])
+    good = p.encode(next(m for m in MESSAGES if isinstance(m, p.Config)))
     assert p.decode(good, "config", 3).id == 3
     with pytest.raises(p.ProtocolError, match="does not match"):
         p.decode(good, "config", 4)

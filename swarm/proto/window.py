@@ -1,0 +1,75 @@
+"""Windows, not "newest wins": how a receiver adopts a sender's time and sequence number.
+
+    w = Window(t_span=2.0, seq_span=101)
+    w.check(t, seq)      # -> OK, DUPLICATE, STALE or JUMP; only OK moves the window forward
+    w.reset()            # the sender's liveliness token is new, or a new run started
+
+A message from a sender is adopted only if it moves forward from what the receiver has from that
+sender, and not too far: seq in (last, last + seq_span] and t in [last_t, last_t + t_span]. One
+message with seq 2^53 - 1 or t = 1e9 would otherwise win forever (every later, true message looks
+old). The first message after a reset anchors the window. A refused jump is counted as bad, an
+older message as stale, the same (t, seq) again as a duplicate; none of them is adopted, so a
+lock-step barrier never advances on a refused message. The spans: t_span = max(2 s, 2 x the
+watchdog), seq_span = the number of control periods in t_span (docs/protocol.md).
+"""
+
+from __future__ import annotations
+
+import math
+
+OK = "ok"
+DUPLICATE = "duplicate"
+STALE = "stale"
+JUMP = "jump"
+
+
+def spans(dt: float, watchdog: float) -> tuple[float, int]:
+    """(t_span [s], seq_span) for a control period dt [s] and a watchdog [s]."""
+    t_span = max(2.0, 2.0 * watchdog)
+    return t_span, int(math.ceil(t_span / dt)) + 1
+
+
+CONFIRM = 3  # jumped messages in a row, each in the window of the one before, that re-anchor the window
+
+
+class Window:
+    """One sender's forward window (not thread-safe: the caller holds its lock)."""
+
+    __slots__ = ("t_span", "seq_span", "t", "seq", "_cand", "_run")
+
+    def __init__(self, t_span: float, seq_span: int) -> None:
+        self.t_span, self.seq_span = t_span, seq_span
+        self.t: float | None = None
+        self.seq = -1
+        self._cand: tuple[float, int] | None = None  # the last refused jump
+        self._run = 0  # jumps in a row that agree with each other
+
+    def reset(self) -> None:
+        self.t, self.seq, self._cand, self._run = None, -1, None, 0
+
+    def _verdict(self, t: float, seq: int, t0: float, seq0: int) -> str:
+        if seq == seq0 and t == t0:
+            return DUPLICATE
+        if seq <= seq0 or t < t0:
+            return STALE
+        if seq > seq0 + self.seq_span or t > t0 + self.t_span:
+            return JUMP
+        return OK
+
+    def peek(self, t: float, seq: int) -> str:
+        """What check() would say about a message, without adopting it."""
+        return OK if self.t is None else self._verdict(t, seq, self.t, self.seq)
+
+    def check(self, t: float, seq: int) -> str:
+        """Adopt (t, seq) if it is in the window (OK), else say why not."""
+        v = self.peek(t, seq)
+        if v in (JUMP, STALE):
+            c = self._cand
+            self._run = self._run + 1 if c is not None and self._verdict(t, seq, c[0], c[1]) == OK else 1
+            self._cand = (t, seq)
+            if self._run < CONFIRM:
+                return v
+            v = OK  # the sender did jump (or the window was anchored by a crafted message): follow it
+        if v == OK:
+            self.t, self.seq, self._cand, self._run = t, seq, None, 0
+        return v

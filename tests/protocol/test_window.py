@@ -1,0 +1,51 @@
+"""Windows, not "newest wins" (swarm.proto.window)."""
+
+from swarm.proto import window
+from swarm.proto.window import CONFIRM, DUPLICATE, JUMP, OK, STALE, Window
+
+
+def test_spans_cover_twice_the_watchdog_and_at_least_two_seconds():
+    assert window.spans(0.02, 0.5) == (2.0, 101)
+    assert window.spans(0.1, 3.0) == (6.0, 61)
+
+
+def test_forward_in_the_window_is_adopted_and_everything_else_is_not():
+    w = Window(2.0, 101)
+    assert w.check(0.0, 0) == OK  # the first message anchors
+    assert w.check(0.02, 1) == OK
+    assert w.check(0.02, 1) == DUPLICATE
+    assert w.check(0.0, 0) == STALE
+    assert w.check(0.04, 2**53 - 1) == JUMP  # one crafted sequence number
+    assert w.check(1e9, 3) == JUMP  # one crafted time
+    assert (w.t, w.seq) == (0.02, 1)  # nothing refused was adopted
+    assert w.check(0.04, 2) == OK  # the true sender goes on
+
+
+def test_a_sender_that_truly_jumped_is_followed_after_confirm_messages():
+    w = Window(2.0, 101)
+    w.check(0.0, 0)
+    out = [w.check(10.0 + 0.02 * k, 500 + k) for k in range(CONFIRM)]  # a 10 s stall, then regular messages
+    assert out == [JUMP] * (CONFIRM - 1) + [OK]
+    assert w.check(10.0 + 0.02 * CONFIRM, 500 + CONFIRM) == OK
+
+
+def test_a_window_anchored_by_a_crafted_message_recovers():
+    w = Window(2.0, 101)
+    assert w.check(1e9, 2**53 - 1) == OK  # the attacker spoke first
+    out = [w.check(0.02 * k, k) for k in range(CONFIRM + 2)]
+    assert out == [STALE] * (CONFIRM - 1) + [OK, OK, OK]
+
+
+def test_crafted_messages_interleaved_with_true_ones_never_take_over():
+    w = Window(2.0, 101)
+    w.check(0.0, 0)
+    for k in range(1, 200):
+        assert w.check(0.02 * k, k) == OK
+        assert w.check(1e9 + k, 2**50 + 7 * k) == JUMP  # never CONFIRM in a row: true messages come between
+
+
+def test_reset_starts_afresh():
+    w = Window(2.0, 101)
+    w.check(50.0, 2500)
+    w.reset()
+    assert w.check(0.0, 0) == OK  # a restarted sender counts from 0 again

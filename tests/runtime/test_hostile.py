@@ -1,0 +1,174 @@
+"""A hostile network (in process): crafted, absurd and out-of-window messages on every key of a running
+lock-step swarm are dropped and counted, crash nothing, bloat nothing and cost no tick: the run equals
+swarm sim step for step."""
+
+from __future__ import annotations
+
+import threading
+
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from agents import leader as leader_mod
+from agents import robot
+from swarm.core import scenario_file
+from swarm.core.scenario_file import Overrides
+from swarm.core.sim import Simulation
+from swarm.net.bus import MemoryBus, MemoryNet
+from swarm.proto import keys, protocol
+from tests.runtime.harness import run_swarm
+
+F = "t"
+
+
+def _pack(d: dict) -> bytes:
+    return msgpack.packb(d, use_bin_type=True)
+
+
+def corpus(n: int) -> list[tuple[str, bytes]]:
+    """(key, payload) of every attack of the hostile-network findings, on every key of a swarm of n robots."""
+    crafted = _pack({"v": 1, "kind": [1]})  # an unhashable kind: it crashed processes
+    out: list[tuple[str, bytes]] = []
+    broadcast = [keys.leader_ref(F), keys.world_clock(F), keys.world_progress(F), keys.world_run(F),
+                 keys.world_snapshot(F)]
+    per_robot = [f(F, i) for i in range(n) for f in (keys.robot_pose, keys.robot_cmd, keys.robot_status)]
+    cells = [keys.cell(F, cx, cy, i) for i in range(n) for cx in range(-6, 8) for cy in range(-12, -3)]
+    for key in broadcast + per_robot + cells[::7]:
+        out += [(key, crafted), (key, b""), (key, b"\xc1\xff"), (key, _pack({"v": 1, "kind": {"x": 1}}))]
+    big_seq = 2**53 - 1
+    for i in range(n):
+        out.append((keys.robot_pose(F, i), protocol.encode(protocol.Pose(t=1.0, seq=big_seq, x=0.0, y=0.0, theta=0.0))))
+        out.append((keys.robot_cmd(F, i), _pack({"v": 1, "kind": "cmd", "t": 1.0, "seq": 3, "vel": 1.7e308, "w": 0.0})))
+        out.append((keys.robot_cmd(F, i), protocol.encode(protocol.Cmd(t=1.0, seq=big_seq, v=0.1, w=0.0))))
+        out.append((keys.cell(F, 0, -8, i), protocol.encode(protocol.State(id=i, t=1e8, seq=big_seq, x=0.0, y=-8.0,
+                                                                            theta=0.0, r=0.3, R=1.2, frozen=False))))
+    out.append((keys.world_clock(F), protocol.encode(protocol.Clock(t=1.0, seq=10**9, epoch=0.0, speed=1.0))))
+    out.append((keys.leader_ref(F), protocol.encode(protocol.Ref(t=1e9, seq=7, x=60.0, y=0.0, theta=0.0, v=0.5, w=0.0))))
+    out.append((keys.leader_ref(F), protocol.encode(protocol.Ref(t=1.0, seq=big_seq, x=60.0, y=0.0, theta=0.0, v=0.5,
+                                                                 w=0.0))))
+    for j in range(n, n + 2000):  # states with ids outside the scenario (20 000 bloated a robot's tick for good)
+        out.append((keys.cell(F, 0, -8, j), protocol.encode(protocol.State(id=j, t=1.0, seq=1, x=0.0, y=-8.0, theta=0.0,
+                                                                            r=0.3, R=1.2, frozen=False))))
+    out.append((keys.cell(F, 0, -8, 0), b"\x00" * (10 << 20)))  # a 10 MB payload
+    return out
+
+
+class Attacker:
+    """Sends the corpus, round after round, from its own bus on the swarm's network, from the moment the
+    world reports tick `start_tick` until stopped."""
+
+    def __init__(self, net: MemoryNet, n: int, start_tick: int = 1) -> None:
+        self.bus = MemoryBus(net)
+        self.msgs = corpus(n)
+        self.started = threading.Event()
+        self.stop = threading.Event()
+        self.sent = 0
+        self.bus.subscribe(keys.world_progress(F), self._progress)
+        self.start_tick = start_tick
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _progress(self, key: str, payload: bytes) -> None:
+        try:
+            if protocol.decode(payload, "progress").seq >= self.start_tick:
+                self.started.set()
+        except protocol.ProtocolError:
+            pass  # our own junk on the progress key
+
+    def _run(self) -> None:
+        while not self.started.wait(0.05):
+            if self.stop.is_set():
+                return
+        while not self.stop.is_set():
+            for key, payload in self.msgs:
+                if self.stop.is_set():
+                    return
+                self.bus.put(key, payload)
+                self.sent += 1
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(10)
+
+
+@pytest.mark.timeout(240)
+def test_a_running_swarm_under_attack_equals_the_simulator():
+    scn = scenario_file.load("paper-50hz", Overrides(robots=4, duration=4.0))
+    net = MemoryNet()
+    attacker = Attacker(net, scn.n, start_tick=1)
+    try:
+        metrics, world, agents = run_swarm(scn, net=net, timeout_s=120)
+    finally:
+        attacker.close()
+    assert attacker.sent > 1000
+    sim = Simulation(scn, record_period=scn.dt).run()
+    q = np.array(world.trace).reshape(-1, scn.n, 3)
+    assert np.abs(q - sim.recording.q).max() == 0.0  # a refused message costs no tick
+    assert metrics["cmd_misses"] == 0 and metrics["collisions"] == 0 and metrics["lockstep_overruns"] == 0
+    assert world.bad.count > 0 and metrics["bad_messages"] >= world.bad.count
+    assert all(a.bad.count > 0 for a in agents)
+    assert all(len(a.table) < scn.n for a in agents)  # no stranger in a robot's tables
+    assert all(len(a.w_state) < scn.n for a in agents)
+
+
+def _callbacks(net: MemoryNet):
+    """Every bus callback of a lock-step agent, a real-time agent, a world and a leader, with the key it
+    listens on: (key, callable(key, payload))."""
+    scn = scenario_file.load("paper-50hz", Overrides(robots=3, duration=1.0))
+    from world.world import World
+
+    world = World(MemoryBus(net), scn, F, lockstep=True)
+    world.start()
+    cfg = robot.fetch_config(MemoryBus(net), F, 1, 1.0)
+    agent = robot.Agent(MemoryBus(net), cfg, F)
+    agent.start([])
+    lead = leader_mod.Leader(MemoryBus(net), scn.leader.table(), scn.dt, F)
+    lead.start()
+    cbs = [(keys.robot_pose(F, 1), agent._on_pose_msg), (keys.leader_ref(F), agent._on_ref_msg),
+           (keys.world_clock(F), agent._on_clock_msg), (keys.cell(F, 0, -8, 2), agent._on_state_msg),
+           (keys.world_clock(F), lead.on_clock)]
+    for tag, key in (("cmd", keys.robot_cmd(F, 2)), ("status", keys.robot_status(F, 2)), ("state", keys.cell(F, 0, 0, 2)),
+                     ("cmd", "swarm/t/robot/9/cmd")):
+        cbs.append((key, lambda k, b, tag=tag: world.event((tag, k, b))))
+    return cbs, (world, agent, lead)
+
+
+_values = st.one_of(st.none(), st.booleans(), st.integers(-2**63, 2**64 - 1), st.floats(), st.text(max_size=8),
+                    st.binary(max_size=8), st.lists(st.integers(-2**63, 2**63 - 1), max_size=3))
+_maps = st.dictionaries(st.sampled_from(["v", "kind", "t", "seq", "x", "y", "theta", "vel", "w", "id", "r", "R", "frozen",
+                                         "epoch", "speed", "ex", "ey", "etheta", "neighbours", "stale", "bad"]),
+                        st.one_of(_values, st.sampled_from(list(protocol.KINDS)), st.just(1)), max_size=12)
+
+
+@settings(max_examples=150, deadline=None)
+@given(payloads=st.lists(st.one_of(st.binary(max_size=64), _maps.map(_pack)), min_size=1, max_size=20),
+       which=st.integers(0, 8))
+def test_fuzz_every_callback_raises_nothing(payloads, which):
+    """Any bytes into any callback of any process: nothing escapes (no exception reaches the bus's
+    thread), and the process still takes a true message afterwards."""
+    net = MemoryNet()
+    cbs, (world, agent, lead) = _callbacks(net)
+    key, cb = cbs[which]
+    try:
+        for p in payloads:
+            cb(key, p)  # must not raise
+        agent.w_pose.reset()
+        agent._on_pose_msg(keys.robot_pose(F, 1), protocol.encode(protocol.Pose(t=0.0, seq=0, x=1.0, y=-8.0, theta=0.0)))
+        assert agent.pose is not None and agent.pose.x == 1.0
+    finally:
+        agent.close()
+        lead.close()
+        world.close()
+
+
+def test_hostile_corpus_into_every_callback_is_counted():
+    net = MemoryNet()
+    cbs, (world, agent, lead) = _callbacks(net)
+    for key, cb in cbs:
+        for _, payload in corpus(3)[:60]:
+            cb(key, payload)
+    assert world.bad.count > 0 and agent.bad.count > 0 and lead.bad.count > 0
+    assert agent.pose is None and agent.ref is None and not agent.table and lead.sent == 0
