@@ -44,10 +44,13 @@ def replay_into(path: Path, viewer, speed: float, stop: threading.Event, max_hz:
         if stop.is_set():
             return drawn, True
         codes = state_codes(f.alive, f.stopped, f.frozen, np.zeros(len(f.q)))
-        viewer.draw(f.t, f.q, codes)
+        viewer.draw(f.t, f.q, codes)  # the overlay counts what the frame shows (a recording has no progress)
         drawn += 1
         if on_frame is not None:
             on_frame(f)
+    refresh = getattr(viewer, "refresh_overlay", None)
+    if refresh is not None:  # the overlay shows the last frame
+        refresh()
     return drawn, stop.is_set()
 
 

@@ -59,6 +59,7 @@ def pairs_within(x: np.ndarray, y: np.ndarray, within: float,
 
 CHUNK = 1 << 21  # candidate pairs handled at once: bounds the scratch memory (about 100 MB)
 CROWD = 32  # closest_pair refines its cells while one holds more points than this
+DENSE_CLOSEST = 64  # closest_pair compares every pair up to this many points
 
 
 class Counter:
@@ -170,6 +171,14 @@ def closest_pair(points: np.ndarray, within: float, counter: Counter | None = No
     p = np.asarray(points, float).reshape(-1, 2)
     if len(p) < 2 or not within >= 0:
         return None
+    if len(p) <= DENSE_CLOSEST:  # a few points: every pair at once is quicker than any grid
+        d2 = np.sum((p[:, None, :] - p[None, :, :]) ** 2, axis=2)
+        d2[np.diag_indices(len(p))] = np.inf
+        if counter is not None:
+            counter.pairs += len(p) * (len(p) - 1) // 2
+        i, j = divmod(int(np.argmin(d2)), len(p))  # row-major: the smallest i, then its smallest j (> i)
+        d = math.sqrt(float(d2[i, j]))
+        return (i, j, d) if d <= within else None
     twins = _coincident(p)
     if twins is not None:
         return twins[0], twins[1], 0.0

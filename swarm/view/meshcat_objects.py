@@ -2,6 +2,7 @@
 
     geo = geometry(positions (K, 3), index (T*3,), colours (K, 3))      # a BufferGeometry
     obj = instanced(geo, material(vertex_colors=True), "name", matrices (N, 16), colours (N, 3))
+    obj = label("t = 12.3 s", width, font_px, "name", x, y, z)           # text (meshcat's "_text" texture)
     sink.send(Command({"type": "set_object", "path": "/swarm/robots", "object": obj}))
 
 Arrays go as msgpack extension types (0x17 Float32Array, 0x16 Uint32Array), as meshcat's own
@@ -49,10 +50,14 @@ def u32(a: np.ndarray) -> dict:
     return {"itemSize": 1, "type": "Uint32Array", "normalized": False, "array": umsgpack.Ext(0x16, a.tobytes())}
 
 
-def geometry(pos: np.ndarray, index: np.ndarray | None = None, color: np.ndarray | None = None) -> dict:
+def geometry(pos: np.ndarray, index: np.ndarray | None = None, color: np.ndarray | None = None,
+             uv: np.ndarray | None = None) -> dict:
+    """A BufferGeometry: pos (K, 3) [m], index (T*3,), color (K, 3) in [0, 1], uv (K, 2) texture coordinates."""
     attrs = {"position": f32(pos, 3)}
     if color is not None:
         attrs["color"] = f32(color, 3)
+    if uv is not None:
+        attrs["uv"] = f32(uv, 2)
     data: dict = {"attributes": attrs}
     if index is not None:
         data["index"] = u32(index)
@@ -63,6 +68,59 @@ def material(kind: str = "MeshBasicMaterial", color: int = 0xFFFFFF, opacity: fl
               vertex_colors: bool = False, depth_write: bool = True) -> dict:
     return {"uuid": str(uuid.uuid4()), "type": kind, "color": color, "side": 2, "opacity": opacity,
             "transparent": opacity < 1.0, "depthWrite": depth_write, "vertexColors": vertex_colors}
+
+
+# --------------------------------------------------------------------------- text
+#
+# meshcat 0.3.2 has no text or HTML command, but its loader knows one texture type of its own, "_text":
+# the browser draws the text, centred, in black, on a transparent 256 x 256 canvas (one line; a text
+# wider than the canvas is drawn smaller), with its baseline at the canvas's middle row. A label is a
+# flat quad that shows only the band of that canvas around the text, so the quad is as wide as the
+# canvas and a few text heights tall.
+
+TEXT_CANVAS = 256  # px, the canvas of a "_text" texture (fixed by meshcat)
+
+
+def text_texture(text: str, font_px: int, font_face: str = "sans-serif") -> dict:
+    """meshcat's "_text" texture: `text` drawn at font_px pixels on the 256 x 256 canvas."""
+    return {"uuid": str(uuid.uuid4()), "type": "_text", "text": text, "font_size": int(font_px),
+            "font_face": font_face}
+
+
+def text_band(font_px: int) -> tuple[float, float]:
+    """(top, bottom) canvas rows [px] around a line of text at font_px: ascenders and descenders."""
+    mid = TEXT_CANVAS / 2
+    return mid - 0.95 * font_px, mid + 0.35 * font_px
+
+
+def label(text: str, width: float, font_px: int, name: str, x: float, y: float, z: float,
+          render_order: int = 1000) -> dict:
+    """A quad `width` wide (its height follows the text band) centred at (x, y, z) showing `text`, drawn
+    over everything (no depth test). The text is also in the object's userData (for tests and tools)."""
+    top, bottom = text_band(font_px)
+    h = width * (bottom - top) / TEXT_CANVAS
+    v0, v1 = 1.0 - bottom / TEXT_CANVAS, 1.0 - top / TEXT_CANVAS  # a canvas texture is flipped: v = 1 on top
+    pos = np.array([[-width / 2, -h / 2, 0.0], [width / 2, -h / 2, 0.0], [width / 2, h / 2, 0.0],
+                    [-width / 2, h / 2, 0.0]])
+    uv = np.array([[0.0, v0], [1.0, v0], [1.0, v1], [0.0, v1]])
+    tex = text_texture(text, font_px)
+    mat = {**material(depth_write=False), "transparent": True, "map": tex["uuid"], "depthTest": False}
+    obj = mesh_object("Mesh", geometry(pos, np.array([0, 1, 2, 0, 2, 3]), uv=uv), mat, name,
+                      matrix=translation(x, y, z), renderOrder=render_order, userData={"text": text})
+    obj["textures"] = [tex]
+    return obj
+
+
+def flat_rect(width: float, height: float, color: int, opacity: float, name: str, x: float, y: float, z: float,
+              render_order: int = 999) -> dict:
+    """A plain rectangle centred at (x, y, z), drawn over everything (a swatch, or a panel behind text)."""
+    pos = np.array([[-width / 2, -height / 2, 0.0], [width / 2, -height / 2, 0.0], [width / 2, height / 2, 0.0],
+                    [-width / 2, height / 2, 0.0]])
+    # transparent even when opaque: three.js draws opaque objects first, so an opaque swatch would end
+    # up under a translucent panel whatever their render order
+    mat = {**material(color=color, opacity=opacity, depth_write=False), "transparent": True, "depthTest": False}
+    return mesh_object("Mesh", geometry(pos, np.array([0, 1, 2, 0, 2, 3])), mat, name,
+                       matrix=translation(x, y, z), renderOrder=render_order)
 
 
 def mesh_object(kind: str, geometry: dict, material: dict, name: str, **extra) -> dict:

@@ -9,13 +9,24 @@ from a live swarm, `swarm sim --viz` from the simulator, a replay from a recordi
 Scene (z up, metres): a ground with a 2 m grid; obstacles (r solid, R translucent with its rim);
 the robots, coloured by state with a dark arrow for the heading (optionally their R ring); the
 formation as ghosts: the leader (translucent arrow) and every slot (translucent disc at leader +
-offset: the law adds the offsets unrotated, DESIGN.md section 2); trails (one LineSegments, resent
+offset: the law adds the offsets unrotated, docs/design.md); trails (one LineSegments, resent
 once a second). A robot's body has radius r/2, so two bodies touch exactly when their centres are
 r apart: a collision.
 
+Overlay: a legend of every colour at the bottom of the view and, at the top, the scenario's name,
+the simulated time, the robots alive, converged and frozen and the smallest robot-robot distance so
+far. meshcat 0.3.2 has no text command and no way to put HTML on its page, so the overlay is made of
+three.js objects that are children of the camera (/Cameras/default/rotated/<object>/hud): they stay
+put on the screen whatever the user's orbit and zoom. Text is meshcat's own "_text" texture (the
+browser draws it on a canvas; swarm.view.meshcat_objects.label), one short line per object, redrawn
+only when it changed and at most every HUD_PERIOD_S of wall time. The counts come with the frame
+(`Stats`: from the world's progress messages, or the simulator); what a frame does not bring is
+computed from it: alive and frozen from the state codes, converged from the slots and the leader,
+the smallest distance from the poses (a running minimum over the frames drawn).
+
 Per frame: one set_object (every robot in one InstancedMesh, with per-instance colour) and three
 set_transform (the scene root, the formation, the leader), whatever N; meshcat 0.3.2 has no batch
-command and each command is a ZMQ round trip (recipes/meshcat-browser.md). A static twin of the
+command and each command is a ZMQ round trip (docs/viewer.md). A static twin of the
 robots' mesh stays in the scene so that three.js keeps the shader program when set_object
 disposes the old material (without it the program is recompiled every frame). The camera cannot
 be aimed through meshcat 0.3.2 (its orbit target stays at the origin), so the scene moves
@@ -31,6 +42,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from swarm.core.geometry import closest_pair
 from swarm.view import meshcat_objects as mo
 from swarm.view.meshcat_objects import poses_to_matrices
 
@@ -57,12 +69,48 @@ TRAIL_SAMPLE_S = 0.2  # simulated seconds between trail points
 TRAIL_VERTICES = 40_000  # budget: each robot keeps at most this / N / 2 points, and at most 150
 FOV_DEG = 75.0  # meshcat's default camera
 
+# The overlay (see the module docstring), in the camera's frame: x right, y up, z toward the viewer [m].
+HUD = CAMERA + "/hud"
+HUD_DEPTH = 1.0  # m in front of the camera (beyond its near plane, 0.1 m); the view is 2 tan(fov / 2) tall there
+HUD_PERIOD_S = 0.25  # wall seconds between overlay updates
+HUD_FONT_PX = 26  # on the 256-pixel canvas: about 18 screen pixels in a 768-pixel-high window
+LEGEND_FONT_PX = 22
+HUD_CELL_W = 0.36  # m at HUD_DEPTH: one text cell of the top panel (3 columns)
+LEGEND_CELL_W = 0.30  # m: one legend entry (4 columns)
+PANEL_COLOR = 0xFFFFFF
+# A robot is converged within these of its slot and the leader's heading (as swarm.core.kernel and
+# world.referee count it).
+CONVERGED_POSITION_M = 0.05
+CONVERGED_ANGLE_RAD = 0.05
+# (name, label, colour, opacity) of every legend entry, in reading order
+LEGEND = (
+    ("tracking", "tracking", STATE_COLORS[TRACKING], 1.0),
+    ("frozen", "frozen", STATE_COLORS[FROZEN], 1.0),
+    ("stale", "stale (no status)", STATE_COLORS[STALE], 1.0),
+    ("stopped", "stopped (watchdog)", STATE_COLORS[STOPPED], 1.0),
+    ("dead", "dead", STATE_COLORS[DEAD], 1.0),
+    ("leader", "leader and slots", GHOST_COLOR, 0.6),
+    ("obstacle", "obstacle (r)", OBSTACLE_COLOR, 1.0),
+    ("zone", "avoidance zone (R)", ZONE_COLOR, 0.35),
+)
+
 
 def rgb(hex_color: int) -> tuple[float, float, float]:
     return ((hex_color >> 16) & 255) / 255.0, ((hex_color >> 8) & 255) / 255.0, (hex_color & 255) / 255.0
 
 
 PALETTE = np.array([rgb(c) for c in STATE_COLORS], np.float32)  # (5, 3) in [0, 1]
+
+
+@dataclass(frozen=True)
+class Stats:
+    """The overlay's counts for a frame, where the caller knows them (None: the viewer works it out
+    from the frame). min_distance [m]: the smallest robot-robot distance of the run so far."""
+
+    alive: int | None = None
+    converged: int | None = None
+    frozen: int | None = None
+    min_distance: float | None = None
 
 
 def state_codes(alive: np.ndarray, stopped: np.ndarray, frozen: np.ndarray, status_age_s: np.ndarray,
@@ -136,9 +184,15 @@ class Viewer:
     """Draws frames of a swarm into meshcat (see the module docstring). Not thread-safe: one
     thread draws."""
 
-    def __init__(self, target, scene=None, rings: bool = False, trails: bool = True):
+    def __init__(self, target, scene=None, rings: bool = False, trails: bool = True, overlay: bool = True,
+                 clock=time.monotonic):
         self.sink = mo.sink_of(target)
-        self.rings, self.trails = rings, trails
+        self.rings, self.trails, self.overlay = rings, trails, overlay
+        self.clock = clock  # wall time [s] for the overlay's pacing
+        self._hud_sent: dict[str, str] = {}  # cell -> the text on screen
+        self._hud_want: dict[str, str] = {}  # cell -> the newest text
+        self._hud_at = -math.inf
+        self._min_seen = math.inf  # m, running minimum of the frames drawn (when no Stats bring it)
         self.frames = 0
         self.costs: list[float] = []  # seconds of Python per draw(), the last 1000
         self._centre: np.ndarray | None = None
@@ -178,6 +232,10 @@ class Viewer:
         s = self.scene
         for part in ("obstacles", "formation", "ground", "trails", "robots", "keep"):
             self._delete(f"{ROOT}/{part}")
+        self._delete(HUD)
+        self._hud_sent, self._hud_want, self._hud_at, self._min_seen = {}, {}, -math.inf, math.inf
+        if self.overlay:
+            self._draw_overlay()
         self._trail = None
         self._formation_shown = None
         self._ground_at: np.ndarray | None = None
@@ -250,9 +308,11 @@ class Viewer:
 
     # ------------------------------------------------------------------ frames
 
-    def draw(self, t: float, q: np.ndarray, codes: np.ndarray, leader: tuple[float, float, float] | None = None) -> None:
+    def draw(self, t: float, q: np.ndarray, codes: np.ndarray, leader: tuple[float, float, float] | None = None,
+             stats: Stats | None = None) -> None:
         """One frame at simulated time t [s]: q (N, 3) poses, codes (N,) states (TRACKING ...),
-        leader (x, y, theta) or None (then the scene's leader table is used, if any)."""
+        leader (x, y, theta) or None (then the scene's leader table is used, if any); stats: the
+        overlay's counts where the caller knows them."""
         started = time.perf_counter()
         q = np.asarray(q, float).reshape(-1, 3)
         codes = np.asarray(codes).reshape(-1)
@@ -260,8 +320,10 @@ class Viewer:
             raise ValueError(f"{len(q)} poses but {len(codes)} state codes")
         if leader is None:
             leader = self.scene.leader_pose(t)
-        if t < self._last_t:  # a new run (or a replay rewound): forget the trails
+        if t < self._last_t:  # a new run (or a replay rewound): forget the trails and the minimum
             self._trail = None
+            self._min_seen = math.inf
+            self._hud_at = -math.inf
         self._last_t = t
         centre = self._frame_centre(q, leader)
         if self._ground_at is None or np.abs(centre - self._ground_at).max() > 0.5 * GROUND_HALF:
@@ -280,10 +342,92 @@ class Viewer:
             self._set_transform(f"{ROOT}/formation/leader", mo.translation(0.0, 0.0, 0.0, leader[2]))
         if self.trails:
             self._update_trails(t, q)
+        if self.overlay:
+            self._hud_want = self.overlay_texts(t, q, codes, leader, stats)
+            if self.clock() - self._hud_at >= HUD_PERIOD_S:
+                self.refresh_overlay()
         self.frames += 1
         self.costs.append(time.perf_counter() - started)
         if len(self.costs) > 1000:
             del self.costs[:500]
+
+    # ------------------------------------------------------------------ the overlay
+
+    def _hud_layout(self) -> dict[str, tuple[float, float]]:
+        """Centres (x, y) [m at HUD_DEPTH] of the top panel's six cells: centred, so that they stay in
+        view in any window at least 0.8 times as wide as it is high."""
+        top = HUD_DEPTH * math.tan(math.radians(FOV_DEG / 2))
+        rows = (top - 0.05, top - 0.105)
+        cols = (-HUD_CELL_W, 0.0, HUD_CELL_W)
+        names = (("name", "t", "min_distance"), ("alive", "converged", "frozen"))
+        return {names[r][c]: (cols[c], rows[r]) for r in range(2) for c in range(3)}
+
+    def _draw_overlay(self) -> None:
+        """The static part of the overlay: the panels behind the text, and the legend (swatch + label)."""
+        top = HUD_DEPTH * math.tan(math.radians(FOV_DEG / 2))
+        z = -HUD_DEPTH
+        self._set_object(f"{HUD}/panel", mo.flat_rect(3 * HUD_CELL_W + 0.08, 0.15, PANEL_COLOR, 0.75,
+                                                      "swarm_hud_panel", 0.0, top - 0.0775, z))
+        self._set_object(f"{HUD}/legend/panel", mo.flat_rect(4 * LEGEND_CELL_W + 0.04, 0.13, PANEL_COLOR, 0.75,
+                                                             "swarm_legend_panel", 0.0, -top + 0.085, z))
+        rows = (-top + 0.115, -top + 0.055)
+        for k, (name, text, colour, opacity) in enumerate(LEGEND):
+            x, y = (k % 4 - 1.5) * LEGEND_CELL_W, rows[k // 4]
+            # the canvas centres its text: put the swatch just left of where the text starts (a
+            # sans-serif letter is about half its font size wide)
+            half_text = min(0.5, 0.26 * LEGEND_FONT_PX * len(text) / mo.TEXT_CANVAS) * LEGEND_CELL_W
+            self._set_object(f"{HUD}/legend/{name}/swatch", mo.flat_rect(
+                0.026, 0.026, colour, opacity, f"swarm_legend_{name}_swatch", x - half_text - 0.025, y, z, 1000))
+            self._set_object(f"{HUD}/legend/{name}/label", mo.label(
+                text, LEGEND_CELL_W, LEGEND_FONT_PX, f"swarm_legend_{name}", x, y, z))
+
+    def overlay_texts(self, t: float, q: np.ndarray, codes: np.ndarray, leader, stats: Stats | None) -> dict[str, str]:
+        """The top panel's lines for this frame: cell name -> text. What `stats` leaves out comes from
+        the frame: alive and frozen from the codes, converged from the slots and the leader (if the
+        scene has them), the smallest distance from the poses of the live robots (a running minimum)."""
+        stats = stats or Stats()
+        n = len(q)
+        live = (codes != DEAD) & np.isfinite(q).all(axis=1)
+        alive = int(live.sum()) if stats.alive is None else stats.alive
+        frozen = int((codes == FROZEN).sum()) if stats.frozen is None else stats.frozen
+        converged = stats.converged
+        if converged is None and leader is not None and self.scene.offsets is not None \
+                and len(self.scene.offsets) == n:
+            px = leader[0] + self.scene.offsets[:, 0] - q[:, 0]
+            py = leader[1] + self.scene.offsets[:, 1] - q[:, 1]
+            eth = np.abs((leader[2] - q[:, 2] + math.pi) % (2 * math.pi) - math.pi)
+            converged = int((live & (np.hypot(px, py) < CONVERGED_POSITION_M) & (eth < CONVERGED_ANGLE_RAD)).sum())
+        dmin = stats.min_distance
+        if dmin is None and stats == Stats():  # nothing given: the viewer's own running minimum
+            pts = q[live, :2]
+            if len(pts) >= 2:
+                span = float(np.ptp(pts, axis=0).max()) + 1.0
+                found = closest_pair(pts, span)
+                if found is not None:
+                    self._min_seen = min(self._min_seen, found[2])
+            dmin = self._min_seen if math.isfinite(self._min_seen) else None
+        return {
+            "name": self.scene.name or "swarm",
+            "t": f"t = {t:.2f} s",
+            "min_distance": "min distance –" if dmin is None else f"min distance {dmin:.3f} m",
+            "alive": f"alive {alive} of {n}",
+            "converged": "converged –" if converged is None else f"converged {converged} of {n}",
+            "frozen": f"frozen {frozen}",
+        }
+
+    def refresh_overlay(self) -> None:
+        """Send the overlay's lines that changed since they were last sent (draw() does it at most every
+        HUD_PERIOD_S; call this after the last frame so that the overlay shows it)."""
+        if not self.overlay:
+            return
+        self._hud_at = self.clock()
+        layout = self._hud_layout()
+        for name, text in self._hud_want.items():
+            if self._hud_sent.get(name) != text:
+                x, y = layout[name]
+                self._set_object(f"{HUD}/{name}", mo.label(text, HUD_CELL_W, HUD_FONT_PX, f"swarm_hud_{name}", x, y,
+                                                           -HUD_DEPTH))
+                self._hud_sent[name] = text
 
     def reframe(self) -> None:
         """Frame the camera on the next frame, whatever the user's zoom (a replay that jumps)."""

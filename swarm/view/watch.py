@@ -13,6 +13,9 @@ message is dropped and counted (`bad`), never raised.
 
 Robot states: the world's snapshot says alive and stopped; each robot's status says frozen; a
 robot whose newest status is older than `stale_after_s` wall seconds is stale (swarm.view.viz.state_codes).
+The overlay's counts (alive, converged, frozen, the smallest distance so far) come from the world's
+progress messages (world/progress, about 4 a second), stored and decoded like the rest; until the first
+one comes the viewer counts what the frame shows.
 Without a scenario, the scene (offsets, radii, obstacles) comes from the world's queryables and the
 leader's pose from its reference stream, advanced exactly along its arc to the snapshot's time.
 """
@@ -30,7 +33,7 @@ import numpy as np
 from swarm.proto import keys, protocol
 from swarm.core import kinematics
 from swarm.proto.protocol import ProtocolError
-from swarm.view.viz import STALE_AFTER_S, SceneInfo, Viewer, state_codes
+from swarm.view.viz import STALE_AFTER_S, SceneInfo, Stats, Viewer, state_codes
 
 log = logging.getLogger("swarm.viz")
 
@@ -63,6 +66,7 @@ class SwarmWatcher:
         self._snap: bytes | None = None
         self._statuses: dict[str, tuple[bytes, float]] = {}
         self._ref: bytes | None = None
+        self._progress: bytes | None = None
         self._handles: list = []
         self._thread: threading.Thread | None = None
         # draw-thread state
@@ -70,6 +74,7 @@ class SwarmWatcher:
         self._status_at: dict[int, float] = {}
         self._last: protocol.Snapshot | None = None
         self._last_ref: protocol.Ref | None = None
+        self._stats: Stats | None = None  # from the newest progress message
         self._codes: np.ndarray | None = None
         self._started = wall()
         self._scene_n = -1
@@ -96,6 +101,10 @@ class SwarmWatcher:
         with self._lock:
             self._ref = payload
 
+    def _on_progress(self, key: str, payload: bytes) -> None:
+        with self._lock:
+            self._progress = payload
+
     # ------------------------------------------------------------------ life cycle
 
     def start(self, draw_thread: bool = True) -> None:
@@ -104,6 +113,7 @@ class SwarmWatcher:
         self._handles.append(self.bus.subscribe(keys.world_snapshot(f), self._on_snapshot))
         self._handles.append(self.bus.subscribe(keys.robot_any(f, "status"), self._on_status))
         self._handles.append(self.bus.subscribe(keys.leader_ref(f), self._on_ref))
+        self._handles.append(self.bus.subscribe(keys.world_progress(f), self._on_progress))
         if draw_thread:
             self._thread = threading.Thread(target=self._run, name="viz-draw", daemon=True)
             self._thread.start()
@@ -146,9 +156,12 @@ class SwarmWatcher:
             payload, self._snap = self._snap, None
             statuses, self._statuses = self._statuses, {}
             ref = self._ref
+            progress, self._progress = self._progress, None
             if payload is not None:
                 self.taken += 1
         self._take_statuses(statuses)
+        if progress is not None:
+            self._take_progress(progress)
         fresh = False
         if payload is not None:
             try:
@@ -159,6 +172,7 @@ class SwarmWatcher:
                 if self._last is not None and snap.seq < self._last.seq:  # a new run: new scene, new trails
                     self._scene_n = -1
                     self._scene_tried = -math.inf
+                    self._stats = None
                 self._last = snap
                 fresh = True
         snap = self._last
@@ -172,10 +186,13 @@ class SwarmWatcher:
                             np.array([self._frozen.get(i, False) for i in ids.tolist()], bool), age,
                             self.stale_after_s)
         if not fresh and self.drawn and np.array_equal(codes, self._codes):
+            refresh = getattr(self.viewer, "refresh_overlay", None)
+            if refresh is not None:  # the overlay's last lines, held back by its pacing
+                refresh()
             return False  # nothing new to show
         self._ensure_scene(len(ids))
         q = np.array([(r.x, r.y, r.theta) for r in snap.robots], float).reshape(-1, 3)
-        self.viewer.draw(snap.t, q, codes, self._leader(snap.t, ref))
+        self.viewer.draw(snap.t, q, codes, self._leader(snap.t, ref), stats=self._stats)
         self._codes = codes
         self.drawn += 1
         return True
@@ -193,6 +210,15 @@ class SwarmWatcher:
                 continue
             self._frozen[k.id] = st.frozen
             self._status_at[k.id] = at
+
+    def _take_progress(self, payload: bytes) -> None:
+        try:
+            p = protocol.decode(payload, "progress")
+        except ProtocolError as e:
+            self.bad.reject(keys.world_progress(self.fleet), e)
+            return
+        self._stats = Stats(alive=p.alive, converged=p.converged, frozen=p.frozen,
+                            min_distance=p.min_distance if p.min_distance >= 0 else None)
 
     def _leader(self, t: float, ref_payload: bytes | None) -> tuple[float, float, float] | None:
         """The leader's pose at t: exact from the scene's segment table, else from its newest
@@ -271,7 +297,8 @@ def play_simulation(sim, viewer: Viewer, speed: float = 1.0, should_stop: Callab
                     wait: Callable[[float], object] | None = None) -> bool:
     """Run `sim` (a swarm.core.sim.Simulation) to its end at `speed` simulated seconds per wall second
     (or as fast as it can, if slower), drawing its newest recorded sample at most max_hz times a
-    second. Returns True if should_stop() ended it early.
+    second. Returns True if should_stop() ended it early. The overlay's counts are the simulator's
+    (converged and frozen at the newest step, the smallest robot distance so far).
 
     The simulator advances in chunks that take about 50 ms each, so frames keep coming even when
     the simulation is slower than asked. `wait(seconds)` paces frames (default: an Event's wait)."""
@@ -298,12 +325,17 @@ def play_simulation(sim, viewer: Viewer, speed: float = 1.0, should_stop: Callab
                 if spent > 0:
                     limit = max(1, min(int(steps * 0.05 / spent), 10 * limit))
         rec = sim.recording()
+        p = sim.progress()
         if len(rec.t):
             codes = np.where(rec.frozen[-1], FROZEN, TRACKING)
-            viewer.draw(float(rec.t[-1]), rec.q[-1], codes, tuple(map(float, rec.leader[-1])))
+            stats = Stats(alive=sim.scn.n, converged=p.converged, frozen=p.frozen, min_distance=p.min_distance)
+            viewer.draw(float(rec.t[-1]), rec.q[-1], codes, tuple(map(float, rec.leader[-1])), stats=stats)
         if progress is not None:
-            progress(sim.progress())
+            progress(p)
         if sim.done:
+            refresh = getattr(viewer, "refresh_overlay", None)
+            if refresh is not None:  # the overlay shows the very end
+                refresh()
             return False
         left = period - (time.monotonic() - frame_start)
         if left > 0:

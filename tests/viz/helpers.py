@@ -21,7 +21,7 @@ import pytest
 from swarm.view.viz import STATE_COLORS, rgb
 
 CHROMIUM = "/usr/bin/chromium"
-# shared/recipes/meshcat-browser.md section 3: software WebGL (SwiftShader), offline, no profile noise
+# software WebGL (SwiftShader), offline, no profile noise
 FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
          "--disable-component-update", "--disable-sync", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
          "--window-size=1024,768"]
@@ -87,11 +87,16 @@ def settle(page) -> None:
     page.evaluate("() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))")
 
 
-def count_pixels(png: Path, state: int, tolerance: int = 12) -> int:
-    """Pixels of the state's colour (robots are unlit, so their tops have the exact colour)."""
+# Rows of a 768-pixel-high screenshot between the overlay's top panel and its legend (whose swatches
+# show every state's colour): where only the scene's robots can have those colours.
+SCENE_ROWS = slice(90, 768 - 100)
+
+
+def count_pixels(png: Path, state: int, tolerance: int = 12, rows: slice = slice(None)) -> int:
+    """Pixels of the state's colour (robots are unlit, so their tops have the exact colour), in `rows`."""
     from PIL import Image
 
-    img = np.asarray(Image.open(png).convert("RGB")).astype(int)
+    img = np.asarray(Image.open(png).convert("RGB")).astype(int)[rows]
     return int((np.abs(img - colour_of(state)).sum(axis=2) <= tolerance).sum())
 
 

@@ -1,6 +1,7 @@
 """The viewer in a real browser (headless Chromium, software WebGL): robots in the scene and on
-screen, a frozen robot changes colour, the shader program survives set_object (the twin), and the
-real `swarm up` and `swarm viz --connect` paths, killed with SIGKILL, leave nothing behind.
+screen, a frozen robot changes colour, the shader program survives set_object (the twin), the legend
+and the overlay's text on the page following the run, and the real `swarm up` and `swarm viz
+--connect` paths, killed with SIGKILL, leave nothing behind.
 
 Screenshots go to $SWARM_SCREENSHOT (a file, or a directory for all of them) or the test's tmp dir;
 docs/viewer.png is the 37-robot one.
@@ -19,7 +20,7 @@ from swarm.view.meshcat_server import MeshcatServer
 from swarm.core.scenario_file import Overrides
 from swarm.core.sim import Simulation
 from swarm.view.viz import DEAD, FROZEN, STALE, STOPPED, TRACKING, SceneInfo, Viewer
-from tests.viz.helpers import (URL_LINE, Child, assert_all_gone, browser_page, chromium_processes, colour_of,
+from tests.viz.helpers import (SCENE_ROWS, URL_LINE, Child, assert_all_gone, browser_page, chromium_processes, colour_of,
                                count_pixels, free_port, instance_colours, listening, meshcat_server_of,
                                needs_chromium, robots_js, screenshot_path, settle, wait_until)
 
@@ -77,6 +78,69 @@ def test_37_robots_on_screen_and_a_frozen_robot_turns_orange(tmp_path):
     wait_until(lambda: chromium_processes() <= before_chromium, 10, "Chromium to exit after browser.close()")
 
 
+HUD_TEXT_JS = "name => { const o = viewer.scene.getObjectByName(name); return o ? o.userData.text : null; }"
+# the pixels the browser drew for a label's text: non-transparent pixels of its canvas texture
+INK_JS = ("name => { const c = viewer.scene.getObjectByName(name).material.map.image;"
+          " const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data; let n = 0;"
+          " for (let i = 3; i < d.length; i += 4) if (d[i] > 0) n++; return n; }")
+
+
+def test_the_legend_and_the_overlay_are_on_the_page_and_follow_the_run(tmp_path):
+    """The legend names every colour and shows it; the overlay's time, counts and smallest distance are
+    drawn as text on the page and change as the run goes on (the simulator's first 6 s, 7 robots)."""
+    from swarm.view.viz import LEGEND, STATE_COLORS
+    from swarm.view.watch import play_simulation
+
+    scn = scenario_file.load("paper-50hz", Overrides(robots=7, duration=6.0))
+    with MeshcatServer() as server:
+        viewer = Viewer(server, SceneInfo.from_scenario(scn))
+        sim = Simulation(scn)
+        sim.advance(int(round(1.0 / scn.dt)) + 1)  # the first second
+        rec = sim.recording()
+        viewer.draw(rec.t[-1], rec.q[-1], np.where(rec.frozen[-1], FROZEN, TRACKING), tuple(rec.leader[-1]))
+        with browser_page(server.web_url) as page:
+            page.wait_for_function(robots_js(7))
+            page.wait_for_function(f"() => ({HUD_TEXT_JS})('swarm_hud_t') === 't = {rec.t[-1]:.2f} s'")
+            shown = {name: page.evaluate(HUD_TEXT_JS, f"swarm_legend_{name}") for name, *_ in LEGEND}
+            assert shown == {name: text for name, text, *_ in LEGEND}
+            assert page.evaluate(HUD_TEXT_JS, "swarm_hud_name") == "paper-50hz"
+            assert page.evaluate(HUD_TEXT_JS, "swarm_hud_alive") == "alive 7 of 7"
+            first = {k: page.evaluate(HUD_TEXT_JS, f"swarm_hud_{k}") for k in ("t", "frozen", "min_distance")}
+            assert first["min_distance"].startswith("min distance ") and first["min_distance"].endswith(" m")
+            ink = page.evaluate(INK_JS, "swarm_hud_t")
+            assert ink > 100, f"the time's text drew {ink} pixels"
+            for name, *_ in LEGEND:
+                assert page.evaluate(INK_JS, f"swarm_legend_{name}") > 50
+            settle(page)
+            png = screenshot_path(tmp_path, "viewer-overlay-1s.png")
+            page.screenshot(path=str(png))
+            from PIL import Image
+
+            img = np.asarray(Image.open(png).convert("RGB")).astype(int)
+            legend_band = img[-100:]
+            for k, colour in enumerate(STATE_COLORS):  # every state's swatch is on screen, in its exact colour
+                want = np.rint(np.array([(colour >> 16) & 255, (colour >> 8) & 255, colour & 255]))
+                hits = int((np.abs(legend_band - want).sum(axis=2) <= 12).sum())
+                assert hits >= 60, f"{hits} pixels of the {k} swatch's colour in the legend"
+            dark_top = int((img[:90].sum(axis=2) < 200).sum())
+            assert dark_top > 500, f"{dark_top} dark (text) pixels in the overlay's panel"
+
+            assert play_simulation(sim, viewer, speed=50.0) is False  # on to the end: 6 s
+            final = f"t = {sim.recording().t[-1]:.2f} s"
+            page.wait_for_function(f"() => ({HUD_TEXT_JS})('swarm_hud_t') === '{final}'")
+            later = {k: page.evaluate(HUD_TEXT_JS, f"swarm_hud_{k}") for k in ("t", "frozen", "min_distance")}
+            p = sim.progress()
+            assert later["t"] == final != first["t"]
+            assert later["frozen"] == f"frozen {p.frozen}"
+            assert later["min_distance"] == f"min distance {p.min_distance:.3f} m"
+            settle(page)
+            png2 = screenshot_path(tmp_path, "viewer-overlay-6s.png")
+            page.screenshot(path=str(png2))
+            img2 = np.asarray(Image.open(png2).convert("RGB")).astype(int)
+            assert (np.abs(img2[:90] - img[:90]).sum(axis=2) > 60).sum() > 50, "the overlay's pixels did not change"
+            assert page.errors == []
+
+
 def test_swarm_up_draws_the_live_swarm_and_a_sigkill_leaves_nothing_behind(tmp_path):
     """The real path: `swarm up` with its viewer child; then SIGKILL `swarm up` alone."""
     child = Child(["up", "--robots", "7", "--duration", "120", "--listen", f"tcp/127.0.0.1:{free_port()}",
@@ -97,12 +161,20 @@ def test_swarm_up_draws_the_live_swarm_and_a_sigkill_leaves_nothing_behind(tmp_p
             x0 = page.evaluate("() => viewer.scene.getObjectByName('swarm_robots').instanceMatrix.array[12]")
             page.wait_for_function("x0 => viewer.scene.getObjectByName('swarm_robots').instanceMatrix.array[12]"
                                    " !== x0", arg=x0, timeout=30_000)
+            # the overlay: the world's progress counts, and the time going on
+            page.wait_for_function(f"() => ({HUD_TEXT_JS})('swarm_hud_alive') === 'alive 7 of 7'", timeout=30_000)
+            t0 = page.evaluate(HUD_TEXT_JS, "swarm_hud_t")
+            assert t0.startswith("t = ") and page.evaluate(HUD_TEXT_JS, "swarm_legend_stopped") == "stopped (watchdog)"
+            page.wait_for_function(f"t0 => ({HUD_TEXT_JS})('swarm_hud_t') !== t0", arg=t0, timeout=30_000)
+            assert page.evaluate(HUD_TEXT_JS, "swarm_hud_converged").startswith("converged ")
             settle(page)
             png = screenshot_path(tmp_path, "viewer-up-7.png")
             page.screenshot(path=str(png))
             shown = count_pixels(png, TRACKING) + count_pixels(png, FROZEN)
             assert shown >= 7 * 15, f"only {shown} robot pixels for 7 robots"
-            assert count_pixels(png, STOPPED) + count_pixels(png, STALE) + count_pixels(png, DEAD, 4) < 7 * 15
+            # (the legend shows every colour: count the scene's rows only)
+            assert count_pixels(png, STOPPED, rows=SCENE_ROWS) + count_pixels(png, STALE, rows=SCENE_ROWS) + \
+                count_pixels(png, DEAD, 4, rows=SCENE_ROWS) < 7 * 15
             assert page.errors == []
         tree = child.tree()
         names = [" ".join(p.cmdline()) for p in tree]
@@ -162,6 +234,9 @@ def test_swarm_replay_waits_for_a_browser_then_plays_to_the_end(tmp_path):
             page.wait_for_function(robots_js(3), timeout=60_000)
             drawn = int(replay.expect(r"replay: done, (\d+) frames drawn", 60).group(1))
             assert drawn >= 20  # 2 s recorded at 20 Hz (41 frames); a frame already overdue is skipped
+            # the overlay ends on the last frame (counted from the frames: a recording has no progress)
+            page.wait_for_function(f"() => ({HUD_TEXT_JS})('swarm_hud_t') === 't = 2.00 s'", timeout=10_000)
+            assert page.evaluate(HUD_TEXT_JS, "swarm_hud_alive") == "alive 3 of 3"
             assert page.errors == []
         assert replay.proc.wait(30) == 0
     finally:

@@ -44,17 +44,23 @@ class FakeViewer:
     def __init__(self, hold: threading.Event | None = None):
         self.hold = hold
         self.frames: list[tuple[float, np.ndarray, np.ndarray, object]] = []
+        self.stats: list = []  # the Stats given with each frame
         self.scenes: list[SceneInfo] = []
         self.entered = threading.Event()
+        self.refreshed = 0
 
     def set_scene(self, scene) -> None:
         self.scenes.append(scene)
 
-    def draw(self, t, q, codes, leader=None) -> None:
+    def draw(self, t, q, codes, leader=None, stats=None) -> None:
         self.entered.set()
         if self.hold is not None:
             assert self.hold.wait(10), "never released"
         self.frames.append((t, np.array(q), np.array(codes), leader))
+        self.stats.append(stats)
+
+    def refresh_overlay(self) -> None:
+        self.refreshed += 1
 
 
 class Clock:
@@ -95,7 +101,9 @@ def frame_commands(n: int):
     sink = CommandLog()
     rng = np.random.default_rng(n)
     offsets = rng.uniform(-10, 10, (n, 2))
-    viewer = Viewer(sink, SceneInfo(offsets=offsets, obstacles=[[3.0, 4.0, 0.3, 1.2]]), trails=False)
+    # a wall clock that stands still: the overlay is sent with the first frame only
+    viewer = Viewer(sink, SceneInfo(offsets=offsets, obstacles=[[3.0, 4.0, 0.3, 1.2]]), trails=False,
+                    clock=lambda: 0.0)
     q = np.c_[rng.uniform(-20, 20, (n, 2)), rng.uniform(-3, 3, n)]
     viewer.draw(0.0, q, np.zeros(n, int), (0.0, 0.0, 0.0))  # the first frame places the ground and camera
     first = len(sink.commands)
@@ -131,7 +139,7 @@ def test_the_instances_are_the_robots_poses_and_the_twin_matches_the_material():
 
 
 def test_the_slots_are_the_leader_plus_the_unrotated_offsets():
-    # DESIGN.md section 2: x_id = x_l + d_ix. The slots' node is translated, never rotated.
+    # The law's slot (docs/design.md): x_id = x_l + d_ix. The slots' node is translated, never rotated.
     offsets = np.array([[1.5, 0.0], [0.0, 1.5]])
     sink = CommandLog()
     viewer = Viewer(sink, SceneInfo(offsets=offsets), trails=False)
