@@ -355,11 +355,25 @@ class Agent:
             self.epoch, self.speed = c.epoch, c.speed
 
     def _on_state(self, s: State, key: str = "") -> None:
+        """A neighbour's state. A robot hears a neighbour only while they share cells, so the gap between
+        two of its states has no bound: its window is on this robot's own clock instead (lock-step: a
+        state of a tick at most one ahead of this robot's; real time: t at most t_span ahead of now),
+        and per sender only forward (older: stale; the same again: a duplicate)."""
         if s.id == self.id:
+            return
+        if self.cfg.lockstep:
+            now = max(self.k_started, self.pose.seq if self.pose is not None else -1)
+            ahead = s.seq > now + 1
+        else:
+            now = self.sim_time(self.clock.time())
+            ahead = now is not None and s.t > now + self._spans[0]
+        if ahead:
+            self.bad.reject(key, ProtocolError(f"robot {s.id}'s state (t {s.t:g}, seq {s.seq}) is ahead of this "
+                                               f"robot's clock beyond the window"))
             return
         w = self.w_state.get(s.id)
         if w is None:
-            w = self.w_state[s.id] = window.Window(*self._spans)
+            w = self.w_state[s.id] = window.Window(math.inf, 2**62)  # forward only (see above)
         if not self.bad.verdict(key, w.check(s.t, s.seq), f"robot {s.id}'s t or seq"):
             return
         self.states_received += 1

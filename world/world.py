@@ -137,7 +137,7 @@ class World:
         self._handles.append(self.bus.watch_alive(keys.alive_any(f, "robot"), lambda k, up: ev(("alive", k, up))))
         self._handles.append(self.bus.watch_alive(keys.alive_any(f, "leader"), lambda k, up: ev(("leader", k, up))))
         if self.lockstep:  # the start barrier: every robot's state_0 (unsubscribed once passed)
-            self._prime = self.bus.subscribe(f"{keys.base(f)}/cell/**", lambda k, b: ev(("state", k, b)))
+            self._prime = self.bus.subscribe(keys.cell_all(f), lambda k, b: ev(("state", k, b)))
         # declare the snapshot's publisher now, so zenoh knows of the viewers and recorders already
         # subscribed by tick 0 (wanted() would otherwise say no for the first snapshot)
         self.bus.wanted(keys.world_snapshot(f))

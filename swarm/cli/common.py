@@ -142,7 +142,7 @@ def check_listen_free(ep: str) -> None:
     """A router that cannot bind its port only says so in its log, and the swarm then joins whatever
     holds the port (another swarm's router): refuse before anything starts."""
     proto, _, rest = ep.partition("/")
-    if proto != "tcp":
+    if proto not in ("tcp", "tls"):
         return
     host, _, port = rest.rpartition(":")
     error = bind_error(host.strip("[]"), int(port))
@@ -152,39 +152,65 @@ def check_listen_free(ep: str) -> None:
 
 
 def open_bus(args, mode: str = "client", listen: list[str] | None = None, timeout_s: float = 10.0,
-             stop: threading.Event | None = None, lean: bool = False):
+             stop: threading.Event | None = None, lean: bool = False, role: str | None = None,
+             robot_id: int | None = None):
     """A ZenohBus for this process; a client retries until its router answers or timeout_s passes.
 
-    lean: zenoh's single-worker runtime (recipes/zenoh.md section 8), for the many small robot
-    processes. Not for the world: there one worker thread both receives (running our callbacks,
-    which need the GIL) and sends, and a burst of reliable puts from the main thread (which holds
-    the GIL while it waits for room in the send queue) stalled it until the router closed the
-    link after 5 s ("Unable to push non droppable network message"), once per ~2000 ticks at N = 37.
+    With --secure DIR the session is identity `role` (robot `robot_id`) of that fleet directory (or
+    that identity's own folder): mutual TLS with its certificate, which the router's access control
+    knows by name; the endpoints must then be tls/ and default to the identity's config.
+
+    lean: zenoh's single-worker runtime (docs/runtime.md), for the many small robot processes. Not
+    for the world: there one worker thread both receives (running our callbacks, which need the GIL)
+    and sends, and a burst of reliable puts from the main thread (which holds the GIL while it waits
+    for room in the send queue) stalled it until the router closed the link after 5 s ("Unable to
+    push non droppable network message"), once per ~2000 ticks at N = 37.
     """
     if lean:
         os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)  # before zenoh starts its runtime
     from swarm.net.bus import ZenohBus, zenoh_config
 
-    connect = [check_endpoint("--connect", c) for c in (args.connect or [])]
-    if mode == "client" and not connect:
-        connect = [DEFAULT_LISTEN]
+    secure_dir = getattr(args, "secure", None)
     cfg_file = getattr(args, "zenoh_config", None)
+    if secure_dir is not None and cfg_file is not None:
+        raise BadInput("give --secure (the fleet's certificates and access control) or --zenoh-config, not both")
+    connect = [check_endpoint("--connect", c) for c in (args.connect or [])]
+    if mode == "client" and not connect and secure_dir is None:
+        connect = [DEFAULT_LISTEN]
     if cfg_file is not None and not Path(cfg_file).is_file():
         raise BadInput(f"--zenoh-config {cfg_file}: no such file")
+    if secure_dir is not None:
+        secure_base(secure_dir, role, robot_id, connect, listen)  # refuse a bad directory or identity now
     end = time.monotonic() + timeout_s
     while True:
         try:
-            conf = zenoh_config(mode, connect=connect, listen=listen, config_file=cfg_file,
-                                multicast=getattr(args, "multicast", False))
+            base = secure_base(secure_dir, role, robot_id, connect, listen) if secure_dir is not None else None
+            conf = zenoh_config(mode, connect=None if base is not None else connect,
+                                listen=None if base is not None else listen, config_file=cfg_file,
+                                multicast=getattr(args, "multicast", False), base=base)
+        except BadInput:
+            raise
         except Exception as e:
             raise BadInput(f"zenoh configuration: {e}") from None
         try:
             return ZenohBus(conf)
         except Exception as e:
             if mode != "client" or time.monotonic() >= end or (stop is not None and stop.is_set()):
-                where = ", ".join(listen or []) if mode == "router" else ", ".join(connect)
+                where = ", ".join(listen or []) if mode == "router" else ", ".join(connect) or "the identity's router"
                 raise Failure(f"cannot open a zenoh {mode} session on {where}: {e}") from None
             time.sleep(0.1)
+
+
+def secure_base(directory: str, role: str | None, robot_id: int | None, connect: list[str], listen):
+    """The zenoh config of identity `role` in a --secure directory (BadInput if it is not one)."""
+    from swarm.net import secure
+
+    if role is None:
+        raise BadInput("--secure: this command has no role in the fleet")
+    try:
+        return secure.secure_config(directory, role, robot_id, connect=connect or None, listen=listen)
+    except secure.SecureError as e:
+        raise BadInput(f"--secure {directory}: {e}") from None
 
 
 def load_scenario(args):

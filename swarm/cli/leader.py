@@ -17,7 +17,7 @@ def cmd_leader(args, started: float) -> int:
     scn = load_scenario(args)
     fleet = fleet_of(args)
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
-        bus = open_bus(args, stop=stop, lean=True)
+        bus = open_bus(args, stop=stop, lean=True, role="leader")
         try:
             try:
                 run_leader(bus, WALL, scn, fleet, stop=stop, start_timeout=args.start_timeout)

@@ -234,6 +234,9 @@ def _add_net_flags(p: argparse.ArgumentParser, listen: bool = False, connect_hel
                    help="the swarm's name: key prefix swarm/NAME, so several swarms share a router (default: default)")
     g.add_argument("--zenoh-config", metavar="FILE",
                    help="a zenoh JSON5 config file (TLS, authentication); our settings are applied on top")
+    g.add_argument("--secure", metavar="DIR",
+                   help="the fleet's certificates and access control (a directory of `swarm secure init`, or one "
+                        "identity's folder): mutual TLS, each process with its role (docs/security.md)")
     g.add_argument("--multicast", action="store_true", help="turn multicast scouting on (off by default)")
 
 

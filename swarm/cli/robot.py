@@ -23,7 +23,7 @@ def cmd_robot(args, started: float) -> int:
     if scn is not None and args.id >= scn.n:
         raise BadInput(f"--id {args.id}: the scenario has {scn.n} robots (ids 0..{scn.n - 1})")
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
-        bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, lean=True)
+        bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, lean=True, role="robot", robot_id=args.id)
         try:
             agents = robot.run_robot(bus, WALL, args.id, fleet, stop, scenario=scn, start_timeout=args.start_timeout)
         except NoAnswer as e:

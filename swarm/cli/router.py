@@ -17,12 +17,14 @@ def cmd_router(args, started: float) -> int:
 
     die_with_parent()
     setup_logging()
-    listen = [check_endpoint("--listen", ep) for ep in (args.listen or [DEFAULT_LISTEN])]
+    default = None if args.secure else [DEFAULT_LISTEN]  # --secure: the router identity's own endpoints
+    listen = [check_endpoint("--listen", ep) for ep in (args.listen or default or [])] or None
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
-        bus = open_bus(args, mode="router", listen=listen)
+        bus = open_bus(args, mode="router", listen=listen, role="router")
         try:
             bus.token(keys.alive(fleet_of(args), "router"))
-            log.info("router listening on %s", ", ".join(listen))
+            log.info("router listening on %s%s", ", ".join(listen or ["its identity's endpoints"]),
+                     f" (mutual TLS, access control from {args.secure})" if args.secure else "")
             while not stop.wait(0.5):
                 pass
         finally:

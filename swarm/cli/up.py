@@ -94,6 +94,7 @@ def cmd_up(args, started: float) -> int:
         raise BadInput(f"--log-dir {args.log_dir}: exists and is not a directory")
     if args.zenoh_config is not None and not Path(args.zenoh_config).is_file():
         raise BadInput(f"--zenoh-config {args.zenoh_config}: no such file")
+    secure_endpoint = _check_secure(args, scn.n) if args.secure else None
     log_dir = Path(args.log_dir or os.path.join(tempfile.gettempdir(), f"swarm-{fleet}-{os.getpid()}"))
     metrics_path = (args.metrics or log_dir / "metrics.json").absolute()
     viz = viz_options(args, not args.no_viz, "has no effect with --no-viz")
@@ -101,7 +102,8 @@ def cmd_up(args, started: float) -> int:
         viz = VizOptions(viz.host, viz.port, viz.rings, str((log_dir / "viz-server.log").absolute()))
     opts = UpOptions(
         robots=scn.n, scenario_args=scenario_args(args), mode=args.mode, speed=args.speed, fleet=fleet,
-        listen=None if args.connect else (args.listen[0] if args.listen else DEFAULT_LISTEN),
+        listen=None if args.connect else (args.listen[0] if args.listen else (None if args.secure else DEFAULT_LISTEN)),
+        secure=str(Path(args.secure).absolute()) if args.secure else None, secure_endpoint=secure_endpoint,
         connect=args.connect[0] if args.connect else None,
         zenoh_config=str(Path(args.zenoh_config).absolute()) if args.zenoh_config else None,
         multicast=args.multicast, metrics=str(metrics_path),
@@ -115,7 +117,7 @@ def cmd_up(args, started: float) -> int:
     if viz is not None:
         check_viz_port(viz)
     if plan.router is not None:
-        check_listen_free(opts.listen)
+        check_listen_free(opts.listen or plan.endpoint)
     log_dir.mkdir(parents=True, exist_ok=True)
     try:  # whatever is read back at the end must be this run's: never an earlier run's file
         metrics_path.unlink(missing_ok=True)
@@ -149,8 +151,8 @@ def cmd_up(args, started: float) -> int:
                 viz_log = sup.log_of(plan.viz)
                 offset = viz_log.stat().st_size if viz_log.exists() else 0
                 viewer.append(ViewerUrl(sup.start(plan.viz), args.start_timeout, offset))
-            bus = open_bus(argparse.Namespace(connect=[plan.endpoint], zenoh_config=opts.zenoh_config,
-                                              multicast=opts.multicast), timeout_s=15.0, stop=stop)
+            bus = open_bus(argparse.Namespace(connect=[plan.endpoint], zenoh_config=opts.zenoh_config, secure=opts.secure,
+                                              multicast=opts.multicast), timeout_s=15.0, stop=stop, role="launcher")
             alive: set[str] = set()
             progress: list = [None]
             bus.watch_alive(keys.alive_any(fleet), lambda k, up: alive.add(k) if up else alive.discard(k))
@@ -241,6 +243,32 @@ def cmd_up(args, started: float) -> int:
         print(f"swarm up: checks failed: {', '.join(violations(metrics))} (exit 3; --allow-violations: 0)",
               file=sys.stderr)
     return code
+
+
+def _check_secure(args, robots: int) -> str:
+    """`swarm up --secure DIR`: DIR must be a fleet directory with an identity for every process of
+    this run; returns the router's endpoint (tls/127.0.0.1:PORT)."""
+    from swarm.net import secure
+
+    if args.zenoh_config is not None:
+        raise BadInput("give --secure (the fleet's certificates and access control) or --zenoh-config, not both")
+    try:
+        manifest = secure.read_manifest(args.secure)
+        for role in ("router", "world", "leader", "launcher") + (() if args.no_viz else ("viz",)):
+            secure.find_identity(args.secure, role)
+        for i in range(robots):
+            secure.find_identity(args.secure, "robot", i)
+    except secure.SecureError as e:
+        raise BadInput(f"--secure {args.secure}: {e} (swarm secure init {args.secure} --robots {robots} "
+                       "makes a fleet directory)") from None
+    if manifest.get("fleet") not in (None, args.fleet):
+        raise BadInput(f"--secure {args.secure}: its certificates are for fleet {manifest['fleet']!r}, not "
+                       f"{args.fleet!r} (give --fleet {manifest['fleet']})")
+    for flag, eps in (("--listen", args.listen or []), ("--connect", args.connect or [])):
+        for ep in eps:
+            if not ep.startswith("tls/"):
+                raise BadInput(f"{flag} {ep}: with --secure every endpoint is tls/HOST:PORT")
+    return f"tls/127.0.0.1:{manifest['port']}"
 
 
 def _progress(payload: bytes | None):

@@ -35,7 +35,7 @@ def cmd_viz(args, started: float) -> int:
             print(f"viewer: {server.web_url}", flush=True)
             log.info("viz: fleet %s on %s, %s", fleet, ", ".join(connect),
                      f"scenario {scene.name}" if scene else "scene from the world")
-            bus = open_bus(args, timeout_s=args.start_timeout, stop=stop)
+            bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, role="viz")
             try:
                 watcher = SwarmWatcher(bus, fleet, Viewer(server, scene, rings=v.rings), scene=scene)
                 watcher.start()

@@ -27,7 +27,7 @@ def cmd_world(args, started: float) -> int:
                         tick_timeout=args.tick_timeout, lost_timeout=args.lost_timeout,
                         start_timeout=args.start_timeout, trace=args.trace is not None)
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
-        bus = open_bus(args, stop=stop)
+        bus = open_bus(args, stop=stop, role="world")
         try:
             metrics, world = run_world(bus, WALL, scn, opts, stop, fleet, started)
         except NotReady as e:

@@ -48,6 +48,8 @@ class UpOptions:
     listen: str | None = DEFAULT_LISTEN  # the embedded router's endpoint (None with connect)
     connect: str | None = None  # join an existing router instead
     zenoh_config: str | None = None
+    secure: str | None = None  # a fleet directory of `swarm secure init`: every process with its role (mutual TLS, ACL)
+    secure_endpoint: str | None = None  # with secure and no listen: the router identity's (tls/127.0.0.1:PORT)
     multicast: bool = False
     metrics: str | None = None
     trace: str | None = None
@@ -100,18 +102,22 @@ def _quote(a: str) -> str:
 def make_plan(o: UpOptions, python: str = sys.executable) -> Plan:
     """The processes `swarm up` starts, in start order (the viewer right after the router, so its URL
     is known early). Pure: no side effect, no I/O."""
-    endpoint = o.connect or _client_endpoint(o.listen or DEFAULT_LISTEN)
+    endpoint = o.connect or _client_endpoint(o.listen or o.secure_endpoint or DEFAULT_LISTEN)
     net = ["--fleet", o.fleet, "--connect", endpoint]
     if o.zenoh_config:
         net += ["--zenoh-config", o.zenoh_config]
+    if o.secure:
+        net += ["--secure", o.secure]
     if o.multicast:
         net += ["--multicast"]
     base = (python, "-m", "swarm.cli")
     router = None
     if o.connect is None:
-        r_argv = [*base, "router", "--listen", o.listen or DEFAULT_LISTEN]
+        r_argv = [*base, "router"] + ([] if o.secure and not o.listen else ["--listen", o.listen or DEFAULT_LISTEN])
         if o.zenoh_config:
             r_argv += ["--zenoh-config", o.zenoh_config]
+        if o.secure:
+            r_argv += ["--secure", o.secure]
         if o.multicast:
             r_argv += ["--multicast"]
         router = ProcSpec("router", "router", 0, tuple(r_argv))

@@ -273,18 +273,23 @@ class MemoryBus:
 
 
 def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen: list[str] | None = None,
-                 config_file: str | None = None, lease_ms: int = 1000, multicast: bool = False):
-    """A zenoh.Config for our topology (docs and ../shared/recipes/zenoh.md): explicit endpoints,
-    multicast scouting off unless asked, a short lease so a hung process is noticed in about 1 s."""
+                 config_file: str | None = None, lease_ms: int = 1000, multicast: bool = False, base=None):
+    """A zenoh.Config for our topology (docs/runtime.md): explicit endpoints, multicast scouting off
+    unless asked, a short lease so a hung process is noticed in about 1 s, zenoh's own size limits.
+    Our settings go on top of `base` (an identity's config from swarm.net.secure) or of config_file
+    (--zenoh-config), or of zenoh's defaults."""
     import json
 
     import zenoh
 
-    conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
+    if base is not None:
+        conf = base
+    else:
+        conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
     conf.insert_json5("mode", json.dumps(mode))
     conf.insert_json5("scouting/multicast/enabled", "true" if multicast else "false")
     conf.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
-    # small batches: lock-step traffic is many ~100-byte messages (+8-30 % ticks/s, recipes/zenoh.md)
+    # small batches: lock-step traffic is many ~100-byte messages (+8-30 % ticks/s, docs/runtime.md)
     conf.insert_json5("transport/link/tx/batch_size", "4096")
     conf.insert_json5("transport/link/rx/buffer_size", "4096")
     # payloads beyond the codec's limits are dropped by zenoh itself, on the way in and out, so an
@@ -313,7 +318,7 @@ def size_limits() -> list[dict]:
              "size_limit": MAX_LARGE_PAYLOAD}]
 
 
-# The zenoh runtime setting of recipes/zenoh.md section 8: one worker thread, the other pools
+# zenoh's runtime setting for many small processes (docs/runtime.md): one worker thread, the other pools
 # handed over to it. Halves the threads and the CPU of 40 processes on 2 cores. It must be in
 # the environment before zenoh starts its runtime, so the launcher sets it for its children.
 ZENOH_RUNTIME = "(app:(worker_threads:1),rx:(handover:app),tx:(handover:app),acc:(handover:app),net:(handover:app))"

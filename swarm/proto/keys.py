@@ -65,6 +65,11 @@ def cell_any(fleet: str, cx: int, cy: int) -> str:
     return f"{base(fleet)}/cell/{int(cx)}/{int(cy)}/*"
 
 
+def cell_all(fleet: str) -> str:
+    """Key expression for every robot's state in every cell (the world's start barrier)."""
+    return f"{base(fleet)}/cell/*/*/*"
+
+
 def world_obstacles(fleet: str) -> str:
     return f"{base(fleet)}/world/obstacles"
 

@@ -75,6 +75,7 @@ TABLE: dict[str, Row] = {
     # a robot's state on its cell key: only robot i puts .../cell/*/*/i
     "cell": Row(put=_own("robot"), subscribe=_all("robot", "world")),
     "cell_any": Row(alias_of=("cell",)),
+    "cell_all": Row(alias_of=("cell",)),
     # the world's keys: it alone puts or serves them
     "world_obstacles": Row(serve=_all("world"), query=_all("robot", *READERS)),
     "world_snapshot": Row(put=_all("world"), subscribe=_all(*READERS)),
