@@ -72,10 +72,8 @@ class Control:
         p[law.P_THRESHOLD] = THRESHOLDS[self.threshold]
         p[law.P_GOVERNOR] = 1.0 if self.governor else 0.0
         p[law.P_DT], p[law.P_SENSE], p[law.P_REACH], p[law.P_OBSTACLE_R] = dt, sense, reach, obstacle_r
-        # the limit slots come with the law that applies them; a law without them has no limits
-        for slot, value in ((getattr(law, "P_V_MAX", None), self.v_max), (getattr(law, "P_W_MAX", None), self.w_max)):
-            if slot is not None:
-                p[slot] = 0.0 if value is None else value
+        p[law.P_V_MAX] = 0.0 if self.v_max is None else self.v_max
+        p[law.P_W_MAX] = 0.0 if self.w_max is None else self.w_max
         return p
 
 
@@ -158,7 +156,8 @@ class Scenario:
         return Config(id=i, x=x, y=y, theta=th, dx=float(self.offsets[i, 0]), dy=float(self.offsets[i, 1]),
                       r=float(self.r), R=float(self.R), k1=c.k1, k2=c.k2, k3=c.k3, tu=c.tu, vt=c.vt,
                       threshold=THRESHOLDS[c.threshold], governor=c.governor, dt=float(self.dt),
-                      sense=float(self.cell_side), reach=self.reach, lockstep=lockstep)
+                      sense=float(self.cell_side), reach=self.reach, lockstep=lockstep,
+                      v_max=0.0 if c.v_max is None else c.v_max, w_max=0.0 if c.w_max is None else c.w_max)
 
     def replace(self, **changes) -> "Scenario":
         from dataclasses import replace

@@ -690,20 +690,20 @@ def test_speed_limits_are_carried_and_written_back(base_doc, write_scenario):
     assert plain.control.v_max is None and plain.control.w_max is None and "v_max" not in sf.to_toml(plain)
 
 
-def test_speed_limits_fill_the_laws_slots_with_0_for_none(monkeypatch):
+def test_speed_limits_fill_the_laws_slots_and_each_robots_configuration(base_doc, write_scenario):
     from swarm.core import law
     from swarm.core.scenario import Control
 
-    if not hasattr(law, "P_V_MAX"):  # the law's slots as they are being added: after its own 11
-        monkeypatch.setattr(law, "P_V_MAX", 11, raising=False)
-        monkeypatch.setattr(law, "P_W_MAX", 12, raising=False)
-        monkeypatch.setattr(law, "P_SIZE", 13)
     p = Control(v_max=0.7, w_max=1.5).vector(0.02, 1.5, 1.2)
     assert p.shape == (law.P_SIZE,) and (p[law.P_V_MAX], p[law.P_W_MAX]) == (0.7, 1.5)
     p = Control().vector(0.02, 1.5, 1.2)
-    assert (p[law.P_V_MAX], p[law.P_W_MAX]) == (0.0, 0.0) and p[law.P_K1] == 0.5
+    assert (p[law.P_V_MAX], p[law.P_W_MAX]) == (0.0, 0.0) and p[law.P_K1] == 0.5  # 0: no limit
     with pytest.raises(ValueError, match="v_max"):
         Control(v_max=0.0)
+    base_doc["control"]["v_max"] = 0.8
+    scn = sf.load(write_scenario(base_doc))
+    assert (scn.robot_config(1).v_max, scn.robot_config(1).w_max) == (0.8, 0.0)
+    assert (scn.params()[law.P_V_MAX], scn.params()[law.P_W_MAX]) == (0.8, 0.0)
 
 
 def test_arena_bounds_are_carried_and_written_back(base_doc, write_scenario):
