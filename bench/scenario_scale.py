@@ -40,7 +40,7 @@ def big_file(path: Path, poses: int) -> None:
     with path.open("w") as f:
         f.write("[run]\nduration = 10.0\ndt = 0.02\n[leader]\nstart = [0.0, 0.0, 0.0]\n"
                 "segments = [{duration = 1.0, v = 0.5, w = 0.0}]\n[formation]\n"
-                f"hex = {{count = 100000, spacing = 1.5}}\n[robots]\nposes = [\n")
+                "hex = {count = 100000, spacing = 1.5}\n[robots]\nposes = [\n")
         for i in range(poses):
             f.write(f"[{i % 1000 * 1.1:.3f}, {i // 1000 * 1.1:.3f}, 0.0],\n")
         f.write("]\n")

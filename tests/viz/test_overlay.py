@@ -5,10 +5,8 @@ The browser side is in test_browser.py."""
 from __future__ import annotations
 
 import math
-import threading
 
 import numpy as np
-import pytest
 
 from swarm.core import scenario_file
 from swarm.core.scenario_file import Overrides
@@ -19,7 +17,6 @@ from swarm.view import viz
 from swarm.view.meshcat_objects import CommandLog
 from swarm.view.viz import DEAD, FROZEN, HUD, LEGEND, STOPPED, TRACKING, SceneInfo, Stats, Viewer
 from swarm.view.watch import SwarmWatcher, play_simulation
-from tests.viz.helpers import wait_until
 from tests.viz.test_viz_unit import FLEET, FakeViewer, snapshot
 
 
