@@ -48,6 +48,7 @@ from swarm.core import runid
 from swarm.core.clock import WALL
 from swarm.launch.child import settle_heap
 from agents.follow import NoAnswer, RunFollower, check_run, query_until  # noqa: F401  (NoAnswer: for callers)
+from agents.guard import REF_TIMEOUT_S, Guard
 from swarm.proto import window
 from swarm.proto.protocol import Cmd, Config, Limits, ProtocolError, State, Status
 
@@ -67,6 +68,10 @@ def block(cx: int, cy: int) -> set[tuple[int, int]]:
     return {(cx + a, cy + b) for a in (-1, 0, 1) for b in (-1, 0, 1)}
 
 
+class DriveRefused(RuntimeError):
+    """A drive that cannot serve this run (a ROS 2 robot in a lock-step run)."""
+
+
 class Agent:
     """One robot's controller on a bus; it subscribes and publishes on its own (start(), then a loop).
 
@@ -81,11 +86,19 @@ class Agent:
     """
 
     def __init__(self, bus, cfg: Config, fleet: str = "default", wait_timeout: float = WAIT_TIMEOUT_S,
-                 clock=WALL):
+                 clock=WALL, drive=None, guard=None):
         self.bus, self.cfg, self.fleet = bus, cfg, fleet
         self.id = cfg.id
         self.clock = clock
         self.wait_timeout = wait_timeout
+        # real time: where this robot meets its body (swarm.drives: the simulated world's keys by default,
+        # or a ROS 2 robot) and the robot-side watchdog (agents.guard); lock-step is simulation only
+        if drive is None and not cfg.lockstep:
+            from swarm.drives.sim import SimDrive
+
+            drive = SimDrive(bus, fleet, cfg.id)
+        self.drive = drive
+        self.guard = guard
         self.p = [0.0] * law.P_SIZE
         self.p[law.P_K1], self.p[law.P_K2], self.p[law.P_K3] = cfg.k1, cfg.k2, cfg.k3
         self.p[law.P_TU], self.p[law.P_VT], self.p[law.P_THRESHOLD] = cfg.tu, cfg.vt, float(cfg.threshold)
@@ -114,12 +127,16 @@ class Agent:
         # what this robot accepts: the scenario's ids and radii (swarm.proto.protocol.Limits), and from each
         # sender only times and sequence numbers that move forward within a window (swarm.proto.window)
         self.limits = Limits.of(cfg.robots, cfg.reach)
+        if self.drive is not None and getattr(self.drive, "limits", False) is None:
+            self.drive.limits = self.limits  # the simulated drive decodes poses with the scenario's bounds
         self._spans = window.spans(cfg.dt, WATCHDOG_S)
         self.w_pose = window.Window(*self._spans)  # the world (or localization)
         self.w_clock = window.Window(*self._spans)  # the world
         self.w_ref = window.Window(*self._spans)  # the leader
         self.w_state: dict[int, window.Window] = {}  # robot j
         self.ended = False  # the run this agent serves is over (a new run began): ignore everything
+        self.w_estop = window.Window(math.inf, 2**62)  # the operator's: forward only (its clock is unix time)
+        self.estopped: str | None = None
         self.leader_alive = False
         self.leader_ups = 0  # times the leader's token appeared (a restarted leader during a tick)
         self._leader_ups_seen = 0
@@ -160,10 +177,11 @@ class Agent:
         if self.cfg.lockstep:
             self._handles.append(self.bus.subscribe(keys.robot_pose(f, self.id), self._on_pose_msg))
             self._handles.append(self.bus.subscribe(keys.leader_ref(f), self._on_ref_msg))
-        else:  # the loop waits on its pose inbox and drains the others (see _loop_realtime)
-            self._pose_inbox = self.bus.inbox(keys.robot_pose(f, self.id), depth=8)
+        else:  # the loop waits on its drive's poses and drains the other inboxes (see _loop_realtime)
+            self.drive.start()
             self._ref_inbox = self.bus.inbox(keys.leader_ref(f))
-            self._handles += [self._pose_inbox, self._ref_inbox]
+            self._handles.append(self._ref_inbox)
+        self._handles.append(self.bus.subscribe(keys.estop(f), self._on_estop_msg))
         self._clock_sub = self.bus.subscribe(keys.world_clock(f), self._on_clock_msg)
         self._handles.append(self.bus.watch_alive(keys.alive_any(f), self._on_alive_msg))
         self._move_cells(self.cfg.x, self.cfg.y)
@@ -193,6 +211,13 @@ class Agent:
         self.wake.set()
 
     def close(self) -> None:
+        """Release everything; a drive is halted and closed (on every way out: the end of a run, Ctrl-C,
+        SIGTERM, an exception)."""
+        if self.drive is not None:
+            try:
+                self.drive.close()
+            except Exception as e:  # the session may be gone already: nothing left to tell the body
+                log.warning("robot %d: closing the drive: %s", self.id, e)
         self.drop_clock()
         for h in list(self._cells.values()) + self._handles[::-1]:
             h.close()
@@ -248,6 +273,18 @@ class Agent:
     def _on_clock_msg(self, key: str, data: bytes) -> None:
         self._receive(key, data, "clock", None, self._on_clock)
 
+    def _on_estop_msg(self, key: str, data: bytes) -> None:
+        self._receive(key, data, "estop", None, self._on_estop)
+
+    def _on_estop(self, e: protocol.Estop, key: str = "") -> None:
+        """The emergency stop: latched by the guard (a real drive halts within a period: the guard's
+        thread); a lock-step robot commands zero while it is engaged."""
+        if not self.bad.verdict(key, self.w_estop.check(e.t, e.seq), "the emergency stop's t or seq"):
+            return
+        self.estopped = e.reason or "engaged" if e.engaged else None
+        if self.guard is not None:
+            self.guard.estop(e.engaged, e.reason)
+
     def _on_alive_msg(self, key: str, up: bool) -> None:
         """A liveliness token came or went. A robot's: it is alive, or dead (a static body). A new token
         of the world, the leader or a robot restarts that sender's windows (a restarted process counts
@@ -267,6 +304,8 @@ class Agent:
                 self.w_clock.reset()
             elif parsed.role == "leader":
                 self.leader_alive = up
+                if self.guard is not None:
+                    self.guard.leader(up)
                 if up:
                     self.w_ref.reset()
                     self.leader_ups += 1
@@ -291,22 +330,19 @@ class Agent:
         if due:
             self.wake.set()
 
-    def take_poses(self, items: list[tuple[str, bytes]]) -> None:
-        """Real time (loop thread): the poses from the pose inbox; the newest is kept."""
-        for key, data in items:
-            try:
-                pose = protocol.decode(data, "pose", None, self.limits)
-            except ProtocolError as e:
-                with self.lock:
-                    self.bad.reject(key, e)
-                continue
+    def take_poses(self, poses: list[protocol.Pose]) -> None:
+        """Real time (loop thread): the poses the drive gave (decoded); each in the window is taken."""
+        key = getattr(self.drive, "pose_key", "pose")
+        for pose in poses:
             with self.lock:
                 self._on_pose(pose, key)
+        if poses and self.guard is not None:
+            self.guard.pose()
 
     def _take_inboxes(self) -> None:
         """Real time (loop thread): decode the references and neighbour states waiting in the inboxes,
         in one batch under one lock (no per-message wake-up: the loop is already running)."""
-        self.take_poses(self._pose_inbox.drain())  # one that came since the loop woke (the newest wins)
+        self.take_poses(self.drive.drain())  # one that came since the loop woke (the newest wins)
         decode, bad = protocol.decode, []
         refs, states = [], []
         limits = self.limits
@@ -392,6 +428,8 @@ class Agent:
         if not self.bad.verdict(key, self.w_ref.check(ref.t, ref.seq), "the reference's t or seq"):
             return
         self.ref = ref
+        if self.guard is not None:
+            self.guard.ref(ref.t)
         if self.cfg.lockstep and ref.seq > self.k_done:
             self.refs[ref.seq] = ref
 
@@ -501,8 +539,15 @@ class Agent:
         return v, w
 
     def _publish(self, t: float, seq: int, v: float, w: float, ref: tuple, pose) -> None:
+        if self.estopped is not None:
+            v = w = 0.0  # the emergency stop holds every robot still
         cmd = Cmd(t=t, seq=seq, v=v, w=w)
-        self.bus.put(self._cmd_key, protocol.encode(cmd), reliable=True)
+        if self.drive is None:  # lock-step: the world's key
+            self.bus.put(self._cmd_key, protocol.encode(cmd), reliable=True)
+        elif self.guard is not None and self.guard.check(t) is not None:
+            cmd = Cmd(t=t, seq=seq, v=0.0, w=0.0)  # halted (the guard says why, once)
+        else:
+            self.drive.send(cmd)
         self.last_cmd = cmd
         self.ticks += 1
         if t - self._last_status_t >= STATUS_PERIOD_S * (1 - 1e-9):
@@ -614,13 +659,17 @@ def fetch_obstacles(bus, fleet: str, timeout_s: float, stop: threading.Event | N
 
 def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading.Event | None = None,
               scenario=None, start_timeout: float = 60.0, wait_timeout: float = WAIT_TIMEOUT_S,
-              once: bool = False) -> list[Agent]:
+              once: bool = False, make_drive=None, ref_timeout: float = REF_TIMEOUT_S,
+              pose_timeout: float = WATCHDOG_S) -> list[Agent]:
     """Serve runs as robot `robot_id` on `bus` until `stop` is set: for every run the world announces,
     a fresh agent (tick state, windows, controller) with this robot's slice of the run's scenario:
     from `scenario` (this process's own; a run of another scenario is refused: RunRefused) or from
     the world's configuration queryable. NoAnswer if no world answers within start_timeout. Returns
     the agents of the runs served (their counters). clock: swarm.core.clock (WALL in a process).
-    once: serve one run only."""
+    once: serve one run only. Real time: make_drive(cfg, now) builds the drive (swarm.drives; default
+    the simulated world's keys; now() is the swarm's clock) and a guard (agents.guard) halts it when
+    its pose is older than pose_timeout, the reference is extrapolated longer than ref_timeout, the
+    leader is lost or the emergency stop is engaged."""
     stop = stop or threading.Event()
     current: list[Agent] = []
 
@@ -642,21 +691,38 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
             else:
                 cfg = fetch_config(bus, fleet, robot_id, start_timeout, stop, run=run.run)
             obstacles = fetch_obstacles(bus, fleet, start_timeout, stop)
-            agent = Agent(bus, cfg, fleet, wait_timeout=wait_timeout, clock=clock)
+            drive = guard = None
+            box: list[Agent] = []
+            if cfg.lockstep and make_drive is not None:
+                make_drive(cfg, lambda: None)  # raises DriveRefused: a real drive has no ticks
+            if not cfg.lockstep:
+                now = (lambda: box[0].sim_time(clock.time()) if box else None)
+                drive = make_drive(cfg, now) if make_drive is not None else None
+                if drive is None:
+                    from swarm.drives.sim import SimDrive
+
+                    drive = SimDrive(bus, fleet, robot_id)
+                guard = Guard(drive, clock, pose_timeout_s=pose_timeout, ref_timeout_s=ref_timeout)
+            agent = Agent(bus, cfg, fleet, wait_timeout=wait_timeout, clock=clock, drive=drive, guard=guard)
+            box.append(agent)
             current[:] = [agent]
             if runs.latest is not None and runs.latest.run != run.run:
                 agent.end()  # another run began while this one was being set up
             log.info("robot %d: run %s (%s, %d robots)", robot_id, run.run, "lock-step" if run.lockstep else "real time",
                      run.robots)
-            agent.start(obstacles)
-            settle_heap()
             try:
+                agent.start(obstacles)
+                settle_heap()
+                if guard is not None:
+                    guard.start(lambda: agent.sim_time(clock.time()))
                 if cfg.lockstep:
                     _loop_lockstep(agent, stop)
                 else:
                     _loop_realtime(agent, stop, clock.time)
             finally:
-                agent.close()
+                if guard is not None:
+                    guard.close()
+                agent.close()  # halts and closes the drive: on every way out
                 current.clear()
             served.append(agent)
             if once:
@@ -685,16 +751,17 @@ def _loop_realtime(agent: Agent, stop: threading.Event, wall) -> None:
     """Real time: a command for every new pose (the pose stream sets the control rate: the world's
     control period now, localization's rate on a real robot), at the agent's own clock's time.
     No new pose, no command: the drive's watchdog then stops the robot.
-    The loop blocks on its pose inbox: zenoh's receiving thread runs no Python and hands the pose
-    straight to this thread (no callback, no GIL hand-over, no event). A helper thread wakes it on stop."""
+    The loop blocks on its drive's pose inbox: zenoh's receiving thread runs no Python and hands the
+    pose straight to this thread (no callback, no GIL hand-over, no event). A helper thread wakes it on
+    stop."""
     done = threading.Event()
-    waker = threading.Thread(target=_wake_on_stop, args=(stop, done, agent._pose_inbox, agent), daemon=True,
+    waker = threading.Thread(target=_wake_on_stop, args=(stop, done, agent.drive, agent), daemon=True,
                              name=f"robot-{agent.id}-waker")
     waker.start()
     cpu = time.thread_time
     try:
         while not stop.is_set() and not agent.ended:
-            got = agent._pose_inbox.wait()
+            got = agent.drive.wait()
             c0 = cpu()
             agent.take_poses(got)
             with agent.lock:

@@ -62,12 +62,19 @@ class NotReady(RuntimeError):
 class World:
     def __init__(self, bus, scn: Scenario, fleet: str = "default", lockstep: bool = True, speed: float = 1.0,
                  watchdog: float = WATCHDOG_S, tick_timeout: float = TICK_TIMEOUT_S, fine_dt: float = FINE_DT_S,
-                 trace: bool = False, progress=None, clock=WALL, lost_timeout: float = LOST_TIMEOUT_S):
+                 trace: bool = False, progress=None, clock=WALL, lost_timeout: float = LOST_TIMEOUT_S,
+                 ros2: tuple[str, str, int] | None = None):
         self.bus, self.scn, self.fleet = bus, scn, fleet
         self.clock = clock
         self.lockstep, self.speed = lockstep, speed
         self.watchdog, self.tick_timeout, self.fine_dt = watchdog, tick_timeout, fine_dt
         self.on_progress = progress  # optional callable(protocol.Progress), for a local display
+        # real time only: (flavor, twist, domain) of a simulated ROS 2 fleet (world.ros2_fleet): the robots
+        # take cmd_vel and give odometry on ROS 2 keys instead of the world's pose and cmd keys
+        if ros2 is not None and lockstep:
+            raise ValueError("a simulated ROS 2 fleet runs in real time only (odometry carries no tick)")
+        self.ros2 = ros2
+        self.fleet_ros2 = None
         self.run_id = runid.new_run_id(clock)
         self.digest = runid.digest(scn)
         self.leader_timeout = lost_timeout  # s: how long a lost leader (or every robot) may be away before the run ends
@@ -130,6 +137,14 @@ class World:
         if self.lockstep:
             self._handles.append(self.bus.subscribe(keys.robot_any(f, "cmd"), lambda k, b: ev(("cmd", k, b))))
             self._handles.append(self.bus.subscribe(keys.robot_any(f, "status"), lambda k, b: ev(("status", k, b))))
+        elif self.ros2 is not None:  # real time, ROS 2 robots: cmd_vel in, odometry out (world.ros2_fleet)
+            from world.ros2_fleet import Ros2Fleet
+
+            flavor, twist, domain = self.ros2
+            self.fleet_ros2 = Ros2Fleet(self.bus, [tuple(map(float, p)) for p in self.scn.poses], flavor, twist, domain)
+            self.fleet_ros2.start()
+            self._status_inbox = self.bus.inbox(keys.robot_any(f, "status"), depth=8 * self.n + 64)
+            self._handles.append(self._status_inbox)
         else:  # real time: the run loop drains these itself (no Python on zenoh's threads, no wait for the GIL)
             self._cmd_inbox = self.bus.inbox(keys.robot_any(f, "cmd"), depth=8 * self.n + 64)
             self._status_inbox = self.bus.inbox(keys.robot_any(f, "status"), depth=8 * self.n + 64)
@@ -151,6 +166,9 @@ class World:
             reliable=True)
 
     def close(self) -> None:
+        if self.fleet_ros2 is not None:
+            self.fleet_ros2.close()
+            self.fleet_ros2 = None
         if self._prime is not None:
             self._prime.close()
             self._prime = None
@@ -310,7 +328,9 @@ class World:
                                  last_freeze=-1.0 if ref.last_frozen_t is None else ref.last_frozen_t)
 
     def bad_total(self) -> int:
-        return self.bad.count + sum(self.robot_bad.values())
+        fleet = self.fleet_ros2
+        ros = 0 if fleet is None else fleet.bad.count + fleet.dropped_no_attachment
+        return self.bad.count + sum(self.robot_bad.values()) + ros
 
     def _report(self, force: bool = False) -> None:
         now = self.clock.monotonic()
@@ -571,7 +591,10 @@ class World:
             fine_k = max(fine_k, min(end_k, int(math.floor((self.clock.time() - epoch) * self.speed / fine + 1e-9))))
             t = self.t = round(fine_k * fine, 9)
             mono = self.clock.monotonic()
-            self._take_commands(t, mono, advance)
+            if self.fleet_ros2 is not None:
+                self._take_ros2_commands(mono, t, advance)
+            else:
+                self._take_commands(t, mono, advance)
             if mono - watch_t >= period / self.speed:  # watchdog, once a period (wall time, as a drive)
                 watch_t = mono
                 for i in range(n):
@@ -587,7 +610,10 @@ class World:
                 while poses[0][0] <= t + 1e-9:
                     _, i = heapq.heappop(poses)
                     advance(i, t)
-                    self._publish_pose(i, t, pose_seq[i])
+                    if self.fleet_ros2 is not None:
+                        self.fleet_ros2.publish_odom(i, t, *q[i], *cmd[i])
+                    else:
+                        self._publish_pose(i, t, pose_seq[i])
                     pose_seq[i] += 1
                     slot[i] = max(slot[i] + 1, int(math.floor((t - phase[i]) / period + 1e-9)) + 1)
                     heapq.heappush(poses, (slot[i] * period + phase[i], i))
@@ -648,6 +674,17 @@ class World:
             if sent is not None and len(self.round_trips) < 1_000_000:
                 self.round_trips.append(mono - sent)
 
+    def _take_ros2_commands(self, mono: float, t: float, advance) -> None:
+        """Real time, ROS 2 robots: the cmd_vel each robot got since the last fine step (in order)."""
+        for i, v, w in self.fleet_ros2.take_commands():
+            if not (abs(v) <= self.limits.v_max and abs(w) <= self.limits.w_max):
+                self.bad.reject(self.fleet_ros2.cmd_keys[i], ProtocolError(f"cmd_vel ({v:g}, {w:g}) beyond the bounds"))
+                continue
+            advance(i, t)
+            self.cmd[i] = (v, w)
+            self.cmd_time[i] = mono
+            self.stopped[i] = False
+
     def _publish_clock_rt(self, epoch: float) -> None:
         self.bus.put(keys.world_clock(self.fleet),
                      protocol.encode(Clock(t=self.t, seq=self.k, epoch=epoch, speed=self.speed)), reliable=True)
@@ -663,6 +700,7 @@ class WorldOptions:
     watchdog: float = WATCHDOG_S
     tick_timeout: float = TICK_TIMEOUT_S
     lost_timeout: float = LOST_TIMEOUT_S
+    ros2: tuple[str, str, int] | None = None  # real time: a simulated ROS 2 fleet (flavor, twist, domain)
     start_timeout: float = 60.0
     trace: bool = False
 
@@ -674,7 +712,8 @@ def run_world(bus, clock, scn: Scenario, opts: WorldOptions = WorldOptions(), st
     stop = stop or threading.Event()
     started = time.perf_counter() if started is None else started
     world = World(bus, scn, fleet, lockstep=opts.lockstep, speed=opts.speed, watchdog=opts.watchdog,
-                  tick_timeout=opts.tick_timeout, trace=opts.trace, clock=clock, lost_timeout=opts.lost_timeout)
+                  tick_timeout=opts.tick_timeout, trace=opts.trace, clock=clock, lost_timeout=opts.lost_timeout,
+                  ros2=opts.ros2)
     world.start()
     try:
         log.info("world: %d robots, %d obstacles, %s, waiting for robots and leader", scn.n, len(scn.obstacles),

@@ -222,6 +222,39 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _initial_pose(text: str) -> tuple[float, float, float]:
+    parts = text.split(",")
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected x,y,theta (three finite numbers: m, m, rad), got {text!r}")
+    return values
+
+
+def _domain(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if not 0 <= value <= 232:
+        raise argparse.ArgumentTypeError(f"a ROS domain id is in 0..232, got {text!r}")
+    return value
+
+
+def _add_ros2_flags(g, world: bool = False) -> None:
+    """The ROS 2 wire's flags (robot drive, simulated fleet)."""
+    if not world:
+        g.add_argument("--ros-flavor", choices=("rmw_zenoh", "bridge"), default="rmw_zenoh",
+                       help="how the robot speaks ROS 2 over zenoh: rmw_zenoh (ROS 2 nodes on rmw_zenoh_cpp, keys "
+                            "found from their liveliness tokens) or bridge (zenoh-bridge-ros2dds); default rmw_zenoh")
+    g.add_argument("--twist", choices=("plain", "stamped"), default="plain",
+                   help="cmd_vel as geometry_msgs/Twist (plain: TurtleBot3 on Humble) or TwistStamped (stamped: "
+                        "TurtleBot3 on Jazzy); default plain")
+    g.add_argument("--domain", type=_domain, default=0, metavar="D", help="the ROS domain id (default 0)")
+
+
 def _add_net_flags(p: argparse.ArgumentParser, listen: bool = False, connect_help: str | None = None) -> None:
     g = p.add_argument_group("network (zenoh)")
     if listen:
@@ -288,6 +321,11 @@ def _add_runtime_parsers(sub) -> None:
     _add_scenario_flags(up, "paper-50hz")
     _add_run_flags(up, up=True)
     _add_net_flags(up, listen=True, connect_help="join the router at ENDPOINT instead of starting one")
+    g = up.add_argument_group("drive")
+    g.add_argument("--drive", choices=("sim", "ros2"), default="sim",
+                   help="ros2: the world simulates a ROS 2 fleet (cmd_vel and odometry in CDR on ROS 2 keys) and every "
+                        "agent drives its robot through them, as on real robots; needs --mode realtime")
+    _add_ros2_flags(g)
     g = up.add_argument_group("launcher")
     g.add_argument("--dry-run", action="store_true", help="print the launch plan and exit")
     g.add_argument("--restarts", type=_int_at_least(0), default=3, metavar="N",
@@ -311,6 +349,11 @@ def _add_runtime_parsers(sub) -> None:
     _add_scenario_flags(world, "paper-50hz")
     _add_run_flags(world)
     _add_net_flags(world)
+    g = world.add_argument_group("simulated ROS 2 fleet (real time)")
+    g.add_argument("--ros2-sim", choices=("rmw_zenoh", "bridge"), metavar="FLAVOR",
+                   help="the simulated robots speak ROS 2: each takes cmd_vel and gives odometry (its own frame, zero "
+                        "at its start) on the ROS 2 keys of FLAVOR (rmw_zenoh or bridge), in CDR; needs --mode realtime")
+    _add_ros2_flags(g, world=True)
     world.set_defaults(func="swarm.cli.world:cmd_world")
 
     leader = sub.add_parser("leader", help="publish the leader's reference",
@@ -328,7 +371,31 @@ def _add_runtime_parsers(sub) -> None:
     _add_optional_scenario_flags(robot, "the world's configuration is used")
     _add_run_flags(robot)
     _add_net_flags(robot)
+    g = robot.add_argument_group("drive (where the agent meets its robot; real time)")
+    g.add_argument("--drive", choices=("sim", "ros2"), default="sim",
+                   help="sim: the simulated world's pose and cmd keys (default); ros2: a ROS 2 robot (odometry in, "
+                        "cmd_vel out), needs --mode realtime")
+    _add_ros2_flags(g)
+    g.add_argument("--namespace", metavar="NS", help="with --drive ros2: the robot's ROS namespace (default robot<ID>)")
+    g.add_argument("--initial-pose", type=_initial_pose, metavar="X,Y,THETA",
+                   help="with --drive ros2: the robot's start in the swarm's frame (default: the scenario's start); "
+                        "the odometry frame is anchored there on its first message")
+    g.add_argument("--ref-timeout", type=_positive_float, default=2.5, metavar="S",
+                   help="stop the robot when the reference has been extrapolated for longer than S (default 2.5)")
     robot.set_defaults(func="swarm.cli.robot:cmd_robot")
+
+    stop = sub.add_parser("stop", help="emergency stop: every robot of the fleet holds zero velocity (latched)",
+                          description="Put the emergency stop on the fleet's estop key: every drive halts its robot "
+                                      "within one control period and holds it until `swarm stop --release`. Robots "
+                                      "started after the stop do not know of it: stop them again.",
+                          epilog="Example: swarm stop --fleet lab --connect tcp/192.168.1.10:7447 --reason 'person in "
+                                 "the arena'")
+    stop.add_argument("--release", action="store_true", help="release the emergency stop (robots move again)")
+    stop.add_argument("--reason", default="", metavar="TEXT", help="why (logged by every robot)")
+    stop.add_argument("--repeat-s", type=_positive_float, default=1.0, metavar="S",
+                      help="keep saying it for S seconds (default 1), for robots whose link hiccups")
+    _add_net_flags(stop)
+    stop.set_defaults(func="swarm.cli.stop:cmd_stop")
 
     viz = sub.add_parser("viz", help="watch a running swarm in a browser (meshcat)",
                          description="Start a meshcat web server, print its URL, and draw the swarm of --fleet "

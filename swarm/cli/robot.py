@@ -22,16 +22,29 @@ def cmd_robot(args, started: float) -> int:
     scn = load_scenario(args) if args.scenario is not None else None
     if scn is not None and args.id >= scn.n:
         raise BadInput(f"--id {args.id}: the scenario has {scn.n} robots (ids 0..{scn.n - 1})")
+    if args.drive == "sim":
+        for flag, given in (("--namespace", args.namespace), ("--initial-pose", args.initial_pose)):
+            if given is not None:
+                raise BadInput(f"{flag} needs --drive ros2")
+    make_drive = _ros2_drive(args) if args.drive == "ros2" else None
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, lean=True, role="robot", robot_id=args.id)
         try:
-            agents = robot.run_robot(bus, WALL, args.id, fleet, stop, scenario=scn, start_timeout=args.start_timeout)
+            agents = robot.run_robot(bus, WALL, args.id, fleet, stop, scenario=scn, start_timeout=args.start_timeout,
+                                     make_drive=None if make_drive is None else make_drive(bus),
+                                     ref_timeout=args.ref_timeout)
         except NoAnswer as e:
             if stop.is_set():
                 return EXIT_INTERRUPTED
             raise Failure(str(e)) from None
         except RunRefused as e:
             raise BadInput(f"robot {args.id} refuses the run: {e}") from None
+        except robot.DriveRefused as e:
+            raise BadInput(f"robot {args.id}: {e}") from None
+        except RuntimeError as e:  # a ROS 2 robot not found (swarm.drives.ros2.DiscoveryError)
+            if type(e).__name__ == "DiscoveryError":
+                raise Failure(f"robot {args.id}: {e}") from None
+            raise
         finally:
             bus.close()
     for a in agents:
@@ -39,3 +52,29 @@ def cmd_robot(args, started: float) -> int:
                  "loop CPU %.0f us a tick", args.id, a.cfg.run, a.ticks, a.skipped, a.states_received, a.bad.count,
                  a.bad.stale, 1e6 * a.loop_cpu_s / max(1, a.ticks))
     return EXIT_INTERRUPTED
+
+
+def _ros2_drive(args):
+    """make_drive for --drive ros2: a swarm.drives.ros2.Ros2Drive per run (bad input if the extra is missing)."""
+    try:
+        from swarm.drives.ros2 import Ros2Drive
+        from swarm.proto import ros2
+
+        ros2.typestore()
+    except ImportError as e:
+        raise BadInput(f"--drive ros2: {e}") from None
+
+    def factory(bus):
+        def make(cfg, now):
+            from agents.robot import DriveRefused
+
+            if cfg.lockstep:
+                raise DriveRefused("--drive ros2 runs in real time only (odometry carries no tick): the run is "
+                                   "lock-step; start the world with --mode realtime")
+            pose = args.initial_pose or (cfg.x, cfg.y, cfg.theta)
+            return Ros2Drive(bus, namespace=args.namespace or f"robot{cfg.id}", now=now, flavor=args.ros_flavor,
+                             twist=args.twist, domain=args.domain, initial_pose=pose)
+
+        return make
+
+    return factory

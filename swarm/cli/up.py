@@ -95,6 +95,15 @@ def cmd_up(args, started: float) -> int:
     if args.zenoh_config is not None and not Path(args.zenoh_config).is_file():
         raise BadInput(f"--zenoh-config {args.zenoh_config}: no such file")
     secure_endpoint = _check_secure(args, scn.n) if args.secure else None
+    if args.drive == "ros2":
+        if args.mode != "realtime":
+            raise BadInput("--drive ros2 needs --mode realtime (odometry carries no tick)")
+        try:
+            from swarm.proto import ros2
+
+            ros2.typestore()
+        except ImportError as e:
+            raise BadInput(f"--drive ros2: {e}") from None
     log_dir = Path(args.log_dir or os.path.join(tempfile.gettempdir(), f"swarm-{fleet}-{os.getpid()}"))
     metrics_path = (args.metrics or log_dir / "metrics.json").absolute()
     viz = viz_options(args, not args.no_viz, "has no effect with --no-viz")
@@ -109,7 +118,8 @@ def cmd_up(args, started: float) -> int:
         multicast=args.multicast, metrics=str(metrics_path),
         trace=str(Path(args.trace).absolute()) if args.trace else None, start_timeout=args.start_timeout,
         tick_timeout=args.tick_timeout, lost_timeout=args.lost_timeout, watchdog=args.watchdog,
-        restart=RestartPolicy(args.restarts, args.restart_window), viz=viz)
+        restart=RestartPolicy(args.restarts, args.restart_window), viz=viz, drive=args.drive, ros_flavor=args.ros_flavor,
+        twist=args.twist, domain=args.domain)
     plan = make_plan(opts)
     if args.dry_run:
         print(plan.describe())

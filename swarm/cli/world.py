@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 
-from swarm.cli.common import (CHILD_EXIT_AFTER_S, Failure, StopEvent, check_out_dir,
+from swarm.cli.common import (CHILD_EXIT_AFTER_S, BadInput, Failure, StopEvent, check_out_dir,
                               fleet_of, load_scenario, open_bus, setup_logging, write_json)
 from swarm.cli.console import exit_status
 from swarm.core.clock import WALL
@@ -23,9 +23,19 @@ def cmd_world(args, started: float) -> int:
     fleet = fleet_of(args)
     check_out_dir("--metrics", args.metrics)
     check_out_dir("--trace", args.trace)
+    if args.ros2_sim is not None and args.mode != "realtime":
+        raise BadInput("--ros2-sim needs --mode realtime (odometry carries no tick)")
+    if args.ros2_sim is not None:
+        try:
+            from swarm.proto import ros2
+
+            ros2.typestore()
+        except ImportError as e:
+            raise BadInput(f"--ros2-sim: {e}") from None
     opts = WorldOptions(lockstep=args.mode == "lockstep", speed=args.speed, watchdog=args.watchdog,
                         tick_timeout=args.tick_timeout, lost_timeout=args.lost_timeout,
-                        start_timeout=args.start_timeout, trace=args.trace is not None)
+                        start_timeout=args.start_timeout,
+                        ros2=(args.ros2_sim, args.twist, args.domain) if args.ros2_sim else None, trace=args.trace is not None)
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, stop=stop, role="world")
         try:

@@ -50,6 +50,10 @@ class UpOptions:
     zenoh_config: str | None = None
     secure: str | None = None  # a fleet directory of `swarm secure init`: every process with its role (mutual TLS, ACL)
     secure_endpoint: str | None = None  # with secure and no listen: the router identity's (tls/127.0.0.1:PORT)
+    drive: str = "sim"  # ros2: the world simulates a ROS 2 fleet and every robot drives through it
+    ros_flavor: str = "rmw_zenoh"
+    twist: str = "plain"
+    domain: int = 0
     multicast: bool = False
     metrics: str | None = None
     trace: str | None = None
@@ -129,10 +133,15 @@ def make_plan(o: UpOptions, python: str = sys.executable) -> Plan:
         w_argv += ["--metrics", o.metrics]
     if o.trace:
         w_argv += ["--trace", o.trace]
+    ros = []
+    if o.drive == "ros2":
+        ros = ["--twist", o.twist, "--domain", str(o.domain)]
+        w_argv += ["--ros2-sim", o.ros_flavor, *ros]
+        ros = ["--drive", "ros2", "--ros-flavor", o.ros_flavor, *ros]
     world = ProcSpec("world", "world", 0, tuple(w_argv))
     leader = ProcSpec("leader", "leader", 0, (*base, "leader", *o.scenario_args, "--mode", o.mode, *net))
     robots = tuple(ProcSpec(f"robot {i}", "robot", i,
-                            (*base, "robot", "--id", str(i), "--start-timeout", repr(o.start_timeout), *net))
+                            (*base, "robot", "--id", str(i), "--start-timeout", repr(o.start_timeout), *ros, *net))
                    for i in range(o.robots))
     viz = None
     if o.viz is not None:

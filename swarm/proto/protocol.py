@@ -183,6 +183,17 @@ class Config:
 
 
 @dataclass(frozen=True)
+class Estop:
+    """The emergency stop (operator -> every drive): engaged, every robot holds zero velocity until a
+    release (engaged false). t is the operator's unix time [s], seq its counter (unix time in ms)."""
+
+    t: float
+    seq: int
+    engaged: bool
+    reason: str
+
+
+@dataclass(frozen=True)
 class Run:
     """A run's identity (world -> everyone, and the world's run queryable): a new id at every run's
     start; digest = sha256 of the resolved scenario (faults included) as canonical TOML. The
@@ -222,7 +233,7 @@ class Progress:
 
 KINDS: dict[str, type] = {"ref": Ref, "pose": Pose, "cmd": Cmd, "state": State, "status": Status,
                           "obstacles": Obstacles, "snapshot": Snapshot, "clock": Clock, "config": Config,
-                          "progress": Progress, "run": Run}
+                          "progress": Progress, "run": Run, "estop": Estop}
 _KIND_OF = {cls: kind for kind, cls in KINDS.items()}
 
 
@@ -323,6 +334,7 @@ _SPEC: dict[str, tuple[tuple[str, str], ...]] = {
                  ("collisions", "i"), ("overruns", "i"), ("min_obstacle", "n"), ("position_error", "n"),
                  ("orientation_error", "n"), ("converged_at", "n"), ("last_freeze", "n"), ("dropped", "i")),
     "run": (("run", "s"), ("digest", "s"), ("robots", "i"), ("lockstep", "b"), ("scenario", "S")),
+    "estop": (("t", "n"), ("seq", "i"), ("engaged", "b"), ("reason", "s")),
 }
 # DESIGN.md section 5 names both the protocol version and the linear velocity of ref and cmd
 # "v"; one map cannot hold both. "v" stays the version (a decoder needs it before the kind);
@@ -555,6 +567,7 @@ _CHECK = {
     "clock": _check_clock,
     "progress": lambda m: _within(m, MAX_TIME, "t", "duration"),
     "run": _check_run,
+    "estop": lambda m: _within(m, 1e11, "t"),
 }
 
 

@@ -1,0 +1,106 @@
+"""The robot-side watchdog: the reasons a robot must stand still now, checked on the robot itself.
+
+    guard = Guard(drive, clock, pose_timeout_s=0.5, ref_timeout_s=2.5)
+    guard.start()                 # a thread: halts the drive when poses stop coming (the loop is blocked then)
+    reason = guard.reason(t)      # the control loop asks before every command; None: go on
+    guard.estop(engaged, why)     # the emergency stop (latched until released)
+
+A drive is halted (zero velocity, latched until the next command) when:
+- its pose is older than pose_timeout_s (wall clock: odometry or the world stopped);
+- the reference has been extrapolated for longer than ref_timeout_s (simulated time since the last
+  reference: the leader went quiet);
+- the leader's liveliness token is gone (at once: the leader was lost or cut off);
+- the emergency stop is engaged (until released).
+Ctrl-C, SIGTERM and any exception end the control loop, whose way out closes the drive, which halts
+it. No process can catch its own SIGKILL or SIGSTOP: the robot's base must stop by itself then
+(docs/deploy.md says how, per base).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+
+from swarm.core.clock import WALL
+
+log = logging.getLogger("swarm.guard")
+
+POSE_TIMEOUT_S = 0.5
+REF_TIMEOUT_S = 2.5
+
+
+class Guard:
+    def __init__(self, drive, clock=WALL, pose_timeout_s: float = POSE_TIMEOUT_S,
+                 ref_timeout_s: float = REF_TIMEOUT_S, period_s: float = 0.05) -> None:
+        self.drive, self.clock = drive, clock
+        self.pose_timeout_s, self.ref_timeout_s, self.period_s = pose_timeout_s, ref_timeout_s, period_s
+        self.last_pose: float | None = None  # monotonic wall time a pose was last taken
+        self.ref_t: float | None = None  # simulated time of the newest reference
+        self.leader_seen = False
+        self.leader_alive = False
+        self.stopped: str | None = None  # the emergency stop's reason while engaged
+        self.halts = 0  # times the guard itself halted the drive
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    # ------------------------------------------------------------------ what the agent tells it
+
+    def pose(self) -> None:
+        self.last_pose = self.clock.monotonic()
+
+    def ref(self, t: float) -> None:
+        self.ref_t = t if self.ref_t is None else max(self.ref_t, t)
+
+    def leader(self, alive: bool) -> None:
+        self.leader_alive = alive
+        self.leader_seen = self.leader_seen or alive
+
+    def estop(self, engaged: bool, why: str) -> None:
+        if engaged and self.stopped is None:
+            log.warning("emergency stop: %s", why or "(no reason given)")
+        elif not engaged and self.stopped is not None:
+            log.warning("emergency stop released%s", f": {why}" if why else "")
+        self.stopped = (why or "engaged") if engaged else None
+
+    # ------------------------------------------------------------------ the verdict
+
+    def reason(self, t: float | None) -> str | None:
+        """Why the robot must stand still now (None: it may move); t: the swarm's simulated time."""
+        if self.stopped is not None:
+            return f"emergency stop ({self.stopped})"
+        if self.leader_seen and not self.leader_alive:
+            return "the leader is lost"
+        if self.last_pose is not None and self.clock.monotonic() - self.last_pose > self.pose_timeout_s:
+            return f"no pose for more than {self.pose_timeout_s:g} s"
+        if t is not None and self.ref_t is not None and t - self.ref_t > self.ref_timeout_s:
+            return f"the reference has been extrapolated for more than {self.ref_timeout_s:g} s"
+        return None
+
+    def check(self, t: float | None) -> str | None:
+        """Halt the drive if there is a reason (once per reason: the halt is latched)."""
+        why = self.reason(t)
+        if why is not None and self.drive.halted != why:
+            self.drive.halt(why)
+            self.halts += 1
+        return why
+
+    # ------------------------------------------------------------------ the thread
+
+    def start(self, now=lambda: None) -> None:
+        """Check every period_s on a thread of its own (the control loop blocks while no pose comes);
+        now(): the swarm's simulated time, or None while unknown."""
+
+        def run() -> None:
+            while not self._stop.wait(self.period_s):
+                try:
+                    self.check(now())
+                except Exception as e:  # the bus is closing: the loop's way out halts the drive anyway
+                    log.debug("guard: %s", e)
+
+        self._thread = threading.Thread(target=run, name="guard", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(1.0)

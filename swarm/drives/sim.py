@@ -1,0 +1,85 @@
+"""The simulated robot's drive: the world's keys (`robot/<id>/pose` in, `robot/<id>/cmd` out).
+
+This is the default of `swarm robot` and what `swarm up` runs in real time: the world integrates the
+command and publishes the pose. A command carries the time of the pose it answers (the world measures
+the round trip with it) and this drive's own counter (halts included: the world's window on a
+robot's commands only moves forward).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+
+from swarm.proto import keys, protocol
+from swarm.proto.protocol import Cmd, Limits, Pose, ProtocolError
+
+log = logging.getLogger("swarm.drive")
+
+POSE_DEPTH = 8  # poses kept until the agent takes them (the newest: older ones are of no use)
+
+
+class SimDrive:
+    name = "sim"
+
+    def __init__(self, bus, fleet: str, robot_id: int, limits: Limits | None = None) -> None:
+        self.bus, self.fleet, self.id, self.limits = bus, fleet, robot_id, limits
+        self.pose_key = keys.robot_pose(fleet, robot_id)
+        self.cmd_key = keys.robot_cmd(fleet, robot_id)
+        self.bad = protocol.BadMessages(log)
+        self.halted: str | None = "not started"
+        self.sent = 0
+        self._lock = threading.Lock()
+        self._t = 0.0  # the time of the last command's pose
+        self._box = None
+
+    def start(self) -> None:
+        self._box = self.bus.inbox(self.pose_key, depth=POSE_DEPTH)
+
+    def wait(self) -> list[Pose]:
+        """Block until a pose came (or wake()): the poses that came, decoded (bad ones counted)."""
+        items = self._box.wait()
+        return self._poses(items + self._box.drain())
+
+    def drain(self) -> list[Pose]:
+        return self._poses(self._box.drain())
+
+    def wake(self) -> None:
+        self._box.wake()
+
+    def _poses(self, items: list[tuple[str, bytes]]) -> list[Pose]:
+        out = []
+        for key, data in items:
+            try:
+                out.append(protocol.decode(data, "pose", None, self.limits))
+            except ProtocolError as e:
+                self.bad.reject(key, e)
+        return out
+
+    def _put(self, t: float, v: float, w: float) -> None:
+        self.bus.put(self.cmd_key, protocol.encode(Cmd(t=t, seq=self.sent, v=v, w=w)), reliable=True)
+        self.sent += 1
+        self._t = t
+
+    def send(self, cmd: Cmd) -> None:
+        with self._lock:
+            self._put(cmd.t, cmd.v, cmd.w)
+            self.halted = None
+
+    def halt(self, reason: str) -> None:
+        """Zero velocity now, latched until send()."""
+        with self._lock:
+            self._put(self._t, 0.0, 0.0)
+            if self.halted != reason:
+                log.info("robot %d halted: %s", self.id, reason)
+            self.halted = reason
+
+    def close(self) -> None:
+        if self._box is None:
+            return
+        try:
+            self.halt("closing")
+        except Exception as e:  # the session is already gone: nothing more to tell the world
+            log.debug("robot %d: no last halt: %s", self.id, e)
+        self._box.close()
+        self._box = None
