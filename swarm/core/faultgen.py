@@ -222,9 +222,8 @@ def delay_ticks(seed, rule, cls, sender, receiver, k, ticks, jitter):
     if jitter <= 0:
         return ticks
     extra = int(uniform(seed, rule, cls, sender, receiver, k) * (jitter + 1))
-    if extra > jitter:  # cannot happen (u < 1 and (1 - 2^-53)(j + 1) < j + 1 for j < 2^52); kept as a bound
-        extra = jitter
-    return ticks + extra
+    # u <= 1 - 2^-53 and (1 - 2^-53)(j + 1) rounds below j + 1 for every j < 2^52: the min is only a guard
+    return ticks + min(extra, jitter)
 
 
 # --------------------------------------------------------------------------- schedules
@@ -304,6 +303,5 @@ def decide(seed, drop, drop_from, drop_to, delay, delay_from, delay_to, part_win
             continue
         d = delay_ticks(seed, DELAY_RULE + r, cls, sender, receiver, k, int(delay[r, Y_TICKS]),
                         int(delay[r, Y_JITTER]))
-        if d > late:
-            late = d
+        late = max(late, d)
     return False, late

@@ -26,9 +26,11 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Iterable
 from dataclasses import dataclass, field
+from itertools import pairwise
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 
@@ -286,7 +288,7 @@ class Faults:
         _check_process_faults(self.kills, self.hangs)
 
     @classmethod
-    def empty(cls, seed: int = 0) -> "Faults":
+    def empty(cls, seed: int = 0) -> Faults:
         return cls(seed=seed)
 
     def __bool__(self) -> bool:
@@ -296,10 +298,10 @@ class Faults:
 def _check_partitions(partitions: tuple[Partition, ...]) -> None:
     """Two partitions may not hold at once (the group of a robot would be ambiguous)."""
     order = sorted(range(len(partitions)), key=lambda w: (partitions[w].start, w))
-    for a, b in zip(order, order[1:]):
+    for a, b in pairwise(order):
         pa, pb = partitions[a], partitions[b]
         if pb.start < pa.end:
-            raise FaultError(f"partition[{b}].start", f"the window [{pb.start:g}, {pb.end:g}) s overlaps partition[{a}]'s "
+            raise FaultError(f"partition[{b}].start", f"the window [{pb.start:g}, {pb.end:g}) s overlaps faults.partition[{a}]'s "
                              f"[{pa.start:g}, {pa.end:g}) s: one partition at a time (list all the groups in one)")
 
 
@@ -318,12 +320,12 @@ def _check_process_faults(kills: tuple[Kill, ...], hangs: tuple[Hang, ...]) -> N
             by_robot.setdefault(f.robot, []).append((f.at, 0 if kind == "kill" else 1, kind, k, f))
     for robot in sorted(by_robot):
         items = sorted(by_robot[robot], key=lambda x: x[:4])
-        for (_, _, ka, ia, fa), (_, _, kb, ib, fb) in zip(items, items[1:]):
+        for (_, _, ka, ia, fa), (_, _, kb, ib, fb) in pairwise(items):
             if fb.at < fa.end:
                 state = "dead" if ka == "kill" else "stopped"
                 until = "for good" if fa.end == math.inf else f"until {fa.end:g} s"
                 raise FaultError(f"{kb}[{ib}].at", f"robot {robot} is {state} {until} ({_describe(ka, fa)}, "
-                                 f"{ka}[{ia}]): {_describe(kb, fb)} overlaps it (one process fault of a robot at a time)")
+                                 f"faults.{ka}[{ia}]): {_describe(kb, fb)} overlaps it (one process fault of a robot at a time)")
 
 
 # --------------------------------------------------------------------------- reading
@@ -402,22 +404,12 @@ def _kind(value: Any) -> str:
 _RULE_KEYS = ("from", "to", "start", "end")
 
 
-def _build(rd: _Reader, key: str, make):
-    """make() builds a rule; its FaultError becomes a ScenarioError at key.field."""
+def _build(rd: _Reader, key: str, make, **kw):
+    """make(**kw) builds a rule (or the Faults); its FaultError becomes a ScenarioError at key.field."""
     try:
-        return make()
+        return make(**kw)
     except FaultError as e:
         raise rd.fail(f"{key}.{e.field}", e.reason) from None
-
-
-def _selection(rd: _Reader, rule: dict, key: str, robots: int, duration: float) -> dict:
-    out: dict[str, Any] = {}
-    if "from" in rule:
-        out["senders"] = rd.robots(rule["from"], f"{key}.from", robots)
-    if "to" in rule:
-        out["receivers"] = rd.robots(rule["to"], f"{key}.to", robots)
-    out.update(_span(rd, rule, key, duration))
-    return out
 
 
 def _span(rd: _Reader, rule: dict, key: str, duration: float) -> dict:
@@ -427,6 +419,57 @@ def _span(rd: _Reader, rule: dict, key: str, duration: float) -> dict:
     if "end" in rule:
         out["end"] = rd.number(rule["end"], f"{key}.end")
     return out
+
+
+def _selection(rd: _Reader, rule: dict, key: str, robots: int, duration: float) -> dict:
+    out = _span(rd, rule, key, duration)
+    if "from" in rule:
+        out["senders"] = rd.robots(rule["from"], f"{key}.from", robots)
+    if "to" in rule:
+        out["receivers"] = rd.robots(rule["to"], f"{key}.to", robots)
+    return out
+
+
+def _drop(rd: _Reader, rule: Any, key: str, robots: int, duration: float) -> DropRule:
+    rd.table(rule, key, ("class", "p", "burst", *_RULE_KEYS), ("class", "p"))
+    return _build(rd, key, DropRule, cls=rule["class"], p=rd.number(rule["p"], f"{key}.p"),
+                  burst=rd.number(rule.get("burst", 1.0), f"{key}.burst"),
+                  **_selection(rd, rule, key, robots, duration))
+
+
+def _delay(rd: _Reader, rule: Any, key: str, robots: int, duration: float) -> DelayRule:
+    rd.table(rule, key, ("class", "ticks", "jitter", *_RULE_KEYS), ("class", "ticks"))
+    return _build(rd, key, DelayRule, cls=rule["class"], ticks=rd.integer(rule["ticks"], f"{key}.ticks"),
+                  jitter=rd.integer(rule.get("jitter", 0), f"{key}.jitter"),
+                  **_selection(rd, rule, key, robots, duration))
+
+
+def _partition(rd: _Reader, rule: Any, key: str, robots: int, duration: float) -> Partition:
+    rd.table(rule, key, ("groups", "start", "end"), ("groups",))
+    groups = rule["groups"]
+    if not isinstance(groups, list) or not groups:
+        got = "an empty list" if groups == [] else _kind(groups)
+        raise rd.fail(f"{key}.groups", f"must be a non-empty list of lists of robot ids, got {got}")
+    groups = tuple(rd.robots(g, f"{key}.groups[{k}]", robots) for k, g in enumerate(groups))
+    part = _build(rd, key, Partition, groups=groups, **_span(rd, rule, key, duration))
+    if len(part.groups) + (sum(len(g) for g in part.groups) < robots) < 2:
+        raise rd.fail(f"{key}.groups", f"one group of all {robots} robots separates nothing (the robots in no "
+                      "group form one more group)")
+    return part
+
+
+def _kill(rd: _Reader, rule: Any, key: str, robots: int, duration: float) -> Kill:
+    rd.table(rule, key, ("robot", "at", "restart"), ("robot", "at"))
+    restart = rd.number(rule["restart"], f"{key}.restart") if "restart" in rule else None
+    return _build(rd, key, Kill, robot=rd.robot(rule["robot"], f"{key}.robot", robots),
+                  at=rd.time(rule["at"], f"{key}.at", duration), restart=restart)
+
+
+def _hang(rd: _Reader, rule: Any, key: str, robots: int, duration: float) -> Hang:
+    rd.table(rule, key, ("robot", "at", "duration"), ("robot", "at", "duration"))
+    return _build(rd, key, Hang, robot=rd.robot(rule["robot"], f"{key}.robot", robots),
+                  at=rd.time(rule["at"], f"{key}.at", duration),
+                  duration=rd.number(rule["duration"], f"{key}.duration"))
 
 
 def parse_faults(table: Any, where: str, robots: int, duration: float, default_seed: int) -> Faults:
@@ -440,54 +483,14 @@ def parse_faults(table: Any, where: str, robots: int, duration: float, default_s
     seed = rd.integer(doc["seed"], "faults.seed") if "seed" in doc else default_seed % SEED_LIMIT
     if seed >= SEED_LIMIT:
         raise rd.fail("faults.seed", f"must be below 2^63, got {seed}")
-    drops, delays, partitions, kills, hangs = [], [], [], [], []
-    for i, rule in enumerate(rd.tables(doc.get("drop", []), "faults.drop", MAX_RULES)):
-        key = f"faults.drop[{i}]"
-        rd.table(rule, key, ("class", "p", "burst") + _RULE_KEYS, ("class", "p"))
-        kw = dict(cls=rule["class"], p=rd.number(rule["p"], f"{key}.p"),
-                  burst=rd.number(rule.get("burst", 1.0), f"{key}.burst"))
-        kw.update(_selection(rd, rule, key, robots, duration))
-        drops.append(_build(rd, key, lambda: DropRule(**kw)))
-    for i, rule in enumerate(rd.tables(doc.get("delay", []), "faults.delay", MAX_RULES)):
-        key = f"faults.delay[{i}]"
-        rd.table(rule, key, ("class", "ticks", "jitter") + _RULE_KEYS, ("class", "ticks"))
-        kw = dict(cls=rule["class"], ticks=rd.integer(rule["ticks"], f"{key}.ticks"),
-                  jitter=rd.integer(rule.get("jitter", 0), f"{key}.jitter"))
-        kw.update(_selection(rd, rule, key, robots, duration))
-        delays.append(_build(rd, key, lambda: DelayRule(**kw)))
-    for i, rule in enumerate(rd.tables(doc.get("partition", []), "faults.partition", MAX_PARTITIONS)):
-        key = f"faults.partition[{i}]"
-        rd.table(rule, key, ("groups", "start", "end"), ("groups",))
-        groups = rule["groups"]
-        if not isinstance(groups, list) or not groups:
-            raise rd.fail(f"{key}.groups", f"must be a non-empty list of lists of robot ids, got {_kind(groups)}")
-        groups = tuple(rd.robots(g, f"{key}.groups[{k}]", robots) for k, g in enumerate(groups))
-        kw = dict(groups=groups, **_span(rd, rule, key, duration))
-        part = _build(rd, key, lambda: Partition(**kw))
-        listed = sum(len(g) for g in part.groups)
-        if len(part.groups) + (listed < robots) < 2:
-            raise rd.fail(f"{key}.groups", f"one group of all {robots} robots separates nothing (the robots in no "
-                          "group form one more group)")
-        partitions.append(part)
-    process = rd.tables(doc.get("kill", []), "faults.kill", MAX_PROCESS_FAULTS) + \
-        rd.tables(doc.get("hang", []), "faults.hang", MAX_PROCESS_FAULTS)
-    if len(process) > MAX_PROCESS_FAULTS:
-        raise rd.fail("faults.hang", f"{len(process)} kills and hangs; at most {MAX_PROCESS_FAULTS}")
-    for i, rule in enumerate(doc.get("kill", [])):
-        key = f"faults.kill[{i}]"
-        rd.table(rule, key, ("robot", "at", "restart"), ("robot", "at"))
-        kw = dict(robot=rd.robot(rule["robot"], f"{key}.robot", robots), at=rd.time(rule["at"], f"{key}.at", duration))
-        if "restart" in rule:
-            kw["restart"] = rd.number(rule["restart"], f"{key}.restart")
-        kills.append(_build(rd, key, lambda: Kill(**kw)))
-    for i, rule in enumerate(doc.get("hang", [])):
-        key = f"faults.hang[{i}]"
-        rd.table(rule, key, ("robot", "at", "duration"), ("robot", "at", "duration"))
-        kw = dict(robot=rd.robot(rule["robot"], f"{key}.robot", robots), at=rd.time(rule["at"], f"{key}.at", duration),
-                  duration=rd.number(rule["duration"], f"{key}.duration"))
-        hangs.append(_build(rd, key, lambda: Hang(**kw)))
-    return _build(rd, "faults", lambda: Faults(seed, tuple(drops), tuple(delays), tuple(partitions), tuple(kills),
-                                               tuple(hangs)))
+    rules = {}
+    for name, most, read in (("drop", MAX_RULES, _drop), ("delay", MAX_RULES, _delay),
+                             ("partition", MAX_PARTITIONS, _partition), ("kill", MAX_PROCESS_FAULTS, _kill),
+                             ("hang", MAX_PROCESS_FAULTS, _hang)):
+        items = rd.tables(doc.get(name, []), f"faults.{name}", most)
+        rules[name] = tuple(read(rd, rule, f"faults.{name}[{i}]", robots, duration) for i, rule in enumerate(items))
+    return _build(rd, "faults", Faults, seed=seed, drops=rules["drop"], delays=rules["delay"],
+                  partitions=rules["partition"], kills=rules["kill"], hangs=rules["hang"])
 
 
 def load_faults_file(path: str, robots: int, duration: float, default_seed: int) -> Faults:
@@ -722,7 +725,7 @@ class FaultTable:
     event_ticks: np.ndarray = field(repr=False)
 
     @classmethod
-    def of(cls, faults: Faults, robots: int, dt: float) -> "FaultTable":
+    def of(cls, faults: Faults, robots: int, dt: float) -> FaultTable:
         """The table of `faults` for a scenario of `robots` robots and control period dt [s]."""
         if not (isinstance(robots, int) and robots >= 1):
             raise ValueError(f"robots must be an integer >= 1, got {robots!r}")
