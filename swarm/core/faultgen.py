@@ -217,13 +217,21 @@ def lost_plain(seed, rule, cls, sender, receiver, k, p, burst):
 
 
 @_jit
+def jittered(key, k, ticks, jitter):
+    """ticks plus a whole number uniform in 0..jitter drawn at counter k of stream `key`."""
+    if jitter <= 0:
+        return ticks
+    extra = int(draw(key, k) * (jitter + 1))
+    # u <= 1 - 2^-53 and (1 - 2^-53)(j + 1) rounds below j + 1 for every j < 2^52: the min is only a guard
+    return ticks + min(extra, jitter)
+
+
+@_jit
 def delay_ticks(seed, rule, cls, sender, receiver, k, ticks, jitter):
     """ticks plus a whole number uniform in 0..jitter, for message k under delay rule `rule`."""
     if jitter <= 0:
         return ticks
-    extra = int(uniform(seed, rule, cls, sender, receiver, k) * (jitter + 1))
-    # u <= 1 - 2^-53 and (1 - 2^-53)(j + 1) rounds below j + 1 for every j < 2^52: the min is only a guard
-    return ticks + min(extra, jitter)
+    return jittered(stream(seed, rule, cls, sender, receiver), k, ticks, jitter)
 
 
 # --------------------------------------------------------------------------- schedules

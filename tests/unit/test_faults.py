@@ -681,3 +681,23 @@ def test_compiled_decisions_equal_the_plain_ones_bit_for_bit():
                                                                                       receiver, time)
             if sender >= 0:
                 assert cg.process_code(t.proc, sender, time) == fg.process_code(t.proc, sender, time)
+
+
+def test_a_link_decides_as_decide_over_the_table():
+    rng = np.random.default_rng(13)
+    for _ in range(25):
+        f = _random_faults(rng)
+        t = FaultTable.of(f, N, 0.05)
+        for _ in range(6):
+            cls = int(rng.integers(0, fg.N_CLASSES))
+            sender = fg.WORLD if cls == fg.CLS_POSE else fg.LEADER if cls == fg.CLS_REF else int(rng.integers(0, N))
+            receiver = fg.WORLD if cls == fg.CLS_CMD else int(rng.integers(0, N))
+            link, chains = t.link(cls, sender, receiver), t.new_chains()
+            ks = list(range(400)) + rng.integers(0, 1200, 200).tolist()  # in order, then anywhere
+            for k in ks:
+                time = k * 0.05
+                assert link.decide(k, time) == t.decide(cls, sender, receiver, k, time, chains), (f, cls, sender, k)
+    t = FaultTable.of(parse(CONTRACT), N, 0.02)
+    for bad in ((4, 0, 1), (0, 7, 1), (0, 0, -3)):
+        with pytest.raises(ValueError):
+            t.link(*bad)
