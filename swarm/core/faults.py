@@ -802,7 +802,7 @@ class FaultTable:
         lost, late = fg.decide(*self.arrays(), cls, sender, receiver, k, t, chains)
         return bool(lost), int(late)
 
-    def link(self, cls: int, sender: int, receiver: int) -> "Link":
+    def link(self, cls: int, sender: int, receiver: int) -> Link:
         """The decisions of one link and class, prepared once (what a process keeps per link)."""
         return Link(self, cls, sender, receiver)
 
