@@ -727,8 +727,9 @@ class FaultTable:
     @classmethod
     def of(cls, faults: Faults, robots: int, dt: float) -> FaultTable:
         """The table of `faults` for a scenario of `robots` robots and control period dt [s]."""
-        if not (isinstance(robots, int) and robots >= 1):
+        if isinstance(robots, bool) or not isinstance(robots, (int, np.integer)) or robots < 1:
             raise ValueError(f"robots must be an integer >= 1, got {robots!r}")
+        robots = int(robots)
         if not (math.isfinite(dt) and dt > 0):
             raise ValueError(f"dt must be a finite number > 0, got {dt!r}")
         cols = robots + fg.ID_OFFSET
