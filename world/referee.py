@@ -14,11 +14,9 @@ import math
 import numpy as np
 
 from swarm.core import law, metrics
-from swarm.core.metrics import step_time
+from swarm.core.metrics import CONVERGED_ANGLE_RAD, CONVERGED_POSITION_M, step_time
 from swarm.core.scenario import Scenario
 
-CONVERGED_POSITION_M = 0.05
-CONVERGED_ANGLE_RAD = 0.05
 FREEZE_MERGE_S = 0.1
 _BLOCK = 256  # rows of the pairwise distance matrix computed at once
 

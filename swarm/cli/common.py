@@ -213,7 +213,9 @@ def secure_base(directory: str, role: str | None, robot_id: int | None, connect:
         raise BadInput(f"--secure {directory}: {e}") from None
 
 
-def load_scenario(args):
+def load_scenario(args, quiet: bool = False):
+    """The scenario of the command line (a flag beats the file, which beats the built-in default);
+    quiet: no progress lines (the child processes of swarm up, --quiet)."""
     from swarm.core import scenario_file
     from swarm.core.scenario_file import Overrides
 
@@ -225,7 +227,8 @@ def load_scenario(args):
         dt = 1.0 / rate
     ov = Overrides(robots=getattr(args, "robots", None), seed=getattr(args, "seed", None),
                    duration=getattr(args, "duration", None), dt=dt, governor=getattr(args, "governor", None))
-    return scenario_file.load(args.scenario, ov)
+    quiet = quiet or getattr(args, "quiet", False)
+    return scenario_file.load(args.scenario, ov, progress=scenario_file.silent if quiet else None)
 
 
 def scenario_args(args) -> tuple[str, ...]:

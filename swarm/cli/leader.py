@@ -14,7 +14,7 @@ def cmd_leader(args, started: float) -> int:
 
     die_with_parent()
     setup_logging()
-    scn = load_scenario(args)
+    scn = load_scenario(args, quiet=True)
     fleet = fleet_of(args)
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, stop=stop, lean=True, role="leader")

@@ -19,7 +19,7 @@ def cmd_robot(args, started: float) -> int:
     die_with_parent()
     setup_logging()
     fleet = fleet_of(args)
-    scn = load_scenario(args) if args.scenario is not None else None
+    scn = load_scenario(args, quiet=True) if args.scenario is not None else None
     if scn is not None and args.id >= scn.n:
         raise BadInput(f"--id {args.id}: the scenario has {scn.n} robots (ids 0..{scn.n - 1})")
     if args.drive == "sim":

@@ -25,7 +25,7 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
     from swarm.core import scenario_file
     from swarm.core.sim import Simulation
 
-    scn = scenario_file.load(args.scenario, _overrides(args))
+    scn = scenario_file.load(args.scenario, _overrides(args), progress=scenario_file.silent if args.quiet else None)
     for note in scenario_file.advisories(scn):
         print(f"swarm sim: warning: {note}", file=sys.stderr)
     check_out_dir("--metrics", args.metrics)

@@ -21,7 +21,7 @@ def cmd_viz(args, started: float) -> int:
     die_with_parent()
     setup_logging()
     fleet = fleet_of(args)
-    scene = SceneInfo.from_scenario(load_scenario(args)) if args.scenario is not None else None
+    scene = SceneInfo.from_scenario(load_scenario(args, quiet=True)) if args.scenario is not None else None
     v = viz_options(args, True, "")
     check_viz_port(v)
     check_out_dir("--server-log", args.server_log)

@@ -19,7 +19,7 @@ def cmd_world(args, started: float) -> int:
 
     die_with_parent()
     setup_logging()
-    scn = load_scenario(args)
+    scn = load_scenario(args, quiet=True)
     fleet = fleet_of(args)
     check_out_dir("--metrics", args.metrics)
     check_out_dir("--trace", args.trace)

@@ -21,6 +21,7 @@ import math
 import numpy as np
 
 from swarm.core import jit
+from swarm.core.metrics import CONVERGED_ANGLE_RAD, CONVERGED_POSITION_M
 
 law = jit.compiled("swarm.core.law")
 kin = jit.compiled("swarm.core.kinematics")
@@ -64,8 +65,6 @@ I_GOVERNED = 8  # robot-steps in which the governor scaled the command
 I_RECORDED = 9  # samples written
 I_SIZE = 10
 
-CONVERGED_POSITION_M = 0.05
-CONVERGED_ANGLE_RAD = 0.05
 FREEZE_MERGE_S = 0.1
 
 

@@ -9,6 +9,11 @@ from __future__ import annotations
 
 import math
 
+# A robot is converged while its position error is below this and its heading error below that
+# (errors against the live leader reference): the convergence of the metrics contract.
+CONVERGED_POSITION_M = 0.05
+CONVERGED_ANGLE_RAD = 0.05
+
 
 def step_time(t: float) -> float:
     """A step time rounded to 1e-9 s: 15030 * 0.001 reads 15.03, not 15.030000000000001."""

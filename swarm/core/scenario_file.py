@@ -38,7 +38,7 @@ from swarm.core import generators, kinematics, law
 from swarm.core.geometry import Counter, Grid, closest_pair
 from swarm.core.scenario import THRESHOLDS, Control, Leader, Scenario, ScenarioError, Segment
 
-BUILTINS = ("paper", "paper-50hz")
+BUILTINS = ("paper", "paper-50hz", "turtlebot3")
 
 # What a scenario may hold: beyond these a run cannot go (memory, time, float resolution), so a
 # scenario is refused before anything is built.
@@ -660,37 +660,48 @@ def builtin_document(name: str, robots: int | None = None) -> dict:
     robot (aspect 2.8:1, centred on x = 5 m, top edge 1.5 m below the barrier), and the
     barrier spans the rectangle plus 4.75 m on each side (centred on x = 4.7 m).
     `paper-50hz` is the same geometry at dt = 0.02 s with the safety governor on.
+    `turtlebot3` is the same formation for TurtleBot3 Burger robots: every length halved (r = 0.15 m
+    around a 0.105 m body, R = 0.6 m, 0.75 m spacing), the leader at 0.15 m/s (below 0.8 of the
+    robot's v_max = 0.22 m/s, so followers catch up) along the same path's shape (the same turns at
+    half the radius), the robots' limits v_max = 0.22 m/s and w_max = 2.84 rad/s, 20 Hz, governor on;
+    7 robots unless `robots` says otherwise (with 37, the outer slots outrun v_max in the turns).
     """
     if name not in BUILTINS:
         raise ScenarioError(name, "", f"no such built-in scenario (built-ins: {', '.join(BUILTINS)}; "
                             "or give a path to a .toml file)")
-    n = 37 if robots is None else robots
+    n = (7 if name == "turtlebot3" else 37) if robots is None else robots
     if not 1 <= n <= MAX_ROBOTS:
         raise ScenarioError("command line", "--robots", f"must be in 1..{MAX_ROBOTS}, got {n}")
-    width = math.sqrt(9.0 * n * 2.8)
-    height = 9.0 * n / width
-    lowest = float(generators.hex_patch(n, 1.5)[:, 1].min())
-    barrier_y = lowest - 2.6
-    intervals = max(1, round((width + 9.5) / 1.6))
-    top = barrier_y - 1.5
-    turn = math.pi / 32.0
+    s = 0.5 if name == "turtlebot3" else 1.0  # lengths
+    v = 0.15 if name == "turtlebot3" else 0.5  # the leader's speed [m/s]
+    slow = (0.5 * s) / v  # durations stretch so the path keeps its lengths and turns
+    width = math.sqrt(9.0 * n * 2.8) * s
+    height = 9.0 * n * s * s / width
+    lowest = float(generators.hex_patch(n, 1.5 * s)[:, 1].min())
+    barrier_y = lowest - 2.6 * s
+    intervals = max(1, round((width + 9.5 * s) / (1.6 * s)))
+    top = barrier_y - 1.5 * s
+    turn = math.pi / 32.0 / slow
+    control = {"k1": 0.5, "k2": 0.5, "k3": 1.0, "tu": 1.0, "vt": 0.05, "threshold": "frozen",
+               "governor": name != "paper"}
+    if name == "turtlebot3":
+        control.update(vt=0.02, v_max=0.22, w_max=2.84)
     return {
-        "run": {"duration": 120.0, "dt": 0.001 if name == "paper" else 0.02, "seed": 0},
-        "control": {"k1": 0.5, "k2": 0.5, "k3": 1.0, "tu": 1.0, "vt": 0.05, "threshold": "frozen",
-                    "governor": name == "paper-50hz"},
-        "bodies": {"r": 0.3, "R": 1.2},
+        "run": {"duration": 120.0 * slow, "dt": {"paper": 0.001, "paper-50hz": 0.02}.get(name, 0.05), "seed": 0},
+        "control": control,
+        "bodies": {"r": 0.3 * s, "R": 1.2 * s},
         "leader": {"start": [0.0, 0.0, 0.0], "segments": [
-            {"duration": 10.0, "v": 0.5, "w": 0.0},
-            {"duration": 16.0, "v": 0.5, "w": turn},
-            {"duration": 8.0, "v": 0.5, "w": 0.0},
-            {"duration": 16.0, "v": 0.5, "w": -turn},
-            {"duration": 70.0, "v": 0.5, "w": 0.0},
+            {"duration": 10.0 * slow, "v": v, "w": 0.0},
+            {"duration": 16.0 * slow, "v": v, "w": turn},
+            {"duration": 8.0 * slow, "v": v, "w": 0.0},
+            {"duration": 16.0 * slow, "v": v, "w": -turn},
+            {"duration": 70.0 * slow, "v": v, "w": 0.0},
         ]},
-        "formation": {"hex": {"count": n, "spacing": 1.5}, "assignment": "random"},
-        "robots": {"random": {"count": n, "region": [5.0 - width / 2, 5.0 + width / 2, top - height, top],
-                              "min_separation": 0.8, "obstacle_clearance": 1.2}},
-        "obstacles": [{"row": {"start": [4.7 - 0.8 * intervals, barrier_y], "end": [4.7 + 0.8 * intervals, barrier_y],
-                               "pitch": 1.6}}],
+        "formation": {"hex": {"count": n, "spacing": 1.5 * s}, "assignment": "random"},
+        "robots": {"random": {"count": n, "region": [5.0 * s - width / 2, 5.0 * s + width / 2, top - height, top],
+                              "min_separation": 0.8 * s, "obstacle_clearance": 1.2 * s}},
+        "obstacles": [{"row": {"start": [4.7 * s - 0.8 * s * intervals, barrier_y],
+                               "end": [4.7 * s + 0.8 * s * intervals, barrier_y], "pitch": 1.6 * s}}],
     }
 
 

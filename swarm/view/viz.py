@@ -45,6 +45,7 @@ import numpy as np
 from swarm.core.geometry import closest_pair
 from swarm.view import meshcat_objects as mo
 from swarm.view.meshcat_objects import poses_to_matrices
+from swarm.core.metrics import CONVERGED_ANGLE_RAD, CONVERGED_POSITION_M
 
 # Robot states, in increasing priority: a robot shows the highest that applies.
 TRACKING, FROZEN, STALE, STOPPED, DEAD = 0, 1, 2, 3, 4
@@ -80,8 +81,6 @@ LEGEND_CELL_W = 0.30  # m: one legend entry (4 columns)
 PANEL_COLOR = 0xFFFFFF
 # A robot is converged within these of its slot and the leader's heading (as swarm.core.kernel and
 # world.referee count it).
-CONVERGED_POSITION_M = 0.05
-CONVERGED_ANGLE_RAD = 0.05
 # (name, label, colour, opacity) of every legend entry, in reading order
 LEGEND = (
     ("tracking", "tracking", STATE_COLORS[TRACKING], 1.0),

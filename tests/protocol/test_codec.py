@@ -29,6 +29,7 @@ MESSAGES = [
                misses=0, bad=0, collisions=1, overruns=0, min_obstacle=0.5, position_error=0.1, orientation_error=0.2,
                converged_at=-1.0, last_freeze=0.5, dropped=3),
     p.Run(run="20261202T024115-5f3a", digest="cd" * 32, robots=37, lockstep=True, scenario="[run]\nduration = 1.0\n"),
+    p.Estop(t=1.7e9, seq=1_700_000_000_000, engaged=True, reason="a person in the arena"),
 ]
 
 

@@ -502,24 +502,25 @@ def test_builtins_share_one_geometry():
 def test_builtins_resize_with_robots(name, n):
     scn = sf.load(name, sf.Overrides(robots=n, seed=1))
     assert scn.n == n and scn.offsets.shape == (n, 2)
-    hexagon = generators.hex_patch(n, 1.5)
+    s = 0.5 if name == "turtlebot3" else 1.0  # turtlebot3: every length halved
+    hexagon = generators.hex_patch(n, 1.5 * s)
     assert sorted(map(tuple, np.round(scn.offsets, 12))) == sorted(map(tuple, np.round(hexagon, 12)))
     # the barrier: one row 2.6 m below the lowest slot, 1.6 m pitch
     lowest = scn.offsets[:, 1].min()
-    assert_allclose(scn.obstacles[:, 1], lowest - 2.6, atol=1e-12)
-    assert_allclose(np.diff(scn.obstacles[:, 0]), 1.6, rtol=1e-9)
-    assert_allclose(scn.obstacles[:, 0].mean(), 4.7, atol=1e-9)
+    assert_allclose(scn.obstacles[:, 1], lowest - 2.6 * s, atol=1e-12)
+    assert_allclose(np.diff(scn.obstacles[:, 0]), 1.6 * s, rtol=1e-9)
+    assert_allclose(scn.obstacles[:, 0].mean(), 4.7 * s, atol=1e-9)
     # starts: a 9 m^2-per-robot rectangle, aspect 2.8:1, centred on x = 5, top 1.5 m below the barrier
-    width = math.sqrt(9.0 * n * 2.8)
-    height = 9.0 * n / width
-    top = lowest - 2.6 - 1.5
-    assert (np.abs(scn.poses[:, 0] - 5.0) <= width / 2).all()
+    width = math.sqrt(9.0 * n * 2.8) * s
+    height = 9.0 * n * s * s / width
+    top = lowest - (2.6 + 1.5) * s
+    assert (np.abs(scn.poses[:, 0] - 5.0 * s) <= width / 2).all()
     assert (scn.poses[:, 1] <= top).all() and (scn.poses[:, 1] >= top - height).all()
     xmin, xmax, ymin, ymax = sf.builtin_document(name, n)["robots"]["random"]["region"]
-    assert_allclose((xmax - xmin) * (ymax - ymin), 9.0 * n, rtol=1e-12)
-    assert_allclose([xmin, xmax, ymax], [5.0 - width / 2, 5.0 + width / 2, top], atol=1e-12)
+    assert_allclose((xmax - xmin) * (ymax - ymin), 9.0 * n * s * s, rtol=1e-12)
+    assert_allclose([xmin, xmax, ymax], [5.0 * s - width / 2, 5.0 * s + width / 2, top], atol=1e-12)
     # the barrier spans the start rectangle with room on both sides
-    assert scn.obstacles[:, 0].min() < xmin - 3.5 and scn.obstacles[:, 0].max() > xmax + 3.5
+    assert scn.obstacles[:, 0].min() < xmin - 3.5 * s and scn.obstacles[:, 0].max() > xmax + 3.5 * s
     assert (np.abs(scn.poses[:, 2]) <= math.pi).all()
 
 
