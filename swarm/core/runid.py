@@ -42,9 +42,9 @@ def robot_config(scn, i: int, lockstep: bool, run: str = "", digest_: str = ""):
     """Robot i's slice of the scenario, with the run it belongs to (raises ScenarioError for an id
     outside the scenario)."""
     c = scn.control
-    return replace(scn.robot_config(i, lockstep=lockstep), robots=scn.n,
-                   v_max=float(getattr(c, "v_max", None) or 0.0), w_max=float(getattr(c, "w_max", None) or 0.0),
-                   run=run, digest=digest_)
+    arena = {} if scn.bounds is None else dict(zip(("xmin", "xmax", "ymin", "ymax"), map(float, scn.bounds)), arena=True)
+    return replace(scn.robot_config(i, lockstep=lockstep), robots=scn.n, v_max=float(c.v_max or 0.0),
+                   w_max=float(c.w_max or 0.0), run=run, digest=digest_, **arena)
 
 
 def first_difference(mine: str, theirs: str) -> str | None:

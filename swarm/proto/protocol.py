@@ -180,6 +180,11 @@ class Config:
     w_max: float = 0.0  # control.w_max [rad/s]; 0: none
     run: str = ""  # the run this configuration belongs to (Run.run)
     digest: str = ""  # the digest of the run's resolved scenario (Run.digest)
+    arena: bool = False  # arena.bounds set: a drive stops its robot outside [xmin, xmax] x [ymin, ymax]
+    xmin: float = 0.0
+    xmax: float = 0.0
+    ymin: float = 0.0
+    ymax: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -328,7 +333,8 @@ _SPEC: dict[str, tuple[tuple[str, str], ...]] = {
     "config": (("id", "id"), ("x", "n"), ("y", "n"), ("theta", "n"), ("dx", "n"), ("dy", "n"), ("r", "n"),
                ("R", "n"), ("k1", "n"), ("k2", "n"), ("k3", "n"), ("tu", "n"), ("vt", "n"), ("threshold", "i"),
                ("governor", "b"), ("dt", "n"), ("sense", "n"), ("reach", "n"), ("lockstep", "b"), ("robots", "i"),
-               ("v_max", "n"), ("w_max", "n"), ("run", "s"), ("digest", "s")),
+               ("v_max", "n"), ("w_max", "n"), ("run", "s"), ("digest", "s"), ("arena", "b"), ("xmin", "n"),
+               ("xmax", "n"), ("ymin", "n"), ("ymax", "n")),
     "progress": (("t", "n"), ("seq", "i"), ("duration", "n"), ("robots", "i"), ("alive", "i"),
                  ("converged", "i"), ("frozen", "i"), ("min_distance", "n"), ("misses", "i"), ("bad", "i"),
                  ("collisions", "i"), ("overruns", "i"), ("min_obstacle", "n"), ("position_error", "n"),
@@ -540,7 +546,9 @@ def _check_clock(m: Clock) -> None:
 
 def _check_config_bounds(c: Config) -> None:
     _check_config(c)
-    _within(c, MAX_COORD, "x", "y", "dx", "dy", "R", "sense")
+    _within(c, MAX_COORD, "x", "y", "dx", "dy", "R", "sense", "xmin", "xmax", "ymin", "ymax")
+    if c.arena and not (c.xmin < c.xmax and c.ymin < c.ymax):
+        raise ProtocolError(f"an arena must have xmin < xmax and ymin < ymax, got {(c.xmin, c.xmax, c.ymin, c.ymax)}")
     _within(c, MAX_ANGLE, "theta")
     _within(c, MAX_SPEED, "v_max")
     _within(c, MAX_TURN, "w_max")
