@@ -533,7 +533,7 @@ class Agent:
             self.p[law.P_DT] = self.cfg.dt + min(HORIZON_CAP_S, lag + self.oldest_state_s)
         xl, yl, thl, vl, wl = ref
         v, w = law.robot_command(x, y, th, self.cfg.dx, self.cfg.dy, self.cfg.r, t, xl, yl, thl, vl, wl,
-                                 nx, ny, nr, nR, nk, len(nx), self.mem, self.p)
+                                 nx, ny, nr, nR, nk, [0.0] * len(nx), len(nx), self.mem, self.p)
         self.neighbours, self.stale = robots, stale
         self.stale_total += stale
         return v, w

@@ -71,7 +71,7 @@ FREEZE_MERGE_S = 0.1
 @jit.njit
 def run_steps(k0, k1, n_steps, q, comp, mem, cmd, offsets, radius, obstacles,
               ocells, ohead, oorder, cells, head, order, table, p, acc, iacc, pairs, last_frozen,
-              buf, nx, ny, nr, nR, nk, rec_every, rec_t, rec_q, rec_err, rec_cmd, rec_frozen, rec_leader):
+              buf, nx, ny, nr, nR, nk, na, rec_every, rec_t, rec_q, rec_err, rec_cmd, rec_frozen, rec_leader):
     """Evaluate steps k0 <= k < k1 (k1 <= n_steps + 1); see the module docstring. Returns the next k.
 
     q (N, 3) poses, comp (N, 3) their Kahan compensations, mem (N, M_SIZE) law memory,
@@ -80,7 +80,7 @@ def run_steps(k0, k1, n_steps, q, comp, mem, cmd, offsets, radius, obstacles,
     order) scratch for the robots' grid, table the leader's segments, p the law's
     parameters, pairs (cap, 2) the pairs in collision at the previous step, last_frozen
     (N) the last step each robot was frozen (-1 never), buf/nx/ny/nr/nR/nk scratch of
-    size N + M, rec_* sample arrays written every rec_every steps and at the last one.
+    size N + M, na (N + M) zeros (no body is stale without faults), rec_* sample arrays written every rec_every steps and at the last one.
     """
     n = q.shape[0]
     m = obstacles.shape[0]
@@ -158,7 +158,7 @@ def run_steps(k0, k1, n_steps, q, comp, mem, cmd, offsets, radius, obstacles,
             if pe < CONVERGED_POSITION_M and abs(ee) < CONVERGED_ANGLE_RAD:
                 converged += 1
             v, w = _robot_command(x, y, th, offsets[i, 0], offsets[i, 1], radius[i, 0], t, xl, yl, thl, vl, wl,
-                                  nx, ny, nr, nR, nk, cnt, mem[i], p)
+                                  nx, ny, nr, nR, nk, na, cnt, mem[i], p)
             cmd[i, 0] = v
             cmd[i, 1] = w
             if mem[i, M_SCALE] < 1.0:

@@ -204,8 +204,9 @@ def speed_bound_scale(v, w, v_max, w_max):
 
 
 @_jit
-def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, dt, reach, sense, obstacle_r):
-    """Largest |v| [m/s] with which one step of length dt keeps every body safe.
+def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, na, n, dt, reach, sense, obstacle_r, v_max, hx, hy):
+    """Largest |v| [m/s] with which one step of length dt keeps every body safe, and whether the
+    robot must not move toward some body at all (1.0) or may (0.0).
 
     Over a step the robot moves at most |v| dt (an arc is no shorter than its chord).
     A static body may take GOVERNOR_FRACTION of the clearance l - r per step, another
@@ -217,13 +218,24 @@ def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, dt, reach, sense, obst
     (sense - obstacle_r), the least clearance an obstacle beyond `sense` can have.
     A body already inside (clearance <= 0) sets no limit: the clamped repulsion
     pushes the robot out and stopping it there would trap it.
+
+    Under faults (docs/faults.md) a known body may be stale: na[k] [s] is the age of what this
+    robot knows of it (0: current). It may have moved since, by at most na[k] times the speed
+    bound (v_max; 0: the per-step bound below, over dt): that distance is taken off its clearance
+    (never added to r or R, which the law uses unchanged), and a body it can reach counts even
+    beyond `reach`. A stale body with no clearance left allows only motion away: the second
+    result is 1.0 when the motion (hx, hy) (the unit direction of travel) points toward it.
     """
-    limit = min(0.5 * GOVERNOR_FRACTION * (reach - r_self), GOVERNOR_FRACTION * (sense - obstacle_r)) / dt
+    per_step = min(0.5 * GOVERNOR_FRACTION * (reach - r_self), GOVERNOR_FRACTION * (sense - obstacle_r))
+    limit = per_step / dt
+    vb = v_max if v_max > 0.0 else per_step / dt
+    blocked = 0.0
     for k in range(n):
         dx = x - nx[k]
         dy = y - ny[k]
         l = math.sqrt(dx * dx + dy * dy)
-        if l >= (reach if nk[k] == KIND_ROBOT else sense):
+        drift = na[k] * vb  # how far a stale body may have come since
+        if l - drift >= (reach if nk[k] == KIND_ROBOT else sense):
             continue
         if nk[k] == KIND_ROBOT:
             c = l - max(r_self, nr[k])
@@ -232,14 +244,18 @@ def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, dt, reach, sense, obst
             c = l - nr[k]
             share = GOVERNOR_FRACTION
         if c > 0.0:
-            cap = share * c / dt
-            if cap < limit:
-                limit = cap
-    return limit
+            c -= drift
+            if c > 0.0:
+                cap = share * c / dt
+                if cap < limit:
+                    limit = cap
+            elif -dx * hx - dy * hy > 0.0:  # stale, no clearance left, and the robot heads toward it
+                blocked = 1.0
+    return limit, blocked
 
 
 @_jit
-def robot_command(x, y, th, ox, oy, r_self, t, xl, yl, thl, vl, wl, nx, ny, nr, nR, nk, n, mem, p):
+def robot_command(x, y, th, ox, oy, r_self, t, xl, yl, thl, vl, wl, nx, ny, nr, nR, nk, na, n, mem, p):
     """One control step of one robot: freeze rule, law, threshold, speed bound, governor.
 
     x, y, th: the robot's pose; (ox, oy): its formation offset d_i; r_self: its radius;
@@ -250,6 +266,7 @@ def robot_command(x, y, th, ox, oy, r_self, t, xl, yl, thl, vl, wl, nx, ny, nr, 
     of a body is zero beyond its R anyway, and the governor leaves such robots out too, so a
     distributed robot needs exactly the robots its lock-step wait rule guarantees
     (docs/runtime.md); obstacles, known to every robot, count up to p[P_SENSE];
+    na: the age [s] of what is known of each body (0 without faults: see governor_speed_limit);
     mem: this robot's memory (M_* layout), updated; p: parameters (P_* layout).
     Returns (v [m/s], w [rad/s]).
     """
@@ -281,12 +298,16 @@ def robot_command(x, y, th, ox, oy, r_self, t, xl, yl, thl, vl, wl, nx, ny, nr, 
         w *= bound
     scale = 1.0
     if p[P_GOVERNOR] != 0.0:
-        limit = governor_speed_limit(x, y, r_self, nx, ny, nr, nk, n, p[P_DT], p[P_REACH], p[P_SENSE],
-                                     p[P_OBSTACLE_R])
+        sv = 1.0 if v >= 0.0 else -1.0
+        limit, blocked = governor_speed_limit(x, y, r_self, nx, ny, nr, nk, na, n, p[P_DT], p[P_REACH],
+                                              p[P_SENSE], p[P_OBSTACLE_R], p[P_V_MAX], sv * math.cos(th),
+                                              sv * math.sin(th))
         if abs(v) > limit:
             scale = limit / abs(v)
             v *= scale
             w *= scale
+        if blocked != 0.0:
+            v = 0.0  # only motion away from a stale body with no clearance left: turn in place
     mem[M_EX] = ex
     mem[M_EY] = ey
     mem[M_ETH] = eth

@@ -568,7 +568,7 @@ def first_commands(scn: Scenario, progress: Progress = silent, counter: Counter 
         x, y, th = q[k]
         try:
             out[k] = law.robot_command(x, y, th, off[k][0], off[k][1], r, 0.0, xl, yl, thl, vl, wl,
-                                       nx, ny, nr, nR, nk, len(nx), mem, params)
+                                       nx, ny, nr, nR, nk, [0.0] * len(nx), len(nx), mem, params)
         except (OverflowError, ValueError, ZeroDivisionError):
             out[k] = math.nan
     return out

@@ -97,6 +97,7 @@ class Simulation:
         self.buf = np.zeros(size, np.int64)
         self.nx, self.ny, self.nr, self.nR = (np.zeros(size) for _ in range(4))
         self.nk = np.zeros(size, np.int64)
+        self.na = np.zeros(size)  # ages of the known bodies: all current without faults
         self.rec_every = max(1, int(round(record_period / scn.dt)))
         s = self.n_steps // self.rec_every + 2
         self.rec = Recording(np.zeros(s), np.zeros((s, n, 3)), np.zeros((s, n, 3)), np.zeros((s, n, 2)),
@@ -117,7 +118,7 @@ class Simulation:
             self.next_k, k_end, self.n_steps, self.q, self.comp, self.mem, self.cmd, self.offsets, self.radius,
             self.obstacles, self.ocells, self.ohead, self.oorder, self.cells, self.head, self.order, self.table,
             self.p, self.acc, self.iacc, self.pairs, self.last_frozen, self.buf, self.nx, self.ny, self.nr, self.nR,
-            self.nk, self.rec_every, r.t, r.q, r.err, r.cmd, r.frozen, r.leader,
+            self.nk, self.na, self.rec_every, r.t, r.q, r.err, r.cmd, r.frozen, r.leader,
         )
         bad = int(self.iacc[self.k.I_NONFINITE])
         if bad:

@@ -65,7 +65,7 @@ def law_command(pose, ref, t, bodies, mem=None, cfg=CFG, horizon=None, obstacle_
     p[law.P_DT] = cfg.dt if horizon is None else horizon
     nx, ny, nr, nR, nk = ([b[i] for b in bodies] for i in range(5))
     return law.robot_command(pose[0], pose[1], pose[2], cfg.dx, cfg.dy, cfg.r, t, *ref, nx, ny, nr, nR, nk,
-                             len(bodies), mem, p)
+                             [0.0] * len(bodies), len(bodies), mem, p)
 
 
 def test_command_is_the_core_law_with_neighbours_and_an_obstacle():

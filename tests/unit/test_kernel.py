@@ -54,7 +54,7 @@ class Reference:
         nk = np.zeros(size, np.int64)
         for a, row in enumerate(rows):
             nx[a], ny[a], nr[a], nR[a], nk[a] = row
-        return nx, ny, nr, nR, nk, len(rows)
+        return nx, ny, nr, nR, nk, np.zeros(size), len(rows)
 
     def advance(self, steps):
         scn = self.scn

@@ -23,13 +23,13 @@ def params(dt=0.01, threshold="off", governor=False, tu=1.0, vt=0.05, sense=SENS
 
 
 def bodies(*rows):
-    """rows of (x, y, r, R, kind) -> nx, ny, nr, nR, nk, n (arrays with one spare entry)."""
+    """rows of (x, y, r, R, kind) -> nx, ny, nr, nR, nk, na, n (arrays with one spare entry; na: ages, all 0)."""
     size = len(rows) + 1
     nx, ny, nr, nR = (np.zeros(size) for _ in range(4))
     nk = np.zeros(size, np.int64)
     for a, (x, y, r, R, kind) in enumerate(rows):
         nx[a], ny[a], nr[a], nR[a], nk[a] = x, y, r, R, kind
-    return nx, ny, nr, nR, nk, len(rows)
+    return nx, ny, nr, nR, nk, np.zeros(size), len(rows)
 
 
 def new_mem():
@@ -440,12 +440,12 @@ def test_governor_step_closes_at_most_its_share_of_the_clearance(kind, r_body, l
 
 def test_governor_limit_of_bodies_out_of_reach_is_a_share_of_the_reach():
     dt, r_self = 0.02, 0.3
-    nx, ny, nr, nR, nk, n = bodies()
-    limit = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE, 0.3)
+    nx, ny, nr, nR, nk, na, n = bodies()
+    limit = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, na, n, dt, REACH, SENSE, 0.3, 0.0, 1.0, 0.0)[0]
     assert_allclose(limit * dt, 0.5 * law.GOVERNOR_FRACTION * (REACH - r_self), rtol=1e-15)
     # a robot at the reach or farther, an obstacle at the cell side or farther, set no limit of their own
-    nx, ny, nr, nR, nk, n = bodies((REACH, 0.0, 0.3, 1.2, law.KIND_ROBOT), (0.0, SENSE, 1.1, 1.2, law.KIND_OBSTACLE))
-    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE, 0.3) == limit
+    nx, ny, nr, nR, nk, na, n = bodies((REACH, 0.0, 0.3, 1.2, law.KIND_ROBOT), (0.0, SENSE, 1.1, 1.2, law.KIND_OBSTACLE))
+    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, na, n, dt, REACH, SENSE, 0.3, 0.0, 1.0, 0.0)[0] == limit
 
 
 def test_the_bound_for_unseen_obstacles_follows_the_largest_obstacle():
@@ -453,10 +453,10 @@ def test_the_bound_for_unseen_obstacles_follows_the_largest_obstacle():
     take GOVERNOR_FRACTION of that, less than the share of reach - r_self a step toward unseen robots may
     take (a review found 5-15 collisions with big obstacles when only that bound held)."""
     dt, r_self, reach, sense = 0.1, 0.3, 2.5, 2.8
-    nx, ny, nr, nR, nk, n = bodies()
-    limit = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, reach, sense, 2.4)
+    nx, ny, nr, nR, nk, na, n = bodies()
+    limit = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, na, n, dt, reach, sense, 2.4, 0.0, 1.0, 0.0)[0]
     assert_allclose(limit * dt, law.GOVERNOR_FRACTION * (sense - 2.4), rtol=1e-15)
-    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, reach, sense, 0.3) * dt == \
+    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, na, n, dt, reach, sense, 0.3, 0.0, 1.0, 0.0)[0] * dt == \
         pytest.approx(0.5 * law.GOVERNOR_FRACTION * (reach - r_self))
 
 
@@ -492,13 +492,13 @@ def test_known_robots_beyond_the_reach_do_not_act_on_the_command(far):
 @pytest.mark.parametrize("l", [0.3, 0.2, 0.0])
 def test_body_already_inside_sets_no_speed_limit(kind, l):
     dt, r_self = 0.02, 0.3
-    nx, ny, nr, nR, nk, n = bodies()
-    free = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE, 0.3)
-    nx, ny, nr, nR, nk, n = bodies((l, 0.0, 0.3, 1.2, kind))
-    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE, 0.3) == free
+    nx, ny, nr, nR, nk, na, n = bodies()
+    free = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, na, n, dt, REACH, SENSE, 0.3, 0.0, 1.0, 0.0)[0]
+    nx, ny, nr, nR, nk, na, n = bodies((l, 0.0, 0.3, 1.2, kind))
+    assert law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, na, n, dt, REACH, SENSE, 0.3, 0.0, 1.0, 0.0)[0] == free
     # with another body outside, that one sets the limit
-    nx, ny, nr, nR, nk, n = bodies((l, 0.0, 0.3, 1.2, kind), (0.0, 0.5, 0.3, 1.2, law.KIND_OBSTACLE))
-    got = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, n, dt, REACH, SENSE, 0.3)
+    nx, ny, nr, nR, nk, na, n = bodies((l, 0.0, 0.3, 1.2, kind), (0.0, 0.5, 0.3, 1.2, law.KIND_OBSTACLE))
+    got = law.governor_speed_limit(0.0, 0.0, r_self, nx, ny, nr, nk, na, n, dt, REACH, SENSE, 0.3, 0.0, 1.0, 0.0)[0]
     assert_allclose(got, law.GOVERNOR_FRACTION * 0.2 / dt, rtol=1e-12)
     # and through robot_command: inside a body the robot is pushed out at up to the free limit
     p = params(dt=dt, governor=True, threshold="off")
