@@ -213,10 +213,8 @@ def secure_base(directory: str, role: str | None, robot_id: int | None, connect:
         raise BadInput(f"--secure {directory}: {e}") from None
 
 
-def load_scenario(args, quiet: bool = False):
-    """The scenario of the command line (a flag beats the file, which beats the built-in default);
-    quiet: no progress lines (the child processes of swarm up, --quiet)."""
-    from swarm.core import scenario_file
+def overrides(args):
+    """The scenario flags of a command line as swarm.core.scenario_file.Overrides (absent: None)."""
     from swarm.core.scenario_file import Overrides
 
     dt = getattr(args, "dt", None)
@@ -225,10 +223,19 @@ def load_scenario(args, quiet: bool = False):
         if dt is not None:
             raise BadInput("give --dt or --rate, not both")
         dt = 1.0 / rate
-    ov = Overrides(robots=getattr(args, "robots", None), seed=getattr(args, "seed", None),
-                   duration=getattr(args, "duration", None), dt=dt, governor=getattr(args, "governor", None))
+    return Overrides(robots=getattr(args, "robots", None), seed=getattr(args, "seed", None),
+                     duration=getattr(args, "duration", None), dt=dt, governor=getattr(args, "governor", None),
+                     faults=getattr(args, "faults", None), drop=getattr(args, "drop", None),
+                     kill=getattr(args, "kill", None))
+
+
+def load_scenario(args, quiet: bool = False):
+    """The scenario of the command line (a flag beats the file, which beats the built-in default);
+    quiet: no progress lines (the child processes of swarm up, --quiet)."""
+    from swarm.core import scenario_file
+
     quiet = quiet or getattr(args, "quiet", False)
-    return scenario_file.load(args.scenario, ov, progress=scenario_file.silent if quiet else None)
+    return scenario_file.load(args.scenario, overrides(args), progress=scenario_file.silent if quiet else None)
 
 
 def scenario_args(args) -> tuple[str, ...]:
@@ -243,6 +250,12 @@ def scenario_args(args) -> tuple[str, ...]:
         out += ["--dt", repr(args.dt)]
     if args.governor is not None:
         out.append("--governor" if args.governor else "--no-governor")
+    if getattr(args, "faults", None) is not None:
+        out += ["--faults", str(Path(args.faults).absolute())]
+    if getattr(args, "drop", None) is not None:
+        out += ["--drop", repr(args.drop)]
+    if getattr(args, "kill", None) is not None:
+        out += ["--kill", args.kill]
     return tuple(out)
 
 

@@ -133,6 +133,27 @@ def _add_scenario_flags(p: argparse.ArgumentParser, default: str) -> None:
     g.add_argument("--dt", type=_positive_float, metavar="DT", help="control period [s]")
     g.add_argument("--governor", action=argparse.BooleanOptionalAction, default=None,
                    help="the discrete-time safety governor (default: the scenario's control.governor)")
+    _add_fault_flags(g)
+
+
+def _probability(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"a probability is in [0, 1], got {text!r}")
+    return value
+
+
+def _add_fault_flags(g) -> None:
+    """Faults (docs/faults.md): a table of their own, and the two shorthands."""
+    g.add_argument("--faults", metavar="FILE",
+                   help="a TOML file holding a [faults] table: it replaces the scenario's (docs/faults.md)")
+    g.add_argument("--drop", type=_probability, metavar="P",
+                   help="lose every message (state, pose, cmd, ref) with probability P: one drop rule of class all")
+    g.add_argument("--kill", metavar="ID@T,...",
+                   help="kill robot ID's process at T s (for example 2@15,5@15): one kill rule a robot")
 
 
 def _add_optional_scenario_flags(p: argparse.ArgumentParser, otherwise: str) -> None:
@@ -145,6 +166,7 @@ def _add_optional_scenario_flags(p: argparse.ArgumentParser, otherwise: str) -> 
     g.add_argument("--dt", type=_positive_float, metavar="DT", help="with --scenario: control period [s]")
     g.add_argument("--governor", action=argparse.BooleanOptionalAction, default=None,
                    help="with --scenario: the safety governor")
+    _add_fault_flags(g)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -182,8 +204,9 @@ def build_parser() -> argparse.ArgumentParser:
                               description="Print the resolved scenario as a TOML file with explicit lists "
                                           "(offsets already assigned, so assignment = \"ordered\").")
     show.add_argument("source", metavar="NAME|FILE")
-    show.add_argument("--robots", type=_count, metavar="N")
-    show.add_argument("--seed", type=_seed, metavar="S")
+    show.add_argument("--robots", type=_count, metavar="N", help="resize a scenario made by generators")
+    show.add_argument("--seed", type=_seed, metavar="S", help="the random seed (starts, slot assignment)")
+    _add_fault_flags(show)
     show.set_defaults(func="swarm.cli.sim:cmd_scenario_show")
     check = scn_sub.add_parser("check", help="check scenario files; exit 2 at the first bad one")
     check.add_argument("files", nargs="+", metavar="FILE")
@@ -231,6 +254,39 @@ def _initial_pose(text: str) -> tuple[float, float, float]:
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
         raise argparse.ArgumentTypeError(f"expected x,y,theta (three finite numbers: m, m, rad), got {text!r}")
     return values
+
+
+def _robot_pose(text: str) -> tuple[int, tuple[float, float, float]]:
+    """I:X,Y,THETA: robot I's start [m, m, rad]."""
+    head, sep, tail = text.partition(":")
+    try:
+        i = int(head)
+    except ValueError:
+        i = -1
+    if not sep or i < 0:
+        raise argparse.ArgumentTypeError(f"expected I:X,Y,THETA (a robot id, then three numbers), got {text!r}")
+    return i, _initial_pose(tail)
+
+
+def robot_id(text: str) -> int | None:
+    """--id: a robot id (an integer >= 0), or "auto" (None): claim the lowest free one from the world."""
+    if text == "auto":
+        return None
+    return _int_at_least(0)(text)
+
+
+def _add_fleet_flags(g, robot: bool = False) -> None:
+    """A real fleet's flags (docs/deploy.md): the inventory, the pre-flight, the robots' starts."""
+    g.add_argument("--inventory", metavar="FILE",
+                   help="the fleet's inventory (TOML): which robot is which, its drive, ROS 2 topics, endpoint, start "
+                        "and limits" + ("; --id I takes row I" if robot else ""))
+    if not robot:
+        g.add_argument("--no-preflight", action="store_true",
+                       help="with --inventory: skip the pre-flight (odometry fresh, starts apart, inside the arena and "
+                            "outside obstacles, the leader within 0.8 of every robot's limits)")
+        g.add_argument("--initial-pose", type=_robot_pose, action="append", metavar="I:X,Y,THETA",
+                       help="with --inventory: robot I stands at X,Y,THETA (beats the inventory and the scenario); "
+                            "repeatable")
 
 
 def _domain(text: str) -> int:
@@ -334,6 +390,7 @@ def _add_runtime_parsers(sub) -> None:
                    help="the restart policy's window in seconds (default 60)")
     g.add_argument("--log-dir", metavar="DIR", help="where the processes' logs go (default: a new temp dir)")
     g.add_argument("--quiet", action="store_true", help="no status line and no summary")
+    _add_fleet_flags(up.add_argument_group("real robots (no simulated world: the referee watches their odometry)"))
     _add_viz_flags(up, "--no-viz")
     up.set_defaults(func="swarm.cli.up:cmd_up")
 
@@ -354,6 +411,11 @@ def _add_runtime_parsers(sub) -> None:
                    help="the simulated robots speak ROS 2: each takes cmd_vel and gives odometry (its own frame, zero "
                         "at its start) on the ROS 2 keys of FLAVOR (rmw_zenoh or bridge), in CDR; needs --mode realtime")
     _add_ros2_flags(g, world=True)
+    g = world.add_argument_group("real robots")
+    g.add_argument("--referee-only", action="store_true",
+                   help="no physics: serve the run to real robots (with --inventory) and referee it from their "
+                        "odometry (the robots' states): metrics, snapshots, progress as in simulation; real time")
+    _add_fleet_flags(g)
     world.set_defaults(func="swarm.cli.world:cmd_world")
 
     leader = sub.add_parser("leader", help="publish the leader's reference",
@@ -382,7 +444,32 @@ def _add_runtime_parsers(sub) -> None:
                         "the odometry frame is anchored there on its first message")
     g.add_argument("--ref-timeout", type=_positive_float, default=2.5, metavar="S",
                    help="stop the robot when the reference has been extrapolated for longer than S (default 2.5)")
+    g = robot.add_argument_group("a real fleet, or ids handed out by the world")
+    _add_fleet_flags(g, robot=True)
+    g.add_argument("--claim-key", metavar="KEY",
+                   help="with --id auto: who claims (letters, digits, '_', '.', '-'; @hostname: this machine's host "
+                        "name): the same key gets the same id back, so a restarted container comes back as itself "
+                        "(default: a new key, a new id)")
     robot.set_defaults(func="swarm.cli.robot:cmd_robot")
+
+    pre = sub.add_parser(
+        "preflight", help="check a real fleet before it moves: odometry, starts, arena, limits (exit 1 on a failure)",
+        description="Check a real fleet against a scenario without moving anything: every robot's ROS 2 side answers "
+                    "and its odometry is fresh; starts at least r apart, outside every obstacle and inside "
+                    "arena.bounds; every leader segment within 0.8 of every robot's limits (|v| <= 0.8 v_max, |w| "
+                    "<= 0.8 w_max) and v_max >= control.vt. Each failure names the robot and the reason. swarm up "
+                    "--inventory and swarm world --referee-only run it at the start of every run.",
+        epilog="Example: swarm preflight --inventory fleet.toml --scenario turtlebot3 --connect tcp/192.168.1.10:7447")
+    pre.add_argument("--inventory", required=True, metavar="FILE", help="the fleet's inventory (TOML)")
+    pre.add_argument("--initial-pose", type=_robot_pose, action="append", metavar="I:X,Y,THETA",
+                     help="robot I stands at X,Y,THETA (beats the inventory and the scenario); repeatable")
+    pre.add_argument("--odom-timeout", type=_positive_float, default=10.0, metavar="S",
+                     help="seconds to wait for every robot's ROS 2 side and first odometry (default 10)")
+    pre.add_argument("--odom-window", type=_positive_float, default=1.5, metavar="S",
+                     help="seconds of odometry watched for gaps (default 1.5)")
+    _add_scenario_flags(pre, "paper-50hz")
+    _add_net_flags(pre)
+    pre.set_defaults(func="swarm.cli.preflight:cmd_preflight")
 
     stop = sub.add_parser("stop", help="emergency stop: every robot of the fleet holds zero velocity (latched)",
                           description="Put the emergency stop on the fleet's estop key: every drive halts its robot "

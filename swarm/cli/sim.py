@@ -7,25 +7,17 @@ import json
 import sys
 import time
 
-from swarm.cli.common import (EXIT_OK, BadInput, Failure, StopEvent, check_out_dir, check_viz_port,
+from swarm.cli.common import (EXIT_OK, BadInput, Failure, StopEvent, check_out_dir, check_viz_port, overrides,
                               record_rate, viz_options)
 from swarm.cli import console
 from swarm.cli.console import exit_status, summary
-
-
-def _overrides(args: argparse.Namespace):
-    from swarm.core.scenario_file import Overrides
-
-    return Overrides(robots=getattr(args, "robots", None), seed=getattr(args, "seed", None),
-                     duration=getattr(args, "duration", None), dt=getattr(args, "dt", None),
-                     governor=getattr(args, "governor", None))
 
 
 def cmd_sim(args: argparse.Namespace, started: float) -> int:
     from swarm.core import scenario_file
     from swarm.core.sim import Simulation
 
-    scn = scenario_file.load(args.scenario, _overrides(args), progress=scenario_file.silent if args.quiet else None)
+    scn = scenario_file.load(args.scenario, overrides(args), progress=scenario_file.silent if args.quiet else None)
     for note in scenario_file.advisories(scn):
         print(f"swarm sim: warning: {note}", file=sys.stderr)
     check_out_dir("--metrics", args.metrics)
@@ -117,7 +109,7 @@ def _sim_in_viewer(args: argparse.Namespace, viz, scn, sim, show, status, starte
 def cmd_scenario_show(args: argparse.Namespace, started: float) -> int:
     from swarm.core import scenario_file
 
-    scn = scenario_file.load(args.source, _overrides(args))
+    scn = scenario_file.load(args.source, overrides(args))
     sys.stdout.write(scenario_file.to_toml(scn))
     return EXIT_OK
 

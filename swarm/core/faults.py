@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from swarm.core import faultgen as fg
-from swarm.core.scenario import ScenarioError
+from swarm.core.errors import ScenarioError
 
 CLASSES = {"state": fg.CLS_STATE, "pose": fg.CLS_POSE, "cmd": fg.CLS_CMD, "ref": fg.CLS_REF, "all": fg.CLS_ALL}
 WORLD = fg.WORLD

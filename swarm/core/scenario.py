@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from swarm.core import kinematics, law
+from swarm.core.errors import ScenarioError  # noqa: F401  (re-exported: swarm.core.scenario.ScenarioError)
+from swarm.core.faults import Faults
 
 THRESHOLDS = {"off": law.THRESHOLD_OFF, "frozen": law.THRESHOLD_FROZEN, "always": law.THRESHOLD_ALWAYS}
 
@@ -23,14 +25,6 @@ THRESHOLDS = {"off": law.THRESHOLD_OFF, "frozen": law.THRESHOLD_FROZEN, "always"
 # the largest R act on its command. Lock-step equals swarm sim while no robot moves more
 # than a third of the margin in one tick (docs/runtime.md).
 CELL_MARGIN = 0.3  # m
-
-
-class ScenarioError(ValueError):
-    """A scenario that cannot run. `where` is the file, `key` the dotted key."""
-
-    def __init__(self, where: str, key: str, reason: str):
-        self.where, self.key, self.reason = where, key, reason
-        super().__init__(f"{where}: {key}: {reason}" if key else f"{where}: {reason}")
 
 
 @dataclass(frozen=True)
@@ -122,6 +116,7 @@ class Scenario:
     poses: np.ndarray = field(repr=False)  # (N, 3) initial poses
     obstacles: np.ndarray = field(repr=False)  # (M, 4) x, y, r, R
     bounds: tuple[float, float, float, float] | None = None  # m, the arena: xmin, xmax, ymin, ymax
+    faults: Faults | None = None  # the [faults] table (docs/faults.md); None: no fault
 
     @property
     def n(self) -> int:

@@ -103,6 +103,9 @@ class Overrides:
     duration: float | None = None
     dt: float | None = None
     governor: bool | None = None
+    faults: str | None = None  # --faults FILE: a faults table that replaces the scenario's
+    drop: float | None = None  # --drop P: one more drop rule of class "all"
+    kill: str | None = None  # --kill ID@T,...: one more kill rule a robot
 
 
 @dataclass(frozen=True)
@@ -126,6 +129,7 @@ class Spec:
     obstacles: np.ndarray  # (M, 4), rows already expanded
     builtin: str | None = None
     bounds: tuple[float, float, float, float] | None = None  # m, [arena] bounds
+    faults: Any = None  # the [faults] table as parsed TOML (checked once the robots are known: resolve)
 
 
 # --------------------------------------------------------------------------- reading
@@ -228,7 +232,7 @@ def _join(key: str, sub: str) -> str:
 def parse(doc: dict, where: str, name: str, builtin: str | None = None) -> Spec:
     """Check a parsed TOML document (docs/scenarios.md) and return its Spec."""
     rd = _Reader(where)
-    rd.table(doc, "", ("run", "control", "bodies", "arena", "leader", "formation", "robots", "obstacles"),
+    rd.table(doc, "", ("run", "control", "bodies", "arena", "leader", "formation", "robots", "obstacles", "faults"),
              ("run", "leader", "formation", "robots"))
 
     run = rd.table(doc["run"], "run", ("duration", "dt", "seed"), ("duration",))
@@ -315,7 +319,7 @@ def parse(doc: dict, where: str, name: str, builtin: str | None = None) -> Spec:
 
     obstacles = _parse_obstacles(rd, doc.get("obstacles", []), r, R)
     return Spec(where, name, duration, dt, seed, control, r, R, leader, offsets, hex_, assignment,
-                poses, random, obstacles, builtin, bounds)
+                poses, random, obstacles, builtin, bounds, doc.get("faults"))
 
 
 def _robot_count(rd: _Reader, value: Any, key: str) -> int:
@@ -422,7 +426,25 @@ def resolve(spec: Spec, ov: Overrides = Overrides(), progress: Progress = silent
                    np.ascontiguousarray(spec.obstacles, float).reshape(-1, 4), spec.bounds)
     check(scn, spec.where, offsets_key="formation.hex" if spec.hex else "formation.offsets",
           poses_key="robots.random" if spec.random else "robots.poses", progress=progress, counter=counter)
-    return scn
+    return scn.replace(faults=_resolve_faults(spec, ov, scn))
+
+
+def _resolve_faults(spec: Spec, ov: Overrides, scn: Scenario):
+    """The run's faults: the file's [faults] table (or --faults FILE instead), plus the --drop and --kill
+    shorthands; None when there is no fault at all (the simulator then runs its fault-free kernel)."""
+    from swarm.core import faults as fl
+
+    if ov.faults is not None:
+        f = fl.load_faults_file(ov.faults, scn.n, scn.duration, scn.seed)
+    elif spec.faults is not None:
+        f = fl.parse_faults(spec.faults, spec.where, scn.n, scn.duration, scn.seed)
+    else:
+        f = fl.Faults.empty(scn.seed % fl.SEED_LIMIT)
+    drops = [fl.drop_shorthand(ov.drop)] if ov.drop is not None else []
+    kills = list(fl.kill_shorthand(ov.kill, scn.n, scn.duration)) if ov.kill is not None else []
+    if drops or kills:
+        f = fl.merged(f, drops=drops, kills=kills)
+    return f if f else None
 
 
 def _check_steps(spec: Spec, ov: Overrides, duration: float, dt: float) -> None:
@@ -621,6 +643,10 @@ def advisories(scn: Scenario, counter: Counter | None = None) -> list[str]:
                    "lose resolution there and may overflow")
     if scn.bounds is not None:
         out.extend(_arena_advisories(scn))
+    if scn.faults:
+        from swarm.core.faults import advisories as fault_advisories
+
+        out += fault_advisories(scn.faults, scn.duration)
     return out
 
 
@@ -796,4 +822,8 @@ def to_toml(scn: Scenario) -> str:
     ]
     for x, y, r, R in scn.obstacles:
         lines += ["", "[[obstacles]]", f"center = {vec((x, y))}", f"r = {num(r)}", f"R = {num(R)}"]
+    if scn.faults:
+        from swarm.core.faults import to_toml as faults_toml
+
+        lines += ["", faults_toml(scn.faults).rstrip("\n")]
     return "\n".join(lines) + "\n"

@@ -103,6 +103,15 @@ class Simulation:
         self.rec = Recording(np.zeros(s), np.zeros((s, n, 3)), np.zeros((s, n, 3)), np.zeros((s, n, 2)),
                              np.zeros((s, n), np.bool_), np.zeros((s, 3)))
         self.next_k = 0
+        # under faults: what each robot knows is what was delivered to it (swarm.core.faultkernel)
+        self.faults = None
+        if scn.faults:
+            from swarm.core.faultsim import FaultState
+
+            from swarm.core.faultsim import horizon
+
+            self.faults = FaultState(scn)
+            self.p[law.P_DT] = horizon(scn.faults, scn.dt)  # the governor's; the step stays scn.dt
 
     @property
     def done(self) -> bool:
@@ -114,12 +123,24 @@ class Simulation:
         if k_end <= self.next_k:
             return
         r = self.rec
+        if self.faults is not None:
+            f = self.faults
+            self.next_k = f.fk.run_fault_steps(
+                self.next_k, k_end, self.n_steps, self.scn.dt, self.q, self.comp, self.mem, self.offsets,
+                self.radius, self.obstacles, self.table, self.p, *f.arguments(), self.acc, self.iacc, f.facc, f.fmax, f.inside,
+                self.last_frozen, self.nx, self.ny, self.nr, self.nR, self.nk, self.na, self.rec_every, r.t, r.q,
+                r.err, r.cmd, r.frozen, r.leader)
+            self._check_finite()
+            return
         self.next_k = self.k.run_steps(
             self.next_k, k_end, self.n_steps, self.q, self.comp, self.mem, self.cmd, self.offsets, self.radius,
             self.obstacles, self.ocells, self.ohead, self.oorder, self.cells, self.head, self.order, self.table,
             self.p, self.acc, self.iacc, self.pairs, self.last_frozen, self.buf, self.nx, self.ny, self.nr, self.nR,
             self.nk, self.na, self.rec_every, r.t, r.q, r.err, r.cmd, r.frozen, r.leader,
         )
+        self._check_finite()
+
+    def _check_finite(self) -> None:
         bad = int(self.iacc[self.k.I_NONFINITE])
         if bad:
             raise SimulationError(f"robot {bad - 1} reached a non-finite state at t = {(self.next_k - 1) * self.scn.dt:g} s")
@@ -160,12 +181,12 @@ class Simulation:
         return Recording(r.t[:s], r.q[:s], r.err[:s], r.cmd[:s], r.frozen[:s], r.leader[:s])
 
     def metrics(self, wall_s: float, interrupted: bool = False) -> dict:
-        """The metrics of DESIGN.md section 7 (plus a few extra keys) for the steps run so far."""
+        """The metrics of docs/metrics.md (plus a few extra keys) for the steps run so far."""
         scn, k = self.scn, self.k
         last = self.next_k - 1  # the last evaluated step
         last_bad = int(self.iacc[k.I_LAST_BAD])
         converged_at = None
-        if last >= 0 and last_bad < last:
+        if last >= 0 and last_bad < last:  # (under faults: over the live robots that are alive at the end)
             converged_at = _step_time(last_bad + 1, scn.dt)
         last_frozen = int(self.iacc[k.I_LAST_FROZEN])
         min_rr = float(self.acc[k.A_MIN_RR])
@@ -186,7 +207,8 @@ class Simulation:
             min_robot_distance=min_rr, min_obstacle_distance=min_ro, collisions=self.iacc[k.I_COLLISIONS],
             last_freeze_end_s=None if last_frozen < 0 else _step_time(last_frozen, scn.dt), wall_s=wall_s,
             interrupted=interrupted, mode="sim", freeze_intervals=int(self.iacc[k.I_FREEZE_INTERVALS]),
-            governed_robot_steps=int(self.iacc[k.I_GOVERNED]), steps=max(last, 0))
+            governed_robot_steps=int(self.iacc[k.I_GOVERNED]), steps=max(last, 0),
+            **(self.faults.metrics() if self.faults is not None else {}))
 
 
 def _step_time(k: int, dt: float) -> float:
