@@ -22,7 +22,8 @@ from pathlib import Path
 from types import ModuleType
 
 # Every module whose source ends up inside a compiled kernel.
-KERNEL_SOURCES = ("swarm.core.law", "swarm.core.kinematics", "swarm.core.grid", "swarm.core.kernel", "swarm.core.metrics")
+KERNEL_SOURCES = ("swarm.core.law", "swarm.core.kinematics", "swarm.core.grid", "swarm.core.kernel", "swarm.core.metrics",
+                  "swarm.core.faultgen", "swarm.core.faultkernel")
 
 
 def _source_path(name: str) -> Path:
