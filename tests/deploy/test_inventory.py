@@ -1,0 +1,170 @@
+"""The inventory (swarm.core.inventory): every refusal names the file, the key and the reason; the
+inventory applied to a scenario (starts, limits only tightened); the pre-flight's static checks, each
+naming the robot and the reason; and the `swarm preflight` command's static failures (exit 1)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from swarm.core import inventory, scenario_file
+from swarm.core.inventory import InventoryError
+from swarm.core.scenario import ScenarioError
+from tests.conftest import toml_text
+
+TB3 = scenario_file.load("turtlebot3", progress=scenario_file.silent)
+
+
+def rows(n: int = 7, **extra) -> dict:
+    return {"fleet": "lab", "robot": [{"id": i, **extra} for i in range(n)]}
+
+
+def write(tmp_path: Path, doc: dict | str, name: str = "fleet.toml") -> str:
+    p = tmp_path / name
+    p.write_text(doc if isinstance(doc, str) else toml_text(doc))
+    return str(p)
+
+
+def test_defaults_and_a_full_row(tmp_path):
+    doc = rows(7)
+    doc["robot"][3] = {"id": 3, "drive": "ros2", "flavor": "bridge", "namespace": "/tb3_3/", "domain": 7,
+                       "twist": "stamped", "connect": "tcp/192.168.1.23:7447", "initial_pose": [1.0, -2.0, 0.5],
+                       "v_max": 0.2, "w_max": 2.0}
+    inv = inventory.load(write(tmp_path, doc))
+    assert inv.fleet == "lab" and [e.id for e in inv.robots] == list(range(7))
+    e0 = inv.entry(0)
+    assert (e0.drive, e0.flavor, e0.namespace, e0.domain, e0.twist, e0.connect, e0.initial_pose) == \
+        ("ros2", "rmw_zenoh", "robot0", 0, "plain", None, None)
+    e3 = inv.entry(3)
+    assert (e3.flavor, e3.namespace, e3.domain, e3.twist, e3.connect, e3.initial_pose, e3.v_max, e3.w_max) == \
+        ("bridge", "tb3_3", 7, "stamped", "tcp/192.168.1.23:7447", (1.0, -2.0, 0.5), 0.2, 2.0)
+    assert inv.endpoints == ("tcp/192.168.1.23:7447",)
+    with pytest.raises(InventoryError, match="has no robot 9"):
+        inv.entry(9)
+
+
+@pytest.mark.parametrize("edit, key, reason", [
+    (lambda d: d.update(extra=1), "extra", "unknown key"),
+    (lambda d: d.pop("robot"), "robot", "missing required key"),
+    (lambda d: d.update(fleet="a b"), "fleet", "1-64 characters"),
+    (lambda d: d["robot"][1].update(colour="red"), "robot[1].colour", "unknown key"),
+    (lambda d: d["robot"][1].pop("id"), "robot[1].id", "missing required key"),
+    (lambda d: d["robot"][1].update(id=-1), "robot[1].id", "must be >= 0"),
+    (lambda d: d["robot"][1].update(id=0), "robot[1].id", "robot 0 is listed twice"),
+    (lambda d: d["robot"][1].update(drive="sim"), "robot[1].drive", "must be one of 'ros2'"),
+    (lambda d: d["robot"][1].update(flavor="dds"), "robot[1].flavor", "must be one of"),
+    (lambda d: d["robot"][1].update(twist="fast"), "robot[1].twist", "must be one of"),
+    (lambda d: d["robot"][1].update(namespace="1robot"), "robot[1].namespace", "ROS namespace"),
+    (lambda d: d["robot"][1].update(namespace="robot0"), "robot[1].namespace", "also robot[0]'s"),
+    (lambda d: d["robot"][1].update(domain=300), "robot[1].domain", "0..232"),
+    (lambda d: d["robot"][1].update(connect="192.168.1.2"), "robot[1].connect", "zenoh endpoint"),
+    (lambda d: d["robot"][1].update(connect="tcp/host:70000"), "robot[1].connect", "zenoh endpoint"),
+    (lambda d: d["robot"][1].update(initial_pose=[1.0, 2.0]), "robot[1].initial_pose", "list of 3 numbers"),
+    (lambda d: d["robot"][1].update(initial_pose=[1.0, math.nan, 0.0]), "robot[1].initial_pose[1]", "finite"),
+    (lambda d: d["robot"][1].update(v_max=0.0), "robot[1].v_max", "must be > 0"),
+    (lambda d: d["robot"][1].update(w_max=True), "robot[1].w_max", "must be a number"),
+])
+def test_every_refusal_names_the_file_the_key_and_the_reason(tmp_path, edit, key, reason):
+    doc = rows(3)
+    edit(doc)
+    path = write(tmp_path, doc)
+    with pytest.raises(InventoryError) as e:
+        inventory.load(path)
+    assert (e.value.where, e.value.key) == (path, key) and reason in e.value.reason, str(e.value)
+
+
+def test_unreadable_files(tmp_path):
+    with pytest.raises(InventoryError, match="no such file"):
+        inventory.load(tmp_path / "none.toml")
+    with pytest.raises(InventoryError, match="not valid TOML"):
+        inventory.load(write(tmp_path, "fleet = [\n"))
+    with pytest.raises(InventoryError, match="one or more"):
+        inventory.load(write(tmp_path, "robot = 3\n"))
+    assert issubclass(InventoryError, ScenarioError)  # exit 2 like any bad scenario
+
+
+def test_apply_starts_limits_and_precedence(tmp_path):
+    doc = rows(7, v_max=0.2)
+    doc["robot"][2]["initial_pose"] = [3.0, -4.0, 1.0]
+    doc["robot"][4]["initial_pose"] = [5.0, -5.0, 0.0]
+    doc["robot"][5]["w_max"] = 1.5
+    inv = inventory.load(write(tmp_path, doc))
+    fleet = inventory.apply(inv, TB3, poses={4: (6.0, -6.0, 0.25)})
+    assert fleet.given is TB3 and fleet.scenario.name == TB3.name
+    np.testing.assert_array_equal(fleet.scenario.poses[2], [3.0, -4.0, 1.0])
+    np.testing.assert_array_equal(fleet.scenario.poses[4], [6.0, -6.0, 0.25])  # the flag beats the inventory
+    np.testing.assert_array_equal(fleet.scenario.poses[0], TB3.poses[0])
+    assert fleet.robots[4].start_from == "--initial-pose" and "robot[2].initial_pose" in fleet.robots[2].start_from
+    assert fleet.robots[0].start_from == "the scenario"
+    np.testing.assert_array_equal(TB3.poses[2], scenario_file.load("turtlebot3", progress=scenario_file.silent).poses[2])
+    assert fleet.limits(0) == (0.2, 2.84) and fleet.limits(5) == (0.2, 1.5)
+    assert "inventory" in fleet.robots[0].v_from and "scenario" in fleet.robots[0].w_from
+    assert fleet.scenario.control.v_max == 0.22  # the scenario's own limit stays; each robot's is in the fleet
+
+
+def test_apply_refuses_a_looser_limit_and_other_robots(tmp_path):
+    doc = rows(7)
+    doc["robot"][6]["v_max"] = 0.3
+    path = write(tmp_path, doc)
+    with pytest.raises(InventoryError) as e:
+        inventory.apply(inventory.load(path), TB3)
+    assert e.value.key == "robot[6].v_max" and "would loosen the scenario's control.v_max = 0.22" in e.value.reason
+    with pytest.raises(InventoryError, match=r"has no robot 5, 6 \(give --robots 5"):
+        inventory.apply(inventory.load(write(tmp_path, rows(5), "five.toml")), TB3)
+    with pytest.raises(InventoryError, match="robot 7 is not in scenario"):
+        inventory.apply(inventory.load(write(tmp_path, rows(8), "eight.toml")), TB3)
+    with pytest.raises(ScenarioError, match="robot 9 is not in the scenario"):
+        inventory.apply(inventory.load(write(tmp_path, rows(7), "seven.toml")), TB3, poses={9: (0.0, 0.0, 0.0)})
+
+
+def _problems(tmp_path, doc, scn=TB3, **kw):
+    fleet = inventory.apply(inventory.load(write(tmp_path, doc)), scn, **kw)
+    return [str(p) for p in inventory.static_problems(fleet)]
+
+
+def test_a_good_fleet_has_no_static_problem(tmp_path):
+    assert _problems(tmp_path, rows(7)) == []
+
+
+def test_static_refusals_name_the_robot_and_the_reason(tmp_path):
+    doc = rows(7)
+    x, y, _ = TB3.poses[3]
+    doc["robot"][2]["initial_pose"] = [float(x) + 0.1, float(y), 0.0]  # inside r = 0.15 of robot 3
+    doc["robot"][5]["v_max"] = 0.15  # 0.8 x 0.15 = 0.12 < the leader's 0.15 m/s
+    doc["robot"][6]["v_max"] = 0.01  # below control.vt = 0.02, and the segment
+    ob = TB3.obstacles[0]
+    probs = _problems(tmp_path, doc, poses={0: (float(ob[0]) + 0.05, float(ob[1]), 0.0)})
+    assert any(p.startswith("robot 0: starts 0.05 m from obstacle 0") and "inside its r = 0.15" in p for p in probs)
+    assert any(p.startswith("robot 2: starts 0.1 m from robot 3, closer than r = 0.15 m") for p in probs)
+    assert any(p.startswith("robot 3: starts 0.1 m from robot 2") for p in probs)
+    assert any(p.startswith("robot 5: leader.segments[0] moves at |v| = 0.15 m/s, more than 0.8 x v_max = 0.12")
+               and "robot[5].v_max" in p for p in probs)
+    assert any(p.startswith("robot 6: v_max = 0.01 m/s") and "below control.vt = 0.02" in p for p in probs)
+    assert [int(p.split()[1].rstrip(":")) for p in probs] == sorted(int(p.split()[1].rstrip(":")) for p in probs)
+
+
+def test_static_refusals_of_the_scenario_itself(tmp_path, write_scenario, base_doc):
+    """A turn over 0.8 w_max, a start outside the arena, no limit at all: each names the robot."""
+    base_doc["control"].update(v_max=1.0, w_max=0.5)
+    base_doc["leader"]["segments"] = [{"duration": 10.0, "v": 0.5, "w": 0.45}]
+    base_doc["arena"] = {"bounds": [-10.0, 10.0, -5.0, 5.0]}
+    scn = scenario_file.load(write_scenario(base_doc), progress=scenario_file.silent)
+    probs = _problems(tmp_path, {"robot": [{"id": 0}, {"id": 1, "initial_pose": [-11.0, 0.0, 0.0]}]}, scn)
+    assert "robot 0: leader.segments[0] turns at |w| = 0.45 rad/s, more than 0.8 x w_max = 0.4 rad/s" in probs[0]
+    assert any(p.startswith("robot 1: starts at (-11, 0)") and "outside arena.bounds [-10, 10, -5, 5]" in p
+               for p in probs)
+    base_doc["control"].pop("v_max")
+    scn = scenario_file.load(write_scenario(base_doc, "nolimit.toml"), progress=scenario_file.silent)
+    probs = _problems(tmp_path, {"robot": [{"id": 0}, {"id": 1, "v_max": 0.7}]}, scn)
+    assert any(p.startswith("robot 0: no v_max") for p in probs)
+    assert not any(p.startswith("robot 1: no v_max") for p in probs)
+
+
+def test_notes_warn_of_a_scenario_without_an_arena(tmp_path):
+    fleet = inventory.apply(inventory.load(write(tmp_path, rows(7))), TB3)
+    assert any("no arena.bounds" in n for n in inventory.notes(fleet))
+    text = inventory.describe(fleet)
+    assert "robot 3: ros2 rmw_zenoh /robot3 domain 0 twist plain" in text and "from the scenario" in text
