@@ -236,9 +236,22 @@ class Progress:
     dropped: int = 0  # messages dropped by scheduled faults
 
 
+@dataclass(frozen=True)
+class Claim:
+    """The world's answer to a robot started with --id auto (reply of world/claim/<claim key>): the id it
+    may take (granted), or why not. The id is provisional until that robot's liveliness token appears
+    (world.claims)."""
+
+    id: int
+    claim: str  # the claim key asked for (a hostname, say)
+    granted: bool
+    robots: int  # robots in the run: ids 0 .. robots - 1
+    reason: str  # why not granted ("" when granted)
+
+
 KINDS: dict[str, type] = {"ref": Ref, "pose": Pose, "cmd": Cmd, "state": State, "status": Status,
                           "obstacles": Obstacles, "snapshot": Snapshot, "clock": Clock, "config": Config,
-                          "progress": Progress, "run": Run, "estop": Estop}
+                          "progress": Progress, "run": Run, "estop": Estop, "claim": Claim}
 _KIND_OF = {cls: kind for kind, cls in KINDS.items()}
 
 
@@ -341,6 +354,7 @@ _SPEC: dict[str, tuple[tuple[str, str], ...]] = {
                  ("orientation_error", "n"), ("converged_at", "n"), ("last_freeze", "n"), ("dropped", "i")),
     "run": (("run", "s"), ("digest", "s"), ("robots", "i"), ("lockstep", "b"), ("scenario", "S")),
     "estop": (("t", "n"), ("seq", "i"), ("engaged", "b"), ("reason", "s")),
+    "claim": (("id", "id"), ("claim", "s"), ("granted", "b"), ("robots", "i"), ("reason", "s")),
 }
 # DESIGN.md section 5 names both the protocol version and the linear velocity of ref and cmd
 # "v"; one map cannot hold both. "v" stays the version (a decoder needs it before the kind);
@@ -565,7 +579,17 @@ def _check_run(m: Run) -> None:
         raise ProtocolError("field 'run' must not be empty")
 
 
+def _check_claim(m: Claim) -> None:
+    if not 1 <= m.robots <= MAX_ROBOTS:
+        raise ProtocolError(f"field 'robots' must be in 1..{MAX_ROBOTS}, got {m.robots}")
+    if m.granted and m.id >= m.robots:
+        raise ProtocolError(f"a granted id must be below robots, got id {m.id}, robots {m.robots}")
+    if not m.claim:
+        raise ProtocolError("field 'claim' must not be empty")
+
+
 _CHECK = {
+    "claim": _check_claim,
     "ref": _check_ref,
     "pose": _check_pose,
     "cmd": _check_cmd,
