@@ -1,12 +1,16 @@
 """The robot-side watchdog: the reasons a robot must stand still now, checked on the robot itself.
 
-    guard = Guard(drive, clock, pose_timeout_s=0.5, ref_timeout_s=2.5)
+    guard = Guard(drive, clock, pose_timeout_s=0.5, ref_timeout_s=2.5, arena=arena_of(cfg))
     guard.start()                 # a thread: halts the drive when poses stop coming (the loop is blocked then)
+    guard.pose(x, y)              # the agent took a pose (x, y [m]: the arena check's)
     reason = guard.reason(t)      # the control loop asks before every command; None: go on
     guard.estop(engaged, why)     # the emergency stop (latched until released)
 
 A drive is halted (zero velocity, latched until the next command) when:
 - its pose is older than pose_timeout_s (wall clock: odometry or the world stopped);
+- its newest pose is outside the arena (the configuration's arena.bounds, `arena_of(cfg)`): it stays
+  halted while it is outside, so a robot that left the arena stands where it stopped until a person
+  moves it back (a command that would bring it back cannot be told from one that takes it farther);
 - the reference has been extrapolated for longer than ref_timeout_s (simulated time since the last
   reference: the leader went quiet);
 - the leader's liveliness token is gone (at once: the leader was lost or cut off);
@@ -29,12 +33,25 @@ POSE_TIMEOUT_S = 0.5
 REF_TIMEOUT_S = 2.5
 
 
+def arena_of(cfg) -> tuple[float, float, float, float] | None:
+    """The arena (xmin, xmax, ymin, ymax) [m] of a swarm.proto.protocol.Config, None if it has none."""
+    return (cfg.xmin, cfg.xmax, cfg.ymin, cfg.ymax) if cfg.arena else None
+
+
 class Guard:
     def __init__(self, drive, clock=WALL, pose_timeout_s: float = POSE_TIMEOUT_S,
-                 ref_timeout_s: float = REF_TIMEOUT_S, period_s: float = 0.05) -> None:
-        self.drive, self.clock = drive, clock
+                 ref_timeout_s: float = REF_TIMEOUT_S, period_s: float = 0.05,
+                 arena: tuple[float, float, float, float] | None = None) -> None:
+        """arena: (xmin, xmax, ymin, ymax) [m]; None: no arena check."""
+        if arena is not None:
+            xmin, xmax, ymin, ymax = map(float, arena)
+            if not (xmin < xmax and ymin < ymax):
+                raise ValueError(f"arena must have xmin < xmax and ymin < ymax, got {tuple(arena)}")
+            arena = (xmin, xmax, ymin, ymax)
+        self.drive, self.clock, self.arena = drive, clock, arena
         self.pose_timeout_s, self.ref_timeout_s, self.period_s = pose_timeout_s, ref_timeout_s, period_s
         self.last_pose: float | None = None  # monotonic wall time a pose was last taken
+        self.xy: tuple[float, float] | None = None  # the newest pose's position [m]
         self.ref_t: float | None = None  # simulated time of the newest reference
         self.leader_seen = False
         self.leader_alive = False
@@ -45,8 +62,11 @@ class Guard:
 
     # ------------------------------------------------------------------ what the agent tells it
 
-    def pose(self) -> None:
+    def pose(self, x: float | None = None, y: float | None = None) -> None:
+        """A pose was taken now; x, y [m] its position (for the arena check; omitted: not checked)."""
         self.last_pose = self.clock.monotonic()
+        if x is not None and y is not None:
+            self.xy = (float(x), float(y))
 
     def ref(self, t: float) -> None:
         self.ref_t = t if self.ref_t is None else max(self.ref_t, t)
@@ -72,6 +92,10 @@ class Guard:
             return "the leader is lost"
         if self.last_pose is not None and self.clock.monotonic() - self.last_pose > self.pose_timeout_s:
             return f"no pose for more than {self.pose_timeout_s:g} s"
+        if self.arena is not None and self.xy is not None:
+            (x, y), (xmin, xmax, ymin, ymax) = self.xy, self.arena
+            if not (xmin <= x <= xmax and ymin <= y <= ymax):  # a NaN position is outside too
+                return f"outside the arena: at ({x:.3f}, {y:.3f}), beyond [{xmin:g}, {xmax:g}] x [{ymin:g}, {ymax:g}]"
         if t is not None and self.ref_t is not None and t - self.ref_t > self.ref_timeout_s:
             return f"the reference has been extrapolated for more than {self.ref_timeout_s:g} s"
         return None
