@@ -3,6 +3,7 @@
     swarm sim [--scenario paper|FILE.toml] [--robots N] [--seed S] [--duration T] [--dt DT]
               [--governor/--no-governor] [--metrics out.json] [--plots DIR] [--quiet]
               [--viz [--speed X] [--viz-host H] [--viz-port P] [--viz-rings]]
+    swarm campaign [--scenario NAME|FILE] --seeds A-B [--drop P1,P2,...] [--faults FILE] [-j JOBS] -o DIR
     swarm scenario show NAME|FILE [--robots N] [--seed S]
     swarm scenario check FILE...
     swarm up [--robots N] [--scenario ...] [--mode lockstep|realtime] [--rate HZ] [--metrics out.json] [--dry-run]
@@ -242,6 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
                           help="with --update: robot I loses its folder and the router denies it; repeatable")
     sec_init.set_defaults(func="swarm.cli.secure:cmd_secure_init")
     _add_runtime_parsers(sub)
+    _add_campaign_parser(sub)
     return parser
 
 
@@ -525,3 +527,82 @@ def _add_runtime_parsers(sub) -> None:
     report.set_defaults(func="swarm.cli.playback:cmd_report")
 
 
+# --------------------------------------------------------------------------- swarm campaign
+
+MAX_CAMPAIGN_RUNS = 100_000  # seeds x drop probabilities
+
+
+def _seed_list(text: str) -> tuple[int, ...]:
+    """--seeds: A-B (A to B, both included), A, or a comma list of those; each seed an integer >= 0."""
+    seeds: list[int] = []
+    for item in text.split(","):
+        a, dash, b = item.strip().partition("-")
+        try:
+            lo = int(a)
+            hi = int(b) if dash else lo
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{item.strip()!r} is not a seed or a range A-B of seeds "
+                                             "(integers >= 0, e.g. 0-9 or 3)") from None
+        if lo < 0 or hi < lo:
+            raise argparse.ArgumentTypeError(f"{item.strip()!r}: a range A-B needs 0 <= A <= B")
+        if hi - lo + 1 + len(seeds) > MAX_CAMPAIGN_RUNS:
+            raise argparse.ArgumentTypeError(f"more than {MAX_CAMPAIGN_RUNS} seeds")
+        for s in range(lo, hi + 1):
+            if s in seeds:
+                raise argparse.ArgumentTypeError(f"seed {s} is given twice")
+            seeds.append(s)
+    return tuple(seeds)
+
+
+def _drop_list(text: str) -> tuple[float, ...]:
+    """--drop: probabilities P1,P2,... in [0, 1], each once (0: no drop rule)."""
+    drops: list[float] = []
+    for item in text.split(","):
+        try:
+            p = _probability(item.strip())
+        except argparse.ArgumentTypeError as e:
+            raise argparse.ArgumentTypeError(f"{item.strip()!r}: {e}") from None
+        if p in drops:
+            raise argparse.ArgumentTypeError(f"{item.strip()!r}: the probability {p:g} is given twice")
+        drops.append(p)
+    return tuple(drops)
+
+
+def _add_campaign_parser(sub) -> None:
+    c = sub.add_parser(
+        "campaign", help="swarm sim over a grid of seeds and drop probabilities, on every core: CSV, plots, a page",
+        description="Run swarm sim for every seed of --seeds and every probability of --drop, in -j worker "
+                    "processes, with a progress bar and an ETA. A seed sets run.seed and the faults' seed with it "
+                    "(unless the faults set one); each p adds one drop rule of class all to the faults of the "
+                    "scenario or of --faults FILE (0: none). Writes DIR/runs.csv (one row a run), DIR/summary.csv "
+                    "(one row per p), convergence.png, distance.png, error.png and DIR/index.html. The same "
+                    "command writes the same rows (the wallclock.* columns aside). Exit 3 when a run collided "
+                    "(it names the runs); a run that did not converge is reported, not a failure "
+                    "(docs/faults.md, Campaigns).",
+        epilog="Examples: swarm campaign --scenario paper-50hz --seeds 0-9 --drop 0,0.1,0.3 -o out/ | "
+               "swarm campaign --scenario paper-50hz --seeds 0-9 --faults kills.toml -j 2 -o kills/")
+    g = c.add_argument_group("the grid")
+    g.add_argument("--scenario", default="paper-50hz", metavar="NAME|FILE",
+                   help="built-in name (paper, paper-50hz, ...) or a TOML file (default: paper-50hz)")
+    g.add_argument("--seeds", type=_seed_list, required=True, metavar="A-B",
+                   help="the seeds: A-B (both included), A, or a comma list of those (e.g. 0-9)")
+    g.add_argument("--drop", type=_drop_list, metavar="P1,P2,...",
+                   help="drop probabilities: each adds one drop rule of class all (every message) to the faults; "
+                        "0: no rule (default: 0 only)")
+    g = c.add_argument_group("every run (a flag beats the scenario file, which beats the built-in default)")
+    g.add_argument("--robots", type=_count, metavar="N", help="number of robots (resizes built-in and generated scenarios)")
+    g.add_argument("--duration", type=_positive_float, metavar="T", help="simulated seconds to run")
+    g.add_argument("--dt", type=_positive_float, metavar="DT", help="control period [s]")
+    g.add_argument("--governor", action=argparse.BooleanOptionalAction, default=None,
+                   help="the discrete-time safety governor (default: the scenario's control.governor)")
+    g.add_argument("--faults", metavar="FILE",
+                   help="a TOML file holding a [faults] table: it replaces the scenario's in every run; the --drop "
+                        "rule is added to it")
+    g.add_argument("--kill", metavar="ID@T,...", help="kill robot ID's process at T s in every run (e.g. 2@15,5@15)")
+    g = c.add_argument_group("output")
+    g.add_argument("-o", "--out", type=Path, required=True, metavar="DIR",
+                   help="the directory to write (made if missing; its files of a campaign are replaced)")
+    g.add_argument("-j", "--jobs", type=_count, metavar="JOBS", help="worker processes (default: every core)")
+    g.add_argument("--quiet", action="store_true", help="no progress bar and no summary table")
+    _add_violation_flag(g)
+    c.set_defaults(func="swarm.cli.campaign:cmd_campaign")
