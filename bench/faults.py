@@ -36,7 +36,8 @@ from pathlib import Path
 
 FAULTS_TABLE_START = "<!-- faults-table:start -->"
 FAULTS_TABLE_END = "<!-- faults-table:end -->"
-DOCS = Path(__file__).resolve().parent.parent / "docs" / "faults.md"
+ROOT = Path(__file__).resolve().parent.parent
+DOCS = ROOT / "docs" / "faults.md"
 
 
 
@@ -134,6 +135,16 @@ def table(results: dict[str, tuple[dict, list[dict]]], seeds: int, n: int) -> tu
     return lines, ok
 
 
+def code_version() -> str:
+    """The commit the bench runs (this checkout's, "-dirty" with uncommitted changes), or "an unknown commit"."""
+    try:
+        p = subprocess.run(["git", "-C", str(ROOT), "describe", "--always", "--dirty", "--abbrev=7"],
+                           capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.TimeoutExpired):
+        return "an unknown commit"
+    return f"commit {p.stdout.strip()}" if p.returncode == 0 and p.stdout.strip() else "an unknown commit"
+
+
 def write_docs(path: Path, block: list[str]) -> None:
     """Replace what is between the markers in path with block (the markers stay)."""
     text = path.read_text(encoding="utf-8")
@@ -181,8 +192,9 @@ def main() -> int:
         lines, ok = table(results, seeds, args.robots)
     block = ["", *lines, "",
              f"`{args.scenario}` with {args.robots} robots, seeds {args.seeds}, 120 s each, in `swarm sim` through "
-             f"`swarm campaign` (`python bench/faults.py`: {sum(len(r) for _, r in results.values())} runs in "
-             f"{wall:.0f} s of wall time with -j {args.jobs} on {os.cpu_count()} cpus). The campaigns:", ""]
+             f"`swarm campaign` (`python bench/faults.py` at {code_version()}: "
+             f"{sum(len(r) for _, r in results.values())} runs in {wall:.0f} s of wall time with -j {args.jobs} on "
+             f"{os.cpu_count()} cpus). The campaigns:", ""]
     block += [f"    {c}" for c in commands]
     block += ["", "(the .toml files as the bench writes them: its docstring and `fault_files`)", ""]
     print("\n".join(block))
