@@ -108,9 +108,9 @@ def num(text: str, digits: int = 3) -> str:
 def table(results: dict[str, tuple[dict, list[dict]]], seeds: int, n: int) -> tuple[list[str], bool]:
     """The markdown table (one row a case) and whether every acceptance case held."""
     lines = [f"| case | faults | collided runs | converged runs (of {seeds}) | convergence median (min-max) [s] "
-             "| smallest robot distance [m] | smallest obstacle distance [m] | robots alive at the end (min) "
-             "| messages dropped (median) | |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|---|"]
+             "| smallest robot distance [m] | smallest obstacle distance [m] | final position error, median (max) [m] "
+             "| robots alive at the end (min) | messages dropped (median) | |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
     ok = True
     for name, what, acceptance in cases(n):
         s, runs = results[name]
@@ -126,12 +126,13 @@ def table(results: dict[str, tuple[dict, list[dict]]], seeds: int, n: int) -> tu
         names = [f"seed {r['seed']}" for r in runs if r["collisions"] not in ("", "0")]
         coll = f"{collided} ({', '.join(names)})" if names else str(collided)
         stuck = [f"seed {r['seed']}" for r in runs if r["converged_at_s"] == "" and r["failure"] == ""]
-        conv = f"{converged} (not: {', '.join(stuck)})" if stuck else str(converged)
+        conv = f"{converged} (not: {', '.join(stuck)})" if stuck and len(stuck) < len(runs) else str(converged)
         lo, hi = num(s["converged_at_s_min"], 4), num(s["converged_at_s_max"], 4)
         spread = "—" if s["converged_at_s_median"] == "" else f"{num(s['converged_at_s_median'], 4)} ({lo}-{hi})"
         lines.append(f"| {name} | {what} | {coll} | {conv} | {spread} | {num(s['min_robot_distance_m_min'])} "
-                     f"| {num(s['min_obstacle_distance_m_min'])} | {s['robots_alive_at_end_min'] or runs[0]['robots']} "
-                     f"| {num(s['messages_dropped_median'], 6)} | {verdict} |")
+                     f"| {num(s['min_obstacle_distance_m_min'])} | {num(s['final_position_error_max_m_median'], 2)} "
+                     f"({num(s['final_position_error_max_m_max'], 2)}) | {s['robots_alive_at_end_min'] or runs[0]['robots']} "
+                     f"| {float(s['messages_dropped_median']):.0f} | {verdict} |")
     return lines, ok
 
 
