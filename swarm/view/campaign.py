@@ -180,7 +180,7 @@ def write_plots(runs: Sequence[dict], out_dir, bodies: Bodies, title: str) -> li
 # --------------------------------------------------------------------------- the page
 
 _CSS = """body{font-family:sans-serif;margin:1.5em;max-width:1200px}
-table{border-collapse:collapse;font-size:0.85em}td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}
+table{border-collapse:collapse;font-size:0.85em}td,th{border:1px solid #ccc;padding:2px 6px;text-align:right;white-space:nowrap}
 th{background:#eee}td.l,th.l{text-align:left}code,pre{background:#f4f4f4;padding:2px 4px}
 pre{white-space:pre-wrap}.warning{color:#a00}figure{display:inline-block;margin:0.5em}img{max-width:100%}
 .scroll{overflow-x:auto}"""
@@ -194,12 +194,17 @@ def _cell(v) -> str:
     return str(v)
 
 
-def _table(columns: Sequence[str], rows: Sequence[dict], left: Sequence[str] = ()) -> str:
+def _table(columns: Sequence[str], rows: Sequence[dict], left: Sequence[str] = (), code: Sequence[str] = ()) -> str:
+    """An HTML table of rows (dicts) by columns; `left` columns left-aligned, `code` columns in code font."""
     esc = html.escape
     cls = {c: " class='l'" if c in left else "" for c in columns}
+
+    def td(c: str, v) -> str:
+        text = esc(_cell(v))
+        return f"<td{cls[c]}>{f'<code>{text}</code>' if c in code and text else text}</td>"
+
     head = "".join(f"<th{cls[c]}>{esc(c)}</th>" for c in columns)
-    body = "".join("<tr>" + "".join(f"<td{cls[c]}>{esc(_cell(r.get(c)))}</td>" for c in columns) + "</tr>"
-                   for r in rows)
+    body = "".join("<tr>" + "".join(td(c, r.get(c)) for c in columns) + "</tr>" for r in rows)
     return f"<div class='scroll'><table><tr>{head}</tr>{body}</table></div>"
 
 
@@ -232,10 +237,10 @@ def write_index(out_dir, command: str, columns: Sequence[str], summary: Sequence
                      f"</a><figcaption>{esc(PLOTS.get(p.name, p.name))}</figcaption></figure>")
     parts.append(f"<h2>Runs that collided, did not converge or failed ({len(flagged)})</h2>")
     if flagged:
-        cols = ("seed", "drop", "why", "collisions", "converged_at_s", "min_robot_distance_m",
-                "min_obstacle_distance_m", "robots_alive_at_end", "replay")
+        cols = ("seed", "drop", "why", "collisions", "min_robot_distance_m", "min_obstacle_distance_m",
+                "final_position_error_max_m", "final_orientation_error_max_rad", "robots_alive_at_end", "replay")
         rows = [{**f.row, "why": f.why, "replay": f.replay} for f in flagged]
-        parts.append(_table(cols, rows, left=("why", "replay")))
+        parts.append(_table(cols, rows, left=("why", "replay"), code=("replay",)))
     else:
         parts.append("<p>None: every run converged with no collision.</p>")
     parts.append("</body></html>\n")
