@@ -194,7 +194,8 @@ def odometry_verdict(arrivals: list[float], window: tuple[float, float], max_age
     gap = max(b - a for a, b in zip(points, points[1:]))
     if gap > max_age_s:
         rate = len(inside) / max(1e-9, end - start)
-        return (f"odometry is stale: {len(inside)} messages in {end - start:.2g} s ({rate:.2g} Hz), a gap of "
+        return (f"odometry is stale: {len(inside)} message{'s' if len(inside) != 1 else ''} in {end - start:.2g} s "
+                f"({rate:.2g} Hz), a gap of "
                 f"{gap:.2f} s, more than the {max_age_s:g} s after which the robot's own guard would halt it")
     return None
 

@@ -6,9 +6,10 @@
     python -m tests.deploy.entry world ...                    -> swarm world, with claims served beside it
     python -m tests.deploy.entry ANYTHING ELSE                -> swarm
 
-Until `swarm up`, `swarm world` and `swarm robot` hand these cases over themselves (a few lines each,
-listed in docs/deploy.md, "For developers"), this entry point does it, through swarm.cli.main (the same
-parser, errors and exit codes), so the tests run every command line exactly as a user types it.
+Until `swarm up`, `swarm world` and `swarm robot` hand these cases over themselves (a few lines each;
+`swarm robot` then parses `--id auto`, and the world serves claims), this entry point does it, through
+swarm.cli.main (the same parser, errors and exit codes), so the tests run every command line exactly as
+a user types it.
 """
 
 from __future__ import annotations
