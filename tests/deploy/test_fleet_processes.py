@@ -28,10 +28,9 @@ def fleet(tmp_path):
     inv = tmp_path / "fleet.toml"
     inv.write_text(inventory_text(7, endpoint))
 
-    def start(*extra: str, inventory=inv):
-        p = procs.start("fleet", [*FLEET_SIM, "--listen", endpoint, "--inventory", str(inventory), "--scenario",
-                                  str(scenario), "--truth", str(tmp_path / "truth.json"), *extra])
-        return p
+    def start(*extra: str):
+        return procs.start("fleet", [*FLEET_SIM, "--listen", endpoint, "--inventory", str(ns.inventory), "--scenario",
+                                     str(ns.scenario), "--truth", str(tmp_path / "truth.json"), *extra])
 
     ns = type("Fleet", (), dict(procs=procs, endpoint=endpoint, scenario=scenario, inventory=inv, start=start,
                                 tmp=tmp_path))
@@ -126,3 +125,39 @@ def test_a_stale_robot_is_refused_and_swarm_up_moves_nothing(fleet):
     assert "robot 3: odometry is stale" in up.stdout and "pre-flight failed; no robot was moved" in up.stderr
     assert sorted(p.name for p in logs.glob("*.log")) == ["router.log"]  # no referee, leader or agent ever started
     assert _truth(fleet)["commands"] == 0  # and no robot got a single command
+
+
+def _arena_hooked() -> bool:
+    import inspect
+
+    from agents import robot
+
+    return "arena_of" in inspect.getsource(robot)
+
+
+@pytest.mark.timeout(180)
+@pytest.mark.skipif(not _arena_hooked(), reason="agents.robot.run_robot does not give the guard its arena yet")
+def test_a_robot_that_leaves_the_arena_is_stopped_there(fleet):
+    """The leader drives on past the arena's edge (x = 1.2 m): every robot is halted just past it and
+    stays, while without the guard they would follow the leader to x = 3 m."""
+    import tomllib
+
+    doc = tomllib.loads(fleet.scenario.read_text())
+    small = fleet.tmp / "small_arena.toml"
+    small.write_text(fleet.scenario.read_text().replace(
+        "bounds = [-3.0, 9.0, -3.0, 3.0]", "bounds = [-3.0, 1.2, -3.0, 3.0]").replace(
+        f"duration = {doc['run']['duration']!r}", "duration = 20.0", 1))
+    assert "bounds = [-3.0, 1.2, -3.0, 3.0]" in small.read_text() and "duration = 20.0" in small.read_text()
+    fleet.scenario = small
+    fleet.start()
+    logs = fleet.tmp / "logs"
+    out = subprocess.run([*ENTRY, "up", "--inventory", str(fleet.inventory), "--scenario", str(small), "--listen",
+                          f"tcp/127.0.0.1:{free_port()}", "--no-viz", "--log-dir", str(logs), "--allow-violations"],
+                         capture_output=True, text=True, timeout=150, cwd=ROOT, env=ENV)
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
+    truth = _truth(fleet)
+    xs = [p[0] for p in truth["poses"]]
+    assert max(xs) <= 1.2 + 0.1, xs  # halted within a control period or two of the edge (v_max 0.22 m/s)
+    assert sum(x > 1.2 for x in xs) >= 1, xs  # the formation did reach it
+    halted = [p for p in logs.glob("robot-*.log") if "outside the arena" in p.read_text()]
+    assert halted, "no agent said why it halted"
