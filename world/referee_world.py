@@ -363,7 +363,8 @@ def run_referee(bus, clock, fleet: Fleet, opts: RefereeOptions = RefereeOptions(
     ref = RefereeWorld(bus, fleet, name, opts, clock, progress)
     ref.start()
     try:
-        log.info("referee: %d robots, %d obstacles, waiting for robots and leader", ref.n, len(fleet.scenario.obstacles))
+        log.info("referee: %d robots, %d obstacles, waiting for robots and leader", ref.n,
+                 len(fleet.scenario.obstacles))
         try:
             ref.wait_ready(opts.start_timeout, stop)
         except InterruptedError:

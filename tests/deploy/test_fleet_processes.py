@@ -12,7 +12,7 @@ import subprocess
 
 import pytest
 
-from tests.deploy.helpers import ENTRY, ENV, FLEET_SIM, ROOT, Procs, inventory_text, small_turtlebot3, wait_until
+from tests.deploy.helpers import ENTRY, ENV, FLEET_SIM, ROOT, Procs, inventory_text, small_turtlebot3
 from tests.integration.helpers import free_port
 
 pytestmark = pytest.mark.integration
@@ -115,7 +115,8 @@ def test_a_stale_robot_is_refused_and_swarm_up_moves_nothing(fleet):
     out = _preflight(fleet)
     assert out.returncode == 1, out.stdout + out.stderr
     lines = [ln for ln in out.stdout.splitlines() if ln.startswith("  robot 3:")]
-    assert lines and lines[0].startswith("  robot 3: odometry is stale:") and "more than the 0.5 s" in lines[0], out.stdout
+    assert lines and lines[0].startswith("  robot 3: odometry is stale:"), out.stdout
+    assert "more than the 0.5 s" in lines[0], out.stdout
     assert out.stdout.count(": ok (") == 6
     logs = fleet.tmp / "logs"
     up = subprocess.run([*ENTRY, "up", "--inventory", str(fleet.inventory), "--scenario", str(fleet.scenario),

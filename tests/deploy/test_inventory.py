@@ -99,7 +99,8 @@ def test_apply_starts_limits_and_precedence(tmp_path):
     np.testing.assert_array_equal(fleet.scenario.poses[0], TB3.poses[0])
     assert fleet.robots[4].start_from == "--initial-pose" and "robot[2].initial_pose" in fleet.robots[2].start_from
     assert fleet.robots[0].start_from == "the scenario"
-    np.testing.assert_array_equal(TB3.poses[2], scenario_file.load("turtlebot3", progress=scenario_file.silent).poses[2])
+    again = scenario_file.load("turtlebot3", progress=scenario_file.silent)
+    np.testing.assert_array_equal(TB3.poses[2], again.poses[2])  # the scenario given is not changed
     assert fleet.limits(0) == (0.2, 2.84) and fleet.limits(5) == (0.2, 1.5)
     assert "inventory" in fleet.robots[0].v_from and "scenario" in fleet.robots[0].w_from
     assert fleet.scenario.control.v_max == 0.22  # the scenario's own limit stays; each robot's is in the fleet

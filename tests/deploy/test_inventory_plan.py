@@ -10,7 +10,8 @@ from tests.deploy.helpers import ENTRY, ENV, ROOT, inventory_text
 
 
 def test_the_plan():
-    o = FleetUpOptions(inventory="/etc/fleet.toml", robots=3, scenario_args=("--scenario", "turtlebot3", "--robots", "3"),
+    o = FleetUpOptions(inventory="/etc/fleet.toml", robots=3,
+                       scenario_args=("--scenario", "turtlebot3", "--robots", "3"),
                        robot_endpoints=("tcp/10.0.0.1:7447", "tcp/10.0.0.2:7447"), initial_poses=("1:0.5,0.5,0.0",),
                        fleet="lab", listen="tcp/0.0.0.0:7447", metrics="/tmp/m.json", viz=VizOptions(port=7000))
     plan = make_fleet_plan(o, python="py")

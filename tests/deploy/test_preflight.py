@@ -117,8 +117,9 @@ def test_a_robot_missing_from_the_ros_graph():
 def test_cmd_vel_of_the_other_type_names_the_fix():
     report, _ = run_check(fleet_of(), {0: 20, 1: 20, 2: 20}, twist="stamped", timeout_s=1.0)
     assert len(report.problems) == 3
-    assert str(report.problems[0]) == ("robot 0: subscribes /robot0/cmd_vel as geometry_msgs::msg::dds_::TwistStamped_, "
-                                       "not as the inventory's twist = 'plain': set twist = \"stamped\" in robot[0]")
+    assert str(report.problems[0]) == ("robot 0: subscribes /robot0/cmd_vel as "
+                                       "geometry_msgs::msg::dds_::TwistStamped_, not as the inventory's twist = "
+                                       "'plain': set twist = \"stamped\" in robot[0]")
 
 
 def test_bridge_flavour():

@@ -101,7 +101,8 @@ def test_a_run_of_robots_at_their_slots(world):
     assert m["scenario_digest"] == runid.digest(SCN)
     assert [c.seq for c in clocks] == [0] + list(range(41)) and len({c.epoch for c in clocks}) == 1
     s = snaps[-1]
-    assert s.t == 2.0 and [r.id for r in s.robots] == list(range(7)) and all(r.alive and not r.stopped for r in s.robots)
+    assert s.t == 2.0 and [r.id for r in s.robots] == list(range(7))
+    assert all(r.alive and not r.stopped for r in s.robots)
     x, y, th = slot(SCN, 2, 2.0 - 0.03)
     assert (s.robots[2].x, s.robots[2].y) == pytest.approx((x, y))
     assert s.robots[2].v == pytest.approx(0.15, rel=1e-3) and abs(s.robots[2].w) < 1e-9  # estimated from states
