@@ -352,7 +352,8 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
                 except InterruptedError:
                     raise KeyboardInterrupt from None
                 status.clear()
-                print(report.text(), flush=True)
+                if not (args.quiet and report.ok):
+                    print(report.text(), flush=True)
                 if not report.ok:
                     raise Failure("pre-flight failed; no robot was moved")
                 checked = "passed"
