@@ -52,6 +52,7 @@ class Guard:
         self.pose_timeout_s, self.ref_timeout_s, self.period_s = pose_timeout_s, ref_timeout_s, period_s
         self.last_pose: float | None = None  # monotonic wall time a pose was last taken
         self.xy: tuple[float, float] | None = None  # the newest pose's position [m]
+        self.left_at: tuple[float, float] | None = None  # where it was first seen outside the arena (until back in)
         self.ref_t: float | None = None  # simulated time of the newest reference
         self.leader_seen = False
         self.leader_alive = False
@@ -67,6 +68,10 @@ class Guard:
         self.last_pose = self.clock.monotonic()
         if x is not None and y is not None:
             self.xy = (float(x), float(y))
+            if self.arena is not None:
+                xmin, xmax, ymin, ymax = self.arena
+                inside = xmin <= self.xy[0] <= xmax and ymin <= self.xy[1] <= ymax  # NaN is outside
+                self.left_at = None if inside else (self.left_at or self.xy)
 
     def ref(self, t: float) -> None:
         self.ref_t = t if self.ref_t is None else max(self.ref_t, t)
@@ -92,10 +97,9 @@ class Guard:
             return "the leader is lost"
         if self.last_pose is not None and self.clock.monotonic() - self.last_pose > self.pose_timeout_s:
             return f"no pose for more than {self.pose_timeout_s:g} s"
-        if self.arena is not None and self.xy is not None:
-            (x, y), (xmin, xmax, ymin, ymax) = self.xy, self.arena
-            if not (xmin <= x <= xmax and ymin <= y <= ymax):  # a NaN position is outside too
-                return f"outside the arena: at ({x:.3f}, {y:.3f}), beyond [{xmin:g}, {xmax:g}] x [{ymin:g}, {ymax:g}]"
+        if self.left_at is not None:  # one reason for the whole time outside: the halt is latched once
+            (x, y), (xmin, xmax, ymin, ymax) = self.left_at, self.arena
+            return f"outside the arena: at ({x:.3f}, {y:.3f}), beyond [{xmin:g}, {xmax:g}] x [{ymin:g}, {ymax:g}]"
         if t is not None and self.ref_t is not None and t - self.ref_t > self.ref_timeout_s:
             return f"the reference has been extrapolated for more than {self.ref_timeout_s:g} s"
         return None

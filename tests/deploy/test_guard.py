@@ -41,13 +41,15 @@ def test_outside_the_arena_halts_with_the_position_and_the_bounds():
     why = g.check(0.1)
     assert why == "outside the arena: at (2.050, -0.500), beyond [-2, 2] x [-1, 1]"
     assert drive.halts == [why] and g.halts == 1
-    g.check(0.15)
-    assert drive.halts == [why]  # latched: one halt per reason
-    drive.send()  # the agent commanded it again: the guard halts it again while it is outside
+    g.pose(2.07, -0.51)  # it coasts on: the same reason (where it left), so one halt, latched
+    assert g.check(0.15) == why and drive.halts == [why]
+    drive.send()  # commanded again: the guard halts it again while it is outside
     g.pose(2.06, -0.5)
-    assert g.check(0.2) is not None and len(drive.halts) == 2
+    assert g.check(0.2) == why and len(drive.halts) == 2
     g.pose(1.5, 0.5)  # a person carried it back
     assert g.check(0.3) is None
+    g.pose(-2.5, 0.0)  # out again elsewhere: named where it left this time
+    assert g.check(0.4).startswith("outside the arena: at (-2.500, 0.000)")
 
 
 @pytest.mark.parametrize("x, y", [(-2.01, 0.0), (0.0, 1.01), (0.0, -1.5), (math.nan, 0.0), (0.0, math.inf)])
