@@ -4,7 +4,7 @@
     python bench/paper_table.py --jam-seeds 20  # a quicker jam estimate
 
 For `paper` (dt = 0.001 s, governor off) and `paper-50hz` (dt = 0.02 s, governor on),
-one row per seed 0-9 with the metrics of DESIGN.md section 7, then the jam rate: the
+one row per seed 0-9 with the metrics of docs/metrics.md, then the jam rate: the
 share of seeds (0 .. J-1) not converged by the end of the 120 s run. Runs are spread
 over the machine's cores (spawned processes, each with the compiled kernel).
 """
@@ -74,7 +74,7 @@ def main() -> int:
     wall = time.perf_counter() - started
 
     lines = ["# Results: the paper experiment", "",
-             "Written by `python bench/paper_table.py` (do not edit by hand). Metrics as in DESIGN.md section 7; "
+             "Written by `python bench/paper_table.py` (do not edit by hand). Metrics as in docs/metrics.md; "
              "errors are against the live leader reference at t = 120 s.", ""]
     for name, limit, errs, text in (
         ("paper", 60.0, True, "dt = 0.001 s, governor off. Pass: no collision, smallest robot distance > 0.4 m, "

@@ -53,7 +53,7 @@ def toml_text(doc: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-# A small valid scenario (two robots, one obstacle) in the shape of DESIGN.md section 6.
+# A small valid scenario (two robots, one obstacle) in the shape of docs/scenarios.md.
 BASE_DOC = {
     "run": {"duration": 20.0, "dt": 0.01, "seed": 0},
     "control": {"k1": 0.5, "k2": 0.5, "k3": 1.0, "tu": 1.0, "vt": 0.05, "threshold": "frozen", "governor": False},

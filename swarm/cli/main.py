@@ -35,7 +35,7 @@ def _process_age_s() -> float:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    # wall_s runs from the command's start (DESIGN.md section 7): the interpreter's start and the
+    # wall_s runs from the command's start (docs/metrics.md): the interpreter's start and the
     # imports count too when this is the command (argv None); a caller in-process counts from here
     started = time.perf_counter() - (_process_age_s() if argv is None else 0.0)
     parser = build_parser()

@@ -1,7 +1,7 @@
 """Neighbour search on a uniform grid of square cells of side >= R (scalar style, see swarm.core.law).
 
 Cells are (cx, cy) = (floor(x / side), floor(y / side)), the same cells as the zenoh key
-space of DESIGN.md section 5. A spatial hash maps a cell to one of H buckets (H a power
+space of docs/protocol.md. A spatial hash maps a cell to one of H buckets (H a power
 of two >= 2 N), so the grid needs no bounds and costs O(N) to build whatever the
 swarm's extent. Every body within `side` of a point lies in the 3x3 cells around the
 point's cell. Bucket collisions are harmless: an entry is accepted only for its own

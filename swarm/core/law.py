@@ -1,4 +1,4 @@
-"""The formation control law (DESIGN.md section 2), for one robot at a time.
+"""The formation control law (docs/design.md), for one robot at a time.
 
 Scalar style on purpose: this exact source runs as plain Python in a robot process (no
 compiler loaded, a few tens of microseconds a tick) and, compiled by numba through

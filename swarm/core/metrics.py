@@ -1,4 +1,4 @@
-"""The metrics record of DESIGN.md section 7, built in one place for `swarm sim` and the world's referee.
+"""The metrics record of docs/metrics.md, built in one place for `swarm sim` and the world's referee.
 
 Both compute the same quantities from their own accumulators (the compiled kernel's, or the
 referee's per-tick samples) and hand them here, so the two reports cannot drift apart in keys,

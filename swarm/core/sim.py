@@ -5,7 +5,7 @@
 
 The compiled kernel (swarm.core.kernel) does the work in chunks so a caller can show
 progress or stop early; this module owns the arrays, the sample recording and the
-metrics of DESIGN.md section 7.
+metrics of docs/metrics.md.
 """
 
 from __future__ import annotations

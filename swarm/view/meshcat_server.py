@@ -5,7 +5,7 @@
         server.client.send(command)           # a meshcat command (SetObject, SetTransform, ...)
     # leaving: close the socket, SIGTERM, wait, SIGKILL if it does not go
 
-Why not `meshcat.Visualizer()` (shared/recipes/meshcat-browser.md): its server listens on every
+Why not `meshcat.Visualizer()` (measured here): its server listens on every
 interface whatever it prints, walks silently to the next port when one is taken, survives a
 SIGKILLed parent, pipes a stderr nobody reads, and its REQ socket blocks forever on a dead
 server. Here the server half (`python -m swarm.view.meshcat_server`, the `main` below) subclasses

@@ -140,7 +140,7 @@ def test_console_script_is_installed():
 
 
 def test_wall_time_counts_from_the_process_start():
-    """wall_s runs from the command's start (DESIGN.md section 7): a process that spent 0.3 s before
+    """wall_s runs from the command's start (docs/metrics.md): a process that spent 0.3 s before
     calling main() reports an age of at least that (the clock ticks in 10 ms steps)."""
     code = ("import time; t = time.monotonic()\n"
             "while time.monotonic() - t < 0.3: pass\n"

@@ -1,4 +1,4 @@
-"""The key grammar of DESIGN.md section 5."""
+"""The key grammar of docs/protocol.md."""
 
 import pytest
 

@@ -1,4 +1,4 @@
-"""Events derived by hand-made cases: collisions (DESIGN.md section 7), freezes, faults, bad messages."""
+"""Events derived by hand-made cases: collisions (docs/metrics.md), freezes, faults, bad messages."""
 
 from __future__ import annotations
 

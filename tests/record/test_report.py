@@ -58,7 +58,7 @@ def test_report_escapes_what_it_shows(tmp_path):
     assert "<script>" not in page and "<img src=x>" not in page and "<b>bold" not in page
     assert "&lt;script&gt;alert(1)&lt;/script&gt;" in page
     assert "robot/&lt;img src=x&gt;/cmd" in page
-    assert "Missing contract keys" in page  # these hand-made metrics lack most of DESIGN.md section 7
+    assert "Missing contract keys" in page  # these hand-made metrics lack most of docs/metrics.md
 
 
 def test_pace_follows_simulated_time_at_the_given_speed():

@@ -223,7 +223,7 @@ def test_metrics_follow_the_recorded_errors():
 
 
 def reference_metrics(scn: Scenario):
-    """The metrics of DESIGN.md section 7, from the reference run, evaluated at every step 0..K."""
+    """The metrics of docs/metrics.md, from the reference run, evaluated at every step 0..K."""
     ref = Reference(scn)
     K = scn.steps
     n = scn.n

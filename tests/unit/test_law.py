@@ -1,4 +1,4 @@
-"""The control law of DESIGN.md section 2 (swarm.core.law, plain Python form)."""
+"""The control law of docs/design.md (swarm.core.law, plain Python form)."""
 
 from __future__ import annotations
 
