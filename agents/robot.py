@@ -12,7 +12,7 @@ The law is swarm.core.law.robot_command, the very function `swarm sim` compiles,
 Python (no numpy, no compiler: a robot process starts fast and stays small). This module
 imports nothing of the world: the same agent drives a simulated or a real robot.
 
-Lock-step tick k (the world owns the clock; DESIGN.md section 3):
+Lock-step tick k (the world owns the clock; docs/runtime.md):
   1. pose_k arrives: move the cell subscriptions (the old block is kept one more tick) and
      publish state_k on the cell key.
   2. Wait for state_k of every live robot whose state_(k-1) was within reach + 2L, where
@@ -86,7 +86,7 @@ class Agent:
     """
 
     def __init__(self, bus, cfg: Config, fleet: str = "default", wait_timeout: float = WAIT_TIMEOUT_S,
-                 clock=WALL, drive=None, guard=None):
+                 clock=WALL, drive=None, guard=None, faults=None):
         self.bus, self.cfg, self.fleet = bus, cfg, fleet
         self.id = cfg.id
         self.clock = clock
@@ -105,11 +105,22 @@ class Agent:
         self.p[law.P_GOVERNOR] = 1.0 if cfg.governor else 0.0
         self.p[law.P_DT], self.p[law.P_SENSE], self.p[law.P_REACH] = cfg.dt, cfg.sense, cfg.reach
         self.p[law.P_V_MAX], self.p[law.P_W_MAX] = cfg.v_max, cfg.w_max
+        # lock-step under faults: the receiving side's fault layer decides what the law is given
+        # (agents.faultview, the simulator's rules); the governor's horizon covers a held command
+        self.view = None
+        self.static_by_seq: dict[int, dict[int, tuple[float, float, float, float]]] = {}
+        if faults and cfg.lockstep:
+            from agents.faultview import FaultView
+            from swarm.core.faultsim import horizon
+
+            self.view = FaultView(cfg.id, cfg.robots, cfg.dt, cfg.reach, cfg.sense, faults)
+            self.p[law.P_DT] = horizon(faults, cfg.dt)
         self.mem = [0.0] * law.M_SIZE
         self.mem[law.M_SCALE] = 1.0
         self.side = cfg.sense
         self._wait_reach = keys.lockstep_wait_reach(cfg.reach, cfg.sense)
         self._cmd_key, self._status_key = keys.robot_cmd(fleet, self.id), keys.robot_status(fleet, self.id)
+        self._faults_key = keys.robot_faults(fleet, self.id)
         self.lock = threading.Lock()
         self.wake = threading.Event()
         self.table: dict[int, State] = {}  # the last state of every robot heard (alive: not in self.dead)
@@ -135,6 +146,7 @@ class Agent:
         self.w_ref = window.Window(*self._spans)  # the leader
         self.w_state: dict[int, window.Window] = {}  # robot j
         self.ended = False  # the run this agent serves is over (a new run began): ignore everything
+        self.belief: protocol.Pose | None = None  # lock-step under faults: its pose as it knows it at the tick
         self.w_estop = window.Window(math.inf, 2**62)  # the operator's: forward only (its clock is unix time)
         self.estopped: str | None = None
         self.leader_alive = False
@@ -175,17 +187,49 @@ class Agent:
         f = self.fleet
         self.set_obstacles(obstacles or [])
         if self.cfg.lockstep:
-            self._handles.append(self.bus.subscribe(keys.robot_pose(f, self.id), self._on_pose_msg))
-            self._handles.append(self.bus.subscribe(keys.leader_ref(f), self._on_ref_msg))
+            self._inputs = [self.bus.subscribe(key, fn) for key, fn in self._lockstep_inputs()]
         else:  # the loop waits on its drive's poses and drains the other inboxes (see _loop_realtime)
             self.drive.start()
             self._ref_inbox = self.bus.inbox(keys.leader_ref(f))
             self._handles.append(self._ref_inbox)
         self._handles.append(self.bus.subscribe(keys.estop(f), self._on_estop_msg))
+        if self.view is not None:
+            if self.view.returns():
+                self._listen_all(True)  # this may be the process of a restart: its first tick may be a return
         self._clock_sub = self.bus.subscribe(keys.world_clock(f), self._on_clock_msg)
         self._handles.append(self.bus.watch_alive(keys.alive_any(f), self._on_alive_msg))
         self._move_cells(self.cfg.x, self.cfg.y)
         self._handles.append(self.bus.token(keys.alive(f, "robot", self.id)))
+
+    def _lockstep_inputs(self) -> list:
+        """Lock-step: (key, handler) of its pose, the reference and, under faults, the static bodies."""
+        f = self.fleet
+        out = [(keys.robot_pose(f, self.id), self._on_pose_msg), (keys.leader_ref(f), self._on_ref_msg)]
+        if self.view is not None:
+            out.append((keys.world_bodies(f), self._on_bodies_msg))
+        return out
+
+    _inputs: list = []
+
+    def _resubscribe(self) -> None:
+        """Lock-step under faults (loop thread): this robot's session came back after a stop past its lease.
+        zenoh declares its subscriptions again by itself, but in no order one can count on; declared here
+        once more, they are in place before the message that follows them on the same session (which tells
+        the world this robot is back: World._await_returns)."""
+        f = self.fleet
+        for h in self._inputs:
+            h.close()
+        self._inputs = [self.bus.subscribe(key, fn) for key, fn in self._lockstep_inputs()]
+        with self.lock:  # the world and the leader went on meanwhile: their next messages jump ahead
+            self.w_pose.reset()
+            self.w_ref.reset()
+            self.w_clock.reset()
+        for c in list(self._cells):
+            self._cells.pop(c).close()
+            self._cells[c] = self.bus.subscribe(keys.cell_any(f, *c), self._on_state_msg)
+        if self._all_sub is not None:
+            self._listen_all(False)
+            self._listen_all(True)
 
     def set_obstacles(self, obstacles: list[protocol.Obstacle]) -> None:
         """Keep the obstacles, indexed by cell so a tick looks only at the 3x3 cells around it."""
@@ -219,6 +263,10 @@ class Agent:
             except Exception as e:  # the session may be gone already: nothing left to tell the body
                 log.warning("robot %d: closing the drive: %s", self.id, e)
         self.drop_clock()
+        self._listen_all(False)
+        for h in self._inputs:
+            h.close()
+        self._inputs = []
         for h in list(self._cells.values()) + self._handles[::-1]:
             h.close()
         self._cells.clear()
@@ -273,6 +321,64 @@ class Agent:
     def _on_clock_msg(self, key: str, data: bytes) -> None:
         self._receive(key, data, "clock", None, self._on_clock)
 
+    def _on_bodies_msg(self, key: str, data: bytes) -> None:
+        self._receive(key, data, "bodies", None, self._on_bodies)
+
+    def _on_bodies(self, b: protocol.Bodies, key: str = "") -> None:
+        """Lock-step under faults: the static bodies of tick b.seq (dead or stopped robots), every tick,
+        and the robots returning at b.seq: their first pose is their state of that tick (taken as if it
+        came from them: nobody waits for a robot that was away at b.seq - 1)."""
+        if b.seq <= self.k_done or b.seq > self._next_tick():
+            return  # an old tick's, or one too far ahead (the world publishes a tick's bodies just before its poses)
+        self.static_by_seq[b.seq] = {s.id: (s.x, s.y, s.r, s.R) for s in b.bodies if s.id < self.cfg.robots}
+        for s in b.returning:
+            nb = self.table.get(s.id)
+            if s.id != self.id and s.id < self.cfg.robots and (nb is None or nb.seq < b.seq):
+                self.table[s.id] = State(id=s.id, t=b.t, seq=b.seq, x=s.x, y=s.y, theta=0.0, r=s.r, R=s.R,
+                                         frozen=False)
+                if b.seq == self.k_started:
+                    self.waiting.discard(s.id)
+
+    def _listen_all(self, on: bool) -> None:
+        """Lock-step under faults (loop thread, or start()): hear every robot's state, in every cell, for
+        a tick this robot returns at (restarted or resumed, it knows nobody's previous state, so it waits
+        for the state of every robot running then)."""
+        if on and self._all_sub is None:
+            self._all_sub = self.bus.subscribe(keys.cell_all(self.fleet), self._on_any_state_msg)
+        elif not on and self._all_sub is not None:
+            self._all_sub.close()
+            self._all_sub = None
+
+    _all_sub = None
+
+    def _on_any_state_msg(self, key: str, data: bytes) -> None:
+        """A state heard through _listen_all: kept only when it is of a tick this robot returns at (its
+        cells' subscriptions bring the same message through the windows of _on_state)."""
+        if self.ended:
+            return
+        j = keys.cell_robot(key)
+        try:
+            if j is None:
+                raise ProtocolError(f"not a cell key: {key!r}")
+            s = protocol.decode(data, "state", j, self.limits)
+        except ProtocolError as e:
+            with self.lock:
+                self.bad.reject(key, e)
+            return
+        with self.lock:
+            if s.id == self.id or self.view is None:
+                return
+            if s.seq <= self.k_done or s.seq > self._next_tick() or self.view.schedule.fresh(self.id, s.seq) is None:
+                return  # not of a return tick of this robot (or too far ahead): the cells' subscriptions decide
+            nb = self.table.get(s.id)
+            if nb is None or nb.seq < s.seq:
+                self.table[s.id] = s
+            if s.seq == self.k_started:
+                self.waiting.discard(s.id)
+            due = self._due()
+        if due:
+            self.wake.set()
+
     def _on_estop_msg(self, key: str, data: bytes) -> None:
         self._receive(key, data, "estop", None, self._on_estop)
 
@@ -302,6 +408,12 @@ class Agent:
             elif parsed.role == "world" and up:
                 self.w_pose.reset()
                 self.w_clock.reset()
+                self._world_ups += 1
+                if self.view is not None and self._world_ups > 1:
+                    # the world's token again: this robot's session came back (it was stopped past its lease):
+                    # say so once its subscriptions are back (they were sent before this could arrive)
+                    self._announce = True
+                    self.wake.set()
             elif parsed.role == "leader":
                 self.leader_alive = up
                 if self.guard is not None:
@@ -378,7 +490,15 @@ class Agent:
         return self.k_started > self.k_done and self._inputs_complete(self.k_started)
 
     def _inputs_complete(self, k: int) -> bool:
-        return k in self.refs and self.clock_seq >= min(k, self._clock_needed) and not self.waiting
+        if self._idle == k:
+            return True  # dead or hung at k (the fault schedule): nothing to compute
+        return k in self.refs and self.clock_seq >= min(k, self._clock_needed) and not self.waiting and \
+            (self.view is None or k in self.static_by_seq)
+
+    _idle = -1  # lock-step under faults: the tick this robot's process is dead or hung at
+    _overdue = 0  # lock-step ticks computed without all their inputs (after wait_timeout)
+    _world_ups = 0  # times the world's token appeared
+    _announce = False  # lock-step under faults: its session came back; tell the world (FaultStats)
 
     _clock_needed = 0  # lock-step: clock_0 is the start barrier; later ticks need no clock message
     _rt_seq = -1  # real time: seq of the pose the last command was computed from
@@ -398,8 +518,10 @@ class Agent:
         if s.id == self.id:
             return
         if self.cfg.lockstep:
-            now = max(self.k_started, self.pose.seq if self.pose is not None else -1)
-            ahead = s.seq > now + 1
+            nxt = self._next_tick()
+            if self.view is not None and s.seq > nxt and not self.view.active(nxt):
+                return  # its process is away by the fault schedule: states pass it by (no fault of the sender's)
+            ahead = s.seq > nxt
         else:
             now = self.sim_time(self.clock.time())
             ahead = now is not None and s.t > now + self._spans[0]
@@ -433,26 +555,69 @@ class Agent:
         if self.cfg.lockstep and ref.seq > self.k_done:
             self.refs[ref.seq] = ref
 
+    def _next_tick(self) -> int:
+        """Lock-step: the newest tick this robot can hear of now: the one after the newest it started or was
+        posed (a message of a later tick is ahead of it, refused). Under faults, a robot whose process is away
+        by the schedule next runs at its return tick; a new process that may be a restarted one (no pose yet)
+        at its last return tick."""
+        now = max(self.k_started, self.pose.seq if self.pose is not None else -1)
+        view = self.view
+        if view is None or view.active(now + 1) and now >= 0:
+            return now + 1
+        if now < 0:
+            return max(0, view.last_return() or 0)
+        ret = view.schedule.next_return(self.id, now)
+        return now + 1 if ret is None else ret
+
     def _on_pose(self, pose: protocol.Pose, key: str = "") -> None:
+        if self.view is not None and self.view.schedule.fresh(self.id, pose.seq) is not None and \
+                pose.seq > max(self.k_started, self.pose.seq if self.pose is not None else -1):
+            self.w_pose.reset()  # it returns at pose.seq (restarted or resumed): its poses resume after a gap
         if not self.bad.verdict(key, self.w_pose.check(pose.t, pose.seq), "the pose's t or seq"):
             return
         self.pose = pose
 
     def _start_tick(self, pose) -> None:
-        """Lock-step tick k starts (loop thread): publish state_k, decide whose state_k to wait for."""
+        """Lock-step tick k starts (loop thread): publish state_k, decide whose state_k to wait for.
+        Under faults the state is the robot's belief (its pose as it knows it: agents.faultview), and a
+        robot whose process the schedule says is dead or hung at k does nothing."""
         k = pose.seq
+        view = self.view
+        if view is not None:
+            b = view.start(k, (pose.x, pose.y, pose.theta))
+            if b is None:
+                with self.lock:
+                    self._idle = k
+                    self.waiting = set()
+                    self.k_started = k
+                self._move_cells(pose.x, pose.y)  # where it stands (raw: for its subscriptions only)
+                return
+            pose = protocol.Pose(t=pose.t, seq=k, x=b[0], y=b[1], theta=b[2])
+            self.belief = pose
         self._move_cells(pose.x, pose.y)
         self._publish_state(pose, k)
         with self.lock:
-            px, py = self.prev_xy if self.prev_xy is not None else (pose.x, pose.y)
+            if view is not None:
+                px, py, _ = view.previous(k)
+            else:
+                px, py = self.prev_xy if self.prev_xy is not None else (pose.x, pose.y)
             self.waiting = set()
             dead = self.dead
             reach2 = self._wait_reach * self._wait_reach
             for j in [j for j, nb in self.table.items() if nb.seq < k - 1 and j not in dead]:
                 del self.table[j]  # never used again (bounded state): a live robot counts only with state_k or state_(k-1)
             for j, nb in self.table.items():
-                if nb.seq == k - 1 and j not in dead and (px - nb.x) ** 2 + (py - nb.y) ** 2 < reach2:
+                if nb.seq == k - 1 and j not in dead and (px - nb.x) ** 2 + (py - nb.y) ** 2 < reach2 and \
+                        (view is None or view.other_active(j, k)):  # under faults: nobody waits for a stopped robot
                     self.waiting.add(j)
+            if view is not None and view.event is not None:
+                # it returns at k (restarted or resumed): it knows nobody's state of k - 1, so it waits for
+                # every robot running at k (heard in every cell: _listen_all), but those already here
+                self.waiting = {j for j in range(self.cfg.robots) if j != self.id and j not in dead and
+                                view.other_active(j, k) and not (j in self.table and self.table[j].seq == k)}
+                if view.event == "restart":
+                    self.mem = [0.0] * law.M_SIZE  # a fresh controller (the same object when the process
+                    self.mem[law.M_SCALE] = 1.0  # was not really killed: swarm world --process-faults played)
             self.deadline = self.clock.monotonic() + self.wait_timeout
             self._leader_ups_seen = self.leader_ups
             self.k_started = k
@@ -561,6 +726,13 @@ class Agent:
     def tick_lockstep(self) -> bool:
         """Loop thread: start a new tick if its pose came, and compute it once its inputs are complete
         (or overdue). True if a command (or a skip) was issued."""
+        if self._announce:
+            self._announce = False
+            if self.view is not None and self.k_done >= 0:
+                self._resubscribe()
+                self.bus.put(self._faults_key, protocol.encode(protocol.FaultStats(
+                    self.k_done * self.cfg.dt, self.k_done, *self.view.counters(),
+                    frozen=self.mem[law.M_FROZEN] != 0.0)), reliable=True)
         with self.lock:
             pose = self.pose
         if pose is None or pose.seq <= self.k_done:
@@ -581,19 +753,69 @@ class Agent:
                 return False
             if not self._inputs_complete(k) and not overdue:
                 return False
+            if overdue and not self._inputs_complete(k):
+                self._overdue += 1
+                if self._overdue <= 5 or self._overdue % 100 == 0:
+                    what = ([f"the states of robots {sorted(self.waiting)[:8]}"] if self.waiting else []) + \
+                        (["the reference"] if k not in self.refs else []) + \
+                        (["the clock"] if self.clock_seq < min(k, self._clock_needed) else []) + \
+                        (["the static bodies"] if self.view is not None and k not in self.static_by_seq else [])
+                    log.warning("robot %d: tick %d goes on after %g s without %s (%d ticks so far)", self.id, k,
+                                self.wait_timeout, ", ".join(what), self._overdue)
             ref = self.refs.get(k)
             self.k_done = k
             self.prev_xy = (pose.x, pose.y)
             for old in [s for s in self.refs if s <= k]:
                 del self.refs[old]
-            if ref is None:
+            for old in [s for s in self.static_by_seq if s < k]:
+                del self.static_by_seq[old]
+            if self.view is not None:
+                if self._idle != k:
+                    v, w, r = self._command_under_faults(k, ref)
+                    pose = self.belief
+            elif ref is None:
                 self.skipped += 1  # no reference for this tick (a restart mid-run): no command, the world holds
                 log.warning("robot %d: no reference for tick %d, no command", self.id, k)
                 return True
-            r = (ref.x, ref.y, ref.theta, ref.v, ref.w)
-            v, w = self.command(pose.t, pose.x, pose.y, pose.theta, r, k)
+            else:
+                r = (ref.x, ref.y, ref.theta, ref.v, ref.w)
+                v, w = self.command(pose.t, pose.x, pose.y, pose.theta, r, k)
+        if self.view is not None:
+            # before its command goes out (the world starts the next tick only once it has it): the next
+            # tick this robot runs is a return tick, so it hears every cell from now on
+            self._listen_all(self.view.returns_next(k))
+            if self._idle == k:
+                return True  # dead or hung at k: no state, no command (the world knows the schedule)
+            c = self.view.counters()
+            self.bus.put(self._faults_key, protocol.encode(protocol.FaultStats(
+                pose.t, k, *c, frozen=self.mem[law.M_FROZEN] != 0.0)), reliable=True)
         self._publish(pose.t, k, v, w, r, pose)
         return True
+
+    def _command_under_faults(self, k: int, ref) -> tuple[float, float, tuple]:
+        """Lock-step under faults (under the lock): the law given what the fault layer delivered; returns
+        (v, w, the reference the law used, or the raw one for the status)."""
+        view = self.view
+        view.reference(k, None if ref is None else (ref.x, ref.y, ref.theta, ref.v, ref.w))
+        fresh = {j: (nb.x, nb.y) for j, nb in self.table.items() if nb.seq == k}
+        for j in sorted(set(fresh) | set(view.tk) | set(view.ring_state)):
+            if j != self.id:
+                view.neighbour(k, j, fresh.get(j))
+        listen, r = view.law_inputs(k)
+        b = self.belief
+        if listen or r is None:
+            v = w = 0.0  # listening (just restarted or resumed), or no reference yet: it holds still
+            r = r or (b.x - self.cfg.dx, b.y - self.cfg.dy, b.theta, 0.0, 0.0)
+        else:
+            static = self.static_by_seq.get(k, {})
+            nx, ny, nr, nR, nk, na = view.bodies(k, static, self.obstacles, self.cfg.r, self.cfg.R, law.KIND_ROBOT,
+                                                 law.KIND_OBSTACLE)
+            xl, yl, thl, vl, wl = r
+            v, w = law.robot_command(b.x, b.y, b.theta, self.cfg.dx, self.cfg.dy, self.cfg.r, k * self.cfg.dt, xl, yl,
+                                     thl, vl, wl, nx, ny, nr, nR, nk, na, len(nx), self.mem, self.p)
+            self.neighbours = sum(1 for kind in nk if kind == law.KIND_ROBOT)
+        view.commanded(k, v, w)
+        return v, w, r
 
     def next_wakeup(self) -> float:
         """Seconds until tick_lockstep() may act by timeout (a bound for the loop's wait)."""
@@ -686,10 +908,15 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
             if mine is not None and not run.scenario:
                 run = runs.complete(run, start_timeout, stop)  # to name the first difference, if any
             check_run(run, mine, robot_id)
+            faults = None
             if scenario is not None:
                 cfg = runid.robot_config(scenario, robot_id, run.lockstep, run.run, run.digest)
+                faults = scenario.faults
             else:
                 cfg = fetch_config(bus, fleet, robot_id, start_timeout, stop, run=run.run)
+                if cfg.lockstep:  # lock-step under faults: every process reads the same schedule (the run's)
+                    run = runs.complete(run, start_timeout, stop)
+                    faults = _run_faults(run)
             obstacles = fetch_obstacles(bus, fleet, start_timeout, stop)
             drive = guard = None
             box: list[Agent] = []
@@ -703,7 +930,8 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
 
                     drive = SimDrive(bus, fleet, robot_id)
                 guard = Guard(drive, clock, pose_timeout_s=pose_timeout, ref_timeout_s=ref_timeout)
-            agent = Agent(bus, cfg, fleet, wait_timeout=wait_timeout, clock=clock, drive=drive, guard=guard)
+            agent = Agent(bus, cfg, fleet, wait_timeout=wait_timeout, clock=clock, drive=drive, guard=guard,
+                          faults=faults if cfg.lockstep else None)
             box.append(agent)
             current[:] = [agent]
             if runs.latest is not None and runs.latest.run != run.run:
@@ -734,6 +962,17 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
     finally:
         runs.close()
     return served
+
+
+def _run_faults(run):
+    """The faults of a run (its scenario text), or RunRefused naming why they do not check."""
+    from agents.follow import RunRefused
+    from swarm.core.errors import ScenarioError
+
+    try:
+        return runid.faults_of(run.scenario, run.robots, f"run {run.run}")
+    except ScenarioError as e:
+        raise RunRefused(f"run {run.run}'s faults do not check: {e}") from None
 
 
 def _loop_lockstep(agent: Agent, stop: threading.Event) -> None:

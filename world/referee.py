@@ -1,4 +1,4 @@
-"""The referee: the metrics of DESIGN.md section 7 from ground truth, one sample at a time.
+"""The referee: the metrics of docs/metrics.md from ground truth, one sample at a time.
 
 The world calls sample() at every control step (every tick in lock-step) with the true poses,
 which robots are alive and the live leader reference. The definitions are those of the
@@ -46,8 +46,11 @@ class Referee:
         self.alive_now = 0
         self.frozen = np.zeros(self.n, bool)
 
-    def sample(self, t: float, q: np.ndarray, alive: np.ndarray, leader: tuple[float, float, float]) -> None:
-        """Account for the state at time t: q (N, 3) true poses, alive (N,) bool, leader (x, y, theta)."""
+    def sample(self, t: float, q: np.ndarray, alive: np.ndarray, leader: tuple[float, float, float],
+               frozen_by_law: np.ndarray | None = None) -> None:
+        """Account for the state at time t: q (N, 3) true poses, alive (N,) bool, leader (x, y, theta);
+        frozen_by_law (N,) bool: which robots their laws froze (under faults, where a law's view is not the
+        truth; None: frozen is inside R_j of another live robot, which is what the law sees otherwise)."""
         xl, yl, thl = leader
         x, y, th = q[:, 0], q[:, 1], q[:, 2]
         px = xl + self.offsets[:, 0] - x
@@ -95,6 +98,8 @@ class Referee:
                     inside.add((int(a + i), self.n + int(m)))
         self.collisions += len(inside - self._inside)
         self._inside = inside
+        if frozen_by_law is not None:
+            frozen = np.asarray(frozen_by_law, bool)
         self.frozen = frozen
         self.frozen_now = int(np.count_nonzero(frozen))
         if self.frozen_now:

@@ -63,7 +63,7 @@ class World:
     def __init__(self, bus, scn: Scenario, fleet: str = "default", lockstep: bool = True, speed: float = 1.0,
                  watchdog: float = WATCHDOG_S, tick_timeout: float = TICK_TIMEOUT_S, fine_dt: float = FINE_DT_S,
                  trace: bool = False, progress=None, clock=WALL, lost_timeout: float = LOST_TIMEOUT_S,
-                 ros2: tuple[str, str, int] | None = None):
+                 ros2: tuple[str, str, int] | None = None, process_faults: str = "played"):
         self.bus, self.scn, self.fleet = bus, scn, fleet
         self.clock = clock
         self.lockstep, self.speed = lockstep, speed
@@ -75,6 +75,22 @@ class World:
             raise ValueError("a simulated ROS 2 fleet runs in real time only (odometry carries no tick)")
         self.ros2 = ros2
         self.fleet_ros2 = None
+        # lock-step under faults: membership, commands and static bodies by the shared schedule
+        # (world.faultworld); process_faults "signals": a supervisor really kills and stops the robots'
+        # processes (the world waits for a restarted or resumed one before its return tick), "played":
+        # nobody does, and each robot's process idles through its dead or hung ticks by the schedule
+        if process_faults not in ("signals", "played"):
+            raise ValueError(f"process_faults must be 'signals' or 'played', got {process_faults!r}")
+        self.process_faults = process_faults
+        self.wf = None
+        if scn.faults and lockstep:
+            from world.faultworld import WorldFaults
+
+            self.wf = WorldFaults(scn, watchdog)
+        self.token_gen = [0] * scn.n  # liveliness tokens each robot's id declared (a restart declares a new one)
+        self.token_mark: dict[int, int] = {}  # robot -> token_gen when its scheduled kill or hang began
+        self.lapsed: set[int] = set()  # robots whose token went away since their scheduled hang began
+        self.announced: set[int] = set()  # lapsed robots that said they are back (a FaultStats after the lapse)
         self.run_id = runid.new_run_id(clock)
         self.digest = runid.digest(scn)
         self.leader_timeout = lost_timeout  # s: how long a lost leader (or every robot) may be away before the run ends
@@ -109,6 +125,7 @@ class World:
         self.bad = protocol.BadMessages(log)
         self.robot_bad: dict[int, int] = {}
         self.misses = 0
+        self._miss_events = 0  # lock-step ticks with a miss (for the log's rate limit)
         # lock-step: pairs of robots a tick that the agents' wait rule could not cover (see _check_wait_rule)
         self.step_bound = keys.lockstep_step_bound(scn.reach, scn.cell_side)
         self.wait_reach = keys.lockstep_wait_reach(scn.reach, scn.cell_side)
@@ -137,6 +154,8 @@ class World:
         if self.lockstep:
             self._handles.append(self.bus.subscribe(keys.robot_any(f, "cmd"), lambda k, b: ev(("cmd", k, b))))
             self._handles.append(self.bus.subscribe(keys.robot_any(f, "status"), lambda k, b: ev(("status", k, b))))
+            if self.wf is not None:
+                self._handles.append(self.bus.subscribe(keys.robot_any(f, "faults"), lambda k, b: ev(("faults", k, b))))
         elif self.ros2 is not None:  # real time, ROS 2 robots: cmd_vel in, odometry out (world.ros2_fleet)
             from world.ros2_fleet import Ros2Fleet
 
@@ -199,7 +218,8 @@ class World:
     def _missing(self) -> list[int]:
         """Live robots whose command for the awaited tick has not come (call under the lock)."""
         k = self._await
-        return [i for i in range(self.n) if self.alive[i] and self.cmd_seq[i] < k]
+        wf = self.wf
+        return [i for i in range(self.n) if self.alive[i] and self.cmd_seq[i] < k and (wf is None or wf.running(i, k))]
 
     def _handle(self, item) -> None:
         tag, key, data = item
@@ -229,6 +249,14 @@ class World:
             elif tag == "state":
                 if protocol.decode(data, "state", i, self.limits).seq == 0:
                     self._state0.add(i)
+            elif tag == "faults":
+                s = protocol.decode(data, "faultstats", None, self.limits)
+                if s.seq > self.k or not self.wf.running(i, s.seq):
+                    raise ProtocolError(f"fault counters of tick {s.seq}, when robot {i} is not running then "
+                                        f"(the world is at tick {self.k})")
+                self.wf.take_stats(i, s)
+                if i in self.lapsed and self.alive[i]:
+                    self.announced.add(i)  # a robot back from a hang past its lease: its subscriptions are back
         except ProtocolError as e:
             self.bad.reject(key, e)
 
@@ -252,10 +280,18 @@ class World:
                 log.warning("robot %d is alive but not in this world's scenario (%d robots: 0..%d); it takes no "
                             "part in the run (started with another scenario or fleet?)", i, self.n, self.n - 1)
             return
+        if up:
+            self.token_gen[i] += 1
+        elif i in self.token_mark:
+            self.lapsed.add(i)
         if not up and self.alive[i] and self._running:
-            self.lost.add(i)
-            self.lost_events += 1
-            log.warning("robot %d lost at t = %g s (its liveliness token is gone)", i, self.t)
+            if self.wf is not None and not self.wf.running(i, self.k):  # a scheduled kill or hang: membership
+                log.info("robot %d's token is gone at t = %g s (its process is %s by the fault schedule)", i,
+                         self.t, "dead" if self.wf.dead(i, self.k) else "hung")  # follows the schedule
+            else:
+                self.lost.add(i)
+                self.lost_events += 1
+                log.warning("robot %d lost at t = %g s (its liveliness token is gone)", i, self.t)
         self.alive[i] = up
         if up:
             self.w_cmd[i].reset()
@@ -290,8 +326,10 @@ class World:
         # the snapshot first: it is best effort (a viewer must never hold the world back), and at the
         # head of the burst it finds the send queue empty instead of behind N reliable poses
         self._publish_snapshot(t, seq)
+        wf = self.wf
         for i in range(self.n):
-            self._publish_pose(i, t, seq)
+            if wf is None or wf.running(i, seq):  # under faults: only to robots whose process runs at seq
+                self._publish_pose(i, t, seq)
 
     def _publish_pose(self, i: int, t: float, seq: int) -> None:
         x, y, th = self.q[i]
@@ -311,21 +349,37 @@ class World:
         if self.trace is not None:
             self.trace.append(q)
         xl, yl, thl, _v, _w = kinematics.leader_state(self.table, t)
-        self.referee.sample(t, q, self.alive, (xl, yl, thl))
+        self.referee.sample(t, q, self._counted(), (xl, yl, thl),
+                            None if self.wf is None else self.wf.frozen(self.k))
+
+    def _counted(self) -> np.ndarray:
+        """The robots convergence and errors are over: the live ones; under faults (lock-step) those whose
+        process is not dead now and is alive at the end (the simulator's definition)."""
+        wf = self.wf
+        if wf is None:
+            return self.alive
+        return np.array([not wf.dead(i, self.k) and wf.alive_end[i] for i in range(self.n)], bool)
+
+    def _not_dead(self) -> int:
+        wf = self.wf
+        if wf is None:
+            return int(self.alive.sum())
+        return sum(1 for i in range(self.n) if not wf.dead(i, self.k))
 
     def progress(self) -> protocol.Progress:
         ref = self.referee
         d = ref.min_rr
         conv = ref.converged_at()
         return protocol.Progress(t=self.t, seq=self.k, duration=self.scn.duration, robots=self.n,
-                                 alive=int(self.alive.sum()), converged=ref.converged_now, frozen=ref.frozen_now,
+                                 alive=self._not_dead(), converged=ref.converged_now, frozen=ref.frozen_now,
                                  min_distance=d if math.isfinite(d) else -1.0, misses=self.misses,
                                  bad=self.bad_total(), collisions=ref.collisions, overruns=self.overruns,
                                  min_obstacle=ref.min_ro if math.isfinite(ref.min_ro) else -1.0,
                                  position_error=ref.pmax if ref.samples and ref.alive_now else -1.0,
                                  orientation_error=ref.emax if ref.samples and ref.alive_now else -1.0,
                                  converged_at=-1.0 if conv is None else conv,
-                                 last_freeze=-1.0 if ref.last_frozen_t is None else ref.last_frozen_t)
+                                 last_freeze=-1.0 if ref.last_frozen_t is None else ref.last_frozen_t,
+                                 dropped=0 if self.wf is None else sum(self.wf.totals()[0]))
 
     def bad_total(self) -> int:
         fleet = self.fleet_ros2
@@ -361,16 +415,18 @@ class World:
             self._report(force=True)
         if self.failure:
             log.error("world: the run ended early: %s", self.failure)
-        if not self.alive.any():  # the last step had no live robot: nothing is converged, no final error
+        if not self._counted().any():  # the last step had no live robot: nothing is converged, no final error
             self.referee.alive_now = 0
             self.referee.good_since = None
-        return self.referee.metrics(
-            time.perf_counter() - started, interrupted, "lockstep" if self.lockstep else "realtime",
-            cmd_misses=self.misses, bad_messages=self.bad_total(), steps=self.k,
-            **({"lockstep_overruns": self.overruns} if self.lockstep else {}),
-            robots_alive_at_end=int(self.alive.sum()), robots_lost=self.lost_events,
-            run_wall_s=time.perf_counter() - self._run_started, failure=self.failure, run_id=self.run_id,
-            scenario_digest=self.digest, stale_messages=self.bad.stale, **self._latency())
+        extra = dict(cmd_misses=self.misses, bad_messages=self.bad_total(), steps=self.k,
+                     **({"lockstep_overruns": self.overruns} if self.lockstep else {}),
+                     robots_alive_at_end=int(self.alive.sum()), robots_lost=self.lost_events,
+                     run_wall_s=time.perf_counter() - self._run_started, failure=self.failure, run_id=self.run_id,
+                     scenario_digest=self.digest, stale_messages=self.bad.stale, **self._latency())
+        if self.wf is not None:  # messages_dropped, faults {...}, robots_alive_at_end by the schedule
+            extra.update(self.wf.metrics(self._not_dead()))
+        return self.referee.metrics(time.perf_counter() - started, interrupted,
+                                    "lockstep" if self.lockstep else "realtime", **extra)
 
     def _absent(self) -> str | None:
         """What the run cannot go on without, now: the leader, or every robot (None if both are here)."""
@@ -423,19 +479,25 @@ class World:
     def _run_lockstep(self, stop: threading.Event) -> bool:
         scn, dt = self.scn, self.scn.dt
         n_steps = scn.steps
+        wf = self.wf
         # start barrier: pose_0 to everyone, then wait until every robot's state_0 is delivered; pose_0 is
         # repeated for robots still missing (a robot of an earlier run may have ignored the first one while
         # it turned to this run)
+        if wf is not None:
+            self._begin_faults(0)
+            self._publish_bodies(0)
         self._publish_poses(0.0, 0)
         end = self.clock.monotonic() + max(5.0, 5 * self.tick_timeout)
         again = self.clock.monotonic() + 0.25
         while not stop.is_set() and self.clock.monotonic() < end:
             with self.lock:
-                missing = [i for i in range(self.n) if i not in self._state0]
+                missing = [i for i in range(self.n) if i not in self._state0 and (wf is None or wf.running(i, 0))]
             if not missing:
                 break
             if self.clock.monotonic() >= again:
                 again = self.clock.monotonic() + 0.25
+                if wf is not None:
+                    self._publish_bodies(0)
                 for i in missing:
                     self._publish_pose(i, 0.0, 0)
             self.wake.wait(0.05)
@@ -453,12 +515,23 @@ class World:
             if k > 0:
                 if not self._hold(stop):
                     return stop.is_set()
+                if wf is not None:
+                    self._begin_faults(k)
+                    # before clock k: the leader answers it with the reference of k + 1, which a robot
+                    # returning at k + 1 must hear
+                    if not self._await_returns(k + 1, stop):
+                        return stop.is_set()
+                    self._publish_bodies(k)
                 self._publish_tick(t, k)
-            self._sample(t)
-            self._report()
-            if k == n_steps:
-                break
-            # wait for cmd_k of every live robot
+            if wf is None:
+                self._sample(t)
+                self._report()
+                if k == n_steps:
+                    break
+            else:  # the supervisor acts on the world's tick
+                self._report(force=self._signal_due(k))
+            # wait for cmd_k of every live robot (under faults: of every robot whose process runs at k, at
+            # the last tick too: their fault counters come just before their commands)
             deadline = self.clock.monotonic() + self.tick_timeout
             with self.lock:
                 self._await = k
@@ -480,6 +553,12 @@ class World:
                     ups = self.leader_ups
                     if left <= 0 and not away:
                         self.misses += len(waiting)
+                        self._miss_events += 1
+                        if self._miss_events <= 10 or self._miss_events % 100 == 0:
+                            log.warning("world: no command from robot%s %s for tick %d (t = %g s) within %g s; %s "
+                                        "held (%d ticks with misses so far)", "s" if len(waiting) > 1 else "",
+                                        ", ".join(map(str, waiting[:8])), k, t, self.tick_timeout,
+                                        "they are" if len(waiting) > 1 else "it is", self._miss_events)
                         self._await = -1
                         pending, self._pending = self._pending, {}
                         break
@@ -491,8 +570,18 @@ class World:
                 self.wake.wait(min(left, 0.5))
                 self.wake.clear()
             before = np.array(self.q)[:, :2]
+            if wf is not None:  # the commands the fault schedule lets through, held, braked or stopped
+                applied = wf.apply(k, pending)
+                self._sample(t)  # under faults once the laws of k are known (their freezes are the metrics')
+                if k == n_steps:
+                    break
             for i in range(self.n):
-                if i in pending:
+                if wf is not None:
+                    self.cmd[i] = applied[i]
+                    self.stopped[i] = wf.stopped[i]
+                    if i in pending:
+                        self.cmd_time[i] = t
+                elif i in pending:
                     self.cmd[i] = pending.pop(i)
                     self.cmd_time[i] = t
                     self.stopped[i] = False
@@ -508,6 +597,76 @@ class World:
             self._check_wait_rule(t + dt, before)
         return stop.is_set()
 
+    # ------------------------------------------------------------------ lock-step under faults
+
+    def _begin_faults(self, k: int) -> None:
+        """Tick k's process events (world.faultworld): counted, logged, and noted for the waits of
+        _await_returns (the token count when a robot's kill or hang began)."""
+        for i, kind in self.wf.begin(k):
+            log.info("world: fault at tick %d (t = %g s): robot %d %s", k, k * self.scn.dt, i,
+                     {"kill": "killed", "restart": "restarted", "hang": "hung", "resume": "resumed"}[kind])
+            with self.lock:
+                self.lapsed.discard(i)
+                self.announced.discard(i)
+                if kind in ("kill", "hang"):
+                    self.token_mark[i] = self.token_gen[i]
+                else:
+                    self.token_mark.pop(i, None)
+                    self.w_status[i].reset()  # its statuses resume after a gap
+
+    def _signal_due(self, k: int) -> bool:
+        """A supervisor acts at tick k (a kill or hang begins, or a resume is next): report progress now."""
+        wf = self.wf
+        return any(wf.returning(i, k + 1) == "resume" or (wf.running(i, k - 1) and not wf.running(i, k))
+                   for i in range(self.n)) if k > 0 else False
+
+    def _await_returns(self, k: int, stop: threading.Event) -> bool:
+        """Lock-step under faults, before the tick before k: with a supervisor that really kills and stops processes
+        (process_faults "signals"), wait for every robot returning at k, up to lost_timeout: a restarted
+        robot's new process (a token declared after the kill: its subscriptions came before it); a resumed
+        one, whose token lapsed (the supervisor stops a process longer than its lease, so its session surely
+        closed) and came back, and which said so (its fault counters again, sent once its session and
+        subscriptions are back). False (self.failure says who) if one did not come."""
+        if self.process_faults != "signals":
+            return True
+        wf = self.wf
+        back = [(i, wf.returning(i, k)) for i in range(self.n) if wf.returning(i, k) is not None]
+        if not back:
+            return True
+
+        def missing() -> list[int]:
+            with self.lock:
+                out = []
+                for i, kind in back:
+                    mark = self.token_mark.get(i, -1)
+                    if not self.alive[i] or (kind == "restart" and self.token_gen[i] <= mark) or \
+                            (kind == "resume" and (i not in self.lapsed or i not in self.announced)):
+                        out.append(i)
+                return out
+
+        end = self.clock.monotonic() + self.leader_timeout
+        told = False
+        while not stop.is_set():
+            left = missing()
+            if not left:
+                return True
+            if self.clock.monotonic() >= end:
+                self.failure = (f"robot {left[0]} did not come back for its scheduled "
+                                f"{dict(back)[left[0]]} at t = {k * self.scn.dt:g} s (tick {k}) within "
+                                f"{self.leader_timeout:g} s")
+                return False
+            if not told:
+                told = True
+                log.info("world: waiting for robot%s %s to come back (at tick %d)", "s" if len(left) > 1 else "",
+                         ", ".join(map(str, left)), k)
+                self._report(force=True)  # a supervisor acts on the world's tick (k - 1 now)
+            self.wake.wait(0.05)
+            self.wake.clear()
+        return False
+
+    def _publish_bodies(self, k: int) -> None:
+        self.bus.put(keys.world_bodies(self.fleet), protocol.encode(self.wf.bodies(k, self.q)), reliable=True)
+
     def _check_wait_rule(self, t: float, before: np.ndarray) -> None:
         """Lock-step: count the pairs of live robots the agents' wait rule did not cover this tick.
 
@@ -520,7 +679,8 @@ class World:
         k-1 outside held(i, k-1)); (b) within wait_reach at k-1 (so maybe awaited), but j's cell at k
         outside held(i, k). Neither can happen while no robot moves more than L in a tick; when one does,
         the run may differ from swarm sim."""
-        live = np.flatnonzero(self.alive)
+        wf = self.wf
+        live = np.flatnonzero(self.alive if wf is None else [self.alive[i] and wf.running(i, self.k) for i in range(self.n)])
         side = self.scn.cell_side
         c0 = np.floor(before / side)  # cells at k-1
         if self._cells_hist is None:  # the start blocks are subscribed before tick 0
@@ -703,6 +863,7 @@ class WorldOptions:
     ros2: tuple[str, str, int] | None = None  # real time: a simulated ROS 2 fleet (flavor, twist, domain)
     start_timeout: float = 60.0
     trace: bool = False
+    process_faults: str = "played"  # lock-step kills and hangs: "signals" when a supervisor really does them
 
 
 def run_world(bus, clock, scn: Scenario, opts: WorldOptions = WorldOptions(), stop: threading.Event | None = None,
@@ -713,7 +874,7 @@ def run_world(bus, clock, scn: Scenario, opts: WorldOptions = WorldOptions(), st
     started = time.perf_counter() if started is None else started
     world = World(bus, scn, fleet, lockstep=opts.lockstep, speed=opts.speed, watchdog=opts.watchdog,
                   tick_timeout=opts.tick_timeout, trace=opts.trace, clock=clock, lost_timeout=opts.lost_timeout,
-                  ros2=opts.ros2)
+                  ros2=opts.ros2, process_faults=opts.process_faults)
     world.start()
     try:
         log.info("world: %d robots, %d obstacles, %s, waiting for robots and leader", scn.n, len(scn.obstacles),

@@ -413,6 +413,11 @@ def _add_runtime_parsers(sub) -> None:
                    help="the simulated robots speak ROS 2: each takes cmd_vel and gives odometry (its own frame, zero "
                         "at its start) on the ROS 2 keys of FLAVOR (rmw_zenoh or bridge), in CDR; needs --mode realtime")
     _add_ros2_flags(g, world=True)
+    world.add_argument("--process-faults", choices=("played", "signals"), default="played",
+                       help="lock-step with kill or hang faults: 'played' (default), each robot's process idles "
+                            "through its dead or hung ticks; 'signals', a supervisor really kills (SIGKILL) and "
+                            "stops (SIGSTOP) them, and the world waits for a restarted or resumed robot before "
+                            "its return tick (what swarm up does)")
     g = world.add_argument_group("real robots")
     g.add_argument("--referee-only", action="store_true",
                    help="no physics: serve the run to real robots (with --inventory) and referee it from their "

@@ -192,6 +192,7 @@ def cmd_up(args, started: float) -> int:
             if not stop.is_set():
                 say(f"all {len(want)} processes alive after {launched_s:.2f} s; router at {plan.endpoint}")
             world = sup.children["world"]
+            faults = FaultActor(scn, args.mode == "lockstep", bus, fleet, sup, say, log_dir)
             while world.proc.poll() is None:
                 if stop.is_set():
                     interrupted = True
@@ -202,6 +203,7 @@ def cmd_up(args, started: float) -> int:
                     say(note)
                 watch_viewer()
                 last = _progress(progress[0]) or last
+                faults.act(last)
                 if last is not None:
                     status.update(progress_line(last))
                 if plan.router is not None and sup.children["router"].proc.poll() is not None:
@@ -209,7 +211,7 @@ def cmd_up(args, started: float) -> int:
                     sup.signal("world", signal.SIGTERM)  # the world writes the metrics it has
                     sup.wait("world", 3.0)
                     break
-                stop.wait(0.1)
+                stop.wait(faults.wait_s(0.1))
             last = _progress(progress[0]) or last
             rc = world.proc.returncode
             if not interrupted and failure is None and rc not in (0, 1, 3, EXIT_INTERRUPTED):
@@ -253,6 +255,58 @@ def cmd_up(args, started: float) -> int:
         print(f"swarm up: checks failed: {', '.join(violations(metrics))} (exit 3; --allow-violations: 0)",
               file=sys.stderr)
     return code
+
+
+class FaultActor:
+    """`swarm up`: the scenario's scheduled kills and hangs done for real (swarm.launch.process_faults):
+    lock-step by the world's tick (its progress), real time by its clock (epoch + t / speed). Each is said
+    on the status line and written to faults.log in the log directory (unix time, simulated time, what)."""
+
+    def __init__(self, scn, lockstep: bool, bus, fleet: str, sup, say, log_dir: Path) -> None:
+        from swarm.launch.process_faults import ProcessFaults
+
+        self.pf = ProcessFaults(scn.faults, scn.dt, lockstep)
+        self.lockstep, self.sup, self.say, self.dt = lockstep, sup, say, scn.dt
+        self.path = log_dir / "faults.log"
+        self.epoch: tuple[float, float] | None = None  # real time: (epoch, speed) of the world's clock
+        if self.pf and not lockstep:
+            bus.subscribe(keys.world_clock(fleet), self._on_clock)
+
+    def _on_clock(self, key: str, data: bytes) -> None:
+        from swarm.proto import protocol
+
+        try:
+            c = protocol.decode(data, "clock")
+        except protocol.ProtocolError:
+            return
+        if c.epoch > 0:
+            self.epoch = (c.epoch, c.speed)
+
+    def now(self, last) -> float | None:
+        """Lock-step: the world's tick; real time: the simulated time now (None before the world's clock)."""
+        if self.lockstep:
+            return None if last is None else last.seq
+        return None if self.epoch is None else (time.time() - self.epoch[0]) * self.epoch[1]
+
+    def act(self, last) -> None:
+        if not self.pf:
+            return
+        now = self.now(last)
+        due = self.pf.due(tick=now) if self.lockstep else self.pf.due(t=now)
+        for robot, action in due:
+            done = self.sup.fault(f"robot {robot}", action)
+            when = f"tick {now}" if self.lockstep else f"t = {now:.3f} s"
+            self.say(f"fault: {done} at {when}")
+            with open(self.path, "a") as f:
+                f.write(f"{time.time():.6f} {when}: {done}\n")
+
+    def wait_s(self, longest: float) -> float:
+        """How long the launcher's loop may sleep: until the next real-time action, at most `longest`."""
+        nxt = self.pf.next_time()
+        if self.lockstep or nxt is None or self.epoch is None:
+            return longest
+        at = self.epoch[0] + nxt / self.epoch[1]
+        return max(0.0, min(longest, at - time.time()))
 
 
 def _check_secure(args, robots: int) -> str:

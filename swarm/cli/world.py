@@ -35,7 +35,8 @@ def cmd_world(args, started: float) -> int:
     opts = WorldOptions(lockstep=args.mode == "lockstep", speed=args.speed, watchdog=args.watchdog,
                         tick_timeout=args.tick_timeout, lost_timeout=args.lost_timeout,
                         start_timeout=args.start_timeout,
-                        ros2=(args.ros2_sim, args.twist, args.domain) if args.ros2_sim else None, trace=args.trace is not None)
+                        ros2=(args.ros2_sim, args.twist, args.domain) if args.ros2_sim else None, trace=args.trace is not None,
+                        process_faults=args.process_faults)
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, stop=stop, role="world")
         try:

@@ -5,11 +5,13 @@ state). With faults (docs/faults.md) it runs this loop instead, which keeps, per
 the fault model delivered: the same semantics every process of a lock-step `swarm up` follows, so the
 two are equal step for step. Per tick k (time t = k dt):
 
-  1. process events at k (kill, restart, hang, resume: swarm.core.faults.events, first_tick);
+  1. process events at k (kill, restart, hang, resume: swarm.core.faults.events, first_tick); a
+     restarted process takes nothing sent before its restart (that died with the old process);
   2. poses: robot i's pose of tick s arrives at s + delay unless lost; its belief is the newest pose
      it got, advanced by its own commands since (exact arcs); without one it advances its last belief
-     by its last command. A robot's first pose (at the start, after a restart) always arrives, and so
-     do the states of tick 0 (the start barrier: every robot starts knowing its neighbours).
+     by its last command. A robot's first pose (at the start, after a restart or a resume) always
+     arrives, and so do the states of tick 0 (the start barrier: every robot starts knowing its
+     neighbours).
   3. references: the newest delivered one, advanced along the leader's arc to t;
   4. neighbour states: j's state of tick s (its belief) is offered to i when it lies within
      reach + L of i's belief at s - 1 (what a lock-step agent surely receives: docs/runtime.md), and
@@ -150,6 +152,8 @@ def run_fault_steps(k0, k1, n_steps, dt, q, comp, mem, offsets, radius, obstacle
             elif kind == EV_RESTART:  # a fresh process: fresh controller, knows nothing
                 proc[i] = ALIVE
                 listen[i] = 1
+                for d in range(1, h):  # nor takes what was sent to the old one (it died with it)
+                    proch[(k - d) % h, i] = DEAD
                 for a in range(M_SIZE):
                     mem[i, a] = 0.0
                 mem[i, M_SCALE] = 1.0
@@ -162,9 +166,10 @@ def run_fault_steps(k0, k1, n_steps, dt, q, comp, mem, offsets, radius, obstacle
             elif kind == EV_HANG:
                 proc[i] = HUNG
                 facc[F_HUNG] += 1
-            else:  # resume: the same process goes on; it listens one tick
+            else:  # resume: the same process goes on; it listens one tick, and its pose comes first
                 proc[i] = ALIVE
                 listen[i] = 1
+                kb[i] = -1
             facc[F_EVENT] += 1
         for i in range(n):
             proch[r, i] = proc[i]

@@ -123,3 +123,40 @@ class FaultState:
             },
         }
 
+
+
+class TickSchedule:
+    """The process faults in ticks, as the fault kernel applies them: robot i's process state at tick k
+    (faultgen.PROC_*), and whether a restart or a resume happens exactly at k (a listening tick).
+    Every lock-step process reads it, so membership follows the schedule."""
+
+    def __init__(self, table: fl.FaultTable, robots: int) -> None:
+        self.events: dict[int, list[tuple[int, int]]] = {i: [] for i in range(robots)}  # robot -> [(tick, kind)]
+        for tick, robot, kind in table.event_ticks.tolist():
+            self.events[robot].append((tick, kind))
+
+    def state(self, robot: int, k: int) -> int:
+        s = fg.PROC_ALIVE
+        for tick, kind in self.events[robot]:
+            if tick > k:
+                break
+            s = (fg.PROC_DEAD, fg.PROC_ALIVE, fg.PROC_HUNG, fg.PROC_ALIVE)[kind]
+        return s
+
+    def active(self, robot: int, k: int) -> bool:
+        return self.state(robot, k) == fg.PROC_ALIVE
+
+    def fresh(self, robot: int, k: int) -> str | None:
+        """"restart" or "resume" when that event of robot happens at tick k (it listens), else None."""
+        out = None
+        for tick, kind in self.events[robot]:
+            if tick == k and kind in (1, 3):
+                out = fl.KINDS[kind]
+        return out
+
+    def next_return(self, robot: int, k: int) -> int | None:
+        """The tick of robot's next restart or resume after tick k (None: none)."""
+        for tick, kind in self.events[robot]:
+            if tick > k and kind in (1, 3):
+                return tick
+        return None

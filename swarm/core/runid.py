@@ -83,3 +83,26 @@ def _diff(a: Any, b: Any, path: str) -> str | None:
                 return found
         return None
     return None if a == b else f"{path}: {_show(a)} here, {_show(b)} in the run"
+
+
+def faults_of(text: str, robots: int, where: str):
+    """The faults of a run's scenario, from its canonical TOML (Run.scenario); None when it has none.
+    Raises ScenarioError (where, key, reason) for a table that does not check (a hostile run message)."""
+    import tomllib
+
+    from swarm.core import faults as fl
+    from swarm.core.errors import ScenarioError
+
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ScenarioError(where, "", f"not TOML: {e}") from None
+    table = doc.get("faults")
+    if table is None:
+        return None
+    run = doc.get("run") if isinstance(doc.get("run"), dict) else {}
+    duration, seed = run.get("duration"), run.get("seed", 0)
+    if not isinstance(duration, (int, float)) or isinstance(duration, bool) or not isinstance(seed, int):
+        raise ScenarioError(where, "run", "needs a number duration and an integer seed")
+    f = fl.parse_faults(table, where, robots, float(duration), seed)
+    return f if f else None

@@ -129,6 +129,8 @@ def make_plan(o: UpOptions, python: str = sys.executable) -> Plan:
               "--start-timeout", repr(o.start_timeout), "--tick-timeout", repr(o.tick_timeout),
               "--lost-timeout", repr(o.lost_timeout),
               "--watchdog", repr(o.watchdog), *net]
+    if o.mode == "lockstep":
+        w_argv += ["--process-faults", "signals"]  # this supervisor does scheduled kills and hangs for real
     if o.metrics:
         w_argv += ["--metrics", o.metrics]
     if o.trace:

@@ -54,6 +54,7 @@ class Child:
         self.spec, self.proc, self.log = spec, proc, log
         self.restarts: deque[float] = deque()
         self.given_up = False
+        self.scheduled = False  # killed by a scheduled fault: the restart policy leaves it (the rule restarts it)
 
     @property
     def pid(self) -> int:
@@ -105,7 +106,7 @@ class Supervisor:
         notes = []
         pol = self.plan.restart
         for name, c in list(self.children.items()):
-            if c.spec.role not in self.RESTARTED_ROLES or c.given_up or c.proc.poll() is None:
+            if c.spec.role not in self.RESTARTED_ROLES or c.given_up or c.scheduled or c.proc.poll() is None:
                 continue
             rc = c.proc.returncode
             while c.restarts and now - c.restarts[0] > pol.window_s:
@@ -123,6 +124,28 @@ class Supervisor:
             self.start(c.spec)
             notes.append(f"{name} exited ({exit_text(rc)}); restarted (log: {c.log})")
         return notes
+
+    def fault(self, name: str, action: str) -> str:
+        """A scheduled process fault (swarm.launch.process_faults): "kill" (SIGKILL, waited for; never
+        restarted by the policy), "start" (a new process for the same spec; not counted as a restart),
+        "stop" (SIGSTOP), "cont" (SIGCONT). Returns what was done, for the log."""
+        c = self.children.get(name)
+        if c is None:
+            return f"{name}: no such process"
+        if action == "kill":
+            c.scheduled = True
+            self.signal(name, signal.SIGKILL)
+            try:
+                c.proc.wait(2.0)
+            except subprocess.TimeoutExpired:
+                pass
+            return f"{name} killed (SIGKILL, pid {c.pid})"
+        if action == "start":
+            new = self.start(c.spec)
+            return f"{name} restarted (a new process, pid {new.pid})"
+        sig = {"stop": signal.SIGSTOP, "cont": signal.SIGCONT}[action]
+        self.signal(name, sig)
+        return f"{name} {'stopped (SIGSTOP' if action == 'stop' else 'resumed (SIGCONT'}, pid {c.pid})"
 
     def signal(self, name: str, sig: int) -> None:
         c = self.children.get(name)
@@ -149,6 +172,7 @@ class Supervisor:
             order.append("router")
         for n in order:
             self.signal(n, signal.SIGTERM)
+            self.signal(n, signal.SIGCONT)  # a stopped process (a scheduled hang) acts on it only once resumed
             if n == "router":
                 self.wait(n, self.grace_s)
         end = time.monotonic() + self.grace_s

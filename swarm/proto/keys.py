@@ -1,4 +1,4 @@
-"""The zenoh key space of DESIGN.md section 5: the one place that builds and parses keys.
+"""The zenoh key space of docs/protocol.md: the one place that builds and parses keys.
 
     keys.robot_cmd("default", 7)   -> "swarm/default/robot/7/cmd"
     keys.parse("swarm/default/cell/-3/2/7") -> Key(fleet="default", kind="cell", id=7, cx=-3, cy=2)
@@ -56,6 +56,11 @@ def robot_status(fleet: str, i: int) -> str:
     return f"{base(fleet)}/robot/{_id(i)}/status"
 
 
+def robot_faults(fleet: str, i: int) -> str:
+    """Robot i's fault counters (lock-step under faults: what its fault layer lost or delayed)."""
+    return f"{base(fleet)}/robot/{_id(i)}/faults"
+
+
 def cell(fleet: str, cx: int, cy: int, i: int) -> str:
     return f"{base(fleet)}/cell/{int(cx)}/{int(cy)}/{_id(i)}"
 
@@ -78,7 +83,7 @@ def world_snapshot(fleet: str) -> str:
     return f"{base(fleet)}/world/snapshot"
 
 
-# Extension keys (not in DESIGN.md section 5; same prefix, same codec).
+# Extension keys (beyond the contract's core table in docs/protocol.md; same prefix, same codec).
 
 
 def world_clock(fleet: str) -> str:
@@ -217,7 +222,7 @@ def parse(key: str) -> Key | None:
         return Key(fleet, "claim", claim=rest[2])
     if len(rest) == 3 and rest[:2] == ["world", "config"] and _INT.match(rest[2]):
         return Key(fleet, "config", id=int(rest[2]))
-    if len(rest) == 3 and rest[0] == "robot" and _INT.match(rest[1]) and rest[2] in ("pose", "cmd", "status"):
+    if len(rest) == 3 and rest[0] == "robot" and _INT.match(rest[1]) and rest[2] in ("pose", "cmd", "status", "faults"):
         return Key(fleet, rest[2], id=int(rest[1]))
     if len(rest) == 4 and rest[0] == "cell" and _SIGNED.match(rest[1]) and _SIGNED.match(rest[2]) \
             and _INT.match(rest[3]):

@@ -1,4 +1,4 @@
-"""Messages of DESIGN.md section 5 and their one versioned msgpack codec.
+"""Messages of docs/protocol.md and their one versioned msgpack codec.
 
     payload = encode(Cmd(t=1.0, seq=50, v=0.4, w=-0.1))
     msg = decode(payload, kind="cmd", key_id=7)      # raises ProtocolError if anything is off
@@ -26,7 +26,7 @@ import msgpack
 VERSION = 1
 MAX_PAYLOAD = 64 << 10  # bytes: any message but the large kinds (a state is ~100 bytes); larger is refused unread
 MAX_LARGE_PAYLOAD = 16 << 20  # bytes: snapshot, obstacles, run (a snapshot of 100 000 robots is ~10 MB)
-LARGE_KINDS = ("snapshot", "obstacles", "run")
+LARGE_KINDS = ("snapshot", "obstacles", "run", "bodies")
 MAX_ROBOTS = 100_000
 MAX_SPEED = 100.0  # m/s: |vel| of any command, reference or snapshot
 MAX_TURN = 100.0  # rad/s: |w|
@@ -188,6 +188,46 @@ class Config:
 
 
 @dataclass(frozen=True)
+class Body:
+    id: int
+    x: float
+    y: float
+    r: float
+    R: float
+
+
+@dataclass(frozen=True)
+class Bodies:
+    """Lock-step under faults (world -> every agent, each tick before its poses): the static bodies at
+    tick seq, robots that are dead or stopped by the watchdog, where they stand (every agent takes them
+    as bodies, neighbours or not); and the robots returning at seq (restarted or resumed: their first
+    pose, which is their state of that tick, so nobody waits for it)."""
+
+    t: float
+    seq: int
+    bodies: tuple[Body, ...]
+    returning: tuple[Body, ...] = ()
+
+
+@dataclass(frozen=True)
+class FaultStats:
+    """A robot's fault counters (agent -> world, lock-step under faults, each tick before its command):
+    what its fault layer lost or delayed so far of its neighbours' states, its poses and its references,
+    and the oldest neighbour state its law used [s]. A restarted robot counts from 0 again."""
+
+    t: float
+    seq: int
+    dropped_state: int
+    dropped_pose: int
+    dropped_ref: int
+    delayed_state: int
+    delayed_pose: int
+    delayed_ref: int
+    max_age: float
+    frozen: bool  # its law froze it at seq (the metrics' freezes under faults are the laws' own)
+
+
+@dataclass(frozen=True)
 class Estop:
     """The emergency stop (operator -> every drive): engaged, every robot holds zero velocity until a
     release (engaged false). t is the operator's unix time [s], seq its counter (unix time in ms)."""
@@ -251,7 +291,8 @@ class Claim:
 
 KINDS: dict[str, type] = {"ref": Ref, "pose": Pose, "cmd": Cmd, "state": State, "status": Status,
                           "obstacles": Obstacles, "snapshot": Snapshot, "clock": Clock, "config": Config,
-                          "progress": Progress, "run": Run, "estop": Estop, "claim": Claim}
+                          "progress": Progress, "run": Run, "estop": Estop, "bodies": Bodies, "claim": Claim,
+                          "faultstats": FaultStats}
 _KIND_OF = {cls: kind for kind, cls in KINDS.items()}
 
 
@@ -273,6 +314,9 @@ def encode(msg) -> bytes:
     d: dict = {"v": VERSION, "kind": kind}
     if kind == "obstacles":
         d["obstacles"] = [{"x": o.x, "y": o.y, "r": o.r, "R": o.R} for o in msg.obstacles]
+    elif kind == "bodies":
+        d.update(t=msg.t, seq=msg.seq, bodies=[{"id": b.id, "x": b.x, "y": b.y, "r": b.r, "R": b.R} for b in msg.bodies],
+                 returning=[{"id": b.id, "x": b.x, "y": b.y, "r": b.r, "R": b.R} for b in msg.returning])
     elif kind == "snapshot":
         d.update(t=msg.t, seq=msg.seq,
                  robots=[{f: getattr(s, f) for f in _SNAP_FIELDS} for s in msg.robots])
@@ -354,9 +398,12 @@ _SPEC: dict[str, tuple[tuple[str, str], ...]] = {
                  ("orientation_error", "n"), ("converged_at", "n"), ("last_freeze", "n"), ("dropped", "i")),
     "run": (("run", "s"), ("digest", "s"), ("robots", "i"), ("lockstep", "b"), ("scenario", "S")),
     "estop": (("t", "n"), ("seq", "i"), ("engaged", "b"), ("reason", "s")),
+    "faultstats": (("t", "n"), ("seq", "i"), ("dropped_state", "i"), ("dropped_pose", "i"), ("dropped_ref", "i"),
+                   ("delayed_state", "i"), ("delayed_pose", "i"), ("delayed_ref", "i"), ("max_age", "n"),
+                   ("frozen", "b")),
     "claim": (("id", "id"), ("claim", "s"), ("granted", "b"), ("robots", "i"), ("reason", "s")),
 }
-# DESIGN.md section 5 names both the protocol version and the linear velocity of ref and cmd
+# The key-space contract names both the protocol version and the linear velocity of ref and cmd
 # "v"; one map cannot hold both. "v" stays the version (a decoder needs it before the kind);
 # on the wire the linear velocity is "vel" (docs/protocol.md). In Python it is still .v.
 _WIRE = {"v": "vel"}
@@ -476,6 +523,8 @@ def _decode_map(d: dict, kind: str | None, key_id: int | None):
         raise ProtocolError(f"expected kind {kind!r}, got {k!r}")
     if k == "obstacles":
         msg = _obstacles(d)
+    elif k == "bodies":
+        msg = _bodies(d)
     elif k == "snapshot":
         msg = _snapshot(d)
     else:
@@ -600,6 +649,7 @@ _CHECK = {
     "progress": lambda m: _within(m, MAX_TIME, "t", "duration"),
     "run": _check_run,
     "estop": lambda m: _within(m, 1e11, "t"),
+    "faultstats": lambda m: (_within(m, MAX_TIME, "t", "max_age"), _nonnegative(m, "max_age")),
 }
 
 
@@ -668,6 +718,27 @@ def _obstacles(d: dict) -> Obstacles:
         _within(ob, MAX_COORD, "x", "y", "R")
         out.append(ob)
     return Obstacles(tuple(out))
+
+
+def _bodies(d: dict) -> Bodies:
+    _fields(d, ("t", "seq", "bodies", "returning"))
+
+    def rows_of(name: str) -> tuple[Body, ...]:
+        rows = d[name]
+        if not isinstance(rows, list) or len(rows) > MAX_ROBOTS:
+            raise ProtocolError(f"field {name!r} must be a list of {{id, x, y, r, R}}")
+        out = []
+        for i, row in enumerate(rows):
+            b = _item(row, f"{name}[{i}]", ("id", "x", "y", "r", "R"))
+            body = Body(_int(b, "id", MAX_ROBOTS - 1), _num(b, "x"), _num(b, "y"), _num(b, "r"), _num(b, "R"))
+            _radii(body.r, body.R)
+            _within(body, MAX_COORD, "x", "y", "R")
+            out.append(body)
+        return tuple(out)
+
+    msg = Bodies(_num(d, "t"), _int(d, "seq"), rows_of("bodies"), rows_of("returning"))
+    _within(msg, MAX_TIME, "t")
+    return msg
 
 
 def _snapshot(d: dict) -> Snapshot:

@@ -72,6 +72,7 @@ TABLE: dict[str, Row] = {
     "robot_pose": Row(put=_all("world"), subscribe=_own("robot")),
     "robot_cmd": Row(put=_own("robot"), subscribe=_all("world", "recorder")),
     "robot_status": Row(put=_own("robot"), subscribe=_all("world", *READERS)),
+    "robot_faults": Row(put=_own("robot"), subscribe=_all("world", *READERS)),
     # a robot's state on its cell key: only robot i puts .../cell/*/*/i
     "cell": Row(put=_own("robot"), subscribe=_all("robot", "world")),
     "cell_any": Row(alias_of=("cell",)),
@@ -79,7 +80,7 @@ TABLE: dict[str, Row] = {
     # the world's keys: it alone puts or serves them
     "world_obstacles": Row(serve=_all("world"), query=_all("robot", *READERS)),
     "world_snapshot": Row(put=_all("world"), subscribe=_all(*READERS)),
-    "world_clock": Row(put=_all("world"), subscribe=_all("robot", "leader")),
+    "world_clock": Row(put=_all("world"), subscribe=_all("robot", "leader", "launcher")),
     "world_progress": Row(put=_all("world"), subscribe=_all("launcher", *READERS)),
     "world_config": Row(serve=_all("world"), query=_own("robot") + _all(*READERS)),
     "world_config_any": Row(alias_of=("world_config",)),
@@ -96,7 +97,7 @@ TABLE: dict[str, Row] = {
     "alive": Row(token=_own("router", "launcher", "world", "leader", "robot", "viz", "recorder"),
                  watch=_all("world", "leader", "robot", "launcher")),
     "alive_any": Row(alias_of=("alive",)),
-    "robot_any": Row(alias_of=("robot_pose", "robot_cmd", "robot_status")),
+    "robot_any": Row(alias_of=("robot_pose", "robot_cmd", "robot_status", "robot_faults")),
 }
 
 

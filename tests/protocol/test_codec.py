@@ -30,6 +30,12 @@ MESSAGES = [
                converged_at=-1.0, last_freeze=0.5, dropped=3),
     p.Run(run="20261202T024115-5f3a", digest="cd" * 32, robots=37, lockstep=True, scenario="[run]\nduration = 1.0\n"),
     p.Estop(t=1.7e9, seq=1_700_000_000_000, engaged=True, reason="a person in the arena"),
+    p.Bodies(t=15.0, seq=750, bodies=(p.Body(2, 1.0, -3.0, 0.3, 1.2), p.Body(5, 0.5, 0.25, 0.3, 1.2)),
+             returning=(p.Body(3, 2.0, 1.5, 0.3, 1.2),)),
+    p.Bodies(t=0.0, seq=0, bodies=()),
+    p.Claim(id=3, claim="tb3-03", granted=True, robots=7, reason=""),
+    p.FaultStats(t=15.0, seq=750, dropped_state=12, dropped_pose=3, dropped_ref=2, delayed_state=40, delayed_pose=0,
+                 delayed_ref=1, max_age=0.12, frozen=True),
 ]
 
 

@@ -28,7 +28,7 @@ def run_swarm(scn, lockstep: bool = True, fleet: str = "t", trace: bool = True, 
     for i in range(scn.n):
         bus = MemoryBus(net)
         cfg = robot.fetch_config(bus, fleet, i, 1.0)
-        a = robot.Agent(bus, cfg, fleet, wait_timeout=5.0)
+        a = robot.Agent(bus, cfg, fleet, wait_timeout=5.0, faults=scn.faults)  # under faults: played by the schedule
         a.start(obstacles)
         agents.append(a)
 

@@ -113,3 +113,24 @@ def test_state_traffic_per_robot_depends_on_neighbours_not_on_n(clusters, write_
     # each robot hears its two cluster mates once a tick (ticks 0..50; the last may end the run
     # before it is sent), whatever the number of robots
     assert all(2 * ticks <= a.states_received <= 2 * (ticks + 1) for a in agents)
+
+
+def test_lockstep_under_faults_equals_the_simulator_bit_for_bit(tmp_path):
+    """Every kind of fault, played by the schedule (no supervisor: each agent idles through its dead or
+    hung ticks): the world's trace, every fault counter and the metrics equal swarm sim's."""
+    faults = tmp_path / "faults.toml"
+    faults.write_text("[faults]\nseed = 5\n[[faults.drop]]\nclass = \"state\"\np = 0.3\n[[faults.drop]]\n"
+                      "class = \"all\"\np = 0.1\n[[faults.delay]]\nclass = \"all\"\nticks = 2\njitter = 1\n"
+                      "[[faults.partition]]\ngroups = [[0, 1, 2]]\nstart = 1.0\nend = 2.0\n"
+                      "[[faults.kill]]\nrobot = 5\nat = 2.0\nrestart = 1.0\n"
+                      "[[faults.hang]]\nrobot = 3\nat = 3.5\nduration = 1.0\n")
+    scn = scenario_file.load("paper-50hz", Overrides(robots=7, duration=6.0, faults=str(faults)))
+    metrics, world, agents = run_swarm(scn)
+    sim = Simulation(scn, record_period=scn.dt).run()
+    q = np.array(world.trace)
+    assert q.shape == sim.recording.q.shape == (301, 7, 3)
+    assert np.array_equal(q, sim.recording.q)
+    same = METRIC_KEYS + ("messages_dropped", "faults", "robots_alive_at_end")
+    assert {k: metrics[k] for k in same} == {k: sim.metrics[k] for k in same}
+    assert metrics["faults"]["killed"] == metrics["faults"]["hung"] == 1 and metrics["messages_dropped"] > 0
+    assert metrics["cmd_misses"] == 0 and metrics["bad_messages"] == 0 and metrics["robots_lost"] == 0

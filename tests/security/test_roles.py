@@ -89,7 +89,8 @@ def test_expressions_are_made_by_the_builders(builder, own, expected):
 
 def test_robot_i_puts_only_its_own_keys():
     g = roles.grants(FLEET, "robot", 3)
-    assert g.put == tuple(sorted((keys.robot_cmd(FLEET, 3), keys.robot_status(FLEET, 3), "swarm/f/cell/*/*/3")))
+    assert g.put == tuple(sorted((keys.robot_cmd(FLEET, 3), keys.robot_status(FLEET, 3), keys.robot_faults(FLEET, 3),
+                                  "swarm/f/cell/*/*/3")))
     assert g.token == (keys.alive(FLEET, "robot", 3),)
     assert g.serve == ()
     assert keys.world_config(FLEET, 3) in g.query and keys.world_config(FLEET, 5) not in g.query
@@ -127,7 +128,8 @@ def test_a_publisher_learns_of_the_subscribers_of_every_id():
     """Robot 3 puts robot/3/cmd and is told of the world's robot/*/cmd subscription (so zenoh's
     matching status, bus.wanted(), is true), but may put no other robot's."""
     g = roles.grants(FLEET, "robot", 3)
-    assert set(g.listeners) == {"swarm/f/robot/*/cmd", "swarm/f/robot/*/status", "swarm/f/cell/*/*/*"}
+    assert set(g.listeners) == {"swarm/f/robot/*/cmd", "swarm/f/robot/*/status", "swarm/f/robot/*/faults",
+                                "swarm/f/cell/*/*/*"}
 
 
 def test_extra_robot_keys_are_per_robot():
