@@ -48,7 +48,7 @@ from swarm.core import runid
 from swarm.core.clock import WALL
 from swarm.launch.child import settle_heap
 from agents.follow import NoAnswer, RunFollower, check_run, query_until  # noqa: F401  (NoAnswer: for callers)
-from agents.guard import REF_TIMEOUT_S, Guard
+from agents.guard import REF_TIMEOUT_S, Guard, arena_of
 from swarm.proto import window
 from swarm.proto.protocol import Cmd, Config, Limits, ProtocolError, State, Status
 
@@ -449,7 +449,7 @@ class Agent:
             with self.lock:
                 self._on_pose(pose, key)
         if poses and self.guard is not None:
-            self.guard.pose()
+            self.guard.pose(poses[-1].x, poses[-1].y)
 
     def _take_inboxes(self) -> None:
         """Real time (loop thread): decode the references and neighbour states waiting in the inboxes,
@@ -929,7 +929,7 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                     from swarm.drives.sim import SimDrive
 
                     drive = SimDrive(bus, fleet, robot_id)
-                guard = Guard(drive, clock, pose_timeout_s=pose_timeout, ref_timeout_s=ref_timeout)
+                guard = Guard(drive, clock, pose_timeout_s=pose_timeout, ref_timeout_s=ref_timeout, arena=arena_of(cfg))
             agent = Agent(bus, cfg, fleet, wait_timeout=wait_timeout, clock=clock, drive=drive, guard=guard,
                           faults=faults if cfg.lockstep else None)
             box.append(agent)

@@ -436,7 +436,8 @@ def _add_runtime_parsers(sub) -> None:
                            description="Run robot ID's controller. It takes its slice of the scenario from "
                                        "--scenario FILE (the same file on every machine) or, without it, from "
                                        "the world's configuration queryable.")
-    robot.add_argument("--id", type=_int_at_least(0), required=True, metavar="I", help="the robot's id (0-based)")
+    robot.add_argument("--id", type=robot_id, required=True, metavar="I|auto",
+                       help="the robot's id (0-based), or auto: the lowest free one, claimed from the world")
     _add_optional_scenario_flags(robot, "the world's configuration is used")
     _add_run_flags(robot)
     _add_net_flags(robot)

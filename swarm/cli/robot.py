@@ -13,6 +13,10 @@ log = logging.getLogger("swarm")
 
 
 def cmd_robot(args, started: float) -> int:
+    if args.inventory is not None or args.id is None or args.claim_key is not None:
+        from swarm.cli.up_inventory import cmd_robot_fleet
+
+        return cmd_robot_fleet(args, started)
     from agents import robot
     from agents.follow import NoAnswer, RunRefused
 

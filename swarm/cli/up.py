@@ -71,6 +71,10 @@ class ViewerUrl:
 
 
 def cmd_up(args, started: float) -> int:
+    if args.inventory is not None:
+        from swarm.cli.up_inventory import cmd_up_inventory
+
+        return cmd_up_inventory(args, started)
     scn = load_scenario(args)  # bad input is refused here, before anything starts
     from swarm.core.scenario_file import advisories
 

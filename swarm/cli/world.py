@@ -15,6 +15,10 @@ log = logging.getLogger("swarm")
 
 
 def cmd_world(args, started: float) -> int:
+    if args.referee_only or args.inventory is not None:
+        from swarm.cli.up_inventory import cmd_world_referee
+
+        return cmd_world_referee(args, started)
     from world.world import NotReady, WorldOptions, run_world
 
     die_with_parent()
@@ -39,11 +43,16 @@ def cmd_world(args, started: float) -> int:
                         process_faults=args.process_faults)
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, stop=stop, role="world")
+        from world.claims import ClaimServer
+
+        claims = ClaimServer(bus, fleet, scn.n)  # robots started with --id auto
+        claims.start()
         try:
             metrics, world = run_world(bus, WALL, scn, opts, stop, fleet, started)
         except NotReady as e:
             raise Failure(str(e)) from None
         finally:
+            claims.close()
             bus.close()
     metrics["interrupted"] = bool(metrics["interrupted"] or stop.is_set())
     if args.metrics is not None:

@@ -1,5 +1,5 @@
 """Helpers of the real-fleet tests: a scenario that converges in half a minute, inventories, and
-processes started by PID (the swarm's commands through tests.deploy.entry, the simulated fleet)."""
+processes started by PID (the swarm's commands, the simulated fleet)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from swarm.core import scenario_file
 from swarm.core.scenario_file import to_toml
 
 ROOT = Path(__file__).resolve().parents[2]
-ENTRY = [sys.executable, "-m", "tests.deploy.entry"]
+ENTRY = [sys.executable, "-m", "swarm.cli"]
 FLEET_SIM = [sys.executable, "-m", "tests.deploy.fleet_sim"]
 ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), *sys.path])}
 

@@ -28,8 +28,8 @@ def test_the_plan():
     assert r1[r1.index("--connect") + 1] == "tcp/127.0.0.1:7447" and "--scenario" not in r1  # the world's config
     assert plan.leader.argv[3:7] == ("leader", "--scenario", "turtlebot3", "--robots")
     joined = make_fleet_plan(FleetUpOptions(inventory="f", robots=1, scenario_args=(), connect="tcp/hub:7447",
-                                            listen=None), module="tests.deploy.entry")
-    assert joined.router is None and joined.endpoint == "tcp/hub:7447" and joined.world.argv[2] == "tests.deploy.entry"
+                                            listen=None), module="swarm.cli")
+    assert joined.router is None and joined.endpoint == "tcp/hub:7447" and joined.world.argv[2] == "swarm.cli"
 
 
 def test_dry_run_prints_the_plan_the_fleet_and_the_static_preflight(tmp_path):
