@@ -32,6 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from swarm.proto import keys, protocol, window
+from swarm.core import faultgen as fg
+from swarm.core import faults as fl
 from swarm.core import kinematics, runid
 from swarm.core.clock import WALL
 from swarm.launch.child import settle_heap
@@ -87,6 +89,8 @@ class World:
             from world.faultworld import WorldFaults
 
             self.wf = WorldFaults(scn, watchdog)
+        # every fault event, told on world/events as it happens (lock-step: by tick; real time: by its clock)
+        self._timeline = fl.timeline(scn.faults, scn.n) if scn.faults else []
         self.token_gen = [0] * scn.n  # liveliness tokens each robot's id declared (a restart declares a new one)
         self.token_mark: dict[int, int] = {}  # robot -> token_gen when its scheduled kill or hang began
         self.lapsed: set[int] = set()  # robots whose token went away since their scheduled hang began
@@ -379,7 +383,7 @@ class World:
                                  orientation_error=ref.emax if ref.samples and ref.alive_now else -1.0,
                                  converged_at=-1.0 if conv is None else conv,
                                  last_freeze=-1.0 if ref.last_frozen_t is None else ref.last_frozen_t,
-                                 dropped=0 if self.wf is None else sum(self.wf.totals()[0]))
+                                 dropped=0 if self.wf is None else sum(self.wf.totals()[0]), hung=self._hung_now())
 
     def bad_total(self) -> int:
         fleet = self.fleet_ros2
@@ -601,7 +605,9 @@ class World:
 
     def _begin_faults(self, k: int) -> None:
         """Tick k's process events (world.faultworld): counted, logged, and noted for the waits of
-        _await_returns (the token count when a robot's kill or hang began)."""
+        _await_returns (the token count when a robot's kill or hang began); every event at k told on
+        world/events."""
+        self._tell_events(k * self.scn.dt, k, lambda t: fl.first_tick(t, self.scn.dt) <= k)
         for i, kind in self.wf.begin(k):
             log.info("world: fault at tick %d (t = %g s): robot %d %s", k, k * self.scn.dt, i,
                      {"kill": "killed", "restart": "restarted", "hang": "hung", "resume": "resumed"}[kind])
@@ -613,6 +619,21 @@ class World:
                 else:
                     self.token_mark.pop(i, None)
                     self.w_status[i].reset()  # its statuses resume after a gap
+
+    def _tell_events(self, t: float, seq: int, due) -> None:
+        """Publish on world/events every fault event of the timeline that is due (due(t_event) true)."""
+        while self._timeline and due(self._timeline[0][0]):
+            te, event, robots, detail = self._timeline.pop(0)
+            self.bus.put(keys.world_events(self.fleet), protocol.encode(
+                protocol.Event(t=te, seq=seq, event=event, robots=robots, detail=detail)), reliable=True)
+
+    def _hung_now(self) -> int:
+        f = self.scn.faults
+        if not f or not f.hangs:
+            return 0
+        if self.wf is not None:
+            return sum(1 for i in range(self.n) if self.wf.schedule.state(i, self.k) == fg.PROC_HUNG)
+        return sum(1 for i in range(self.n) if fl.process_state(f, i, self.t) == "hung")
 
     def _signal_due(self, k: int) -> bool:
         """A supervisor acts at tick k (a kill or hang begins, or a resume is next): report progress now."""
@@ -784,6 +805,7 @@ class World:
                     self.event(("status", key, data))
                 seq = int(math.floor(t / period + 1e-9))  # the period (after a stall, the ones missed are skipped)
                 self.k = seq
+                self._tell_events(t, seq, lambda te: te <= t + 1e-9)
                 self._publish_clock_rt(epoch)
                 self._publish_snapshot(t, seq)
                 self._sample(t)

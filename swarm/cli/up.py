@@ -271,6 +271,7 @@ class FaultActor:
 
         self.pf = ProcessFaults(scn.faults, scn.dt, lockstep)
         self.lockstep, self.sup, self.say, self.dt = lockstep, sup, say, scn.dt
+        self.bus, self.fleet = bus, fleet
         self.path = log_dir / "faults.log"
         self.epoch: tuple[float, float] | None = None  # real time: (epoch, speed) of the world's clock
         if self.pf and not lockstep:
@@ -303,6 +304,15 @@ class FaultActor:
             self.say(f"fault: {done} at {when}")
             with open(self.path, "a") as f:
                 f.write(f"{time.time():.6f} {when}: {done}\n")
+            self._tell(now, robot, done)
+
+    def _tell(self, now: float, robot: int, done: str) -> None:
+        """The signal, on world/events (viewers and the recording show it)."""
+        from swarm.proto import protocol
+
+        t, seq = (now * self.dt, int(now)) if self.lockstep else (now, int(now / self.dt))
+        self.bus.put(keys.world_events(self.fleet), protocol.encode(protocol.Event(
+            t=max(0.0, t), seq=max(0, seq), event="signal", robots=(robot,), detail=done)), reliable=True)
 
     def wait_s(self, longest: float) -> float:
         """How long the launcher's loop may sleep: until the next real-time action, at most `longest`."""

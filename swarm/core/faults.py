@@ -677,6 +677,30 @@ def events(faults: Faults) -> list[tuple[float, int, str]]:
     return sorted(out, key=lambda e: (e[0], e[1], _KIND_ORDER[e[2]]))
 
 
+def timeline(faults: Faults, robots: int) -> list[tuple[float, str, tuple[int, ...], str]]:
+    """What a viewer is told, in time order: (t [s], event, robots, detail) for every process event
+    (kill, restart, hang, resume: the robot named) and every partition's start and end (partition,
+    partition_end: the robots cut off from the world's group, which is the first)."""
+    out: list[tuple[float, str, tuple[int, ...], str]] = []
+    for t, robot, kind in events(faults):
+        detail = {"kill": "its process is killed", "restart": "a new process takes it over",
+                  "hang": "its process is stopped", "resume": "its process goes on"}[kind]
+        for k in faults.kills:
+            if kind == "kill" and k.robot == robot and k.at == t:
+                detail += f" (restarted after {k.restart:g} s)" if k.restart is not None else " (for good)"
+        out.append((t, kind, (robot,), detail))
+    for p in faults.partitions:
+        grouped = {i for g in p.groups for i in g}
+        rest = tuple(i for i in range(robots) if i not in grouped)
+        groups = [list(g) for g in p.groups] + ([list(rest)] if rest else [])
+        cut = tuple(sorted(i for g in groups[1:] for i in g))
+        text = " | ".join(", ".join(map(str, g)) for g in groups)
+        out.append((p.start, "partition", cut, f"groups {text} (the world and the leader with the first)"))
+        if math.isfinite(p.end):
+            out.append((p.end, "partition_end", cut, f"groups {text} joined again"))
+    return sorted(out, key=lambda e: (e[0], e[1] != "partition_end"))
+
+
 # --------------------------------------------------------------------------- the numeric table
 
 

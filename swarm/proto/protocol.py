@@ -274,6 +274,23 @@ class Progress:
     converged_at: float = -1.0  # s; < 0: not converged (so far)
     last_freeze: float = -1.0  # s; < 0: no freeze yet
     dropped: int = 0  # messages dropped by scheduled faults
+    hung: int = 0  # robots whose process is hung now (by the fault schedule)
+
+
+EVENTS = ("kill", "restart", "hang", "resume", "partition", "partition_end", "signal")
+
+
+@dataclass(frozen=True)
+class Event:
+    """A fault or supervision event (world, swarm up -> viewers, recorders; world/events): a scheduled
+    process event of the robots named (kill, restart, hang, resume), a partition that begins or ends
+    (robots: every robot cut off from the world's group), or a signal the supervisor sent (signal)."""
+
+    t: float  # simulated time [s]
+    seq: int  # the tick (lock-step) or period (real time)
+    event: str  # one of EVENTS
+    robots: tuple[int, ...]
+    detail: str
 
 
 @dataclass(frozen=True)
@@ -292,7 +309,7 @@ class Claim:
 KINDS: dict[str, type] = {"ref": Ref, "pose": Pose, "cmd": Cmd, "state": State, "status": Status,
                           "obstacles": Obstacles, "snapshot": Snapshot, "clock": Clock, "config": Config,
                           "progress": Progress, "run": Run, "estop": Estop, "bodies": Bodies, "claim": Claim,
-                          "faultstats": FaultStats}
+                          "faultstats": FaultStats, "event": Event}
 _KIND_OF = {cls: kind for kind, cls in KINDS.items()}
 
 
@@ -314,6 +331,8 @@ def encode(msg) -> bytes:
     d: dict = {"v": VERSION, "kind": kind}
     if kind == "obstacles":
         d["obstacles"] = [{"x": o.x, "y": o.y, "r": o.r, "R": o.R} for o in msg.obstacles]
+    elif kind == "event":
+        d.update(t=msg.t, seq=msg.seq, event=msg.event, robots=list(msg.robots), detail=msg.detail)
     elif kind == "bodies":
         d.update(t=msg.t, seq=msg.seq, bodies=[{"id": b.id, "x": b.x, "y": b.y, "r": b.r, "R": b.R} for b in msg.bodies],
                  returning=[{"id": b.id, "x": b.x, "y": b.y, "r": b.r, "R": b.R} for b in msg.returning])
@@ -395,7 +414,8 @@ _SPEC: dict[str, tuple[tuple[str, str], ...]] = {
     "progress": (("t", "n"), ("seq", "i"), ("duration", "n"), ("robots", "i"), ("alive", "i"),
                  ("converged", "i"), ("frozen", "i"), ("min_distance", "n"), ("misses", "i"), ("bad", "i"),
                  ("collisions", "i"), ("overruns", "i"), ("min_obstacle", "n"), ("position_error", "n"),
-                 ("orientation_error", "n"), ("converged_at", "n"), ("last_freeze", "n"), ("dropped", "i")),
+                 ("orientation_error", "n"), ("converged_at", "n"), ("last_freeze", "n"), ("dropped", "i"),
+                 ("hung", "i")),
     "run": (("run", "s"), ("digest", "s"), ("robots", "i"), ("lockstep", "b"), ("scenario", "S")),
     "estop": (("t", "n"), ("seq", "i"), ("engaged", "b"), ("reason", "s")),
     "faultstats": (("t", "n"), ("seq", "i"), ("dropped_state", "i"), ("dropped_pose", "i"), ("dropped_ref", "i"),
@@ -525,6 +545,8 @@ def _decode_map(d: dict, kind: str | None, key_id: int | None):
         msg = _obstacles(d)
     elif k == "bodies":
         msg = _bodies(d)
+    elif k == "event":
+        msg = _event(d)
     elif k == "snapshot":
         msg = _snapshot(d)
     else:
@@ -718,6 +740,19 @@ def _obstacles(d: dict) -> Obstacles:
         _within(ob, MAX_COORD, "x", "y", "R")
         out.append(ob)
     return Obstacles(tuple(out))
+
+
+def _event(d: dict) -> Event:
+    _fields(d, ("t", "seq", "event", "robots", "detail"))
+    rows = d["robots"]
+    if not isinstance(rows, list) or len(rows) > MAX_ROBOTS:
+        raise ProtocolError("field 'robots' must be a list of robot ids")
+    robots = tuple(_int({"robots[]": r}, "robots[]", MAX_ROBOTS - 1) for r in rows)
+    msg = Event(_num(d, "t"), _int(d, "seq"), _text(d, "event"), robots, _text(d, "detail"))
+    if msg.event not in EVENTS:
+        raise ProtocolError(f"field 'event' must be one of {', '.join(EVENTS)}, got {msg.event[:40]!r}")
+    _within(msg, MAX_TIME, "t")
+    return msg
 
 
 def _bodies(d: dict) -> Bodies:

@@ -33,6 +33,8 @@ MESSAGES = [
     p.Bodies(t=15.0, seq=750, bodies=(p.Body(2, 1.0, -3.0, 0.3, 1.2), p.Body(5, 0.5, 0.25, 0.3, 1.2)),
              returning=(p.Body(3, 2.0, 1.5, 0.3, 1.2),)),
     p.Bodies(t=0.0, seq=0, bodies=()),
+    p.Event(t=12.0, seq=600, event="kill", robots=(5,), detail="scheduled: restart after 2 s"),
+    p.Event(t=8.0, seq=400, event="partition", robots=(3, 4, 5, 6), detail="groups [0, 1, 2] | [3, 4, 5, 6]"),
     p.Claim(id=3, claim="tb3-03", granted=True, robots=7, reason=""),
     p.FaultStats(t=15.0, seq=750, dropped_state=12, dropped_pose=3, dropped_ref=2, delayed_state=40, delayed_pose=0,
                  delayed_ref=1, max_age=0.12, frozen=True),
