@@ -145,7 +145,8 @@ def test_protocol_doc_names_every_kind_and_field():
     missing = [k for k in protocol.KINDS if k not in sections]
     assert not missing, f"docs/protocol.md has no section for the kinds {missing}"
     nested = {"obstacles": ("obstacles", "x", "y", "r", "R"), "snapshot": ("t", "seq", "robots") + protocol._SNAP_FIELDS,
-              "bodies": ("t", "seq", "bodies", "returning", "id", "x", "y", "r", "R")}
+              "bodies": ("t", "seq", "bodies", "returning", "id", "x", "y", "r", "R"),
+              "event": ("t", "seq", "event", "robots", "detail")}
     for kind in protocol.KINDS:
         names = nested.get(kind) or tuple(n for n, _ in protocol._SPEC[kind])
         absent = [n for n in names if not re.search(rf"(?<![A-Za-z_]){re.escape(n)}(?![A-Za-z_])", sections[kind])]
