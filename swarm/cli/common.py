@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import signal
 import socket
 import sys
@@ -191,14 +192,24 @@ def open_bus(args, mode: str = "client", listen: list[str] | None = None, timeou
         except BadInput:
             raise
         except Exception as e:
-            raise BadInput(f"zenoh configuration: {e}") from None
+            raise BadInput(f"zenoh configuration: {zenoh_error(e)}") from None
         try:
             return ZenohBus(conf)
         except Exception as e:
             if mode != "client" or time.monotonic() >= end or (stop is not None and stop.is_set()):
                 where = ", ".join(listen or []) if mode == "router" else ", ".join(connect) or "the identity's router"
-                raise Failure(f"cannot open a zenoh {mode} session on {where}: {e}") from None
+                hint = " (is a router running there? `swarm router --listen ENDPOINT` starts one)" if mode == "client" else ""
+                raise Failure(f"cannot open a zenoh {mode} session on {where} within {timeout_s:g} s: "
+                              f"{zenoh_error(e)}{hint}") from None
             time.sleep(0.1)
+
+
+_RUST_WHERE = re.compile(r"\s+at\s+\S+\.rs:\d+\.?")
+
+
+def zenoh_error(e: Exception) -> str:
+    """zenoh's error text without the Rust source locations it appends (`at /root/.cargo/...rs:447.`)."""
+    return _RUST_WHERE.sub("", str(e)).strip()
 
 
 def secure_base(directory: str, role: str | None, robot_id: int | None, connect: list[str], listen):

@@ -96,6 +96,9 @@ def cmd_up(args, started: float) -> int:
                     "it applies with --mode realtime", args.speed)
     if args.log_dir is not None and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
         raise BadInput(f"--log-dir {args.log_dir}: exists and is not a directory")
+    if args.log_dir is not None and not Path(args.log_dir).absolute().parent.is_dir():
+        raise BadInput(f"--log-dir {args.log_dir}: directory {Path(args.log_dir).absolute().parent} does not exist "
+                       "(the log folder itself is made if missing, as with --metrics its folder must exist)")
     if args.zenoh_config is not None and not Path(args.zenoh_config).is_file():
         raise BadInput(f"--zenoh-config {args.zenoh_config}: no such file")
     secure_endpoint = _check_secure(args, scn.n) if args.secure else None
@@ -108,7 +111,7 @@ def cmd_up(args, started: float) -> int:
             ros2.typestore()
         except ImportError as e:
             raise BadInput(f"--drive ros2: {e}") from None
-    log_dir = Path(args.log_dir or os.path.join(tempfile.gettempdir(), f"swarm-{fleet}-{os.getpid()}"))
+    log_dir = Path(args.log_dir or os.path.join(tempfile.gettempdir(), f"{LOG_PREFIX}{fleet}-{os.getpid()}"))
     metrics_path = (args.metrics or log_dir / "metrics.json").absolute()
     viz = viz_options(args, not args.no_viz, "has no effect with --no-viz")
     if viz is not None:
@@ -132,7 +135,8 @@ def cmd_up(args, started: float) -> int:
         check_viz_port(viz)
     if plan.router is not None:
         check_listen_free(opts.listen or plan.endpoint)
-    log_dir.mkdir(parents=True, exist_ok=True)
+    log_dir.mkdir(exist_ok=True)
+    removed = prune_logs(Path(tempfile.gettempdir()), fleet, keep=KEEP_LOGS, current=log_dir) if args.log_dir is None else 0
     try:  # whatever is read back at the end must be this run's: never an earlier run's file
         metrics_path.unlink(missing_ok=True)
     except OSError as e:
@@ -153,7 +157,9 @@ def cmd_up(args, started: float) -> int:
     launched_s = None
     last = None  # the world's last progress message (the run as far as the launcher saw it)
     say(f"swarm up: {scn.n} robots, scenario {scn.name}, {args.mode}, dt {scn.dt:g} s, "
-        f"{'governor on' if scn.control.governor else 'governor off'}; logs in {log_dir}")
+        f"{'governor on' if scn.control.governor else 'governor off'}; logs in {log_dir}"
+        + (f" ({removed} older log folder{'s' if removed > 1 else ''} removed: the {KEEP_LOGS} newest are kept)"
+           if removed else ""))
     recorder = None
     with StopEvent(hard_second=False) as stop, Supervisor(plan, log_dir) as sup:
         bus = None
@@ -166,7 +172,8 @@ def cmd_up(args, started: float) -> int:
                 offset = viz_log.stat().st_size if viz_log.exists() else 0
                 viewer.append(ViewerUrl(sup.start(plan.viz), args.start_timeout, offset))
             bus = open_bus(argparse.Namespace(connect=[plan.endpoint], zenoh_config=opts.zenoh_config, secure=opts.secure,
-                                              multicast=opts.multicast), timeout_s=15.0, stop=stop, role="launcher")
+                                              multicast=opts.multicast), timeout_s=min(15.0, args.start_timeout),
+                           stop=stop, role="launcher")
             alive: set[str] = set()
             progress: list = [None]
             bus.watch_alive(keys.alive_any(fleet), lambda k, up: alive.add(k) if up else alive.discard(k))
@@ -231,6 +238,7 @@ def cmd_up(args, started: float) -> int:
     status.close()
     interrupted = interrupted or stop.is_set()
     metrics = _read_metrics(metrics_path)
+    ran = metrics is not None or last is not None  # the world started the run
     if metrics is None:  # the world wrote nothing: the run as far as the launcher saw it
         metrics = metrics_from_progress(scn, args.mode, last)
         if failure is None and not interrupted:
@@ -247,9 +255,11 @@ def cmd_up(args, started: float) -> int:
     metrics["leader_restarts"] = sup.leader_restarted
     write_json(metrics_path, metrics)
     record_note = _close_recorder(recorder, metrics, args.record)
-    if not args.quiet:
+    if not args.quiet and ran:
         print(summary(metrics, scn.name))
         print(f"metrics: {metrics_path}")
+    elif not args.quiet:  # nothing ran: no table of zeros that reads like a clean run
+        print(f"no run: nothing was simulated (metrics with the failure: {metrics_path})")
         if record_note:
             print(record_note)
     code = exit_status(metrics, args.allow_violations)
@@ -321,6 +331,45 @@ class FaultActor:
             return longest
         at = self.epoch[0] + nxt / self.epoch[1]
         return max(0.0, min(longest, at - time.time()))
+
+
+LOG_PREFIX = "swarm-"  # swarm up's default log folders: <temp dir>/swarm-<fleet>-<pid>
+KEEP_LOGS = 10  # default log folders kept per fleet (the newest); older ones are removed at the next start
+
+
+def prune_logs(tmp: Path, fleet: str, keep: int, current: Path) -> int:
+    """Remove the default log folders of `fleet` in `tmp` beyond the `keep` newest (by modification time;
+    `current` is never removed, nor anything not made by swarm up: only folders named swarm-<fleet>-<pid>
+    whose process is gone). Returns how many were removed."""
+    import shutil
+
+    mine = re.compile(rf"^{re.escape(LOG_PREFIX + fleet)}-(\d+)$")
+    found = []
+    for p in tmp.iterdir() if tmp.is_dir() else ():
+        m = mine.match(p.name)
+        if m and p.is_dir() and not p.is_symlink() and p.resolve() != current.resolve():
+            try:
+                found.append((p.stat().st_mtime, p, int(m.group(1))))
+            except OSError:
+                continue
+    found.sort(reverse=True)
+    removed = 0
+    for _, p, pid in found[max(0, keep - 1):]:
+        if _pid_alive(pid):
+            continue  # a swarm up still running writes there
+        shutil.rmtree(p, ignore_errors=True)
+        removed += not p.exists()
+    return removed
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _check_secure(args, robots: int) -> str:

@@ -736,6 +736,9 @@ def read_spec(source: str, progress: Progress = silent) -> Spec:
     if source in BUILTINS:
         return parse(builtin_document(source), f"built-in scenario '{source}'", source, builtin=source)
     path = Path(source)
+    if path.is_dir():
+        raise ScenarioError(source, "", "is a directory; give a scenario file (TOML) in it, or a built-in "
+                                        f"({', '.join(BUILTINS)})")
     if not path.is_file():
         hint = "" if source.endswith(".toml") else f" (built-ins: {', '.join(BUILTINS)})"
         raise ScenarioError(source, "", f"no such file{hint}")

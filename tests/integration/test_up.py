@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import re
 import signal
 import subprocess
@@ -107,12 +108,48 @@ def test_a_killed_robot_is_restarted_and_the_run_completes(tmp_path):
     (["--fleet", "a/b"], "--fleet"),
     (["--rate", "nan"], "--rate"),
     (["--listen", "tcp/127.0.0.1:7447", "--connect", "tcp/127.0.0.1:7447"], "not both"),
+    (["--scenario", "/tmp"], "is a directory"),
+    (["--log-dir", "/nonexistent/logs"], "directory /nonexistent does not exist"),
 ])
 def test_bad_input_is_refused_before_anything_starts(args, message):
     out = subprocess.run([sys.executable, "-m", "swarm.cli", "up", *args], capture_output=True, text=True,
                          timeout=60)
     assert out.returncode == 2
     assert message in out.stderr
+
+
+def test_up_against_no_router_fails_in_its_start_timeout_and_shows_no_run(tmp_path):
+    """`swarm up --connect DEAD --start-timeout 3`: gives up after 3 s (not a fixed 15), says where it
+    tried without zenoh's Rust source paths, and prints no table of zeros that reads like a clean run."""
+    cmd = [sys.executable, "-m", "swarm.cli", "up", "--connect", f"tcp/127.0.0.1:{free_port()}", "--start-timeout", "3",
+           "--robots", "2", "--duration", "2", "--no-viz", "--log-dir", str(tmp_path / "logs")]
+    started = time.monotonic()
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1
+    assert "within 3 s" in out.stderr and "is a router running there" in out.stderr and ".rs:" not in out.stderr
+    assert "no run: nothing was simulated" in out.stdout and "collisions" not in out.stdout
+    assert json.loads((tmp_path / "logs" / "metrics.json").read_text())["failure"].startswith("cannot open")
+    assert time.monotonic() - started < 30  # not the former fixed 15 s plus the rest
+
+
+def test_old_default_log_folders_are_pruned_to_the_newest(tmp_path):
+    from swarm.cli.up import prune_logs
+
+    made = []
+    for k in range(14):
+        d = tmp_path / f"swarm-f-{4_000_000 + k}"  # no such processes
+        d.mkdir()
+        os.utime(d, (1_000_000 + k, 1_000_000 + k))
+        made.append(d)
+    other = tmp_path / "swarm-g-4000001"  # another fleet's, and a file of the user's
+    other.mkdir()
+    (tmp_path / "swarm-f-notes").mkdir()
+    current = tmp_path / "swarm-f-3999999"
+    current.mkdir()
+    os.utime(current, (0, 0))  # the oldest, but this run's: kept
+    assert prune_logs(tmp_path, "f", keep=10, current=current) == 5
+    assert [d.exists() for d in made] == [False] * 5 + [True] * 9
+    assert current.exists() and other.exists() and (tmp_path / "swarm-f-notes").exists()
 
 
 def test_robot_without_a_world_says_what_it_waited_for(tmp_path):
