@@ -143,13 +143,16 @@ def run_leader(bus, clock, scn, fleet: str = "default", lockstep: bool | None = 
             current[:] = [lead]
             if runs.latest is not None and runs.latest.run != run.run:
                 lead.ended = True
-            log.info("leader: run %s", run.run)
+            log.info("leader: run %s begins (%s, %d robots)", run.run, "lock-step" if mode else "real time", run.robots)
             lead.start()
             try:
                 lead.run(stop)
             finally:
                 lead.close()
                 current.clear()
+            b = lead.bad
+            log.info("leader: run %s %s: %d references sent; clock messages refused %d, stale %d, duplicated %d",
+                     run.run, "ended" if lead.ended else "stopped", lead.sent, b.count, b.stale, b.duplicates)
             served.append(lead)
             if once:
                 break

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import logging
+
 from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, BadInput, Failure, StopEvent, fleet_of, load_scenario, open_bus,
                               setup_logging)
 from swarm.core.clock import WALL
 from swarm.launch.child import die_with_parent
+
+log = logging.getLogger("swarm.leader")
 
 
 def cmd_leader(args, started: float) -> int:
@@ -18,6 +22,7 @@ def cmd_leader(args, started: float) -> int:
     fleet = fleet_of(args)
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, stop=stop, lean=True, role="leader")
+        log.info("leader: connected (fleet %s), waiting for a run", fleet)
         try:
             try:
                 run_leader(bus, WALL, scn, fleet, stop=stop, start_timeout=args.start_timeout)
