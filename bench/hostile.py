@@ -41,10 +41,10 @@ statuses). Prints the table and exits 0 when every check holds, 1 otherwise.
 
 What cannot be read exactly from outside (said in the output): duplicates (the robots' exit line and
 the world's metrics do not report BadMessages.duplicates; this bench sends none, so bad + stale is
-exact), the leader's counters (it logs none at exit: world/clock after the start barrier reaches the
-leader only), the run followers' counters (robots and the leader count bad world/run messages in a
-separate counter they do not report), and the launcher's handling of world/progress (it drops a bad
-message without counting it).
+exact) and the run followers' counters (robots and the leader count bad world/run messages in a
+separate counter they do not report). The leader's counters are read from its run line in its log
+(world/clock after the start barrier reaches the leader only), the launcher's from the metrics
+(`launcher_bad_messages`).
 """
 
 from __future__ import annotations
@@ -244,12 +244,12 @@ class Attack:
                         t=0.0, ex=0.0, ey=0.0, etheta=0.0, frozen=False, neighbours=0, stale=0, bad=10**6)),
                      [("world", STALE)])]
         clock = keys.world_clock(F)  # after the start barrier only the leader listens (robots drop it)
-        malformed("world/clock", clock, [("leader", UNCOUNTED)])
+        malformed("world/clock", clock, [("leader", BAD)])
         out += [("world/clock", clock, "t 1, seq 10^9 (stale: t)", protocol.encode(
-                    Clock(t=1.0, seq=10**9, epoch=0.0, speed=1.0)), [("leader", UNCOUNTED)]),
+                    Clock(t=1.0, seq=10**9, epoch=0.0, speed=1.0)), [("leader", STALE)]),
                 ("world/clock", clock, "t 1e8, seq 10^9 (jump)", protocol.encode(
-                    Clock(t=1e8, seq=10**9, epoch=0.0, speed=1.0)), [("leader", UNCOUNTED)])]
-        malformed("world/progress", keys.world_progress(F), [("launcher", UNCOUNTED)])
+                    Clock(t=1e8, seq=10**9, epoch=0.0, speed=1.0)), [("leader", BAD)])]
+        malformed("world/progress", keys.world_progress(F), [("launcher", BAD)])
         malformed("world/run", keys.world_run(F), [("run followers", UNCOUNTED)])
         malformed("world/snapshot", keys.world_snapshot(F), [("nobody (--no-viz)", UNCOUNTED)])
         malformed("estop", keys.estop(F), self._all(BAD))
@@ -357,6 +357,17 @@ def run_attack(session, attack: Attack, ledger: Ledger, rate: float, seconds: fl
 
 ROBOT_LINE = re.compile(r"robot (\d+), run (\S+): (\d+) ticks, (\d+) skipped, (\d+) states received, "
                         r"(\d+) bad messages, (\d+) stale")
+
+
+LEADER_LINE = re.compile(r"leader: run (\S+) (?:ended|stopped): (\d+) references sent; clock messages refused (\d+), "
+                         r"stale (\d+)")
+
+
+def leader_counts(log_dir: Path) -> tuple[int, int] | None:
+    """(bad, stale) of the leader's last run line in its log, None if it wrote none."""
+    path = log_dir / "leader.log"
+    found = list(LEADER_LINE.finditer(path.read_text(errors="replace"))) if path.exists() else []
+    return (int(found[-1].group(3)), int(found[-1].group(4))) if found else None
 
 
 def robot_counts(log_dir: Path, n: int) -> dict[int, tuple[int, int]]:
@@ -501,7 +512,20 @@ def main() -> int:
     print(f"  {'world':22} {sum(e.values()):10d} {e[BAD]:8d} {e[STALE]:8d} {e[IGNORED]:8d} | "
           f"{world_bad:11d} {world_stale:8d}  {'ok' if ok else 'DIFF'}")
     checks.append(("the world's counters equal what was sent to it", ok))
-    for who in ("leader", "run followers", "launcher", "nobody (--no-viz)", "no subscriber", "zenoh size filter"):
+    e = ledger.expect["leader"]
+    got = leader_counts(log_dir)
+    ok = got == (e[BAD], e[STALE])
+    shown = f"{got[0]:11d} {got[1]:8d}" if got else f"{'no run line':>20}"
+    print(f"  {'leader':22} {sum(e.values()):10d} {e[BAD]:8d} {e[STALE]:8d} {e[IGNORED]:8d} | {shown}  "
+          f"{'ok' if ok else 'DIFF'}")
+    checks.append(("the leader's counters equal what was sent to it", ok))
+    e = ledger.expect["launcher"]
+    got_l = m.get("launcher_bad_messages", -1)
+    ok = got_l == e[BAD]
+    print(f"  {'launcher':22} {sum(e.values()):10d} {e[BAD]:8d} {e[STALE]:8d} {e[IGNORED]:8d} | {got_l:11d} "
+          f"{'':8}  {'ok' if ok else 'DIFF'}")
+    checks.append(("the launcher's count equals what was sent to it", ok))
+    for who in ("run followers", "nobody (--no-viz)", "no subscriber", "zenoh size filter"):
         e = ledger.expect[who]
         what = "dropped by zenoh's size filter: never delivered" if who == "zenoh size filter" else \
             "no counter it reports"

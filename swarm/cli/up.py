@@ -177,7 +177,7 @@ def cmd_up(args, started: float) -> int:
             alive: set[str] = set()
             progress: list = [None]
             bus.watch_alive(keys.alive_any(fleet), lambda k, up: alive.add(k) if up else alive.discard(k))
-            bus.subscribe(keys.world_progress(fleet), lambda k, b: progress.__setitem__(0, b))
+            bus.subscribe(keys.world_progress(fleet), lambda k, b: progress.__setitem__(0, _progress(b, k)))
             if args.record is not None:  # subscribed before the world starts: its first snapshot is recorded
                 recorder = _start_recorder(bus, fleet, scn, args)
             sup.start(plan.world)
@@ -213,7 +213,7 @@ def cmd_up(args, started: float) -> int:
                 for note in sup.check_restarts():
                     say(note)
                 watch_viewer()
-                last = _progress(progress[0]) or last
+                last = progress[0] or last
                 faults.act(last)
                 if last is not None:
                     status.update(progress_line(last))
@@ -223,7 +223,7 @@ def cmd_up(args, started: float) -> int:
                     sup.wait("world", 3.0)
                     break
                 stop.wait(faults.wait_s(0.1))
-            last = _progress(progress[0]) or last
+            last = progress[0] or last
             rc = world.proc.returncode
             if not interrupted and failure is None and rc not in (0, 1, 3, EXIT_INTERRUPTED):
                 failure = f"world lost at t = {_t(last)} ({exit_text(rc)}); see {world.log}"
@@ -251,6 +251,7 @@ def cmd_up(args, started: float) -> int:
     metrics.setdefault("failure", None)
     metrics["launch_s"] = launched_s
     metrics["processes"] = len(plan.processes)
+    metrics["launcher_bad_messages"] = 0 if _BAD_PROGRESS is None else _BAD_PROGRESS.count
     metrics["robot_restarts"] = sup.restarted
     metrics["leader_restarts"] = sup.leader_restarted
     write_json(metrics_path, metrics)
@@ -398,15 +399,22 @@ def _check_secure(args, robots: int) -> str:
     return f"tls/127.0.0.1:{manifest['port']}"
 
 
-def _progress(payload: bytes | None):
-    """The world's last progress message, decoded (None if none or bad)."""
+_BAD_PROGRESS = None  # the launcher's refused progress messages (swarm.proto.protocol.BadMessages)
+
+
+def _progress(payload: bytes | None, key: str = "progress"):
+    """A progress message, decoded (None if none or bad: refused, counted and logged)."""
+    global _BAD_PROGRESS
     from swarm.proto import protocol
 
     if payload is None:
         return None
     try:
         return protocol.decode(payload, "progress")
-    except protocol.ProtocolError:
+    except protocol.ProtocolError as e:
+        if _BAD_PROGRESS is None:
+            _BAD_PROGRESS = protocol.BadMessages(log)
+        _BAD_PROGRESS.reject(key, e)
         return None
 
 
