@@ -1,7 +1,10 @@
-"""`swarm campaign`: `swarm sim` over a grid of seeds and drop probabilities, on every core.
+"""`swarm campaign`: `swarm sim` over a grid of seeds and drop probabilities, on every core; then, with
+--up N, the first N runs again as lock-step `swarm up`, each held equal to its simulation.
 
     swarm campaign --scenario paper-50hz --seeds 0-9 --drop 0,0.1,0.3 -o out/
     swarm campaign --scenario my.toml --seeds 0-4 --faults kills.toml --drop 0,0.2 -j 2 -o out/
+    swarm campaign --scenario paper-50hz --seeds 0-1 --drop 0.3,0 --kill 7@15 -o out/ --up 2
+    swarm campaign --up 4 --from out/          # check a campaign already run (its campaign.json, runs.csv)
 
 The grid is every p of --drop times every seed of --seeds. A run's seed sets run.seed, and with it the
 faults' seed unless the faults name their own (swarm.core.scenario_file does that); p adds one drop rule
@@ -10,101 +13,42 @@ the baseline; --drop left out means --drop 0). Every grid point is resolved in t
 bad input is refused (exit 2) before anything runs. The runs are Simulation(scenario).run() in a pool of
 -j spawned workers, each compiled kernel loaded from the cache the parent filled.
 
-Written into DIR (docs/faults.md, Campaigns):
+Written into DIR (docs/faults.md, Campaigns; the rows and files: swarm.cli.campaign_files):
 - runs.csv: one row a run in grid order (drop, then seed): scenario, seed, drop, every metric (the
   "faults" object flattened as faults.dropped.state, ...), failure; the wall-clock columns last, named
   wallclock.*;
 - summary.csv: one row per p (collided, converged, failed runs; medians and extremes over seeds);
-- convergence.png, distance.png, error.png and index.html (swarm.view.campaign).
-Apart from the wallclock.* columns, the same command writes the same files.
+- campaign.json: the campaign's flags (files as absolute paths), what --from reads;
+- convergence.png, distance.png, error.png and index.html (swarm.view.campaign);
+- with --up: up.csv, DIR/up/row-K/ and a section of index.html (swarm.cli.campaign_up).
+Apart from the wallclock.* columns, the same command writes the same files. A new grid removes the
+up.csv and DIR/up/ of an earlier one (they checked other runs).
 
 Exit code: 3 when a run failed a check of the metrics contract (a collision), naming the runs (0 with
---allow-violations); 1 when a run could not finish (a non-finite state); 130 interrupted (the files
-then hold the runs done); else 0. A run that did not converge is reported, not a failure.
+--allow-violations), or when a `swarm up` of --up differed from its simulation or failed (naming the
+rows); 1 when a run could not finish (a non-finite state); 130 interrupted (the files then hold the runs
+done); else 0. A run that did not converge is reported, not a failure.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import multiprocessing as mp
 import os
 import queue
-import shlex
+import shutil
 import signal
-import statistics
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 from swarm.cli import console
+from swarm.cli.campaign_files import (SUMMARY_COLUMNS, Point, campaign_command, columns, grid, overrides,
+                                      read_campaign, replay_command, run_row, summary, wall_named, write_campaign_json,
+                                      write_csv)
 from swarm.cli.common import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, BadInput, StopEvent
 
 EXIT_VIOLATIONS = 3
-WALL_CLOCK = ("wall_s",)  # metric keys that differ from one run of the same command to the next
-
-
-@dataclass(frozen=True)
-class Point:
-    """One run of the grid: its place in grid order, its seed and its drop probability (0: no rule)."""
-
-    index: int
-    seed: int
-    drop: float
-
-
-def grid(seeds: tuple[int, ...], drops: tuple[float, ...]) -> list[Point]:
-    """Every (drop, seed) in grid order: drops as given, seeds as given within each."""
-    return [Point(i, s, p) for i, (p, s) in enumerate((p, s) for p in drops for s in seeds)]
-
-
-def overrides(args: argparse.Namespace, point: Point):
-    """The scenario_file.Overrides of one run: the scenario flags, the point's seed and drop rule."""
-    from swarm.core.scenario_file import Overrides
-
-    return Overrides(robots=args.robots, seed=point.seed, duration=args.duration, dt=args.dt, governor=args.governor,
-                     faults=None if args.faults is None else str(Path(args.faults).absolute()),
-                     drop=point.drop if point.drop > 0 else None, kill=args.kill)
-
-
-def replay_command(args: argparse.Namespace, point: Point) -> str:
-    """The `swarm sim` command line that runs one grid point alone (the same metrics)."""
-    out = ["swarm", "sim", "--scenario", args.scenario, "--seed", str(point.seed)]
-    out += _scenario_flags(args)
-    if point.drop > 0:
-        out += ["--drop", repr(point.drop)]
-    return shlex.join(out)
-
-
-def campaign_command(args: argparse.Namespace) -> str:
-    """This campaign's command line, every flag spelled out (for index.html)."""
-    out = ["swarm", "campaign", "--scenario", args.scenario, "--seeds", _seeds_text(args.seeds),
-           "--drop", ",".join(repr(p) for p in args.drop), *_scenario_flags(args), "-j", str(args.jobs),
-           "-o", str(args.out)]
-    if args.allow_violations:
-        out.append("--allow-violations")
-    return shlex.join(out)
-
-
-def _scenario_flags(args: argparse.Namespace) -> list[str]:
-    out = []
-    for flag, value in (("--robots", args.robots), ("--duration", args.duration), ("--dt", args.dt)):
-        if value is not None:
-            out += [flag, repr(value) if isinstance(value, float) else str(value)]
-    if args.governor is not None:
-        out.append("--governor" if args.governor else "--no-governor")
-    if args.faults is not None:
-        out += ["--faults", str(args.faults)]
-    if args.kill is not None:
-        out += ["--kill", args.kill]
-    return out
-
-
-def _seeds_text(seeds: tuple[int, ...]) -> str:
-    if len(seeds) > 1 and list(seeds) == list(range(seeds[0], seeds[-1] + 1)):
-        return f"{seeds[0]}-{seeds[-1]}"
-    return ",".join(map(str, seeds))
 
 
 # --------------------------------------------------------------------------- the workers
@@ -195,126 +139,6 @@ def _run_all(tasks: list, jobs: int, results: dict, stop, show) -> bool:
         done.cancel_join_thread()
 
 
-# --------------------------------------------------------------------------- rows
-
-
-def flatten(m: dict, prefix: str = "") -> dict:
-    """Nested objects as dotted keys: {"faults": {"dropped": {"state": 3}}} -> {"faults.dropped.state": 3}."""
-    out = {}
-    for k, v in m.items():
-        if isinstance(v, dict):
-            out.update(flatten(v, f"{prefix}{k}."))
-        else:
-            out[prefix + k] = v
-    return out
-
-
-def run_row(name: str, point: Point, metrics: dict | None, failure: str | None) -> dict:
-    """A row of runs.csv as a dict: the grid values, every metric (flattened), the failure (None: finished)."""
-    row = {"scenario": name, "seed": point.seed, "drop": point.drop}
-    for k, v in flatten(metrics or {}).items():
-        if k not in row:
-            row[k] = v
-    row["failure"] = failure
-    return row
-
-
-def columns(rows: list[dict]) -> list[str]:
-    """runs.csv's columns: the union of the rows' keys, each new key right after the one before it in the
-    first row that has it (a run without faults has no faults.* keys), the wall-clock keys last."""
-    cols: list[str] = []
-    for row in rows:
-        prev = None
-        for k in row:
-            if k not in cols:
-                cols.insert(cols.index(prev) + 1 if prev is not None else 0, k)
-            prev = k
-    wall = [k for k in cols if k in WALL_CLOCK]
-    return [k for k in cols if k not in WALL_CLOCK] + [f"wallclock.{k}" for k in wall]
-
-
-def _wall_named(row: dict) -> dict:
-    return {(f"wallclock.{k}" if k in WALL_CLOCK else k): v for k, v in row.items()}
-
-
-def _median(values: list) -> float | None:
-    values = [v for v in values if v is not None]
-    return float(statistics.median(values)) if values else None
-
-
-def _least(values: list):
-    values = [v for v in values if v is not None]
-    return min(values) if values else None
-
-
-def _most(values: list):
-    values = [v for v in values if v is not None]
-    return max(values) if values else None
-
-
-SUMMARY_COLUMNS = (
-    "scenario", "drop", "runs", "collided_runs", "collisions", "converged_runs", "not_converged_runs",
-    "failed_runs", "converged_at_s_median", "converged_at_s_min", "converged_at_s_max", "min_robot_distance_m_min",
-    "min_robot_distance_m_median", "min_obstacle_distance_m_min", "final_position_error_max_m_median",
-    "final_position_error_max_m_max", "final_orientation_error_max_rad_median", "last_freeze_end_s_max",
-    "messages_dropped_median", "robots_alive_at_end_min", "wallclock.wall_s_median", "wallclock.wall_s_total",
-)
-
-
-def summary(rows: list[dict]) -> list[dict]:
-    """summary.csv's rows: one per drop probability, in grid order (SUMMARY_COLUMNS)."""
-    out = []
-    drops = list(dict.fromkeys(r["drop"] for r in rows))
-    for p in drops:
-        rs = [r for r in rows if r["drop"] == p]
-        done = [r for r in rs if r["failure"] is None]
-        col = lambda key: [r.get(key) for r in done]  # noqa: E731
-        out.append({
-            "scenario": rs[0]["scenario"], "drop": p, "runs": len(rs),
-            "collided_runs": sum(1 for r in done if r["collisions"]),
-            "collisions": sum(r["collisions"] for r in done),
-            "converged_runs": sum(1 for r in done if r["converged_at_s"] is not None),
-            "not_converged_runs": sum(1 for r in done if r["converged_at_s"] is None),
-            "failed_runs": len(rs) - len(done),
-            "converged_at_s_median": _median(col("converged_at_s")),
-            "converged_at_s_min": _least(col("converged_at_s")),
-            "converged_at_s_max": _most(col("converged_at_s")),
-            "min_robot_distance_m_min": _least(col("min_robot_distance_m")),
-            "min_robot_distance_m_median": _median(col("min_robot_distance_m")),
-            "min_obstacle_distance_m_min": _least(col("min_obstacle_distance_m")),
-            "final_position_error_max_m_median": _median(col("final_position_error_max_m")),
-            "final_position_error_max_m_max": _most(col("final_position_error_max_m")),
-            "final_orientation_error_max_rad_median": _median(col("final_orientation_error_max_rad")),
-            "last_freeze_end_s_max": _most(col("last_freeze_end_s")),
-            "messages_dropped_median": _median(col("messages_dropped")),
-            "robots_alive_at_end_min": _least(col("robots_alive_at_end")),
-            "wallclock.wall_s_median": _median(col("wall_s")),
-            "wallclock.wall_s_total": sum(v for v in col("wall_s") if v is not None),
-        })
-    return out
-
-
-def _text(v) -> str:
-    """A CSV cell: empty for None, true/false, floats as Python writes them (they read back exactly)."""
-    if v is None:
-        return ""
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, float):
-        return repr(v)
-    return str(v)
-
-
-def write_csv(path: Path, cols: list[str] | tuple[str, ...], rows: list[dict]) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with tmp.open("w", newline="", encoding="utf-8") as f:
-        w = csv.writer(f, lineterminator="\n")
-        w.writerow(cols)
-        for r in rows:
-            w.writerow([_text(r.get(c)) for c in cols])
-    tmp.replace(path)
-
-
 # --------------------------------------------------------------------------- the command
 
 
@@ -357,13 +181,29 @@ def _warm_kernels(scns, quiet: bool) -> None:
         Simulation(scn).advance(1)
 
 
+GRID_FLAGS = (("scenario", "--scenario"), ("seeds", "--seeds"), ("drop", "--drop"), ("robots", "--robots"),
+              ("duration", "--duration"), ("dt", "--dt"), ("governor", "--governor"), ("faults", "--faults"),
+              ("kill", "--kill"), ("out", "-o"), ("jobs", "-j"))
+
+
 def cmd_campaign(args: argparse.Namespace, started: float) -> int:
+    if args.from_dir is not None:
+        return _check_existing(args)
+    if args.seeds is None:
+        raise BadInput("--seeds is required: the grid's seeds (or --up N --from DIR: check a campaign already run)")
+    if args.out is None:
+        raise BadInput("-o DIR is required: where the campaign's files go")
+    if args.scenario is None:
+        args.scenario = "paper-50hz"
     if args.drop is None:
         args.drop = (0.0,)
     if args.jobs is None:
         args.jobs = os.cpu_count() or 1
     _check_out(args.out)
     points = grid(args.seeds, args.drop)
+    if args.up is not None and args.up > len(points):
+        raise BadInput(f"--up {args.up}: the grid has {len(points)} run{'s' if len(points) != 1 else ''} "
+                       f"({len(args.seeds)} seeds x {len(args.drop)} drop probabilities)")
     scns, notes = _resolve_grid(args, points)
     for n in notes:
         print(f"swarm campaign: warning: {n}", file=sys.stderr)
@@ -388,7 +228,39 @@ def cmd_campaign(args: argparse.Namespace, started: float) -> int:
     with StopEvent() as stop:
         interrupted = _run_all(tasks, jobs, results, stop, show)
     status.close()
-    return _report(args, scn, points, results, interrupted)
+    code = _report(args, scn, points, results, interrupted)
+    if args.up is None or code == EXIT_INTERRUPTED or not results:
+        return code
+    from swarm.cli.campaign_up import check_rows
+
+    flags, rows = read_campaign(args.out)  # as --from reads it: one path for both
+    return _worst(code, check_rows(flags, args.out, rows, args.up, args.quiet))
+
+
+def _check_existing(args: argparse.Namespace) -> int:
+    """--up N --from DIR: check the first N rows of a campaign already run; its flags are DIR's."""
+    if args.up is None:
+        raise BadInput(f"--from {args.from_dir}: give --up N, how many of its runs to check with swarm up")
+    given = [flag for key, flag in GRID_FLAGS if getattr(args, key) is not None]
+    if args.allow_violations:
+        given.append("--allow-violations")
+    if given:
+        raise BadInput(f"--from {args.from_dir}: {', '.join(given)} cannot be given with it (the campaign's own "
+                       "flags, in its campaign.json, make every run)")
+    from swarm.cli.campaign_up import check_rows
+
+    flags, rows = read_campaign(args.from_dir)
+    if args.up > len(rows):
+        raise BadInput(f"--up {args.up}: {args.from_dir}/runs.csv has {len(rows)} run{'s' if len(rows) != 1 else ''}")
+    return check_rows(flags, args.from_dir, rows, args.up, args.quiet)
+
+
+def _worst(*codes: int) -> int:
+    """The exit code of several steps: interrupted, then a failure, then a failed check, then 0."""
+    for code in (EXIT_INTERRUPTED, EXIT_FAILURE, EXIT_VIOLATIONS):
+        if code in codes:
+            return code
+    return EXIT_OK
 
 
 def _report(args, scn, points: list[Point], results: dict, interrupted: bool) -> int:
@@ -420,7 +292,9 @@ def _report(args, scn, points: list[Point], results: dict, interrupted: bool) ->
     notes = [f"interrupted: {len(rows)} of {len(points)} runs done; the files hold those"] if interrupted else []
     if rows:
         cols = columns(rows)
-        write_csv(out / "runs.csv", cols, [_wall_named(r) for r in rows])
+        write_csv(out / "runs.csv", cols, [wall_named(r) for r in rows])
+        write_campaign_json(args, out, campaign_command(args))
+        _forget_up_checks(out)
         summ = summary(rows)
         write_csv(out / "summary.csv", SUMMARY_COLUMNS, summ)
         finished = [r for r in rows if r["failure"] is None]
@@ -451,6 +325,19 @@ def _report(args, scn, points: list[Point], results: dict, interrupted: bool) ->
     if violated and not args.allow_violations:
         return EXIT_VIOLATIONS
     return EXIT_OK
+
+
+def _forget_up_checks(out: Path) -> None:
+    """A new grid's files: the --up checks of an earlier one (up.csv, DIR/up/row-K) no longer apply."""
+    (out / "up.csv").unlink(missing_ok=True)
+    up = out / "up"
+    if up.is_dir():
+        for d in up.glob("row-*"):
+            shutil.rmtree(d, ignore_errors=True)
+        try:
+            up.rmdir()
+        except OSError:  # something else of the user's in it: left alone
+            pass
 
 
 def _table(summ: list[dict]) -> str:

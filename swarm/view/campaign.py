@@ -2,6 +2,7 @@
 
     paths = write_plots(runs, "out/", Bodies(r=0.25, obstacle_r=0.25, duration=120.0), title="paper-50hz")
     write_index("out/", command, columns, summary, flagged, paths)
+    write_up_section("out/", up_rows, asked=3)       # swarm campaign --up: its section, replaced each time
 
 `runs` are the rows of runs.csv as dicts (values as Python numbers, None for an empty cell): every plot
 reads `drop`, `seed` and a metric. Each run is one point, the seeds of one p spread side by side
@@ -246,4 +247,38 @@ def write_index(out_dir, command: str, columns: Sequence[str], summary: Sequence
     parts.append("</body></html>\n")
     path = out / "index.html"
     path.write_text("\n".join(parts), encoding="utf-8")
+    return path
+
+
+UP_START, UP_END = "<!-- up-check:start -->", "<!-- up-check:end -->"
+UP_SHOWN = ("row", "seed", "drop", "result", "first_differing_tick", "robots_differing", "metrics_differing", "why",
+            "collisions", "converged_at_s", "files", "wallclock.up_s", "wallclock.sim_s")
+
+
+def write_up_section(out_dir, rows: Sequence[dict], asked: int, note: str | None = None) -> Path | None:
+    """index.html's section on `swarm campaign --up`: the rows of up.csv (text cells) checked against
+    swarm sim, replacing an earlier such section (None when the campaign has no index.html)."""
+    esc = html.escape
+    path = Path(out_dir) / "index.html"
+    if not path.is_file():
+        return None
+    same = sum(1 for r in rows if r.get("result") == "identical")
+    parts = [UP_START, f"<h2>Lock-step swarm up against swarm sim ({same} of {len(rows)} identical)</h2>",
+             f"<p>The first {asked} runs of runs.csv again as lock-step <code>swarm up</code> (one process per robot "
+             "over zenoh), each compared with <code>swarm sim</code> of the same scenario, seed, drop and faults: "
+             "every robot's pose at every tick, bit for bit, and the metrics. <a href='up.csv'>up.csv</a> has every "
+             "column, with each row's <code>swarm up</code> command.</p>"]
+    if note:
+        parts.append(f"<p class='warning'>{esc(note)}</p>")
+    parts += [_table(UP_SHOWN, rows, left=("result", "robots_differing", "metrics_differing", "why", "files")),
+              UP_END]
+    block = "\n".join(parts)
+    text = path.read_text(encoding="utf-8")
+    a, b = text.find(UP_START), text.find(UP_END)
+    if 0 <= a < b:
+        text = text[:a] + block + text[b + len(UP_END):]
+    else:
+        at = text.rfind("</body>")
+        text = (text[:at] + block + "\n" + text[at:]) if at >= 0 else text + block + "\n"
+    path.write_text(text, encoding="utf-8")
     return path

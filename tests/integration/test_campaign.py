@@ -1,10 +1,12 @@
 """`swarm campaign` through the real command line: the files it writes, rows that repeat, rows equal to
-`swarm sim`, bad input refused (exit 2), collisions (exit 3)."""
+`swarm sim`, bad input refused (exit 2), collisions (exit 3); --up: rows run again as lock-step `swarm up`
+(real processes over zenoh on loopback, bounded by the command's own timeouts) and held equal to `swarm sim`."""
 
 from __future__ import annotations
 
 import csv
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -190,3 +192,98 @@ def test_a_collision_exits_3_naming_the_runs(tmp_path):
     assert p.returncode == 0, p.stderr
     _, rows = read_csv(out / "runs.csv")
     assert [(r["seed"], r["drop"]) for r in rows] == [("0", "0.0")]  # the files of the last campaign only
+
+
+# --------------------------------------------------------------------------- --up: swarm up against swarm sim
+
+UP = ["--scenario", "paper-50hz", "--robots", "7", "--duration", "10", "--seeds", "0-1", "--drop", "0.3,0",
+      "--kill", "3@5"]  # grid order: drop 0.3 first, so --up 2 checks both seeds under drops and a kill
+
+
+@pytest.fixture(scope="module")
+def checked(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
+    out = tmp_path_factory.mktemp("up") / "out"
+    return out, swarm("campaign", *UP, "-j", "2", "-o", str(out), "--up", "2", timeout=420)
+
+
+def up_logs(out: Path) -> str:
+    return "".join(f"\n--- {p}\n{p.read_text(errors='replace')[-2000:]}" for p in sorted(out.glob("up/row-*/**/*.log")))
+
+
+@pytest.mark.timeout(480)
+def test_up_reruns_the_first_rows_as_lockstep_swarm_up_identical_to_swarm_sim(checked):
+    out, p = checked
+    assert p.returncode == 0, p.stdout + p.stderr + up_logs(out)
+    said = [line for line in p.stdout.splitlines() if line.startswith("up ")]
+    assert [s.split(":")[0] for s in said] == ["up 1/2, seed 0 drop 0.3", "up 2/2, seed 1 drop 0.3"], p.stdout
+    assert all(": OK, identical to swarm sim" in s and "swarm up " in s and "swarm sim " in s for s in said), said
+    assert "2 of 2 swarm up runs identical to swarm sim" in p.stdout
+    _, runs = read_csv(out / "runs.csv")
+    cols, rows = read_csv(out / "up.csv")
+    assert cols[:5] == ["row", "scenario", "seed", "drop", "result"] and cols[-2:] == ["wallclock.up_s", "wallclock.sim_s"]
+    assert [(r["row"], r["seed"], r["drop"], r["result"]) for r in rows] == [
+        ("1", "0", "0.3", "identical"), ("2", "1", "0.3", "identical")]
+    for r, run in zip(rows, runs):
+        assert r["up_exit"] == "0" and r["first_differing_tick"] == "" and r["ticks_differing"] == "0"
+        # swarm up's own metrics, as swarm sim's in runs.csv: the kill happened, messages were dropped
+        for k in ("collisions", "converged_at_s", "min_robot_distance_m", "robots_alive_at_end", "messages_dropped"):
+            assert r[k] == run[k], k
+        assert r["robots_alive_at_end"] == "6" and int(r["messages_dropped"]) > 0
+        for flag in ("swarm up --scenario paper-50hz --seed", "--robots 7", "--duration 10.0", "--kill 3@5",
+                     "--drop 0.3", "--mode lockstep", "--trace", "--no-viz", "--quiet"):
+            assert flag in r["command"], flag
+        row_dir = out / r["files"]
+        assert "robot 3 killed (SIGKILL" in (row_dir / "logs" / "faults.log").read_text()  # a real kill
+        assert (row_dir / "logs" / "world.log").is_file() and not (row_dir / "trace.npz").exists()  # kept if it differs
+    page = (out / "index.html").read_text()
+    assert "Lock-step swarm up against swarm sim (2 of 2 identical)" in page and "href='up.csv'" in page
+    flags = json.loads((out / "campaign.json").read_text())
+    assert flags["scenario"] == "paper-50hz" and flags["seeds"] == [0, 1] and flags["drop"] == [0.3, 0.0]
+    assert flags["kill"] == "3@5" and flags["robots"] == 7 and flags["duration"] == 10.0
+
+
+@pytest.mark.timeout(240)
+def test_up_from_a_campaign_whose_rows_no_longer_match_swarm_sim_says_stale_without_running_swarm_up(checked,
+                                                                                                      tmp_path):
+    out, p = checked
+    assert p.returncode == 0, p.stderr
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("up", "up.csv"))
+    cols, rows = read_csv(copy / "runs.csv")
+    rows[0]["min_robot_distance_m"] = repr(float(rows[0]["min_robot_distance_m"]) + 1e-12)  # as if the file changed
+    with (copy / "runs.csv").open("w", newline="") as f:
+        w = csv.DictWriter(f, cols, lineterminator="\n")
+        w.writeheader()
+        w.writerows(rows)
+    q = swarm("campaign", "--up", "1", "--from", str(copy), "--quiet")
+    assert q.returncode == 3, q.stdout + q.stderr
+    assert "up 1/1, seed 0 drop 0.3: STALE" in q.stdout and "min_robot_distance_m" in q.stdout
+    assert "seed 0 drop 0.3 stale" in q.stderr
+    _, up = read_csv(copy / "up.csv")
+    assert [(r["row"], r["result"], r["up_exit"]) for r in up] == [("1", "stale", "")]
+    assert not (copy / "up" / "row-1").exists()  # no swarm up was started
+
+
+@pytest.mark.timeout(240)
+@pytest.mark.parametrize("args, said", [
+    (["--seeds", "0-1", "--up", "0"], "argument --up: must be >= 1, got '0'"),
+    (["--seeds", "0-1", "--up", "3"], "--up 3: the grid has 2 runs (2 seeds x 1 drop probabilities)"),
+    (["--up", "5", "--from", "DONE"], "runs.csv has 4 runs"),
+    (["--from", "DONE"], "give --up N"),
+    (["--up", "1", "--from", "DONE", "--seeds", "0", "-j", "2"], "--seeds, -j cannot be given with it"),
+    (["--up", "1", "--from", "EMPTY"], "campaign.json is missing: not a campaign directory"),
+    (["-o", "OUT"], "--seeds is required"),
+])
+def test_bad_up_input_is_refused_before_anything_runs(checked, tmp_path, args, said):
+    out, _ = checked
+    (tmp_path / "empty").mkdir()
+    before = (out / "up.csv").read_bytes()
+    args = [str(out) if a == "DONE" else str(tmp_path / "empty") if a == "EMPTY" else str(tmp_path / "out")
+            if a == "OUT" else a for a in args]
+    if "--from" not in args and "-o" not in args:
+        args += ["-o", str(tmp_path / "out")]
+    p = swarm("campaign", "--robots", "7", "--duration", "10", *args) if "--from" not in args else \
+        swarm("campaign", *args)
+    assert p.returncode == 2, (p.returncode, p.stdout, p.stderr)
+    assert said in p.stderr, p.stderr
+    assert not (tmp_path / "out").exists() and (out / "up.csv").read_bytes() == before
