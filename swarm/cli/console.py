@@ -121,10 +121,12 @@ def summary(m: dict, name: str) -> str:
     ]
     if alive is not None and alive != m["robots"]:
         rows.append(("robots alive", f"{alive} of {m['robots']} at the end"))
+    faults = m.get("faults") if isinstance(m.get("faults"), dict) else None
+    rows += fault_rows(m) if faults is not None else []
     for key, label in (("cmd_misses", "missed commands"), ("bad_messages", "bad messages"),
                        ("messages_dropped", "messages dropped"), ("robot_restarts", "robot restarts"),
                        ("robots_lost", "robots lost"), ("lockstep_overruns", "lock-step overruns")):
-        if m.get(key):
+        if m.get(key) and not (faults is not None and key == "messages_dropped"):
             rows.append((label, str(m[key])))
     nd = nondeterminism(m)
     if nd:
@@ -137,6 +139,33 @@ def summary(m: dict, name: str) -> str:
         rows.append(("CHECKS FAILED", ", ".join(v)))
     rows.append(("wall time", fmt(m["wall_s"], "s", 3)))
     return table(rows, "summary")
+
+
+def _by_class(counts: object) -> str:
+    """{"state": 3, "pose": 0, ...} as "3 (state 3)": the total, then the classes that are not 0."""
+    if not isinstance(counts, dict):
+        return fmt(counts)
+    total = sum(v for v in counts.values() if isinstance(v, (int, float)))
+    parts = ", ".join(f"{c} {v}" for c, v in counts.items() if v)
+    return f"{total}" + (f" ({parts})" if parts else "")
+
+
+def fault_rows(m: dict) -> list[tuple[str, str]]:
+    """The summary's rows of a run with faults (the metrics' `faults` object, docs/metrics.md): the process
+    faults and partitions that happened, the messages dropped (and delayed) by class, what the world did
+    about the missing commands, and the oldest neighbour state a law used."""
+    f = m["faults"]
+    rows = [("faults", ", ".join(f"{label} {f.get(key, 0)}" for key, label in (
+        ("killed", "killed"), ("restarted", "restarted"), ("hung", "hung"), ("partitions", "partitions"))))]
+    rows.append(("messages dropped", _by_class(f.get("dropped", m.get("messages_dropped", 0)))))
+    delayed = f.get("delayed")
+    if isinstance(delayed, dict) and any(delayed.values()):
+        rows.append(("messages delayed", _by_class(delayed)))
+    if f.get("cmd_held") or f.get("watchdog_stops"):
+        rows.append(("world", f"commands held {f.get('cmd_held', 0)}, watchdog stops {f.get('watchdog_stops', 0)}"))
+    if f.get("max_state_age_s"):
+        rows.append(("oldest state used", fmt(f["max_state_age_s"], "s", 3)))
+    return rows
 
 
 def exit_status(m: dict, allow_violations: bool = False) -> int:
@@ -153,8 +182,18 @@ def exit_status(m: dict, allow_violations: bool = False) -> int:
     return 0
 
 
+def fault_fields(dropped: int = 0, dead: int = 0, hung: int = 0) -> str:
+    """The status line's fault counts, each only when not 0 ("" in a run without faults): messages the
+    fault schedule dropped so far, robots dead, robots hung now; with two leading spaces."""
+    return "".join(f"  {name} {n}" for name, n in (("dropped", dropped), ("dead", dead), ("hung", hung)) if n)
+
+
 def progress_line(p) -> str:
+    """The status line of `swarm up` from the world's progress message (swarm.proto.protocol.Progress):
+    time, robots alive, then the faults' counts when there are any (dropped messages, dead and hung
+    robots: fault_fields), converged, frozen, the smallest distance, missed commands, bad messages."""
     dist = "-" if p.min_distance < 0 else f"{p.min_distance:.3f} m"
+    faults = fault_fields(getattr(p, "dropped", 0), max(0, p.robots - p.alive), getattr(p, "hung", 0))
     return (f"{bar(p.t / p.duration if p.duration else 1)} t {p.t:7.2f}/{p.duration:.1f} s"
-            f"  alive {p.alive}/{p.robots}  converged {p.converged}  frozen {p.frozen}  min distance {dist}"
+            f"  alive {p.alive}/{p.robots}{faults}  converged {p.converged}  frozen {p.frozen}  min distance {dist}"
             f"  misses {p.misses}  bad {p.bad}")

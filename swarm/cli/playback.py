@@ -3,10 +3,11 @@
     swarm replay run.mcap [--speed X] [--viz-host H] [--viz-port P] [--wait | --no-wait] [--exit]
     swarm report run.mcap -o DIR
 
-Replay waits for a browser page to connect (--wait; the default on a terminal), then draws the recorded snapshots in the viewer exactly as recorded (poses, and the colours
-from the recorded alive, stopped and frozen flags), paced by their simulated time at --speed and
-at most MAX_HZ frames a wall second (a frame whose successor is already due is skipped, never
-drawn late). The reading itself is swarm.view.report's, so a replay and a report see the same data.
+Replay waits for a browser page to connect (--wait; the default on a terminal), then draws the recorded
+snapshots in the viewer exactly as recorded (poses, and the colours from the recorded alive, stopped and
+frozen flags, the recorded fault events and the statuses' stale counts), paced by their simulated time
+at --speed and at most MAX_HZ frames a wall second (a frame whose successor is already due is skipped,
+never drawn late). The reading itself is swarm.view.report's, so a replay and a report see the same data.
 A recording without its footer (a killed run) is read up to its last complete chunk, and both
 commands say on stderr how much came back (swarm.view.report.Recovery).
 """
@@ -37,13 +38,16 @@ def replay_into(path: Path, viewer, speed: float, stop: threading.Event, max_hz:
                 on_frame=None) -> tuple[int, bool]:
     """Draw the frames of `path` into `viewer` at `speed`; returns (frames drawn, stopped early)."""
     from swarm.view import report
-    from swarm.view.viz import state_codes
+    from swarm.view.viz import DEAD, HUNG, state_codes
 
     drawn = 0
-    for f in report.pace(report.iter_frames(path), speed, max_hz=max_hz, sleep=stop.wait):
+    set_marks = getattr(viewer, "set_marks", None)
+    for f in report.pace(report.iter_frames(path, faults=True), speed, max_hz=max_hz, sleep=stop.wait):
         if stop.is_set():
             return drawn, True
-        codes = state_codes(f.alive, f.stopped, f.frozen, np.zeros(len(f.q)))
+        codes = state_codes(f.alive, f.stopped, f.frozen, np.zeros(len(f.q)), hung=f.hung, killed=f.killed)
+        if set_marks is not None:
+            set_marks(cut=f.cut, stale_data=f.stale_data & (codes != DEAD) & (codes != HUNG))
         viewer.draw(f.t, f.q, codes)  # the overlay counts what the frame shows (a recording has no progress)
         drawn += 1
         if on_frame is not None:

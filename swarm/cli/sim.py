@@ -41,7 +41,8 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
     def show(p) -> None:
         dist = "-" if p.min_distance is None else f"{p.min_distance:.3f} m"
         status.update(f"{console.bar(p.t / p.duration if p.duration else 1)} t {p.t:7.2f}/{p.duration:.1f} s"
-                      f"  converged {p.converged}/{p.robots}  frozen {p.frozen}  min distance {dist}")
+                      f"{_fault_fields(sim)}  converged {p.converged}/{p.robots}  frozen {p.frozen}"
+                      f"  min distance {dist}")
 
     if viz is not None:
         return _sim_in_viewer(args, viz, scn, sim, show, status, started)
@@ -123,6 +124,18 @@ def cmd_scenario_check(args: argparse.Namespace, started: float) -> int:
         for note in scenario_file.advisories(scn):
             print(f"{f}: warning: {note}")
     return EXIT_OK
+
+
+def _fault_fields(sim) -> str:
+    """The status line's fault counts of a simulation under faults so far (console.fault_fields: messages
+    dropped, robots dead, robots hung now); "" without faults."""
+    f = sim.faults
+    if f is None:
+        return ""
+    from swarm.core import faultgen as fg
+
+    return console.fault_fields(f.metrics()["messages_dropped"], int((f.proc == fg.PROC_DEAD).sum()),
+                                int((f.proc == fg.PROC_HUNG).sum()))
 
 
 def _kernel_cached() -> bool:

@@ -3,6 +3,7 @@
     geo = geometry(positions (K, 3), index (T*3,), colours (K, 3))      # a BufferGeometry
     obj = instanced(geo, material(vertex_colors=True), "name", matrices (N, 16), colours (N, 3))
     obj = label("t = 12.3 s", width, font_px, "name", x, y, z)           # text (meshcat's "_text" texture)
+    obj = flat_rect(w, h, colour, opacity, "name", x, y, z)             # a swatch (flat_ring: a ring)
     sink.send(Command({"type": "set_object", "path": "/swarm/robots", "object": obj}))
 
 Arrays go as msgpack extension types (0x17 Float32Array, 0x16 Uint32Array), as meshcat's own
@@ -121,6 +122,14 @@ def flat_rect(width: float, height: float, color: int, opacity: float, name: str
     mat = {**material(color=color, opacity=opacity, depth_write=False), "transparent": True, "depthTest": False}
     return mesh_object("Mesh", geometry(pos, np.array([0, 1, 2, 0, 2, 3])), mat, name,
                        matrix=translation(x, y, z), renderOrder=render_order)
+
+
+def flat_ring(r_in: float, r_out: float, color: int, name: str, x: float, y: float, z: float,
+              render_order: int = 1000) -> dict:
+    """A flat ring (radii in m) centred at (x, y, z) facing the camera, drawn over everything (a legend swatch)."""
+    pos, idx = annulus(r_in, r_out, 0.0, 32)
+    mat = {**material(color=color, depth_write=False), "transparent": True, "depthTest": False}
+    return mesh_object("Mesh", geometry(pos, idx), mat, name, matrix=translation(x, y, z), renderOrder=render_order)
 
 
 def mesh_object(kind: str, geometry: dict, material: dict, name: str, **extra) -> dict:

@@ -8,7 +8,9 @@
     record_simulation("run.mcap", scenario, result, record_hz=20.0)   # the same file from `swarm sim`
 
 Channels (docs/recording.md): /scenario (once, first), /world/snapshot, /leader/ref, /robot/cmd,
-/robot/status, /events, /metrics (once, last). Time base: every message's log_time and publish_time
+/robot/status, /events, /faults, /metrics (once, last). /faults holds the fault events as the world
+and `swarm up` told them on world/events (or, for `swarm sim`, as the fault schedule has them:
+swarm.core.faults.timeline), one message each, never decimated. Time base: every message's log_time and publish_time
 are nanoseconds of *simulated* time since the run's t = 0 (not wall-clock time); the scenario
 message is at 0, the metrics at the last recorded time.
 
@@ -43,9 +45,12 @@ import numpy as np
 
 from swarm.proto import keys, protocol
 from swarm.core import kinematics
+from swarm.proto.protocol import EVENTS as FAULT_EVENTS
 from swarm.proto.protocol import Cmd, ProtocolError, Ref, Snapshot, Status
 from swarm.core.geometry import DENSE_N, pairs_within
+from swarm.core.faultgen import TIME_EPS
 from swarm.core.scenario import Scenario
+from swarm.view.faultmarks import FaultMarks
 
 log = logging.getLogger("swarm.record")
 
@@ -62,6 +67,7 @@ TOPIC_REF = "/leader/ref"
 TOPIC_CMD = "/robot/cmd"
 TOPIC_STATUS = "/robot/status"
 TOPIC_EVENTS = "/events"
+TOPIC_FAULTS = "/faults"
 TOPIC_METRICS = "/metrics"
 
 EVENT_KINDS = ("freeze_start", "freeze_end", "collision", "robot_dead", "robot_alive", "robot_stopped",
@@ -126,6 +132,12 @@ SCHEMAS: dict[str, tuple[str, dict]] = {
                        "t": _NUM, "kind": {"type": "string", "enum": list(EVENT_KINDS)}, "robot": _INT,
                        "other": _INT, "obstacle": _INT, "distance": _NUM, "detail": _STR},
                    optional=("robot", "other", "obstacle", "distance"))),
+    TOPIC_FAULTS: ("swarm.FaultEvent", _schema("swarm.FaultEvent", "A fault event at t (the world/events message, "
+                   "docs/protocol.md): kill, restart, hang, resume (scheduled process faults of the robots named), "
+                   "partition, partition_end (robots: those cut off from the world's group), signal (a signal "
+                   "swarm up sent to the robots named); seq the tick (lock-step) or period; detail a readable line.", {
+                       "t": _NUM, "seq": _INT, "event": {"type": "string", "enum": list(FAULT_EVENTS)},
+                       "robots": _arr(_INT), "detail": _STR})),
     TOPIC_METRICS: ("swarm.Metrics", _schema("swarm.Metrics", "The run's metrics (docs/design.md, Metrics), exactly "
                     "the metrics JSON (extra keys included); written once at the end. Also there, as a number or "
                     "null: " + ", ".join(NULLABLE_METRICS) + ".", {
@@ -285,7 +297,7 @@ class EventDeriver:
                     out.append(Event(t, "robot_dead", robot=a, detail=f"robot {a} is not alive at the first snapshot"))
         elif not np.array_equal(alive, self._alive):
             for a in np.flatnonzero(self._alive & ~alive).tolist():
-                out.append(Event(t, "robot_dead", robot=a, detail=f"robot {a} lost its liveliness"))
+                out.append(Event(t, "robot_dead", robot=a, detail=f"robot {a} is no longer alive"))
             for a in np.flatnonzero(~self._alive & alive).tolist():
                 out.append(Event(t, "robot_alive", robot=a, detail=f"robot {a} is alive again"))
         if self._stopped is not None and not np.array_equal(stopped, self._stopped):
@@ -476,6 +488,14 @@ class Recorder:
             self._check_open()
             self._put(TOPIC_EVENTS, ev.t, json.dumps(ev.to_dict(), separators=(",", ":"), allow_nan=False))
 
+    def fault(self, t: float, seq: int, event: str, robots, detail: str) -> None:
+        """One fault event (/faults): the world/events message's fields (never decimated)."""
+        with self._lock:
+            self._check_open()
+            self._put(TOPIC_FAULTS, t, json.dumps({"t": float(t), "seq": int(seq), "event": event,
+                                                   "robots": [int(i) for i in robots], "detail": detail},
+                                                  separators=(",", ":"), allow_nan=False), int(seq))
+
     def close(self, metrics: dict | None = None) -> None:
         """Write the held last snapshot and the metrics (the exact dict; None: no metrics), finish the file."""
         with self._lock:
@@ -507,7 +527,8 @@ class Recorder:
 
 
 class BusRecorder:
-    """Records a live run from the bus: snapshots, leader reference, commands and statuses of `fleet`.
+    """Records a live run from the bus: snapshots, leader reference, commands, statuses and fault events
+    (world/events) of `fleet`.
 
     Bus callbacks (on the bus's thread) only append (topic, key, payload) to a deque; a worker thread
     decodes each payload with swarm.proto.protocol.decode (a bad one is dropped, counted in `bad` and written
@@ -548,13 +569,16 @@ class BusRecorder:
             self._worker = threading.Thread(target=self._run, name="swarm-recorder", daemon=True)
             self._worker.start()
         # topic -> the bus callback (fn(key, payload)); public for benches that time it alone
-        self.callbacks = {topic: self._on(topic) for topic in (TOPIC_SNAPSHOT, TOPIC_REF, TOPIC_CMD, TOPIC_STATUS)}
+        self.faults = 0  # fault events recorded
+        self.callbacks = {topic: self._on(topic) for topic in (TOPIC_SNAPSHOT, TOPIC_REF, TOPIC_CMD, TOPIC_STATUS,
+                                                               TOPIC_FAULTS)}
         cmds = [] if commands_from_snapshots else [bus.subscribe(keys.robot_any(fleet, "cmd"), self.callbacks[TOPIC_CMD])]
         self._handles = [
             bus.subscribe(keys.world_snapshot(fleet), self.callbacks[TOPIC_SNAPSHOT]),
             bus.subscribe(keys.leader_ref(fleet), self.callbacks[TOPIC_REF]),
             *cmds,
             bus.subscribe(keys.robot_any(fleet, "status"), self.callbacks[TOPIC_STATUS]),
+            bus.subscribe(keys.world_events(fleet), self.callbacks[TOPIC_FAULTS]),
         ]
 
     def _on(self, topic: str):
@@ -602,6 +626,8 @@ class BusRecorder:
                 self._snapshot(key, payload)
             elif topic == TOPIC_REF:
                 self.rec.ref(protocol.decode(payload, "ref"))
+            elif topic == TOPIC_FAULTS:
+                self._fault(protocol.decode(payload, "event"))
             else:
                 robot = self._robot(key)
                 if topic == TOPIC_CMD:
@@ -633,6 +659,13 @@ class BusRecorder:
             more = "; later ones are counted, not written" if self.bad == MAX_BAD_EVENTS else ""
             self.rec.event(Event(self.rec.last_t, "bad_message", robot=k.id if k is not None else None,
                                  detail=f"{key}: {reason}{more}"))
+
+    def _fault(self, ev: protocol.Event) -> None:
+        if any(i >= self.n for i in ev.robots):
+            raise ProtocolError(f"event {ev.event} names robot {max(ev.robots)}; the scenario has {self.n} "
+                                f"(0..{self.n - 1})")
+        self.rec.fault(ev.t, ev.seq, ev.event, ev.robots, ev.detail)
+        self.faults += 1
 
     def _status(self, robot: int, s: Status) -> None:
         self._frozen[robot] = s.frozen
@@ -741,6 +774,9 @@ def record_simulation(path, scenario: Scenario, result, record_hz: float | None 
     live reference as the agents report them, neighbours: robots closer than the cell side). Events
     come from the samples (freeze changes, collisions between consecutive samples); the metrics count
     every step, so with a coarse record_hz they may count collisions that no sample shows.
+    Under faults: /faults holds the schedule's events (swarm.core.faults.timeline) up to the last sample,
+    each before the first sample at or after its time (seq: its tick, as the world tells it), and a
+    snapshot's alive is false for a robot the schedule has dead (killed, not yet restarted).
     """
     from swarm.core.sim import Result, Simulation
 
@@ -763,6 +799,12 @@ def record_simulation(path, scenario: Scenario, result, record_hz: float | None 
     ids = list(range(scn.n))
     not_stopped, alive = [False] * scn.n, [True] * scn.n
     all_alive, none_stopped = np.ones(scn.n, bool), np.zeros(scn.n, bool)
+    timeline = []
+    if scn.faults:
+        from swarm.core import faults as schedule
+
+        timeline = schedule.timeline(scn.faults, scn.n)
+        marks = FaultMarks(scn.n)
     with Recorder(path, scn, record_hz, source="sim", status_period=max(STATUS_PERIOD_S, every * dt),
                   presampled=True) as out:
         for s in rows.tolist():
@@ -770,6 +812,13 @@ def record_simulation(path, scenario: Scenario, result, record_hz: float | None 
             q, cmd, err, frozen = rec.q[s], rec.cmd[s], rec.err[s], rec.frozen[s]
             if not (np.isfinite(q).all() and np.isfinite(cmd).all()):
                 raise RecordError(f"{path}: sample at t = {t:g} s is not finite")
+            if timeline and timeline[0][0] <= t + TIME_EPS:
+                while timeline and timeline[0][0] <= t + TIME_EPS:
+                    te, name, robots, detail = timeline.pop(0)
+                    out.fault(te, schedule.first_tick(te, dt), name, robots, detail)
+                    marks.apply(te, name, robots)
+                all_alive = ~marks.killed
+                alive = all_alive.tolist()
             for ev in deriver.snapshot(t, None, q[:, 0], q[:, 1], all_alive, none_stopped):  # samples: gaps are normal
                 out.event(ev)
             fl = frozen.tolist()

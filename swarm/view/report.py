@@ -22,18 +22,22 @@ import math
 import time
 import tomllib
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
 
 import numpy as np
 
 from swarm.core import kinematics, law
-from swarm.view.record import METRIC_KEYS, TOPIC_CMD, TOPIC_EVENTS, TOPIC_METRICS, TOPIC_SCENARIO, TOPIC_SNAPSHOT
+from swarm.view.faultmarks import FaultMarks, robot_list
+from swarm.view.record import (METRIC_KEYS, TOPIC_CMD, TOPIC_EVENTS, TOPIC_FAULTS, TOPIC_METRICS, TOPIC_SCENARIO,
+                               TOPIC_SNAPSHOT, TOPIC_STATUS)
 from swarm.core.scenario import Scenario, ScenarioError
 from swarm.core.sim import Recording
 
 FIRST_EVENTS = 50  # events listed one by one in index.html
+FIRST_FAULTS = 500  # fault events listed one by one in index.html
+STATUS_FRESH_S = 1.0  # replay: a robot's recorded status counts for its stale-data ring this long [simulated s]
 _MAGIC = b"\x89MCAP0\r\n"  # an MCAP file starts and ends with it
 
 
@@ -75,12 +79,16 @@ class Run:
     info: dict
     counts: dict[str, int]  # messages per topic in the file
     recovered: Recovery | None = None  # set when the file had no footer
+    faults: list[dict] = field(default_factory=list)  # /faults messages (fault events) in time order
 
 
 @dataclass(frozen=True)
 class Frame:
     """One snapshot for replay: t [s], q (N, 3) x, y [m], theta [rad]; stopped, alive, frozen (N,) bool.
-    Rows are robot ids; a robot missing from the snapshot has NaN pose and alive False."""
+    Rows are robot ids; a robot missing from the snapshot has NaN pose and alive False.
+    With iter_frames(..., faults=True) also (N,) bool: killed, hung, cut (the fault events up to t) and
+    stale_data (the robot's newest status, at most STATUS_FRESH_S old, counts stale neighbour states);
+    else None."""
 
     t: float
     seq: int
@@ -88,6 +96,10 @@ class Frame:
     stopped: np.ndarray
     alive: np.ndarray
     frozen: np.ndarray
+    killed: np.ndarray | None = None
+    hung: np.ndarray | None = None
+    cut: np.ndarray | None = None
+    stale_data: np.ndarray | None = None
 
 
 # --------------------------------------------------------------------------- reading
@@ -265,10 +277,13 @@ def read_recording(path) -> Run:
     metrics = None
     counts: dict[str, int] = {}
     salvage: dict = {}
-    for topic, _t, d in _messages(path, [TOPIC_SCENARIO, TOPIC_SNAPSHOT, TOPIC_CMD, TOPIC_EVENTS, TOPIC_METRICS],
-                                  counts, salvage):
+    faults: list[dict] = []
+    for topic, _t, d in _messages(path, [TOPIC_SCENARIO, TOPIC_SNAPSHOT, TOPIC_CMD, TOPIC_EVENTS, TOPIC_FAULTS,
+                                         TOPIC_METRICS], counts, salvage):
         if topic == TOPIC_SNAPSHOT:
             snaps.append(d)
+        elif topic == TOPIC_FAULTS:
+            faults.append(_fault(path, d))
         elif topic == TOPIC_CMD:
             try:
                 cmds.setdefault(int(d["id"]), []).append((float(d["t"]), float(d["v"]), float(d["w"])))
@@ -317,7 +332,21 @@ def read_recording(path) -> Run:
         cmd[has, i, :] = vw[at[has]]
     err, leader = live_errors(scn, t, q)
     events.sort(key=lambda e: e.get("t", 0.0) if isinstance(e.get("t"), (int, float)) else 0.0)
-    return Run(path, scn, Recording(t, q, err, cmd, frozen, leader), metrics, events, info, counts, recovered)
+    faults.sort(key=lambda e: e["t"])
+    return Run(path, scn, Recording(t, q, err, cmd, frozen, leader), metrics, events, info, counts, recovered,
+               faults)
+
+
+def _fault(path: Path, d: dict) -> dict:
+    """A /faults message, checked: t (number), seq (int), event (str), robots (list of ints), detail (str)."""
+    ok = (isinstance(d, dict) and isinstance(d.get("t"), (int, float)) and not isinstance(d.get("t"), bool)
+          and math.isfinite(d["t"]) and isinstance(d.get("seq"), int) and isinstance(d.get("event"), str)
+          and isinstance(d.get("robots"), list) and all(isinstance(i, int) and not isinstance(i, bool) and i >= 0
+                                                        for i in d["robots"])
+          and isinstance(d.get("detail", ""), str))
+    if not ok:
+        raise ReportError(f"{path}: bad {TOPIC_FAULTS} message {str(d)[:80]}")
+    return d
 
 
 def recovery(path) -> Recovery | None:
@@ -348,21 +377,71 @@ def recovery(path) -> Recovery | None:
     return found
 
 
-def iter_frames(path) -> Iterator[Frame]:
-    """Every recorded snapshot of `path`, in time order, as a Frame (numpy arrays, rows by robot id)."""
+def fault_marks(path, scn: Scenario | None = None) -> FaultMarks:
+    """The fault marks of a recording, to advance() frame by frame: its /faults events (as the run told
+    them, signals included), or, for a file without a /faults channel (recorded before there was one),
+    the fault schedule of its scenario."""
+    path = Path(path)
+    if scn is None:
+        scn, _info = read_scenario(path)
+    events = [_fault(path, d) for _topic, _t, d in _messages(path, [TOPIC_FAULTS])]
+    if events or TOPIC_FAULTS in _channels(path) or not scn.faults:
+        timeline = [(float(e["t"]), e["event"], tuple(e["robots"]), e.get("detail", "")) for e in events]
+    else:
+        from swarm.core.faults import timeline as fault_timeline
+
+        timeline = fault_timeline(scn.faults, scn.n)
+    return FaultMarks(scn.n, sorted(timeline, key=lambda e: e[0]))
+
+
+def _channels(path: Path) -> set[str]:
+    """The topics of a finished recording's channels (empty for a file without its footer)."""
+    from mcap.reader import make_reader
+
+    try:
+        with open(path, "rb") as f:
+            summary = make_reader(f).get_summary()
+    except Exception:  # no footer, damage: nothing known
+        return set()
+    return set() if summary is None else {c.topic for c in summary.channels.values()}
+
+
+def iter_frames(path, faults: bool = False) -> Iterator[Frame]:
+    """Every recorded snapshot of `path`, in time order, as a Frame (numpy arrays, rows by robot id).
+    faults: also each frame's fault marks (Frame.killed, hung, cut, stale_data; fault_marks() and the
+    recorded statuses), at the cost of reading the statuses too."""
     path = Path(path)
     scn, _info = read_scenario(path)
     n = scn.n
     salvage: dict = {}
     frames = 0
-    for _topic, _t, d in _messages(path, [TOPIC_SNAPSHOT], None, salvage):
+    marks = fault_marks(path, scn) if faults else None
+    stale = np.zeros(n, bool)  # the newest status of each robot counts stale neighbour states
+    status_t = np.full(n, -np.inf)  # its time [s]
+    topics = [TOPIC_SNAPSHOT, TOPIC_STATUS] if faults else [TOPIC_SNAPSHOT]
+    for topic, _t, d in _messages(path, topics, None, salvage):
+        if topic == TOPIC_STATUS:
+            try:
+                i, ts, count = int(d["id"]), float(d["t"]), int(d["stale"])
+            except (KeyError, TypeError, ValueError) as e:
+                raise ReportError(f"{path}: bad {TOPIC_STATUS} message {str(d)[:80]}: {e}") from None
+            if 0 <= i < n and ts >= status_t[i]:
+                stale[i], status_t[i] = count > 0, ts
+            continue
         x, y, th, _v, _w, stopped, alive, frozen = _columns(path, d, n)
         try:
             t, seq = float(d["t"]), int(d["seq"])
         except (KeyError, TypeError, ValueError) as e:
             raise ReportError(f"{path}: bad {TOPIC_SNAPSHOT} message: {e}") from None
         frames += 1
-        yield Frame(t, seq, np.stack([x, y, th], axis=1), stopped, alive, frozen)
+        q = np.stack([x, y, th], axis=1)
+        if marks is None:
+            yield Frame(t, seq, q, stopped, alive, frozen)
+        else:
+            marks.advance(t)
+            fresh = stale & (status_t >= t - STATUS_FRESH_S - 1e-9)
+            yield Frame(t, seq, q, stopped, alive, frozen, marks.killed.copy(), marks.hung.copy(), marks.cut.copy(),
+                        fresh)
     if salvage and not frames:
         found = Recovery(0, None, scn.duration, salvage["bytes_read"], salvage["size"])
         raise ReportError(f"{path}: {found.message()}")
@@ -457,6 +536,7 @@ def _html(run: Run, panels: list[Path], extra: list[Path]) -> str:
         missing = [k for k in METRIC_KEYS if k not in m]
         if missing:
             parts.append(f"<p>Missing contract keys: {esc(', '.join(missing))}</p>")
+    parts += _faults_html(run)
     kinds = Counter(str(e.get("kind")) for e in run.events)
     parts.append(f"<h2>Events ({len(run.events)})</h2>")
     if kinds:
@@ -488,6 +568,61 @@ def _html(run: Run, panels: list[Path], extra: list[Path]) -> str:
     parts.append(f"<pre>{esc(_toml_of(scn))}</pre>")
     parts.append("</body></html>\n")
     return "\n".join(parts)
+
+
+# (label, key in the metrics' faults object) of the fault counters, in the order shown
+FAULT_COUNTERS = (("messages dropped", "dropped"), ("messages delayed", "delayed"), ("processes killed", "killed"),
+                  ("processes restarted", "restarted"), ("processes hung", "hung"), ("partitions", "partitions"),
+                  ("commands held", "cmd_held"), ("watchdog stops", "watchdog_stops"),
+                  ("oldest neighbour state used [s]", "max_state_age_s"))
+
+
+def fault_counter_rows(metrics: dict | None) -> list[tuple[str, str, str]]:
+    """(label, metrics key, value as text) of the run's fault counters (docs/metrics.md, Under faults); a
+    by-class counter as its total with the classes that are not 0. Empty without a faults object."""
+    counters = (metrics or {}).get("faults")
+    if not isinstance(counters, dict):
+        return []
+    rows = []
+    for label, key in FAULT_COUNTERS:
+        if key not in counters:
+            continue
+        v = counters[key]
+        if isinstance(v, dict):
+            total = sum(x for x in v.values() if isinstance(x, (int, float)))
+            parts = ", ".join(f"{c} {x}" for c, x in v.items() if x)
+            text = f"{_fmt(total)}" + (f" ({parts})" if parts else "")
+        else:
+            text = _fmt(v)
+        rows.append((label, f"faults.{key}", text))
+    if "robots_alive_at_end" in metrics:
+        rows.append(("robots alive at the end", "robots_alive_at_end",
+                     f"{_fmt(metrics['robots_alive_at_end'])} of {_fmt(metrics.get('robots'))}"))
+    return rows
+
+
+def _faults_html(run: Run) -> list[str]:
+    """The Faults section: the fault counters of the final metrics and every fault event (t, event,
+    robots, detail). Nothing for a run without faults."""
+    rows = fault_counter_rows(run.metrics)
+    if not (rows or run.faults or run.scenario.faults):
+        return []
+    esc = html.escape
+    parts = ["<h2>Faults</h2>"]
+    if rows:
+        parts.append(_table([(esc(a), f"<code>{esc(b)}</code>", esc(c)) for a, b, c in rows],
+                            ("counter", "metric", "value")))
+    else:
+        parts.append("<p>No fault counters: the run's metrics have none.</p>")
+    more = f" (the first {FIRST_FAULTS})" if len(run.faults) > FIRST_FAULTS else ""
+    parts.append(f"<h3>Fault events ({len(run.faults)}){more}</h3>")
+    if run.faults:
+        parts.append(_table([(esc(_fmt(e.get("t"))), esc(str(e.get("event"))), esc(robot_list(e.get("robots", ()))),
+                              esc(str(e.get("detail", "")))) for e in run.faults[:FIRST_FAULTS]],
+                            ("t [s]", "event", "robots", "detail")))
+    else:
+        parts.append("<p>No fault event was recorded.</p>")
+    return parts
 
 
 def _toml_of(scn: Scenario) -> str:

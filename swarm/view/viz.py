@@ -13,11 +13,19 @@ offset: the law adds the offsets unrotated, docs/design.md); trails (one LineSeg
 once a second). A robot's body has radius r/2, so two bodies touch exactly when their centres are
 r apart: a collision.
 
+Faults: a robot's body shows its state (dead, hung, stopped by the watchdog, no recent status, frozen,
+tracking: state_codes), and rings on the ground around it what it hears: a red ring when a partition
+cuts it off from the world's group, a yellow one when its law used a neighbour's state that was not
+current (stale neighbour data). set_marks() gives the rings of the next frame; where the flags come
+from (world/events, a recording, the fault schedule) is swarm.view.faultmarks and the feeders'.
+
 Overlay: a legend of every colour at the bottom of the view and, at the top, the scenario's name,
 the simulated time, the robots alive, converged and frozen and the smallest robot-robot distance so
-far. meshcat 0.3.2 has no text command and no way to put HTML on its page, so the overlay is made of
-three.js objects that are children of the camera (/Cameras/default/rotated/<object>/hud): they stay
-put on the screen whatever the user's orbit and zoom. Text is meshcat's own "_text" texture (the
+far; once a robot is dead, hung, cut off or uses stale data (or the run has scheduled faults), a third
+line counts the robots dead, hung, stopped, cut off and using stale neighbour data. meshcat 0.3.2 has
+no text command and no way to put HTML on its page, so the overlay is made of three.js objects that
+are children of the camera (/Cameras/default/rotated/<object>/hud): they stay put on the screen
+whatever the user's orbit and zoom. Text is meshcat's own "_text" texture (the
 browser draws it on a canvas; swarm.view.meshcat_objects.label), one short line per object, redrawn
 only when it changed and at most every HUD_PERIOD_S of wall time. The counts come with the frame
 (`Stats`: from the world's progress messages, or the simulator); what a frame does not bring is
@@ -25,7 +33,8 @@ computed from it: alive and frozen from the state codes, converged from the slot
 the smallest distance from the poses (a running minimum over the frames drawn).
 
 Per frame: one set_object (every robot in one InstancedMesh, with per-instance colour) and three
-set_transform (the scene root, the formation, the leader), whatever N; meshcat 0.3.2 has no batch
+set_transform (the scene root, the formation, the leader), whatever N (and, while some robot has a
+ring, one more set_object: every ring in one InstancedMesh); meshcat 0.3.2 has no batch
 command and each command is a ZMQ round trip (docs/viewer.md). A static twin of the
 robots' mesh stays in the scene so that three.js keeps the shader program when set_object
 disposes the old material (without it the program is recompiled every frame). The camera cannot
@@ -47,12 +56,20 @@ from swarm.view import meshcat_objects as mo
 from swarm.view.meshcat_objects import poses_to_matrices
 from swarm.core.metrics import CONVERGED_ANGLE_RAD, CONVERGED_POSITION_M
 
-# Robot states, in increasing priority: a robot shows the highest that applies.
-TRACKING, FROZEN, STALE, STOPPED, DEAD = 0, 1, 2, 3, 4
-STATE_NAMES = ("tracking", "frozen", "stale", "stopped", "dead")
-# 0xRRGGBB per state: tracking green, frozen orange, stale grey, stopped purple, dead black.
-STATE_COLORS = (0x2CA02C, 0xFF7F0E, 0x9E9E9E, 0x9467BD, 0x111111)
+# Robot states (codes; state_codes gives their priority: dead > hung > stopped > stale > frozen > tracking).
+TRACKING, FROZEN, STALE, STOPPED, DEAD, HUNG = 0, 1, 2, 3, 4, 5
+STATE_NAMES = ("tracking", "frozen", "stale", "stopped", "dead", "hung")
+# 0xRRGGBB per state: tracking green, frozen orange, stale (no recent status) grey, stopped purple,
+# dead black, hung magenta.
+STATE_COLORS = (0x2CA02C, 0xFF7F0E, 0x9E9E9E, 0x9467BD, 0x111111, 0xF032E6)
 STALE_AFTER_S = 1.0  # wall seconds without a status before a robot shows as stale
+# Rings on the ground around a robot (set_marks): cut off by a partition, using stale neighbour data.
+CUT_COLOR = 0xE6194B  # red
+STALE_DATA_COLOR = 0xFFE119  # yellow
+MARK_INNER = 0.79  # inner radius of a ring / its outer radius
+CUT_RING = 0.95  # outer radius of the cut-off ring / r (the body's radius is r / 2)
+STALE_DATA_RING = 0.70  # outer radius of the stale-data ring / r (inside the cut-off ring)
+MARK_Z = 0.012  # m: above the ground and the trails
 
 GHOST_COLOR = 0x1E90FF
 GROUND_COLOR = 0xF4F4F4
@@ -77,28 +94,36 @@ HUD_PERIOD_S = 0.25  # wall seconds between overlay updates
 HUD_FONT_PX = 26  # on the 256-pixel canvas: about 18 screen pixels in a 768-pixel-high window
 LEGEND_FONT_PX = 22
 HUD_CELL_W = 0.36  # m at HUD_DEPTH: one text cell of the top panel (3 columns)
+HUD_ROW_H = 0.055  # m: between the top panel's lines
 LEGEND_CELL_W = 0.30  # m: one legend entry (4 columns)
+LEGEND_ROW_H = 0.06  # m: between the legend's rows
 PANEL_COLOR = 0xFFFFFF
 # A robot is converged within these of its slot and the leader's heading (as swarm.core.kernel and
 # world.referee count it).
-# (name, label, colour, opacity) of every legend entry, in reading order
+# (name, label, colour, opacity) of every legend entry, in reading order (4 a row: the robots' states,
+# the hung and dead ones and the two rings, then the scene); the rings' swatches are rings
 LEGEND = (
     ("tracking", "tracking", STATE_COLORS[TRACKING], 1.0),
     ("frozen", "frozen", STATE_COLORS[FROZEN], 1.0),
-    ("stale", "stale (no status)", STATE_COLORS[STALE], 1.0),
+    ("stale", "no recent status", STATE_COLORS[STALE], 1.0),
     ("stopped", "stopped (watchdog)", STATE_COLORS[STOPPED], 1.0),
+    ("hung", "hung", STATE_COLORS[HUNG], 1.0),
     ("dead", "dead", STATE_COLORS[DEAD], 1.0),
+    ("cut", "cut off", CUT_COLOR, 1.0),
+    ("stale_data", "stale neighbour data", STALE_DATA_COLOR, 1.0),
     ("leader", "leader and slots", GHOST_COLOR, 0.6),
     ("obstacle", "obstacle (r)", OBSTACLE_COLOR, 1.0),
     ("zone", "avoidance zone (R)", ZONE_COLOR, 0.35),
 )
+RING_SWATCHES = ("cut", "stale_data")
+FAULT_CELLS = ("dead_hung", "stopped_cut", "stale_data")  # the overlay's third line
 
 
 def rgb(hex_color: int) -> tuple[float, float, float]:
     return ((hex_color >> 16) & 255) / 255.0, ((hex_color >> 8) & 255) / 255.0, (hex_color & 255) / 255.0
 
 
-PALETTE = np.array([rgb(c) for c in STATE_COLORS], np.float32)  # (5, 3) in [0, 1]
+PALETTE = np.array([rgb(c) for c in STATE_COLORS], np.float32)  # (6, 3) in [0, 1]
 
 
 @dataclass(frozen=True)
@@ -113,14 +138,21 @@ class Stats:
 
 
 def state_codes(alive: np.ndarray, stopped: np.ndarray, frozen: np.ndarray, status_age_s: np.ndarray,
-                stale_after_s: float = STALE_AFTER_S) -> np.ndarray:
-    """(N,) state codes from the flags: dead (not alive) > stopped > stale (last status older than
-    stale_after_s wall seconds) > frozen > tracking. All inputs (N,); ages in seconds."""
+                stale_after_s: float = STALE_AFTER_S, hung: np.ndarray | None = None,
+                killed: np.ndarray | None = None) -> np.ndarray:
+    """(N,) state codes from the flags: dead (killed, or not alive and not hung) > hung > stopped >
+    stale (last status older than stale_after_s wall seconds) > frozen > tracking. All inputs (N,);
+    ages in seconds; hung and killed (the fault events': swarm.view.faultmarks) may be None. A hung
+    process past its zenoh lease loses its liveliness: it shows hung, not dead."""
     codes = np.full(len(alive), TRACKING, np.int8)
     codes[np.asarray(frozen, bool)] = FROZEN
     codes[np.asarray(status_age_s, float) > stale_after_s] = STALE
     codes[np.asarray(stopped, bool)] = STOPPED
     codes[~np.asarray(alive, bool)] = DEAD
+    if hung is not None:
+        codes[np.asarray(hung, bool)] = HUNG
+    if killed is not None:
+        codes[np.asarray(killed, bool)] = DEAD
     return codes
 
 
@@ -139,6 +171,7 @@ class SceneInfo:
     obstacles: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     leader_table: np.ndarray | None = None
     name: str = ""
+    timeline: tuple = ()  # the fault schedule's events (swarm.core.faults.timeline): a late viewer starts from it
 
     def __post_init__(self) -> None:
         if not (0 < self.r < self.R and math.isfinite(self.R)):
@@ -150,8 +183,14 @@ class SceneInfo:
 
     @classmethod
     def from_scenario(cls, scn) -> "SceneInfo":
+        timeline = ()
+        if getattr(scn, "faults", None):
+            from swarm.core.faults import timeline as fault_timeline
+
+            timeline = tuple(fault_timeline(scn.faults, scn.n))
         return cls(r=float(scn.r), R=float(scn.R), offsets=np.array(scn.offsets, float),
-                   obstacles=np.array(scn.obstacles, float), leader_table=scn.leader.table(), name=scn.name)
+                   obstacles=np.array(scn.obstacles, float), leader_table=scn.leader.table(), name=scn.name,
+                   timeline=timeline)
 
     def leader_pose(self, t: float) -> tuple[float, float, float] | None:
         if self.leader_table is None:
@@ -203,6 +242,11 @@ class Viewer:
         self._trail_sent = -math.inf
         self._last_t = -math.inf
         self._formation_shown: bool | None = None
+        self._next_cut: np.ndarray | None = None  # set_marks(): the rings of the next frame
+        self._next_stale: np.ndarray | None = None
+        self._marks_shown = False  # /swarm/marks is in the scene
+        self._frame_marks: tuple[np.ndarray, np.ndarray | None] = (np.zeros(0, bool), None)  # the last frame's rings
+        self._fault_row = False  # the overlay's third line is shown (sticky for a run)
         self._send({"type": "set_property", "path": "/Grid", "property": "visible", "value": False})
         self._send({"type": "set_property", "path": "/Axes", "property": "visible", "value": False})
         for prop, value in (("near", 0.1), ("far", 2000.0)):  # meshcat's 0.01..100 cannot see 60 m away
@@ -232,7 +276,11 @@ class Viewer:
         for part in ("obstacles", "formation", "ground", "trails", "robots", "keep"):
             self._delete(f"{ROOT}/{part}")
         self._delete(HUD)
+        self._delete(f"{ROOT}/marks")
+        self._marks_shown = False
         self._hud_sent, self._hud_want, self._hud_at, self._min_seen = {}, {}, -math.inf, math.inf
+        self._fault_row = False
+        self._hud_rows = 2  # lines of the top panel on screen
         if self.overlay:
             self._draw_overlay()
         self._trail = None
@@ -258,6 +306,11 @@ class Viewer:
         twin = mo.instanced(self._robot_geometry, mo.material(vertex_colors=True), "swarm_keep",
                           np.diag([0.0, 0.0, 0.0, 1.0]).astype(np.float32).reshape(1, 16), np.ones((1, 3)))
         self._set_object(f"{ROOT}/keep/robots", twin)
+        # the rings (set_marks): one unit ring, scaled per instance; white vertex colours and the robots'
+        # material settings, so that they share the robots' shader program (kept alive by the twin)
+        ring_pos, ring_idx = mo.annulus(MARK_INNER, 1.0, 0.0)
+        self._mark_geometry = mo.geometry(ring_pos, ring_idx, np.ones((len(ring_pos), 3)))
+        self._mark_material = mo.material(vertex_colors=True)
 
     def _draw_obstacles(self, obs: np.ndarray) -> None:
         q = np.c_[obs[:, :2], np.zeros(len(obs))]
@@ -317,12 +370,14 @@ class Viewer:
         codes = np.asarray(codes).reshape(-1)
         if len(codes) != len(q):
             raise ValueError(f"{len(q)} poses but {len(codes)} state codes")
+        cut, stale = self._take_marks(len(q))
         if leader is None:
             leader = self.scene.leader_pose(t)
-        if t < self._last_t:  # a new run (or a replay rewound): forget the trails and the minimum
+        if t < self._last_t:  # a new run (or a replay rewound): forget the trails, the minimum, the faults' line
             self._trail = None
             self._min_seen = math.inf
             self._hud_at = -math.inf
+            self._fault_row = False
         self._last_t = t
         centre = self._frame_centre(q, leader)
         if self._ground_at is None or np.abs(centre - self._ground_at).max() > 0.5 * GROUND_HALF:
@@ -332,6 +387,7 @@ class Viewer:
         colours = PALETTE[np.clip(codes, 0, len(PALETTE) - 1).astype(np.intp)]
         self._set_object(f"{ROOT}/robots", mo.instanced(self._robot_geometry, self._robot_material, "swarm_robots",
                                                       poses_to_matrices(q), colours))
+        self._draw_marks(q, codes, cut, stale)
         show = leader is not None
         if show != self._formation_shown:
             self._send({"type": "set_property", "path": f"{ROOT}/formation", "property": "visible", "value": show})
@@ -350,33 +406,80 @@ class Viewer:
         if len(self.costs) > 1000:
             del self.costs[:500]
 
+    def set_marks(self, cut: np.ndarray | None = None, stale_data: np.ndarray | None = None) -> None:
+        """The rings of the next draw() only: cut (N,) bool, robots cut off from the world's group by a
+        partition; stale_data (N,) bool, robots whose law used a neighbour's state that was not current
+        (None: not known; the overlay then shows a dash). Rows like draw()'s q. A dead robot gets none."""
+        self._next_cut = None if cut is None else np.asarray(cut, bool).reshape(-1)
+        self._next_stale = None if stale_data is None else np.asarray(stale_data, bool).reshape(-1)
+
+    def _take_marks(self, n: int) -> tuple[np.ndarray, np.ndarray | None]:
+        cut, stale = self._next_cut, self._next_stale
+        self._next_cut = self._next_stale = None
+        for name, a in (("cut", cut), ("stale_data", stale)):
+            if a is not None and len(a) != n:
+                raise ValueError(f"{n} poses but {len(a)} {name} marks")
+        return (np.zeros(n, bool) if cut is None else cut), stale
+
+    def _draw_marks(self, q: np.ndarray, codes: np.ndarray, cut: np.ndarray, stale: np.ndarray | None) -> None:
+        """One InstancedMesh of rings (a red one per robot cut off, a yellow one per robot on stale data),
+        sent only while some robot has one; deleted once when none has."""
+        live = (codes != DEAD) & np.isfinite(q).all(axis=1)  # (a robot missing from a replayed frame: NaN)
+        cut = cut & live
+        stale = None if stale is None else stale & live
+        self._frame_marks = (cut, stale)
+        rows = [(cut, CUT_RING, CUT_COLOR)] + ([] if stale is None else [(stale, STALE_DATA_RING, STALE_DATA_COLOR)])
+        sel = [(np.flatnonzero(m), ring, colour) for m, ring, colour in rows if m.any()]
+        if not sel:
+            if self._marks_shown:
+                self._delete(f"{ROOT}/marks")
+                self._marks_shown = False
+            return
+        idx = np.concatenate([i for i, _, _ in sel])
+        scale = np.concatenate([np.full(len(i), ring * self.scene.r) for i, ring, _ in sel])
+        colours = np.vstack([np.tile(rgb(colour), (len(i), 1)) for i, _, colour in sel]).astype(np.float32)
+        self._set_object(f"{ROOT}/marks", mo.instanced(self._mark_geometry, self._mark_material, "swarm_marks",
+                                                     poses_to_matrices(q[idx], scale, MARK_Z), colours))
+        self._marks_shown = True
+
     # ------------------------------------------------------------------ the overlay
 
     def _hud_layout(self) -> dict[str, tuple[float, float]]:
-        """Centres (x, y) [m at HUD_DEPTH] of the top panel's six cells: centred, so that they stay in
-        view in any window at least 0.8 times as wide as it is high."""
+        """Centres (x, y) [m at HUD_DEPTH] of the top panel's cells (3 lines of 3, the third for faults):
+        centred, so that they stay in view in any window at least 0.8 times as wide as it is high."""
         top = HUD_DEPTH * math.tan(math.radians(FOV_DEG / 2))
-        rows = (top - 0.05, top - 0.105)
+        rows = (top - 0.05, top - 0.05 - HUD_ROW_H, top - 0.05 - 2 * HUD_ROW_H)
         cols = (-HUD_CELL_W, 0.0, HUD_CELL_W)
-        names = (("name", "t", "min_distance"), ("alive", "converged", "frozen"))
-        return {names[r][c]: (cols[c], rows[r]) for r in range(2) for c in range(3)}
+        names = (("name", "t", "min_distance"), ("alive", "converged", "frozen"), FAULT_CELLS)
+        return {names[r][c]: (cols[c], rows[r]) for r in range(3) for c in range(3)}
+
+    def _top_panel(self, rows: int) -> None:
+        """The translucent panel behind the top lines: 2 rows, or 3 with the faults' line."""
+        top = HUD_DEPTH * math.tan(math.radians(FOV_DEG / 2))
+        height = 0.15 + (rows - 2) * HUD_ROW_H
+        self._set_object(f"{HUD}/panel", mo.flat_rect(3 * HUD_CELL_W + 0.08, height, PANEL_COLOR, 0.75,
+                                                      "swarm_hud_panel", 0.0, top - 0.0025 - height / 2, -HUD_DEPTH))
 
     def _draw_overlay(self) -> None:
         """The static part of the overlay: the panels behind the text, and the legend (swatch + label)."""
         top = HUD_DEPTH * math.tan(math.radians(FOV_DEG / 2))
         z = -HUD_DEPTH
-        self._set_object(f"{HUD}/panel", mo.flat_rect(3 * HUD_CELL_W + 0.08, 0.15, PANEL_COLOR, 0.75,
-                                                      "swarm_hud_panel", 0.0, top - 0.0775, z))
-        self._set_object(f"{HUD}/legend/panel", mo.flat_rect(4 * LEGEND_CELL_W + 0.04, 0.13, PANEL_COLOR, 0.75,
-                                                             "swarm_legend_panel", 0.0, -top + 0.085, z))
-        rows = (-top + 0.115, -top + 0.055)
+        self._top_panel(2)
+        n_rows = -(-len(LEGEND) // 4)
+        height = 0.07 + (n_rows - 1) * LEGEND_ROW_H
+        self._set_object(f"{HUD}/legend/panel", mo.flat_rect(4 * LEGEND_CELL_W + 0.04, height, PANEL_COLOR, 0.75,
+                                                             "swarm_legend_panel", 0.0, -top + 0.02 + height / 2, z))
         for k, (name, text, colour, opacity) in enumerate(LEGEND):
-            x, y = (k % 4 - 1.5) * LEGEND_CELL_W, rows[k // 4]
+            x, y = (k % 4 - 1.5) * LEGEND_CELL_W, -top + 0.055 + (n_rows - 1 - k // 4) * LEGEND_ROW_H
             # the canvas centres its text: put the swatch just left of where the text starts (a
             # sans-serif letter is about half its font size wide)
             half_text = min(0.5, 0.26 * LEGEND_FONT_PX * len(text) / mo.TEXT_CANVAS) * LEGEND_CELL_W
-            self._set_object(f"{HUD}/legend/{name}/swatch", mo.flat_rect(
-                0.026, 0.026, colour, opacity, f"swarm_legend_{name}_swatch", x - half_text - 0.025, y, z, 1000))
+            at = (x - half_text - 0.025, y, z)
+            if name in RING_SWATCHES:  # what the scene draws: a ring
+                swatch = mo.flat_ring(0.0095, 0.016, colour, f"swarm_legend_{name}_swatch", *at)
+            else:
+                swatch = mo.flat_rect(0.026, 0.026, colour, opacity, f"swarm_legend_{name}_swatch", *at, 1000)
+            self._set_object(f"{HUD}/legend/{name}/swatch", swatch)
             self._set_object(f"{HUD}/legend/{name}/label", mo.label(
                 text, LEGEND_CELL_W, LEGEND_FONT_PX, f"swarm_legend_{name}", x, y, z))
 
@@ -405,7 +508,7 @@ class Viewer:
                 if found is not None:
                     self._min_seen = min(self._min_seen, found[2])
             dmin = self._min_seen if math.isfinite(self._min_seen) else None
-        return {
+        texts = {
             "name": self.scene.name or "swarm",
             "t": f"t = {t:.2f} s",
             "min_distance": "min distance –" if dmin is None else f"min distance {dmin:.3f} m",
@@ -413,6 +516,25 @@ class Viewer:
             "converged": "converged –" if converged is None else f"converged {converged} of {n}",
             "frozen": f"frozen {frozen}",
         }
+        return {**texts, **self._fault_texts(codes)}
+
+    def _fault_texts(self, codes: np.ndarray) -> dict[str, str]:
+        """The third line (FAULT_CELLS), counted from the frame's codes and rings: shown once a robot is
+        dead, hung, cut off or on stale data, or when the scene has scheduled faults; then kept for the
+        run (a count back to 0 says the fault is over). Empty otherwise: a run without faults has no
+        such line."""
+        cut, stale = self._frame_marks
+        if len(cut) != len(codes):
+            cut, stale = np.zeros(len(codes), bool), None
+        dead, hung = int((codes == DEAD).sum()), int((codes == HUNG).sum())
+        n_cut, n_stale = int(cut.sum()), None if stale is None else int(stale.sum())
+        if not self._fault_row and (dead or hung or n_cut or n_stale or self.scene.timeline):
+            self._fault_row = True
+        if not self._fault_row:
+            return {}
+        return {"dead_hung": f"dead {dead}  hung {hung}",
+                "stopped_cut": f"stopped {int((codes == STOPPED).sum())}  cut off {n_cut}",
+                "stale_data": "stale data –" if n_stale is None else f"stale data {n_stale}"}
 
     def refresh_overlay(self) -> None:
         """Send the overlay's lines that changed since they were last sent (draw() does it at most every
@@ -421,6 +543,14 @@ class Viewer:
             return
         self._hud_at = self.clock()
         layout = self._hud_layout()
+        rows = 3 if any(name in self._hud_want for name in FAULT_CELLS) else 2
+        if rows != self._hud_rows:  # the faults' line comes (or a new run took it away)
+            self._top_panel(rows)
+            for name in FAULT_CELLS:
+                if name not in self._hud_want and name in self._hud_sent:
+                    self._delete(f"{HUD}/{name}")
+                    del self._hud_sent[name]
+            self._hud_rows = rows
         for name, text in self._hud_want.items():
             if self._hud_sent.get(name) != text:
                 x, y = layout[name]

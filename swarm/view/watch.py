@@ -13,6 +13,12 @@ message is dropped and counted (`bad`), never raised.
 
 Robot states: the world's snapshot says alive and stopped; each robot's status says frozen; a
 robot whose newest status is older than `stale_after_s` wall seconds is stale (swarm.view.viz.state_codes).
+Faults: the world's fault events (world/events: kill, restart, hang, resume, partition, partition_end)
+say which robots are dead, hung or cut off (swarm.view.faultmarks; a viewer given the scenario starts
+from its fault schedule, so one that joins late knows what happened before), and a robot whose fresh
+status counts stale neighbour states gets the stale-data ring. Events are kept in order (every one
+matters, not only the newest) and applied on the draw thread; one that names no robot of the run is
+dropped and counted.
 The overlay's counts (alive, converged, frozen, the smallest distance so far) come from the world's
 progress messages (world/progress, about 4 a second), stored and decoded like the rest; until the first
 one comes the viewer counts what the frame shows.
@@ -33,7 +39,8 @@ import numpy as np
 from swarm.proto import keys, protocol
 from swarm.core import kinematics
 from swarm.proto.protocol import ProtocolError
-from swarm.view.viz import STALE_AFTER_S, SceneInfo, Stats, Viewer, state_codes
+from swarm.view.faultmarks import FaultMarks
+from swarm.view.viz import DEAD, HUNG, STALE_AFTER_S, SceneInfo, Stats, Viewer, state_codes
 
 log = logging.getLogger("swarm.viz")
 
@@ -41,6 +48,7 @@ MAX_HZ = 30.0
 REFRESH_S = 0.5  # wall seconds between redraws when no snapshot comes (statuses going stale)
 SCENE_RETRY_S = 5.0  # wall seconds between attempts to fetch the scene from the world
 QUERY_TIMEOUT_S = 1.0
+MAX_EVENTS = 10_000  # fault events waiting for the draw thread; beyond this they are dropped and counted
 
 
 class SwarmWatcher:
@@ -67,11 +75,19 @@ class SwarmWatcher:
         self._statuses: dict[str, tuple[bytes, float]] = {}
         self._ref: bytes | None = None
         self._progress: bytes | None = None
+        self._events: list[bytes] = []  # world/events payloads, in order, until the draw thread takes them
+        self.events = 0  # fault events applied
+        self.events_dropped = 0  # fault events beyond MAX_EVENTS waiting (a stuck draw thread)
         self._handles: list = []
         self._thread: threading.Thread | None = None
         # draw-thread state
         self._frozen: dict[int, bool] = {}
+        self._stale: dict[int, int] = {}  # robot -> stale neighbour states in its newest status
         self._status_at: dict[int, float] = {}
+        self._marks: FaultMarks | None = None  # per robot: dead, hung, cut off (from the fault events)
+        self._held_events: list[protocol.Event] = []  # decoded, waiting for a snapshot to say how many robots
+        self._cut: np.ndarray | None = None  # the rings of the last frame drawn
+        self._stale_rings: np.ndarray | None = None
         self._last: protocol.Snapshot | None = None
         self._last_ref: protocol.Ref | None = None
         self._stats: Stats | None = None  # from the newest progress message
@@ -105,6 +121,14 @@ class SwarmWatcher:
         with self._lock:
             self._progress = payload
 
+    def _on_event(self, key: str, payload: bytes) -> None:
+        with self._lock:
+            if len(self._events) >= MAX_EVENTS:
+                self.events_dropped += 1
+                return
+            self._events.append(payload)
+        self._wake.set()
+
     # ------------------------------------------------------------------ life cycle
 
     def start(self, draw_thread: bool = True) -> None:
@@ -114,6 +138,7 @@ class SwarmWatcher:
         self._handles.append(self.bus.subscribe(keys.robot_any(f, "status"), self._on_status))
         self._handles.append(self.bus.subscribe(keys.leader_ref(f), self._on_ref))
         self._handles.append(self.bus.subscribe(keys.world_progress(f), self._on_progress))
+        self._handles.append(self.bus.subscribe(keys.world_events(f), self._on_event))
         if draw_thread:
             self._thread = threading.Thread(target=self._run, name="viz-draw", daemon=True)
             self._thread.start()
@@ -157,11 +182,13 @@ class SwarmWatcher:
             statuses, self._statuses = self._statuses, {}
             ref = self._ref
             progress, self._progress = self._progress, None
+            events, self._events = self._events, []
             if payload is not None:
                 self.taken += 1
         self._take_statuses(statuses)
         if progress is not None:
             self._take_progress(progress)
+        self._take_events(events)
         fresh = False
         if payload is not None:
             try:
@@ -173,29 +200,72 @@ class SwarmWatcher:
                     self._scene_n = -1
                     self._scene_tried = -math.inf
                     self._stats = None
+                    self._marks = None
                 self._last = snap
                 fresh = True
         snap = self._last
         if snap is None:
             return False
         ids = np.array([r.id for r in snap.robots], np.int64)
+        marks = self._fault_marks(ids, snap.t)
         now = self.wall()
-        age = np.array([now - self._status_at.get(i, self._started) for i in ids.tolist()])
+        id_list = ids.tolist()
+        age = np.array([now - self._status_at.get(i, self._started) for i in id_list])
         codes = state_codes(np.array([r.alive for r in snap.robots], bool),
                             np.array([r.stopped for r in snap.robots], bool),
-                            np.array([self._frozen.get(i, False) for i in ids.tolist()], bool), age,
-                            self.stale_after_s)
-        if not fresh and self.drawn and np.array_equal(codes, self._codes):
+                            np.array([self._frozen.get(i, False) for i in id_list], bool), age,
+                            self.stale_after_s, hung=marks.hung[ids], killed=marks.killed[ids])
+        cut = marks.cut[ids]
+        # a robot's stale count says something only while its status is fresh, and of a robot that computes
+        stale = (np.array([self._stale.get(i, 0) > 0 for i in id_list], bool) & (age <= self.stale_after_s)
+                 & (codes != DEAD) & (codes != HUNG))
+        if (not fresh and self.drawn and np.array_equal(codes, self._codes) and np.array_equal(cut, self._cut)
+                and np.array_equal(stale, self._stale_rings)):
             refresh = getattr(self.viewer, "refresh_overlay", None)
             if refresh is not None:  # the overlay's last lines, held back by its pacing
                 refresh()
             return False  # nothing new to show
         self._ensure_scene(len(ids))
         q = np.array([(r.x, r.y, r.theta) for r in snap.robots], float).reshape(-1, 3)
+        set_marks = getattr(self.viewer, "set_marks", None)
+        if set_marks is not None:
+            set_marks(cut=cut, stale_data=stale)
         self.viewer.draw(snap.t, q, codes, self._leader(snap.t, ref), stats=self._stats)
-        self._codes = codes
+        self._codes, self._cut, self._stale_rings = codes, cut, stale
         self.drawn += 1
         return True
+
+    def _take_events(self, payloads: list[bytes]) -> None:
+        """Decode the fault events that came (a bad one is dropped and counted); they wait for a snapshot
+        (which says how many robots the run has) in _held_events."""
+        for payload in payloads:
+            try:
+                self._held_events.append(protocol.decode(payload, "event"))
+            except ProtocolError as e:
+                self.bad.reject(keys.world_events(self.fleet), e)
+        if len(self._held_events) > MAX_EVENTS:  # no snapshot for ages, and a flood of events: keep the newest
+            self.events_dropped += len(self._held_events) - MAX_EVENTS
+            del self._held_events[:-MAX_EVENTS]
+
+    def _fault_marks(self, ids: np.ndarray, t: float) -> FaultMarks:
+        """The run's fault marks, sized to the snapshot's robots (ids 0..n-1), with every event so far
+        applied. A new one (first snapshot, a new run, another number of robots) starts from the scene's
+        fault schedule up to t, when the scene has one: a viewer that joins late knows what happened."""
+        n = int(ids.max()) + 1 if ids.size else 0
+        m = self._marks
+        if m is None or m.n != n:
+            timeline = self.scene.timeline if self.scene is not None else ()
+            m = self._marks = FaultMarks(n, timeline)
+            m.advance(t)  # the same event from the bus later counts once
+        for ev in self._held_events:
+            ignored = m.ignored
+            if m.apply(ev.t, ev.event, ev.robots):
+                self.events += 1
+            elif m.ignored > ignored:
+                self.bad.reject(keys.world_events(self.fleet), ProtocolError(
+                    f"event {ev.event} names robot {max(ev.robots)}; the run has robots 0..{n - 1}"))
+        self._held_events.clear()
+        return m
 
     def _take_statuses(self, statuses: dict[str, tuple[bytes, float]]) -> None:
         for key, (payload, at) in statuses.items():
@@ -209,6 +279,7 @@ class SwarmWatcher:
                 self.bad.reject(key, e)
                 continue
             self._frozen[k.id] = st.frozen
+            self._stale[k.id] = st.stale
             self._status_at[k.id] = at
 
     def _take_progress(self, payload: bytes) -> None:
@@ -298,12 +369,13 @@ def play_simulation(sim, viewer: Viewer, speed: float = 1.0, should_stop: Callab
     """Run `sim` (a swarm.core.sim.Simulation) to its end at `speed` simulated seconds per wall second
     (or as fast as it can, if slower), drawing its newest recorded sample at most max_hz times a
     second. Returns True if should_stop() ended it early. The overlay's counts are the simulator's
-    (converged and frozen at the newest step, the smallest robot distance so far).
+    (converged and frozen at the newest step, the smallest robot distance so far). Under faults the
+    robots' marks come from the schedule (swarm.core.faults.timeline: dead, hung, cut off at the
+    sample's time) and the simulator's own state (stopped by the watchdog, stale neighbour data:
+    sim_fault_flags).
 
     The simulator advances in chunks that take about 50 ms each, so frames keep coming even when
     the simulation is slower than asked. `wait(seconds)` paces frames (default: an Event's wait)."""
-    from swarm.view.viz import FROZEN, TRACKING
-
     if not speed > 0:
         raise ValueError(f"speed must be > 0, got {speed!r}")
     wait = wait or threading.Event().wait
@@ -311,6 +383,13 @@ def play_simulation(sim, viewer: Viewer, speed: float = 1.0, should_stop: Callab
     limit = max(1, int(round(0.05 / dt)))  # steps per chunk, adapted to take ~50 ms
     t0 = time.monotonic()
     period = 1.0 / max_hz
+    n = sim.scn.n
+    marks = None
+    if sim.scn.faults:
+        from swarm.core.faults import timeline
+
+        marks = FaultMarks(n, timeline(sim.scn.faults, n))
+    set_marks = getattr(viewer, "set_marks", None)
     while True:
         frame_start = time.monotonic()
         if should_stop is not None and should_stop():
@@ -327,9 +406,22 @@ def play_simulation(sim, viewer: Viewer, speed: float = 1.0, should_stop: Callab
         rec = sim.recording()
         p = sim.progress()
         if len(rec.t):
-            codes = np.where(rec.frozen[-1], FROZEN, TRACKING)
-            stats = Stats(alive=sim.scn.n, converged=p.converged, frozen=p.frozen, min_distance=p.min_distance)
-            viewer.draw(float(rec.t[-1]), rec.q[-1], codes, tuple(map(float, rec.leader[-1])), stats=stats)
+            t = float(rec.t[-1])
+            alive = n
+            if marks is None:
+                codes = state_codes(np.ones(n, bool), np.zeros(n, bool), rec.frozen[-1], np.zeros(n))
+                cut = stale = np.zeros(n, bool)
+            else:
+                marks.advance(t)
+                stopped, stale = sim_fault_flags(sim)
+                codes = state_codes(np.ones(n, bool), stopped, rec.frozen[-1], np.zeros(n), hung=marks.hung,
+                                    killed=marks.killed)
+                cut, stale = marks.cut, stale & (codes != DEAD) & (codes != HUNG)
+                alive = n - int(marks.killed.sum())
+            if set_marks is not None:
+                set_marks(cut=cut, stale_data=stale)
+            stats = Stats(alive=alive, converged=p.converged, frozen=p.frozen, min_distance=p.min_distance)
+            viewer.draw(t, rec.q[-1], codes, tuple(map(float, rec.leader[-1])), stats=stats)
         if progress is not None:
             progress(p)
         if sim.done:
@@ -340,3 +432,28 @@ def play_simulation(sim, viewer: Viewer, speed: float = 1.0, should_stop: Callab
         left = period - (time.monotonic() - frame_start)
         if left > 0:
             wait(left)
+
+
+def sim_fault_flags(sim) -> tuple[np.ndarray, np.ndarray]:
+    """(stopped, stale) (N,) bool of a swarm.core.sim.Simulation under faults, at its newest step: the
+    world's watchdog stopped the robot; the robot's law takes a known neighbour whose newest delivered
+    state is older than the step (what an agent's status counts as `stale`). Read from the fault
+    kernel's state (swarm.core.faultsim.FaultState: tk, the tick of the newest state robot i has of
+    robot j, and tx, ty, its position; bel, each robot's belief of its own pose), with the kernel's rule
+    for which neighbours a law takes (known, not a static body, within the cell side of its belief).
+    Both all false without faults."""
+    from swarm.core import faultgen as fg
+
+    n = sim.scn.n
+    f = sim.faults
+    if f is None or n == 0:
+        return np.zeros(n, bool), np.zeros(n, bool)
+    k = sim.next_k - 1
+    stopped = np.asarray(f.stopped, bool).copy()
+    static = stopped | (f.proc == fg.PROC_DEAD)
+    known = (f.tk >= 0) & ~static[None, :]
+    np.fill_diagonal(known, False)
+    side = sim.sense
+    near = (f.bel[:, 0:1] - f.tx) ** 2 + (f.bel[:, 1:2] - f.ty) ** 2 < side * side
+    stale = (known & near & (f.tk < k)).any(axis=1) & (f.proc == fg.PROC_ALIVE)
+    return stopped, stale

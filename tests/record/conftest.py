@@ -63,6 +63,47 @@ def run_recorded_swarm(scn, path: Path, record_hz: float | None = 20.0, commands
     return LiveRun(scn, metrics, world, br, path, seen)
 
 
+# A hang of robot 2 (0.3-0.9 s), robot 4 killed at 0.4 s (for good), robots 2-4 cut off from 0.5 to 1.5 s,
+# and a fifth of the neighbour states lost (stale neighbour data)
+FAULTS_TOML = """[faults]
+seed = 3
+[[faults.drop]]
+class = "state"
+p = 0.2
+[[faults.partition]]
+groups = [[0, 1]]
+start = 0.5
+end = 1.5
+[[faults.hang]]
+robot = 2
+at = 0.3
+duration = 0.6
+"""
+
+
+def faulty_scenario(directory: Path):
+    """small_scenario's 5 robots for 2 s with every kind of fault the viewer and the report show."""
+    faults = directory / "faults.toml"
+    faults.write_text(FAULTS_TOML)
+    return sf.load("paper-50hz", sf.Overrides(robots=5, duration=2.0, seed=1, faults=str(faults), kill="4@0.4"))
+
+
+@pytest.fixture(scope="session")
+def sim_faults_run(tmp_path_factory) -> SimRun:
+    d = tmp_path_factory.mktemp("simfaults")
+    scn = faulty_scenario(d)
+    result = Simulation(scn, record_period=record.record_period(20.0, scn.dt)).run()
+    record.record_simulation(d / "sim.mcap", scn, result, 20.0)
+    return SimRun(scn, result, d / "sim.mcap")
+
+
+@pytest.fixture(scope="session")
+def live_faults_run(tmp_path_factory) -> LiveRun:
+    """The same faults in a lock-step swarm on one in-memory net (the world tells each fault on world/events)."""
+    d = tmp_path_factory.mktemp("livefaults")
+    return run_recorded_swarm(faulty_scenario(d), d / "live.mcap", commands_from_snapshots=True)
+
+
 @pytest.fixture(scope="session")
 def live_run(tmp_path_factory) -> LiveRun:
     return run_recorded_swarm(small_scenario(), tmp_path_factory.mktemp("live") / "live.mcap")

@@ -69,7 +69,7 @@ def read_all(path):
     return summary, out
 
 
-@pytest.mark.parametrize("which", ["sim_run", "live_run"])
+@pytest.mark.parametrize("which", ["sim_run", "live_run", "sim_faults_run", "live_faults_run"])
 def test_mcap_reads_every_channel_and_every_message_matches_its_schema(which, request):
     run = request.getfixturevalue(which)
     summary, messages = read_all(run.path)
@@ -95,7 +95,8 @@ def test_mcap_reads_every_channel_and_every_message_matches_its_schema(which, re
         if "t" in msg:  # the time base: log_time is simulated time in ns
             assert message.log_time == round(msg["t"] * 1e9)
     kinds = {"sim_run": {"/scenario", "/world/snapshot", "/leader/ref", "/robot/cmd", "/robot/status", "/events",
-                         "/metrics"}}
+                         "/metrics"},
+             "live_run": set(record.TOPICS) - {"/faults"}}  # no fault: no fault event
     assert set(counts) == kinds.get(which, set(record.TOPICS))
     assert counts["/scenario"] == 1 and counts["/metrics"] == 1
     assert report.read_recording(run.path).counts == dict(counts)

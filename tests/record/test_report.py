@@ -36,6 +36,7 @@ def test_report_is_the_sim_plots_of_the_recorded_samples(sim_run, tmp_path):
     assert "<pre>" + html.escape((out / "scenario.toml").read_text()) + "</pre>" in page
     kinds = {e["kind"] for e in report.read_recording(sim_run.path).events}
     assert kinds and all(f"<td>{k}</td>" in page for k in kinds)
+    assert "<h2>Faults</h2>" not in page  # a run without faults: no such section (tests/record/test_faults.py)
 
 
 def test_report_escapes_what_it_shows(tmp_path):

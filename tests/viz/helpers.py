@@ -87,9 +87,10 @@ def settle(page) -> None:
     page.evaluate("() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))")
 
 
-# Rows of a 768-pixel-high screenshot between the overlay's top panel and its legend (whose swatches
-# show every state's colour): where only the scene's robots can have those colours.
-SCENE_ROWS = slice(90, 768 - 100)
+# Rows of a 768-pixel-high screenshot between the overlay's top panel (two lines; 120 with the faults'
+# third) and its legend of three rows (whose swatches show every state's colour): where only the scene's
+# robots can have those colours.
+SCENE_ROWS = slice(90, 768 - 112)
 
 
 def count_pixels(png: Path, state: int, tolerance: int = 12, rows: slice = slice(None)) -> int:

@@ -241,3 +241,71 @@ def test_swarm_replay_waits_for_a_browser_then_plays_to_the_end(tmp_path):
         assert replay.proc.wait(30) == 0
     finally:
         replay.close()
+
+
+def test_dead_hung_and_cut_off_robots_and_stale_data_get_their_colours_on_screen(tmp_path):
+    """A `swarm sim --record` run with a hang, a kill and a partition, replayed (swarm replay's own loop) up
+    to t = 0.7 s: robot 2 hung and cut off, robot 3 cut off, robot 4 dead. Then one more frame says robot 0
+    uses stale neighbour data. Colours and rings in the scene and on screen, counts in the overlay."""
+    import threading
+
+    from swarm.cli.playback import replay_into
+    from swarm.view import record
+    from swarm.view.viz import CUT_COLOR, HUNG, STALE_DATA_COLOR, rgb
+
+    (tmp_path / "f.toml").write_text("[faults]\n[[faults.hang]]\nrobot = 2\nat = 0.3\nduration = 0.6\n"
+                                     "[[faults.partition]]\ngroups = [[0, 1]]\nstart = 0.5\nend = 1.5\n")
+    scn = scenario_file.load("paper-50hz", Overrides(robots=5, duration=1.0, seed=1, faults=str(tmp_path / "f.toml"),
+                                                     kill="4@0.4"))
+    path = tmp_path / "faults.mcap"
+    record.record_simulation(path, scn, Simulation(scn, record_period=record.record_period(20.0, scn.dt)), 20.0)
+    stop = threading.Event()
+    with MeshcatServer() as server:
+        viewer = Viewer(server, SceneInfo.from_scenario(scn))
+        last = []
+
+        def at(frame) -> None:
+            last[:] = [frame]
+            if frame.t >= 0.7 - 1e-9:
+                stop.set()
+
+        with browser_page(server.web_url) as page:
+            drawn, early = replay_into(path, viewer, 1000.0, stop, max_hz=None, on_frame=at)
+            assert early and last[0].t == pytest.approx(0.72)
+            viewer.refresh_overlay()
+            want = [TRACKING if not f else FROZEN for f in last[0].frozen.tolist()]
+            want[2], want[4] = HUNG, DEAD
+            page.wait_for_function(robots_js(5))
+            page.wait_for_function("() => !!viewer.scene.getObjectByName('swarm_marks')")
+            page.wait_for_function(f"() => ({HUD_TEXT_JS})('swarm_hud_stopped_cut') !== null")
+            settle(page)
+            np.testing.assert_array_equal(instance_colours(page), [colour_of(c) for c in want])
+            rings = page.evaluate("() => { const o = viewer.scene.getObjectByName('swarm_marks');"
+                                  " return [o.count, Array.from(o.instanceColor.array)]; }")
+            red = np.rint(np.array(rgb(CUT_COLOR)) * 255)
+            assert rings[0] == 2 and (np.rint(np.array(rings[1]).reshape(-1, 3) * 255) == red).all()
+            assert page.evaluate(HUD_TEXT_JS, "swarm_hud_dead_hung") == "dead 1  hung 1"
+            assert page.evaluate(HUD_TEXT_JS, "swarm_hud_stopped_cut") == "stopped 0  cut off 2"
+            assert page.evaluate(HUD_TEXT_JS, "swarm_hud_alive") == "alive 4 of 5"
+            png = screenshot_path(tmp_path, "viewer-faults.png")
+            page.screenshot(path=str(png))
+            scene_rows = slice(120, SCENE_ROWS.stop)  # under the overlay's three lines, above the legend
+            assert count_pixels(png, HUNG, rows=scene_rows) >= 15, "the hung robot is not magenta on screen"
+            assert count_pixels(png, DEAD, 4, rows=scene_rows) >= 15, "the dead robot is not black on screen"
+            from PIL import Image
+
+            img = np.asarray(Image.open(png).convert("RGB")).astype(int)[scene_rows]
+            assert int((np.abs(img - red).sum(axis=2) <= 12).sum()) >= 15, "no red ring on screen"
+            # robot 0 on stale neighbour data: a yellow ring
+            viewer.set_marks(cut=last[0].cut, stale_data=[True, False, False, False, False])
+            viewer.draw(last[0].t, last[0].q, np.array(want))
+            viewer.refresh_overlay()
+            page.wait_for_function("() => viewer.scene.getObjectByName('swarm_marks').count === 3")
+            page.wait_for_function(f"() => ({HUD_TEXT_JS})('swarm_hud_stale_data') === 'stale data 1'")
+            settle(page)
+            page.screenshot(path=str(png))
+            img = np.asarray(Image.open(png).convert("RGB")).astype(int)[scene_rows]
+            yellow = np.rint(np.array(rgb(STALE_DATA_COLOR)) * 255)
+            assert int((np.abs(img - yellow).sum(axis=2) <= 12).sum()) >= 15, "no yellow ring on screen"
+            assert page.evaluate(HUD_TEXT_JS, "swarm_legend_stale_data") == "stale neighbour data"
+            assert page.errors == []

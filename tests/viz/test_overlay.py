@@ -61,9 +61,11 @@ def test_the_legend_names_every_colour_the_viewer_uses():
     assert list(labels.values()) == [text for _, text, _, _ in LEGEND]
     assert labels["tracking"] == "tracking" and labels["stopped"] == "stopped (watchdog)"
     # one swatch per colour in the scene, each exactly the colour drawn
-    assert [swatches[k] for k in ("tracking", "frozen", "stale", "stopped", "dead")] == list(viz.STATE_COLORS)
+    assert [swatches[k] for k in viz.STATE_NAMES] == list(viz.STATE_COLORS)
     assert (swatches["leader"], swatches["obstacle"], swatches["zone"]) == (viz.GHOST_COLOR, viz.OBSTACLE_COLOR,
                                                                           viz.ZONE_COLOR)
+    assert (swatches["cut"], swatches["stale_data"]) == (viz.CUT_COLOR, viz.STALE_DATA_COLOR)  # the rings'
+    assert len(set(swatches.values())) == len(swatches) == len(LEGEND)  # every colour its own
     # every overlay object is drawn over the scene, under the camera (it stays put on the screen)
     for path, data in sink.last.items():
         if path.startswith(HUD) and data["type"] == "set_object":

@@ -89,7 +89,7 @@ def test_state_code_from_the_flags(alive, stopped, frozen, age, code):
 
 
 def test_every_state_has_its_own_colour():
-    assert len({tuple(c) for c in PALETTE.tolist()}) == len(PALETTE) == 5
+    assert len({tuple(c) for c in PALETTE.tolist()}) == len(PALETTE) == 6
 
 
 # --------------------------------------------------------------------------- one object per frame
