@@ -261,8 +261,8 @@ def cmd_up(args, started: float) -> int:
         print(f"metrics: {metrics_path}")
     elif not args.quiet:  # nothing ran: no table of zeros that reads like a clean run
         print(f"no run: nothing was simulated (metrics with the failure: {metrics_path})")
-        if record_note:
-            print(record_note)
+    if record_note and not args.quiet:
+        print(record_note)
     code = exit_status(metrics, args.allow_violations)
     if metrics.get("failure") and not metrics["interrupted"]:
         print(f"swarm up: failed: {metrics['failure']}", file=sys.stderr)
