@@ -5,6 +5,7 @@
     guard.pose(x, y)              # the agent took a pose (x, y [m]: the arena check's)
     reason = guard.reason(t)      # the control loop asks before every command; None: go on
     guard.estop(engaged, why)     # the emergency stop (latched until released)
+    guard.leader(alive), guard.world(alive)   # their liveliness tokens came or went
 
 A drive is halted (zero velocity, latched until the next command) when:
 - its pose is older than pose_timeout_s (wall clock: odometry or the world stopped);
@@ -14,6 +15,8 @@ A drive is halted (zero velocity, latched until the next command) when:
 - the reference has been extrapolated for longer than ref_timeout_s (simulated time since the last
   reference: the leader went quiet);
 - the leader's liveliness token is gone (at once: the leader was lost or cut off);
+- the world's liveliness token is gone (at once: the world, which puts the poses and referees the run,
+  was lost or this robot was cut off from it);
 - the emergency stop is engaged (until released).
 Ctrl-C, SIGTERM and any exception end the control loop, whose way out closes the drive, which halts
 it. No process can catch its own SIGKILL or SIGSTOP: the robot's base must stop by itself then
@@ -56,6 +59,8 @@ class Guard:
         self.ref_t: float | None = None  # simulated time of the newest reference
         self.leader_seen = False
         self.leader_alive = False
+        self.world_seen = False
+        self.world_alive = False
         self.stopped: str | None = None  # the emergency stop's reason while engaged
         self.halts = 0  # times the guard itself halted the drive
         self._stop = threading.Event()
@@ -80,6 +85,10 @@ class Guard:
         self.leader_alive = alive
         self.leader_seen = self.leader_seen or alive
 
+    def world(self, alive: bool) -> None:
+        self.world_alive = alive
+        self.world_seen = self.world_seen or alive
+
     def estop(self, engaged: bool, why: str) -> None:
         if engaged and self.stopped is None:
             log.warning("emergency stop: %s", why or "(no reason given)")
@@ -95,6 +104,8 @@ class Guard:
             return f"emergency stop ({self.stopped})"
         if self.leader_seen and not self.leader_alive:
             return "the leader is lost"
+        if self.world_seen and not self.world_alive:
+            return "the world is lost"
         if self.last_pose is not None and self.clock.monotonic() - self.last_pose > self.pose_timeout_s:
             return f"no pose for more than {self.pose_timeout_s:g} s"
         if self.left_at is not None:  # one reason for the whole time outside: the halt is latched once

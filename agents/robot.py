@@ -28,11 +28,17 @@ Lock-step tick k (the world owns the clock; docs/runtime.md):
      simulator's order: robots by id, then obstacles, then dead robots as static bodies; the
      law uses those closer than reach) and publish it.
 Real time: for every new pose it takes the newest reference (advanced exactly along the
-leader's arc to now on its own clock) and neighbour states (with their age: older than
-STALE_AFTER_S counts as stale, older than FORGET_AFTER_S is dropped), and publishes state and
-command; the command carries the time of the pose it was computed from. States and references
-wait in bus inboxes (zenoh ring channels) and the loop decodes them in one batch at each pose:
-zenoh's thread runs no Python for them, which saves about a fifth of a robot's CPU.
+leader's arc to now on its own clock) and neighbour states, and publishes state and command; the
+command carries the time of the pose it was computed from. States and references wait in bus
+inboxes (zenoh ring channels) and the loop decodes them in one batch at each pose: zenoh's thread
+runs no Python for them, which saves about a fifth of a robot's CPU. What it does without a message
+(docs/faults.md): it keeps the last state of every live neighbour with its age (the time since
+receipt on its own clock plus the age the state had when it came) and never forgets a live one; the
+law's governor takes each body's age off its clearance (older than STALE_AFTER_S also counts as
+stale in the status); a robot whose liveliness token goes is a static body at its last state; without
+a reference it advances the last one along the leader's arc; with a drive whose poses come once a
+control period (the simulated world's), a pose that has not come POSE_LATE_PERIODS periods after the
+last one is taken as lost: it advances its last pose by its own last command and commands from there.
 """
 
 from __future__ import annotations
@@ -56,9 +62,10 @@ log = logging.getLogger("swarm.robot")
 
 WAIT_TIMEOUT_S = 1.0  # lock-step: wall seconds to wait for a tick's inputs before going on without them
 STATUS_PERIOD_S = 0.1  # simulated seconds between status messages
-STALE_AFTER_S = 0.5  # real time: a neighbour state older than this (simulated s) counts as stale
-FORGET_AFTER_S = 2.0  # real time: a live neighbour not heard for this long is dropped
-HORIZON_CAP_S = 0.5  # real time: the governor's horizon is at most the control period plus this
+STALE_AFTER_S = 0.5  # real time: a neighbour state older than this (simulated s) counts as stale (status)
+HORIZON_CAP_S = 0.5  # real time: the governor's horizon is at most HOLD_PERIODS control periods plus this
+HOLD_PERIODS = 2  # real time: a command acts its period and, when the next is missing, one more (then brakes)
+POSE_LATE_PERIODS = 1.5  # real time, periodic poses: a pose this many periods after the last one is lost
 LISTEN_PERIODS = 3  # real time: control periods a robot listens (commands 0) after its first pose
 WATCHDOG_S = 0.5  # the world's (or a drive's) watchdog: the windows on t and seq cover twice that, at least 2 s
 
@@ -86,7 +93,10 @@ class Agent:
     """
 
     def __init__(self, bus, cfg: Config, fleet: str = "default", wait_timeout: float = WAIT_TIMEOUT_S,
-                 clock=WALL, drive=None, guard=None, faults=None):
+                 clock=WALL, drive=None, guard=None, faults=None, horizon_floor: float = 0.0, counters=None):
+        """Real time: horizon_floor [s] is the governor's least horizon (swarm.core.faultsim.horizon under
+        faults: a command may be held and braked); counters, when given, is an object with `dropped` and
+        `delayed` lists by class (a swarm.net.faultbus.FaultBus): reported to the world with every status."""
         self.bus, self.cfg, self.fleet = bus, cfg, fleet
         self.id = cfg.id
         self.clock = clock
@@ -99,6 +109,7 @@ class Agent:
             drive = SimDrive(bus, fleet, cfg.id)
         self.drive = drive
         self.guard = guard
+        self.periodic = bool(getattr(drive, "periodic", False))  # its poses come once a control period
         self.p = [0.0] * law.P_SIZE
         self.p[law.P_K1], self.p[law.P_K2], self.p[law.P_K3] = cfg.k1, cfg.k2, cfg.k3
         self.p[law.P_TU], self.p[law.P_VT], self.p[law.P_THRESHOLD] = cfg.tu, cfg.vt, float(cfg.threshold)
@@ -178,6 +189,19 @@ class Agent:
         self.stale = 0
         self.oldest_state_s = 0.0  # real time: age of the oldest neighbour state in the last command
         self._first_pose_t: float | None = None
+        # real time: what it knows without messages (docs/faults.md, Safe under faults)
+        self.horizon_floor = horizon_floor
+        self.counters = counters
+        self.rx: dict[int, tuple[float, float]] = {}  # j -> (age of its state when it came [s], monotonic receipt)
+        self.dead_age: dict[int, float] = {}  # j -> age of its last state when its token went [s]
+        self.away: set[int] = set()  # live robots whose last state was out of range: not used until a newer one
+        self._offer_r = cfg.reach + (cfg.sense - cfg.reach) / 3.0  # reach + L: what this robot surely hears
+        self.max_age = 0.0  # the oldest neighbour state a command used [s]
+        self.reports = 0  # faultstats sent
+        self.last_pose_at: float | None = None  # monotonic time the newest pose was taken
+        self.reckoned = 0  # commands computed from a pose advanced by its own command (a pose was late)
+        self._rt_t = -math.inf  # the time of the last state and command it published
+        self._rt_belief: tuple[float, float, float, float] | None = None  # (t, x, y, theta) they were computed at
 
     # ------------------------------------------------------------------ wiring
 
@@ -405,15 +429,18 @@ class Agent:
                 self._on_alive(parsed.id, up)
                 if up and parsed.id in self.w_state:
                     self.w_state[parsed.id].reset()
-            elif parsed.role == "world" and up:
-                self.w_pose.reset()
-                self.w_clock.reset()
-                self._world_ups += 1
-                if self.view is not None and self._world_ups > 1:
-                    # the world's token again: this robot's session came back (it was stopped past its lease):
-                    # say so once its subscriptions are back (they were sent before this could arrive)
-                    self._announce = True
-                    self.wake.set()
+            elif parsed.role == "world":
+                if self.guard is not None:
+                    self.guard.world(up)  # real time: a robot that lost the world halts, as for a lost leader
+                if up:
+                    self.w_pose.reset()
+                    self.w_clock.reset()
+                    self._world_ups += 1
+                    if self.view is not None and self._world_ups > 1:
+                        # the world's token again: this robot's session came back (it was stopped past its lease):
+                        # say so once its subscriptions are back (they were sent before this could arrive)
+                        self._announce = True
+                        self.wake.set()
             elif parsed.role == "leader":
                 self.leader_alive = up
                 if self.guard is not None:
@@ -448,8 +475,10 @@ class Agent:
         for pose in poses:
             with self.lock:
                 self._on_pose(pose, key)
-        if poses and self.guard is not None:
-            self.guard.pose(poses[-1].x, poses[-1].y)
+        if poses:
+            self.pose_taken(self.clock.monotonic())
+            if self.guard is not None:
+                self.guard.pose(poses[-1].x, poses[-1].y)
 
     def _take_inboxes(self) -> None:
         """Real time (loop thread): decode the references and neighbour states waiting in the inboxes,
@@ -536,15 +565,34 @@ class Agent:
             return
         self.states_received += 1
         self.table[s.id] = s
-        if self.cfg.lockstep and s.seq == self.k_started:
-            self.waiting.discard(s.id)
+        if self.cfg.lockstep:
+            if s.seq == self.k_started:
+                self.waiting.discard(s.id)
+        else:  # its age when it came: now on the swarm's clock minus its time (never below 0: clocks differ)
+            self.rx[s.id] = (0.0 if now is None else max(0.0, now - s.t), self.clock.monotonic())
+            self.away.discard(s.id)
 
     def _on_alive(self, j: int, up: bool) -> None:
+        """Robot j's token came (up) or went (under the lock): a robot that goes stays a static body at
+        its last state (real time: with the age that state had then); both are logged."""
         if up:
+            if j in self.dead:
+                log.info("robot %d: robot %d back (its liveliness token is here again)", self.id, j)
             self.dead.discard(j)
+            self.dead_age.pop(j, None)
         else:
+            if j not in self.dead:
+                log.warning("robot %d: robot %d lost (its liveliness token is gone)", self.id, j)
+                if not self.cfg.lockstep and j in self.rx:
+                    self.dead_age[j] = self._age(j, self.clock.monotonic())
             self.dead.add(j)
             self.waiting.discard(j)
+
+    def _age(self, j: int, mono: float) -> float:
+        """Real time: the age [simulated s] of robot j's last state now (monotonic time mono): the age it
+        had when it came plus the time since, on this robot's clock."""
+        a0, m0 = self.rx.get(j, (0.0, mono))
+        return a0 + max(0.0, mono - m0) * self.speed
 
     def _on_ref(self, ref: protocol.Ref, key: str = "") -> None:
         if not self.bad.verdict(key, self.w_ref.check(ref.t, ref.seq), "the reference's t or seq"):
@@ -638,15 +686,22 @@ class Agent:
         """The known bodies closer than the cell side, in summation order: live robots by id, the
         obstacles by index, dead robots by id (static bodies). Lock-step (seq given): a live robot
         counts with its state of this tick, or, when it was awaited and did not come, its last one
-        (stale). Real time (t given): every live robot heard within FORGET_AFTER_S.
-        Returns lists nx, ny, nr, nR, nk and the numbers of robots and stale robots used."""
+        (stale). Real time (t given): every live robot with its last state, however old (the table keeps
+        one state per robot id and never drops a live one), with its age; but a live robot whose last
+        state is out of range (farther than reach + L from this robot now, as the simulator's fault
+        kernel forgets one) is left out until a newer state of it comes: it left this robot's cells, or
+        this robot left its own, and its old position says nothing of where it is.
+        Returns lists nx, ny, nr, nR, nk, na (the age [s] of what is known of each body: 0 in lock-step
+        and for obstacles; real time: a live robot's state's age now, a dead one's age when its token
+        went) and the numbers of robots and stale robots used."""
         r2 = self.side * self.side
-        nx, ny, nr, nR, nk = [], [], [], [], []
+        nx, ny, nr, nR, nk, na = [], [], [], [], [], []
         robots = stale = 0
         oldest = 0.0
         table, dead, waiting = self.table, self.dead, self.waiting
         dead_near = []
-        forgotten: list[int] = []
+        mono = None if seq is not None else self.clock.monotonic()
+        offer2 = self._offer_r * self._offer_r
         for j in sorted(table):
             nb = table[j]
             if j in dead:
@@ -658,15 +713,20 @@ class Agent:
                 is_stale = nb.seq != seq
                 age = 0.0
             else:
-                age = t - nb.t
-                if age > FORGET_AFTER_S:
-                    forgotten.append(j)
+                if j in self.away:
                     continue
+                dx = x - nb.x
+                dy = y - nb.y
+                if dx * dx + dy * dy >= offer2:
+                    self.away.add(j)
+                    continue
+                age = self._age(j, mono)
                 is_stale = age > STALE_AFTER_S
             dx = x - nb.x
             dy = y - nb.y
             if dx * dx + dy * dy < r2:
                 nx.append(nb.x), ny.append(nb.y), nr.append(nb.r), nR.append(nb.R), nk.append(law.KIND_ROBOT)
+                na.append(age)
                 robots += 1
                 stale += is_stale
                 oldest = max(oldest, age)
@@ -675,30 +735,33 @@ class Agent:
             dy = y - oy
             if dx * dx + dy * dy < r2:
                 nx.append(ox), ny.append(oy), nr.append(orr), nR.append(oR), nk.append(law.KIND_OBSTACLE)
+                na.append(0.0)
         for nb in dead_near:
             dx = x - nb.x
             dy = y - nb.y
             if dx * dx + dy * dy < r2:
                 nx.append(nb.x), ny.append(nb.y), nr.append(nb.r), nR.append(nb.R), nk.append(law.KIND_OBSTACLE)
-        for j in forgotten:  # real time: not heard for FORGET_AFTER_S (bounded state)
-            del table[j]
+                na.append(0.0 if seq is not None else self.dead_age.get(nb.id, 0.0))
         self.oldest_state_s = oldest
-        return nx, ny, nr, nR, nk, robots, stale
+        return nx, ny, nr, nR, nk, na, robots, stale
 
     def command(self, t: float, x: float, y: float, th: float, ref: tuple, seq: int | None,
                 pose_t: float | None = None) -> tuple[float, float]:
         """The law for this robot at time t with pose (x, y, th) and live reference ref = (xl, yl, thl, vl, wl).
-        Real time (seq None): the governor's horizon is the control period plus the age of the
-        robot's own pose (pose_t) and of the oldest neighbour state used, at most HORIZON_CAP_S more:
-        the command stays in force until the next one lands, and the bodies may be where they
-        were that long ago (lock-step keeps the period: the world applies a command for exactly dt)."""
-        nx, ny, nr, nR, nk, robots, stale = self.bodies(x, y, seq, t)
+        Real time (seq None): each body comes with its age (bodies(): the governor takes the distance it may
+        have moved since off its clearance), and the governor's horizon is two control periods plus the age
+        of the robot's own pose (pose_t), at most HORIZON_CAP_S more, and at least horizon_floor: the
+        command stays in force until the next one lands, a period later, and when that one is missing the
+        world holds it one period more before it brakes (lock-step keeps the period: the world applies a
+        command for exactly dt)."""
+        nx, ny, nr, nR, nk, na, robots, stale = self.bodies(x, y, seq, t)
         if seq is None:
             lag = max(0.0, t - pose_t) if pose_t is not None else 0.0
-            self.p[law.P_DT] = self.cfg.dt + min(HORIZON_CAP_S, lag + self.oldest_state_s)
+            self.p[law.P_DT] = max(self.horizon_floor, HOLD_PERIODS * self.cfg.dt + min(HORIZON_CAP_S, lag))
+            self.max_age = max(self.max_age, self.oldest_state_s)
         xl, yl, thl, vl, wl = ref
         v, w = law.robot_command(x, y, th, self.cfg.dx, self.cfg.dy, self.cfg.r, t, xl, yl, thl, vl, wl,
-                                 nx, ny, nr, nR, nk, [0.0] * len(nx), len(nx), self.mem, self.p)
+                                 nx, ny, nr, nR, nk, na, len(nx), self.mem, self.p)
         self.neighbours, self.stale = robots, stale
         self.stale_total += stale
         return v, w
@@ -722,6 +785,17 @@ class Agent:
                         etheta=law.wrap_angle(thl - pose.theta), frozen=self.mem[law.M_FROZEN] != 0.0,
                         neighbours=self.neighbours, stale=self.stale, bad=self.bad.count)
             self.bus.put(self._status_key, protocol.encode(st))
+            if self.counters is not None:
+                self._report(t)
+
+    def _report(self, t: float) -> None:
+        """Real time under faults: this process's fault counters so far (its bus's), with every status; seq
+        counts the reports of this process from 0 (the world keeps the newest of each process)."""
+        d, y = self.counters.dropped, self.counters.delayed  # by class: state 0, pose 1, cmd 2, ref 3
+        c = protocol.FaultStats(t, self.reports, d[0], d[1], d[3], y[0], y[1], y[3], round(self.max_age, 9),
+                                frozen=self.mem[law.M_FROZEN] != 0.0)
+        self.reports += 1
+        self.bus.put(self._faults_key, protocol.encode(c), reliable=True)
 
     def tick_lockstep(self) -> bool:
         """Loop thread: start a new tick if its pose came, and compute it once its inputs are complete
@@ -832,34 +906,85 @@ class Agent:
             return None
         return (wall - self.epoch) * self.speed
 
-    def tick_realtime(self, t: float) -> bool:
-        """Real time: one control step at simulated time t with the newest data. True if it acted."""
+    def tick_realtime(self, t: float, late: bool = False) -> bool:
+        """Real time: one control step at simulated time t with the newest data. True if it acted.
+        late: no new pose came in time (late_due()): its pose is taken as lost, and the step starts from
+        the pose it last commanded from, advanced by its own last command to t (docs/faults.md)."""
         self._take_inboxes()
         with self.lock:
             pose, ref = self.pose, self.ref
         if pose is None or ref is None:
             return False
-        self._rt_seq = pose.seq
-        self._move_cells(pose.x, pose.y)
+        last = self.last_cmd
+        if late:
+            if self._rt_belief is None or last is None:
+                return False
+            bt, bx, by, bth = self._rt_belief
+            pose_t, x, y, th = self._advanced(bt, bx, by, bth, last, t)
+            self.reckoned += 1
+            self._late_next += self._period_wall()
+        else:
+            self._rt_seq = pose.seq
+            pose_t, x, y, th = pose.t, pose.x, pose.y, pose.theta
+            if pose_t < self._rt_t and last is not None:
+                # older than what it last published (a late pose after a step without one): brought to
+                # that time by its own last command, so its state and command never go back in time
+                pose_t, x, y, th = self._advanced(pose_t, x, y, th, last, self._rt_t)
+        self._move_cells(x, y)
         self.seq += 1
         # the reference advanced exactly along the leader's arc to now (its v, w are constant between messages)
         dx, dy, dth = kinematics.arc_displacement(ref.theta, ref.v, ref.w, t - ref.t)
         r = (ref.x + dx, ref.y + dy, ref.theta + dth, ref.v, ref.w)
         if self._first_pose_t is None:
-            self._first_pose_t = pose.t
-        if pose.t - self._first_pose_t < LISTEN_PERIODS * self.cfg.dt - 1e-9:
+            self._first_pose_t = pose_t
+        if pose_t - self._first_pose_t < LISTEN_PERIODS * self.cfg.dt - 1e-9:
             # just started: listen before moving (the neighbours' first states are still on their way; a
             # command computed without them would be blind to a robot 0.5 m away): hold still, say so
             v = w = 0.0
         else:
             with self.lock:
-                v, w = self.command(t, pose.x, pose.y, pose.theta, r, None, pose.t)
+                v, w = self.command(t, x, y, th, r, None, pose_t)
+            # the speed bound scales v and w to the bound up to a rounding: a command one ulp beyond it would be
+            # refused, and the world would hold the previous one (seen once near an obstacle, at 100 rad/s)
+            vb = self.cfg.v_max if self.cfg.v_max > 0 else law.MAX_SPEED
+            wb = self.cfg.w_max if self.cfg.w_max > 0 else law.MAX_TURN
+            v, w = max(-vb, min(vb, v)), max(-wb, min(wb, w))
         # state and command go out back to back, so zenoh sends them in one write (one wake-up of its
         # thread instead of two); the command is stamped with its pose's time: a drive (or the world)
         # sees how old its input is
-        self._publish_state(pose, self.seq)
-        self._publish(pose.t, self.seq, v, w, r, pose)
+        used = pose if (pose_t, x, y, th) == (pose.t, pose.x, pose.y, pose.theta) else \
+            protocol.Pose(t=pose_t, seq=pose.seq, x=x, y=y, theta=th)
+        self._publish_state(used, self.seq)
+        self._publish(pose_t, self.seq, v, w, r, used)
+        self._rt_t = pose_t
+        self._rt_belief = (pose_t, x, y, th)
         return True
+
+    @staticmethod
+    def _advanced(t0: float, x: float, y: float, th: float, cmd: Cmd, t: float) -> tuple[float, float, float, float]:
+        """(t, x, y, theta): the pose (x, y, th) of time t0 moved along its command's exact arc to t."""
+        dx, dy, dth = kinematics.arc_displacement(th, cmd.v, cmd.w, max(0.0, t - t0))
+        return max(t, t0), x + dx, y + dy, th + dth
+
+    def _period_wall(self) -> float:
+        """Real time: the control period in wall seconds."""
+        return self.cfg.dt / max(1e-9, self.speed)
+
+    def pose_taken(self, mono: float) -> None:
+        """Real time (loop thread): a new pose was taken at monotonic time mono: the next one is due a period on."""
+        self.last_pose_at = mono
+        self._late_next = mono + POSE_LATE_PERIODS * self._period_wall()
+
+    _late_next = math.inf  # real time: when a step without a pose is due (monotonic), if none comes before
+    periodic = False  # real time: its drive's poses come once a control period (a missing one is lost)
+
+    def late_due(self) -> float | None:
+        """Real time: the monotonic time at which a step without a new pose is due (None: none is; only with
+        a periodic drive, and for WATCHDOG_S after the last pose: then the guard halts the drive anyway)."""
+        if not self.periodic or self.last_pose_at is None or self.epoch is None or self._rt_belief is None:
+            return None
+        due = self._late_next
+        return due if due - self.last_pose_at <= WATCHDOG_S else None
 
 
 # ---------------------------------------------------------------------- process level
@@ -914,24 +1039,28 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                 faults = scenario.faults
             else:
                 cfg = fetch_config(bus, fleet, robot_id, start_timeout, stop, run=run.run)
-                if cfg.lockstep:  # lock-step under faults: every process reads the same schedule (the run's)
-                    run = runs.complete(run, start_timeout, stop)
-                    faults = _run_faults(run)
+                # under faults every process reads the same schedule (the run's)
+                run = runs.complete(run, start_timeout, stop)
+                faults = _run_faults(run)
             obstacles = fetch_obstacles(bus, fleet, start_timeout, stop)
-            drive = guard = None
+            drive = guard = fbus = None
+            rbus, floor = bus, 0.0
             box: list[Agent] = []
             if cfg.lockstep and make_drive is not None:
                 make_drive(cfg, lambda: None)  # raises DriveRefused: a real drive has no ticks
             if not cfg.lockstep:
+                if faults:  # real time under faults: what this robot receives goes through the fault model
+                    fbus, floor = _fault_bus(bus, faults, cfg, fleet, clock, box)
+                    rbus = fbus
                 now = (lambda: box[0].sim_time(clock.time()) if box else None)
                 drive = make_drive(cfg, now) if make_drive is not None else None
                 if drive is None:
                     from swarm.drives.sim import SimDrive
 
-                    drive = SimDrive(bus, fleet, robot_id)
+                    drive = SimDrive(rbus, fleet, robot_id)
                 guard = Guard(drive, clock, pose_timeout_s=pose_timeout, ref_timeout_s=ref_timeout, arena=arena_of(cfg))
-            agent = Agent(bus, cfg, fleet, wait_timeout=wait_timeout, clock=clock, drive=drive, guard=guard,
-                          faults=faults if cfg.lockstep else None)
+            agent = Agent(rbus, cfg, fleet, wait_timeout=wait_timeout, clock=clock, drive=drive, guard=guard,
+                          faults=faults if cfg.lockstep else None, horizon_floor=floor, counters=fbus)
             box.append(agent)
             current[:] = [agent]
             if runs.latest is not None and runs.latest.run != run.run:
@@ -951,6 +1080,8 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                 if guard is not None:
                     guard.close()
                 agent.close()  # halts and closes the drive: on every way out
+                if fbus is not None:
+                    fbus.detach()
                 current.clear()
             served.append(agent)
             if once:
@@ -962,6 +1093,18 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
     finally:
         runs.close()
     return served
+
+
+def _fault_bus(bus, faults, cfg: Config, fleet: str, clock, box: list):
+    """Real time under faults: (a swarm.net.faultbus.FaultBus around bus for this robot, the governor's least
+    horizon). Its holds follow the swarm's speed, which the agent (box[0], once made) learns from the clock."""
+    from swarm.core.faults import FaultTable
+    from swarm.core.faultsim import horizon
+    from swarm.net.faultbus import FaultBus
+
+    table = FaultTable.of(faults, cfg.robots, cfg.dt)
+    fbus = FaultBus(bus, table, cfg.id, cfg.dt, fleet, speed=lambda: box[0].speed if box else 1.0, clock=clock)
+    return fbus, horizon(faults, cfg.dt)
 
 
 def _run_faults(run):
@@ -989,15 +1132,18 @@ def _loop_lockstep(agent: Agent, stop: threading.Event) -> None:
 def _loop_realtime(agent: Agent, stop: threading.Event, wall) -> None:
     """Real time: a command for every new pose (the pose stream sets the control rate: the world's
     control period now, localization's rate on a real robot), at the agent's own clock's time.
-    No new pose, no command: the drive's watchdog then stops the robot.
+    No new pose, no command, and the drive's watchdog stops the robot; but with a periodic drive (the
+    simulated world's) a pose that has not come POSE_LATE_PERIODS periods after the last one is taken
+    as lost, and the step goes on from the last pose advanced by its own command (Agent.late_due).
     The loop blocks on its drive's pose inbox: zenoh's receiving thread runs no Python and hands the
     pose straight to this thread (no callback, no GIL hand-over, no event). A helper thread wakes it on
-    stop."""
+    stop, and when a step without a pose is due."""
     done = threading.Event()
-    waker = threading.Thread(target=_wake_on_stop, args=(stop, done, agent.drive, agent), daemon=True,
+    waker = threading.Thread(target=_watch, args=(stop, done, agent.drive, agent), daemon=True,
                              name=f"robot-{agent.id}-waker")
     waker.start()
     cpu = time.thread_time
+    mono = agent.clock.monotonic
     try:
         while not stop.is_set() and not agent.ended:
             got = agent.drive.wait()
@@ -1007,19 +1153,39 @@ def _loop_realtime(agent: Agent, stop: threading.Event, wall) -> None:
                 epoch, speed, fresh = agent.epoch, agent.speed, agent._due()
             if epoch is not None:
                 agent.drop_clock()  # the epoch is all a real-time robot needs of the clock (one message a period less)
-            if epoch is not None and fresh:
-                agent.tick_realtime((wall() - epoch) * speed)
+                if fresh:
+                    agent.tick_realtime((wall() - epoch) * speed)
+                else:
+                    due = agent.late_due()
+                    if due is not None and mono() >= due:
+                        agent.tick_realtime((wall() - epoch) * speed, late=True)
             agent.loop_cpu_s += cpu() - c0
     finally:
         done.set()
         waker.join(1.0)
 
 
-def _wake_on_stop(stop: threading.Event, done: threading.Event, box, agent: Agent) -> None:
+def _watch(stop: threading.Event, done: threading.Event, box, agent: Agent) -> None:
+    """The real-time loop's helper: wake it (box.wake()) on stop, and when a step without a pose is due."""
+    woke_for = None
     while not done.is_set():
-        if stop.wait(0.2) or agent.ended:
-            try:
-                box.wake()
-            except Exception as e:  # the session is already closing: the loop is on its way out anyway
-                log.debug("could not wake the robot loop: %s", e)
+        due = agent.late_due()
+        if due is None:
+            left = 0.2
+        elif due == woke_for:  # the loop has not taken that one yet: look again in half a period
+            left = min(0.2, agent._period_wall() / 2)
+        else:
+            left = min(0.2, max(0.0, due - agent.clock.monotonic()))
+        if stop.wait(left) or agent.ended:
+            _wake(box)
             return
+        if due is not None and due != woke_for and agent.late_due() == due and agent.clock.monotonic() >= due:
+            woke_for = due
+            _wake(box)
+
+
+def _wake(box) -> None:
+    try:
+        box.wake()
+    except Exception as e:  # the session is already closing: the loop is on its way out anyway
+        log.debug("could not wake the robot loop: %s", e)

@@ -40,6 +40,8 @@ from swarm.launch.child import settle_heap
 from swarm.proto.protocol import Clock, Obstacle, Obstacles, Pose, ProtocolError, RobotSnap, Run, Snapshot
 from swarm.core.geometry import pairs_within
 from swarm.core.scenario import Scenario
+from world.faultworld import brake_factor
+from world.realtime_faults import RealtimeFaults
 from world.referee import Referee
 
 log = logging.getLogger("swarm.world")
@@ -89,6 +91,16 @@ class World:
             from world.faultworld import WorldFaults
 
             self.wf = WorldFaults(scn, watchdog)
+        # real time under faults: the commands it receives go through the fault model (swarm.net.faultbus),
+        # and it adds up what every robot's own fault bus reports (RealtimeFaults)
+        self.fbus = self.rtf = None
+        if scn.faults and not lockstep:
+            from swarm.net.faultbus import FaultBus
+
+            self.fbus = FaultBus(bus, fl.FaultTable.of(scn.faults, scn.n, scn.dt), fg.WORLD, scn.dt, fleet,
+                                 speed=speed, clock=clock)
+            self.bus = self.fbus
+            self.rtf = RealtimeFaults(scn, self.fbus)
         # every fault event, told on world/events as it happens (lock-step: by tick; real time: by its clock)
         self._timeline = fl.timeline(scn.faults, scn.n) if scn.faults else []
         self.token_gen = [0] * scn.n  # liveliness tokens each robot's id declared (a restart declares a new one)
@@ -113,6 +125,10 @@ class World:
         self.q = [list(map(float, row)) for row in scn.poses]
         self.comp = [[0.0, 0.0, 0.0] for _ in range(n)]
         self.cmd = [(0.0, 0.0)] * n  # the command being applied
+        self.cmd_new = [(0.0, 0.0)] * n  # real time: each robot's newest command (applied, held or braked)
+        self._held_from = [-math.inf] * n  # real time: cmd_time of the newest command a hold was counted for
+        self.cmd_held = 0  # real time: commands held a whole period past their successor's time (then braked)
+        self.watchdog_stops = 0  # real time: robots the watchdog stopped
         self._pose_keys = [keys.robot_pose(fleet, i) for i in range(n)]
         self._cmd_ids = {keys.robot_cmd(fleet, i): i for i in range(n)}
         self.cmd_seq = [-1] * n  # lock-step: tick of the newest command
@@ -172,6 +188,9 @@ class World:
             self._cmd_inbox = self.bus.inbox(keys.robot_any(f, "cmd"), depth=8 * self.n + 64)
             self._status_inbox = self.bus.inbox(keys.robot_any(f, "status"), depth=8 * self.n + 64)
             self._handles += [self._cmd_inbox, self._status_inbox]
+            if self.rtf is not None:  # each robot's fault counters, with its statuses
+                self._faults_inbox = self.bus.inbox(keys.robot_any(f, "faults"), depth=8 * self.n + 64)
+                self._handles.append(self._faults_inbox)
         self._handles.append(self.bus.watch_alive(keys.alive_any(f, "robot"), lambda k, up: ev(("alive", k, up))))
         self._handles.append(self.bus.watch_alive(keys.alive_any(f, "leader"), lambda k, up: ev(("leader", k, up))))
         if self.lockstep:  # the start barrier: every robot's state_0 (unsubscribed once passed)
@@ -189,6 +208,8 @@ class World:
             reliable=True)
 
     def close(self) -> None:
+        if self.fbus is not None:
+            self.fbus.detach()
         if self.fleet_ros2 is not None:
             self.fleet_ros2.close()
             self.fleet_ros2 = None
@@ -292,6 +313,9 @@ class World:
             if self.wf is not None and not self.wf.running(i, self.k):  # a scheduled kill or hang: membership
                 log.info("robot %d's token is gone at t = %g s (its process is %s by the fault schedule)", i,
                          self.t, "dead" if self.wf.dead(i, self.k) else "hung")  # follows the schedule
+            elif self.rtf is not None and self.rtf.away(i, self._now_rt()):  # real time: as scheduled
+                log.info("robot %d's token is gone at t = %g s (its process is %s by the fault schedule)", i,
+                         self._now_rt(), fl.process_state(self.scn.faults, i, self._now_rt()))
             else:
                 self.lost.add(i)
                 self.lost_events += 1
@@ -300,6 +324,11 @@ class World:
         if up:
             self.w_cmd[i].reset()
             self.w_status[i].reset()
+
+    def _now_rt(self) -> float:
+        """Real time: the simulated time now by the wall clock (the loop's self.t lags it by a fine step)."""
+        epoch = getattr(self, "epoch", None)
+        return self.t if epoch is None else max(self.t, (self.clock.time() - epoch) * self.speed)
 
     def wait_ready(self, timeout_s: float, stop: threading.Event | None = None) -> None:
         """Wait until every robot and the leader are alive; NotReady names the missing ones."""
@@ -383,7 +412,12 @@ class World:
                                  orientation_error=ref.emax if ref.samples and ref.alive_now else -1.0,
                                  converged_at=-1.0 if conv is None else conv,
                                  last_freeze=-1.0 if ref.last_frozen_t is None else ref.last_frozen_t,
-                                 dropped=0 if self.wf is None else sum(self.wf.totals()[0]), hung=self._hung_now())
+                                 dropped=self._dropped(), hung=self._hung_now())
+
+    def _dropped(self) -> int:
+        if self.wf is not None:
+            return sum(self.wf.totals()[0])
+        return 0 if self.rtf is None else sum(self.rtf.totals()[0])
 
     def bad_total(self) -> int:
         fleet = self.fleet_ros2
@@ -429,6 +463,8 @@ class World:
                      scenario_digest=self.digest, stale_messages=self.bad.stale, **self._latency())
         if self.wf is not None:  # messages_dropped, faults {...}, robots_alive_at_end by the schedule
             extra.update(self.wf.metrics(self._not_dead()))
+        elif self.rtf is not None:  # real time: counted as it happened (docs/faults.md)
+            extra.update(self.rtf.metrics(self.t, self.cmd_held, self.watchdog_stops))
         return self.referee.metrics(time.perf_counter() - started, interrupted,
                                     "lockstep" if self.lockstep else "realtime", **extra)
 
@@ -776,13 +812,9 @@ class World:
                 self._take_ros2_commands(mono, t, advance)
             else:
                 self._take_commands(t, mono, advance)
-            if mono - watch_t >= period / self.speed:  # watchdog, once a period (wall time, as a drive)
+            if mono - watch_t >= period / self.speed:  # hold, brake and watchdog, once a period (as a drive)
                 watch_t = mono
-                for i in range(n):
-                    if mono - self.cmd_time[i] > self.watchdog and not self.stopped[i]:
-                        advance(i, t)
-                        cmd[i] = (0.0, 0.0)
-                        self.stopped[i] = True
+                self._brake(mono, t, advance)
             if poses[0][0] <= t + 1e-9:
                 sent = self._pose_sent  # this thread's only (_take_commands reads it)
                 sent[t] = mono
@@ -803,6 +835,8 @@ class World:
                     advance(i, t)
                 for key, data in self._status_inbox.drain():
                     self.event(("status", key, data))
+                if self.rtf is not None:
+                    self._take_faultstats()
                 seq = int(math.floor(t / period + 1e-9))  # the period (after a stall, the ones missed are skipped)
                 self.k = seq
                 self._tell_events(t, seq, lambda te: te <= t + 1e-9)
@@ -849,12 +883,56 @@ class World:
             if not fresh:
                 continue
             advance(i, t)
-            self.cmd[i] = (c.v, c.w)
+            self.cmd[i] = self.cmd_new[i] = (c.v, c.w)
             self.cmd_time[i] = mono
             self.stopped[i] = False
             sent = self._pose_sent.get(c.t)
             if sent is not None and len(self.round_trips) < 1_000_000:
                 self.round_trips.append(mono - sent)
+
+    def _brake(self, mono: float, t: float, advance) -> None:
+        """Real time, once a control period: a robot without a new command moves on with its newest one for
+        the period it was meant for and one more (held), then brakes to a stop along a ramp of BRAKE_S
+        (simulated s, a step each period, as the fault kernel does: world.faultworld.brake_factor); a robot
+        whose newest command is older than the watchdog (wall s, as a drive's) is stopped. (robot i moves
+        to t with its old command before each change.)"""
+        period, cmd = self.scn.dt, self.cmd
+        for i in range(self.n):
+            if self.stopped[i]:
+                continue
+            age = mono - self.cmd_time[i]
+            if age > self.watchdog:
+                advance(i, t)
+                cmd[i] = (0.0, 0.0)
+                self.stopped[i] = True
+                if self.cmd_time[i] > -math.inf:
+                    self.watchdog_stops += 1
+                continue
+            since = int(age * self.speed / period + 1e-9)  # whole control periods since the newest command came
+            f = brake_factor(since, period)
+            if f < 1.0 and self._held_from[i] != self.cmd_time[i]:
+                self._held_from[i] = self.cmd_time[i]
+                self.cmd_held += 1
+            v, w = self.cmd_new[i]
+            if cmd[i] != (v * f, w * f):
+                advance(i, t)
+                cmd[i] = (v * f, w * f)
+
+    def _take_faultstats(self) -> None:
+        """Real time under faults: the robots' fault counters that came (world.realtime_faults)."""
+        for key, data in self._faults_inbox.drain():
+            parsed = keys.parse(key)
+            try:
+                if parsed is None or parsed.kind != "faults" or parsed.id >= self.n:
+                    raise ProtocolError(f"not a robot of this world: {key!r}")
+                m = protocol.decode(data, "faultstats", None, self.limits)
+            except ProtocolError as e:
+                self.bad.reject(key, e)
+                continue
+            with self.lock:
+                gen = self.token_gen[parsed.id]
+            if not self.rtf.take(parsed.id, m, gen):
+                self.bad.stale += 1
 
     def _take_ros2_commands(self, mono: float, t: float, advance) -> None:
         """Real time, ROS 2 robots: the cmd_vel each robot got since the last fine step (in order)."""
@@ -863,7 +941,7 @@ class World:
                 self.bad.reject(self.fleet_ros2.cmd_keys[i], ProtocolError(f"cmd_vel ({v:g}, {w:g}) beyond the bounds"))
                 continue
             advance(i, t)
-            self.cmd[i] = (v, w)
+            self.cmd[i] = self.cmd_new[i] = (v, w)
             self.cmd_time[i] = mono
             self.stopped[i] = False
 

@@ -21,6 +21,7 @@ POSE_DEPTH = 8  # poses kept until the agent takes them (the newest: older ones 
 
 class SimDrive:
     name = "sim"
+    periodic = True  # the world puts each robot's pose once a control period: a pose that does not come was lost
 
     def __init__(self, bus, fleet: str, robot_id: int, limits: Limits | None = None) -> None:
         self.bus, self.fleet, self.id, self.limits = bus, fleet, robot_id, limits
