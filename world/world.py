@@ -366,7 +366,11 @@ class World:
 
     def _publish_pose(self, i: int, t: float, seq: int) -> None:
         x, y, th = self.q[i]
-        self.bus.put(self._pose_keys[i], protocol.encode(Pose(t=t, seq=seq, x=x, y=y, theta=th)), reliable=True)
+        # lock-step: reliable (a lost pose would cost a tick timeout); real time: best effort, like a sensor (a
+        # robot goes on without one), and a robot cut off from the router must not block the router's thread
+        # that forwards every other pose (zenoh blocks a reliable put to a full queue for up to 5 s)
+        self.bus.put(self._pose_keys[i], protocol.encode(Pose(t=t, seq=seq, x=x, y=y, theta=th)),
+                     reliable=self.lockstep)
 
     def _publish_snapshot(self, t: float, seq: int) -> None:
         key = keys.world_snapshot(self.fleet)

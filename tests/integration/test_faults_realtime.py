@@ -1,0 +1,64 @@
+"""Faults for real in `swarm up --mode realtime` (docs/faults.md, Lock-step and real time under faults):
+30 % of every message lost by each receiver's fault bus, and robot 2's process really killed (SIGKILL) at
+5 s. Every surviving robot hears that robot 2's liveliness token is gone within 1 s of the kill the
+supervisor logged, nobody collides, and the survivors converge. Bounded: `swarm up` runs under a
+timeout and stops every process it started."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import time
+
+import pytest
+
+from tests.integration.helpers import up
+
+pytestmark = pytest.mark.integration
+
+N = 7
+KILLED = 2
+LOST = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d),(\d{3}) swarm\.robot WARNING: robot (\d+): robot (\d+) lost "
+                  r"\(its liveliness token is gone\)$", re.M)
+KILL = re.compile(r"^(\d+\.\d+) t = ([\d.]+) s: robot (\d+) killed \(SIGKILL, pid (\d+)\)$", re.M)
+
+
+def log_time(stamp: str, ms: str) -> float:
+    """Unix time of a log line's asctime (local time, ms)."""
+    return time.mktime(time.strptime(stamp, "%Y-%m-%d %H:%M:%S")) + int(ms) / 1000.0
+
+
+def test_realtime_drop_and_a_real_kill_survivors_see_it_within_a_second_and_converge(tmp_path):
+    cmd, metrics = up(tmp_path, "--mode", "realtime", "--robots", str(N), "--duration", "40", "--speed", "2",
+                      "--drop", "0.3", "--kill", f"{KILLED}@5", "--quiet")
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
+    logs = tmp_path / "logs"
+    m = json.loads(metrics.read_text())
+    assert out.returncode == 0, (out.stderr, {k: m.get(k) for k in ("collisions", "converged_at_s", "failure")})
+
+    # the supervisor really killed robot 2's process at 5 s ...
+    kills = KILL.findall((logs / "faults.log").read_text())
+    assert len(kills) == 1 and int(kills[0][2]) == KILLED and 5.0 <= float(kills[0][1]) < 5.1
+    killed_at = float(kills[0][0])
+    robot2 = (logs / f"robot-{KILLED}.log").read_text()
+    assert "loop CPU" not in robot2  # a clean exit logs its counters: a SIGKILLed process cannot
+    assert f"robot {KILLED}'s token is gone at t = 5." in (logs / "world.log").read_text()
+
+    # ... and every survivor logged robot 2 lost within 1 s of it
+    for i in range(N):
+        if i == KILLED:
+            continue
+        seen = [log_time(s, ms) for s, ms, me, other in LOST.findall((logs / f"robot-{i}.log").read_text())
+                if int(me) == i and int(other) == KILLED]
+        assert seen, f"robot {i} never logged robot {KILLED} lost"
+        assert abs(seen[0] - killed_at) <= 1.0, (i, seen[0] - killed_at)
+
+    # no collision, the survivors converged, and the faults were really there
+    assert m["mode"] == "realtime" and m["collisions"] == 0 and m["converged_at_s"] is not None
+    assert m["robots_alive_at_end"] == N - 1 and m["robots_lost"] == 0  # a scheduled kill is no loss
+    f = m["faults"]
+    assert f["killed"] == 1 and f["restarted"] == 0 and m["robot_restarts"] == 0
+    for cls in ("state", "pose", "cmd", "ref"):
+        assert f["dropped"][cls] > 0, cls
+    assert m["messages_dropped"] == sum(f["dropped"].values())
