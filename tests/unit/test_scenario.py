@@ -319,7 +319,7 @@ def test_missing_file_is_refused(tmp_path):
 
 
 def test_directory_is_not_a_scenario(tmp_path):
-    check_refusal(refused(str(tmp_path)), str(tmp_path), "", "no such file")
+    check_refusal(refused(str(tmp_path)), str(tmp_path), "", "is a directory")
 
 
 def test_robots_flag_with_explicit_lists_of_another_length(base_doc, write_scenario):
