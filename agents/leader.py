@@ -60,8 +60,11 @@ class Leader:
 
     def publish(self, t: float, seq: int) -> None:
         x, y, th, v, w = kinematics.leader_state(self.table, t)
+        # lock-step: reliable (a robot waits for the reference of its tick); real time: best effort, like the
+        # poses (a robot extrapolates a missing one, and a reliable put to a robot behind a silent network cut
+        # would block the router's forwarding to everyone: docs/runtime.md)
         self.bus.put(keys.leader_ref(self.fleet), protocol.encode(Ref(t=t, seq=seq, x=x, y=y, theta=th, v=v, w=w)),
-                     reliable=True)
+                     reliable=self.lockstep)
         self.sent += 1
 
     def on_clock(self, key: str, data: bytes) -> None:

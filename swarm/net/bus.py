@@ -289,6 +289,10 @@ def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen:
     conf.insert_json5("mode", json.dumps(mode))
     conf.insert_json5("scouting/multicast/enabled", "true" if multicast else "false")
     conf.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
+    # a reliable put to a peer that takes nothing (behind a silent network cut) blocks the sender, the
+    # router included, until the link is closed: zenoh's default is 5 s, for each such peer in turn, and the
+    # whole swarm stalls meanwhile; a peer that cannot take data for a lease is gone anyway (docs/runtime.md)
+    conf.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close", str(int(lease_ms) * 1000))
     # small batches: lock-step traffic is many ~100-byte messages (+8-30 % ticks/s, docs/runtime.md)
     conf.insert_json5("transport/link/tx/batch_size", "4096")
     conf.insert_json5("transport/link/rx/buffer_size", "4096")
