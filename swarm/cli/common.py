@@ -309,13 +309,14 @@ def viz_options(args, enabled: bool, otherwise: str, extra: tuple[tuple[str, obj
     parser); None when the viewer is off, and then any of those flags is bad input ("--viz-port
     `otherwise`")."""
     given = (("--viz-host", args.viz_host), ("--viz-port", args.viz_port), ("--viz-rings", args.viz_rings or None),
-             *extra)
+             ("--viz-timeout", getattr(args, "viz_timeout", None)), *extra)
     if not enabled:
         for flag, value in given:
             if value is not None:
                 raise BadInput(f"{flag} {otherwise}")
         return None
-    return VizOptions(host=args.viz_host or VIZ_HOST, port=args.viz_port or 0, rings=bool(args.viz_rings))
+    return VizOptions(host=args.viz_host or VIZ_HOST, port=args.viz_port or 0, rings=bool(args.viz_rings),
+                      timeout=getattr(args, "viz_timeout", None) or 60.0)
 
 
 def check_viz_port(v: VizOptions) -> None:

@@ -121,6 +121,10 @@ def _add_viz_flags(p: argparse.ArgumentParser, switch: str | None) -> None:
                         "0.0.0.0: every interface)")
     g.add_argument("--viz-port", type=_port, metavar="P", help="the viewer's web port (default: a free one)")
     g.add_argument("--viz-rings", action="store_true", help="draw every robot's avoidance ring R")
+    g.add_argument("--viz-timeout", type=_positive_float, metavar="S",
+                   help="seconds the viewer's web server may take to start (default 60; a loaded machine can "
+                        "need tens of seconds); past it a run goes on without the viewer and says how to attach "
+                        "one later")
 
 
 def _add_scenario_flags(p: argparse.ArgumentParser, default: str) -> None:

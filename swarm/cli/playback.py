@@ -74,7 +74,7 @@ def cmd_replay(args, started: float) -> int:
     viz = viz_options(args, True, "")
     check_viz_port(viz)
     with StopEvent() as stop:
-        server = MeshcatServer(viz.host, viz.port)
+        server = MeshcatServer(viz.host, viz.port, start_timeout_s=viz.timeout)
         try:
             server.start()
             print(f"viewer: {server.web_url}", flush=True)

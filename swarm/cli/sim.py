@@ -85,7 +85,7 @@ def _sim_in_viewer(args: argparse.Namespace, viz, scn, sim, show, status, starte
     from swarm.view.viz import SceneInfo, Viewer
     from swarm.view.watch import play_simulation
 
-    server = MeshcatServer(viz.host, viz.port)
+    server = MeshcatServer(viz.host, viz.port, start_timeout_s=viz.timeout)
     try:
         server.start()
         print(f"viewer: {server.web_url}", flush=True)

@@ -32,8 +32,9 @@ class ViewerUrl:
 
     PATTERN = re.compile(r"^viewer: (\S+)$", re.M)
 
-    def __init__(self, child, timeout_s: float, offset: int = 0):
+    def __init__(self, child, timeout_s: float, offset: int = 0, attach: str = "swarm viz --connect ENDPOINT"):
         self.child = child
+        self.attach = attach  # the command that attaches a viewer later
         self.offset = offset  # where this run's lines start in the log
         self.end = time.monotonic() + timeout_s
         self.url: str | None = None
@@ -51,12 +52,14 @@ class ViewerUrl:
                 return f"viewer: {self.url}"
             if rc is None and time.monotonic() > self.end:
                 self.done = True
-                return f"viewer: no URL after the start timeout; see {self.child.log}"
+                return (f"viewer: no URL after the viewer's timeout; the swarm goes on without it (see "
+                        f"{self.child.log}; `{self.attach}` attaches one later)")
         if rc is None:
             return None
         self.done = True
         tail = " | ".join(self._text().strip().splitlines()[-2:])
-        return f"viewer: the viz process exited ({exit_text(rc)}); the swarm goes on without it: {tail}"
+        return (f"viewer: the viz process exited ({exit_text(rc)}); the swarm goes on without it: {tail} "
+                f"(`{self.attach}` attaches one later)")
 
     def _text(self) -> str:
         try:
@@ -115,7 +118,7 @@ def cmd_up(args, started: float) -> int:
     metrics_path = (args.metrics or log_dir / "metrics.json").absolute()
     viz = viz_options(args, not args.no_viz, "has no effect with --no-viz")
     if viz is not None:
-        viz = VizOptions(viz.host, viz.port, viz.rings, str((log_dir / "viz-server.log").absolute()))
+        viz = VizOptions(viz.host, viz.port, viz.rings, str((log_dir / "viz-server.log").absolute()), viz.timeout)
     opts = UpOptions(
         robots=scn.n, scenario_args=scenario_args(args), mode=args.mode, speed=args.speed, fleet=fleet,
         listen=None if args.connect else (args.listen[0] if args.listen else (None if args.secure else DEFAULT_LISTEN)),
@@ -170,7 +173,8 @@ def cmd_up(args, started: float) -> int:
             if plan.viz is not None:
                 viz_log = sup.log_of(plan.viz)
                 offset = viz_log.stat().st_size if viz_log.exists() else 0
-                viewer.append(ViewerUrl(sup.start(plan.viz), args.start_timeout, offset))
+                viewer.append(ViewerUrl(sup.start(plan.viz), viz.timeout + 5.0, offset,
+                                        f"swarm viz --connect {plan.endpoint} --fleet {fleet}"))
             bus = open_bus(argparse.Namespace(connect=[plan.endpoint], zenoh_config=opts.zenoh_config, secure=opts.secure,
                                               multicast=opts.multicast), timeout_s=min(15.0, args.start_timeout),
                            stop=stop, role="launcher")

@@ -298,7 +298,7 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
     metrics_path = (args.metrics or log_dir / "metrics.json").absolute()
     viz = viz_options(args, not args.no_viz, "has no effect with --no-viz")
     if viz is not None:
-        viz = VizOptions(viz.host, viz.port, viz.rings, str((log_dir / "viz-server.log").absolute()))
+        viz = VizOptions(viz.host, viz.port, viz.rings, str((log_dir / "viz-server.log").absolute()), viz.timeout)
     opts = FleetUpOptions(
         inventory=str(Path(args.inventory).absolute()), robots=scn.n, scenario_args=scenario_args(args),
         robot_endpoints=fleet.inventory.endpoints, initial_poses=_initial_poses(args), fleet=name,

@@ -29,7 +29,7 @@ def cmd_viz(args, started: float) -> int:
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         # the server first: fork before zenoh starts its threads, and from this (main) thread, which
         # its PR_SET_PDEATHSIG follows
-        server = MeshcatServer(v.host, v.port, log=args.server_log)
+        server = MeshcatServer(v.host, v.port, log=args.server_log, start_timeout_s=v.timeout)
         try:
             server.start()
             print(f"viewer: {server.web_url}", flush=True)
@@ -46,7 +46,8 @@ def cmd_viz(args, started: float) -> int:
             finally:
                 bus.close()
         except ServerError as e:
-            raise Failure(f"viewer: {e}") from None
+            raise Failure(f"viewer: {e} (a loaded machine may need a longer --viz-timeout; `swarm viz --connect "
+                          f"{connect[0]} --fleet {fleet}` attaches a viewer to a running swarm later)") from None
         finally:
             server.stop()
     log.info("viz: %d snapshots, %d drawn, %d skipped, %d bad messages", watcher.received, watcher.drawn,

@@ -34,6 +34,7 @@ class VizOptions:
     port: int = 0  # 0: a free one
     rings: bool = False
     server_log: str | None = None  # the meshcat server's own log
+    timeout: float = 60.0  # s the meshcat server may take to give its address (--viz-timeout)
 
 
 @dataclass(frozen=True)
@@ -148,6 +149,7 @@ def make_plan(o: UpOptions, python: str = sys.executable) -> Plan:
     viz = None
     if o.viz is not None:
         v_argv = [*base, "viz", *o.scenario_args, "--viz-host", o.viz.host, "--viz-port", str(o.viz.port),
+                  "--viz-timeout", repr(o.viz.timeout),
                   "--start-timeout", repr(o.start_timeout), *net]
         if o.viz.rings:
             v_argv.append("--viz-rings")

@@ -199,3 +199,14 @@ def test_up_lockstep_equals_sim_with_speed_limits_on(tmp_path):
     q = np.load(tmp_path / "trace.npz")["q"]
     assert np.abs(q - sim.recording.q).max() == 0.0
     assert np.abs(sim.recording.cmd[:, :, 0]).max() > 0.2  # the bound binds in this stretch
+
+
+def test_a_viewer_that_does_not_start_in_time_leaves_the_run_going_and_says_how_to_attach_one(tmp_path):
+    """--viz-timeout (default 60 s): a meshcat server slower than that (here: 10 ms) fails the viewer
+    only; the swarm runs to its end and the line says how to attach a viewer later."""
+    cmd, metrics = up(tmp_path, "--robots", "2", "--duration", "1")
+    cmd = [a for a in cmd if a != "--no-viz"] + ["--viz-timeout", "0.01"]
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "the swarm goes on without it" in out.stdout and "swarm viz --connect tcp/127.0.0.1:" in out.stdout
+    assert json.loads(metrics.read_text())["steps"] == 50
