@@ -430,6 +430,7 @@ class Agent:
                 if up and parsed.id in self.w_state:
                     self.w_state[parsed.id].reset()
             elif parsed.role == "world":
+                self.world_alive = up
                 if self.guard is not None:
                     self.guard.world(up)  # real time: a robot that lost the world halts, as for a lost leader
                 if up:
@@ -527,6 +528,7 @@ class Agent:
     _idle = -1  # lock-step under faults: the tick this robot's process is dead or hung at
     _overdue = 0  # lock-step ticks computed without all their inputs (after wait_timeout)
     _world_ups = 0  # times the world's token appeared
+    world_alive = False  # the world's token is there
     _announce = False  # lock-step under faults: its session came back; tell the world (FaultStats)
 
     _clock_needed = 0  # lock-step: clock_0 is the start barrier; later ticks need no clock message
@@ -581,8 +583,9 @@ class Agent:
             self.dead.discard(j)
             self.dead_age.pop(j, None)
         else:
-            if j not in self.dead:
-                log.warning("robot %d: robot %d lost (its liveliness token is gone)", self.id, j)
+            if j not in self.dead:  # once the world is gone (the end of a run) robots leaving is no news
+                log.log(logging.WARNING if self.world_alive else logging.INFO,
+                        "robot %d: robot %d lost (its liveliness token is gone)", self.id, j)
                 if not self.cfg.lockstep and j in self.rx:
                     self.dead_age[j] = self._age(j, self.clock.monotonic())
             self.dead.add(j)
@@ -1083,6 +1086,10 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                 if fbus is not None:
                     fbus.detach()
                 current.clear()
+            log.info("robot %d, run %s: %d ticks, %d skipped, %d states received, %d bad messages, %d stale, "
+                     "%d duplicated, loop CPU %.0f us a tick", robot_id, agent.cfg.run, agent.ticks, agent.skipped,
+                     agent.states_received, agent.bad.count, agent.bad.stale, agent.bad.duplicates,
+                     1e6 * agent.loop_cpu_s / max(1, agent.ticks))
             served.append(agent)
             if once:
                 break

@@ -992,6 +992,7 @@ def run_world(bus, clock, scn: Scenario, opts: WorldOptions = WorldOptions(), st
                                             "lockstep" if opts.lockstep else "realtime")
         else:
             settle_heap()
+            log.info("world: every robot and the leader alive; run %s begins", world.run_id)
             metrics = world.run(stop, started)
     finally:
         world.close()

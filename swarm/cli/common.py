@@ -271,7 +271,11 @@ def scenario_args(args) -> tuple[str, ...]:
 
 
 def setup_logging(quiet: bool = False) -> None:
-    logging.basicConfig(level=logging.WARNING if quiet else logging.INFO, stream=sys.stderr,
+    """Log lines on stderr at --log-level (SWARM_LOG_LEVEL, which swarm up hands its children), else INFO
+    (WARNING when quiet)."""
+    level = os.environ.get("SWARM_LOG_LEVEL", "").upper()
+    logging.basicConfig(level=getattr(logging, level) if level in ("DEBUG", "INFO", "WARNING", "ERROR")
+                        else logging.WARNING if quiet else logging.INFO, stream=sys.stderr,
                         format="%(asctime)s %(name)s %(levelname)s: %(message)s")
 
 

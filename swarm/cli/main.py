@@ -45,6 +45,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     from swarm.core.scenario import ScenarioError
 
+    if getattr(args, "log_level", None):  # for this process and every process it starts (their environment)
+        os.environ["SWARM_LOG_LEVEL"] = args.log_level
+
     try:
         return run_command(args.func, args, started)
     except (ScenarioError, BadInput) as e:

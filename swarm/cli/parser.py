@@ -318,6 +318,9 @@ def _add_ros2_flags(g, world: bool = False) -> None:
 
 
 def _add_net_flags(p: argparse.ArgumentParser, listen: bool = False, connect_help: str | None = None) -> None:
+    p.add_argument("--log-level", choices=("debug", "info", "warning", "error"), metavar="LEVEL",
+                   help="what the process logs on stderr: debug, info (default), warning or error; swarm up passes "
+                        "it to every process it starts (their logs are in its log folder)")
     g = p.add_argument_group("network (zenoh)")
     if listen:
         g.add_argument("--listen", action="append", metavar="ENDPOINT",

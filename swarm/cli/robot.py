@@ -33,6 +33,7 @@ def cmd_robot(args, started: float) -> int:
     make_drive = _ros2_drive(args) if args.drive == "ros2" else None
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, lean=True, role="robot", robot_id=args.id)
+        log.info("robot %d: connected (fleet %s), waiting for a run", args.id, fleet)
         try:
             agents = robot.run_robot(bus, WALL, args.id, fleet, stop, scenario=scn, start_timeout=args.start_timeout,
                                      make_drive=None if make_drive is None else make_drive(bus),
@@ -51,10 +52,7 @@ def cmd_robot(args, started: float) -> int:
             raise
         finally:
             bus.close()
-    for a in agents:
-        log.info("robot %d, run %s: %d ticks, %d skipped, %d states received, %d bad messages, %d stale, "
-                 "loop CPU %.0f us a tick", args.id, a.cfg.run, a.ticks, a.skipped, a.states_received, a.bad.count,
-                 a.bad.stale, 1e6 * a.loop_cpu_s / max(1, a.ticks))
+    log.info("robot %d: %d run%s served", args.id, len(agents), "" if len(agents) == 1 else "s")
     return EXIT_INTERRUPTED
 
 

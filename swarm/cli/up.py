@@ -176,7 +176,7 @@ def cmd_up(args, started: float) -> int:
                 viewer.append(ViewerUrl(sup.start(plan.viz), viz.timeout + 5.0, offset,
                                         f"swarm viz --connect {plan.endpoint} --fleet {fleet}"))
             bus = open_bus(argparse.Namespace(connect=[plan.endpoint], zenoh_config=opts.zenoh_config, secure=opts.secure,
-                                              multicast=opts.multicast), timeout_s=min(15.0, args.start_timeout),
+                                              multicast=opts.multicast), timeout_s=15.0 if plan.router is not None else args.start_timeout,
                            stop=stop, role="launcher")
             alive: set[str] = set()
             progress: list = [None]

@@ -43,6 +43,7 @@ def cmd_world(args, started: float) -> int:
                         process_faults=args.process_faults)
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, stop=stop, role="world")
+        log.info("world: connected (fleet %s)", fleet)
         from world.claims import ClaimServer
 
         claims = ClaimServer(bus, fleet, scn.n)  # robots started with --id auto
