@@ -156,6 +156,8 @@ class World:
         self.k = 0
         self.t = 0.0
         self.trace: list[np.ndarray] | None = [] if trace else None
+        self.trace_t: list[float] = []  # the simulated time of each trace row
+        self.samples_missed = 0  # real time: control periods the world fell behind and did not sample
         self._handles: list = []
         self._state0: set[int] = set()
         self._prime = None
@@ -385,6 +387,7 @@ class World:
         q = np.array(self.q)
         if self.trace is not None:
             self.trace.append(q)
+            self.trace_t.append(t)
         xl, yl, thl, _v, _w = kinematics.leader_state(self.table, t)
         self.referee.sample(t, q, self._counted(), (xl, yl, thl),
                             None if self.wf is None else self.wf.frozen(self.k))
@@ -464,7 +467,8 @@ class World:
                      **({"lockstep_overruns": self.overruns} if self.lockstep else {}),
                      robots_alive_at_end=int(self.alive.sum()), robots_lost=self.lost_events,
                      run_wall_s=time.perf_counter() - self._run_started, failure=self.failure, run_id=self.run_id,
-                     scenario_digest=self.digest, stale_messages=self.bad.stale, **self._latency())
+                     scenario_digest=self.digest, stale_messages=self.bad.stale, **self._latency(),
+                     **({} if self.lockstep else {"samples_missed": self.samples_missed}))
         if self.wf is not None:  # messages_dropped, faults {...}, robots_alive_at_end by the schedule
             extra.update(self.wf.metrics(self._not_dead()))
         elif self.rtf is not None:  # real time: counted as it happened (docs/faults.md)
@@ -842,6 +846,8 @@ class World:
                 if self.rtf is not None:
                     self._take_faultstats()
                 seq = int(math.floor(t / period + 1e-9))  # the period (after a stall, the ones missed are skipped)
+                if self._running and seq > self.k + 1:
+                    self.samples_missed += seq - self.k - 1  # fell behind: those periods have no sample
                 self.k = seq
                 self._tell_events(t, seq, lambda te: te <= t + 1e-9)
                 self._publish_clock_rt(epoch)

@@ -125,9 +125,14 @@ def summary(m: dict, name: str) -> str:
     rows += fault_rows(m) if faults is not None else []
     for key, label in (("cmd_misses", "missed commands"), ("bad_messages", "bad messages"),
                        ("messages_dropped", "messages dropped"), ("robot_restarts", "robot restarts"),
-                       ("robots_lost", "robots lost"), ("lockstep_overruns", "lock-step overruns")):
+                       ("robots_lost", "robots lost"), ("lockstep_overruns", "lock-step overruns"),
+                       ("launcher_bad_messages", "bad messages (launcher)")):
         if m.get(key) and not (faults is not None and key == "messages_dropped"):
             rows.append((label, str(m[key])))
+    if m.get("samples_missed"):  # real time: the world fell behind its control periods
+        rows.append(("world behind", f"{m['samples_missed']} control periods not sampled (of "
+                                     f"{m['samples_missed'] + m.get('samples', 0)}): the machine could not keep "
+                                     "up; try a lower --speed"))
     nd = nondeterminism(m)
     if nd:
         rows.append(("lock-step", f"NOT deterministic: {', '.join(nd)}; this run may differ from swarm sim "

@@ -359,7 +359,8 @@ def _add_run_flags(p: argparse.ArgumentParser, up: bool = False) -> None:
                             "failure (lock-step holds its tick meanwhile; default 10)")
         g.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (its keys: docs/design.md, Metrics); swarm up always writes it to the log directory too")
         g.add_argument("--trace", type=Path, metavar="PATH.npz",
-                       help="write every robot's pose at every sample (numpy .npz: q[k, i] = x, y, theta)")
+                       help="write every robot's pose at every sample (numpy .npz: q[k, i] = x, y, theta; t[k] its simulated "
+                            "time, which in real time may skip periods the world fell behind on)")
         _add_violation_flag(g)
         if up:
             _add_record_flags(g)

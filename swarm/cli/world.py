@@ -61,7 +61,8 @@ def cmd_world(args, started: float) -> int:
     if args.trace is not None and world.trace is not None:
         import numpy as np
 
-        np.savez_compressed(args.trace, q=np.array(world.trace).reshape(-1, scn.n, 3), dt=scn.dt)
+        np.savez_compressed(args.trace, q=np.array(world.trace).reshape(-1, scn.n, 3), t=np.array(world.trace_t),
+                            dt=scn.dt)
     log.info("world: done at t = %s s, converged at %s s, %d collisions, %d misses%s",
              metrics["duration_s"], metrics["converged_at_s"], metrics["collisions"], metrics["cmd_misses"],
              f"; FAILED: {metrics['failure']}" if metrics.get("failure") else "")

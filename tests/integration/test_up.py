@@ -172,7 +172,8 @@ def test_robot_without_a_world_says_what_it_waited_for(tmp_path):
 
 
 def test_realtime_mode_runs_on_the_wall_clock_and_measures_the_round_trip(tmp_path):
-    cmd, metrics = up(tmp_path, "--robots", "4", "--duration", "6", "--mode", "realtime", "--speed", "2", "--quiet")
+    cmd, metrics = up(tmp_path, "--robots", "4", "--duration", "6", "--mode", "realtime", "--speed", "2", "--quiet",
+                      "--trace", str(tmp_path / "trace.npz"))
     started = time.monotonic()
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
@@ -186,6 +187,14 @@ def test_realtime_mode_runs_on_the_wall_clock_and_measures_the_round_trip(tmp_pa
     loops = [re.search(r"(\d+) ticks, .* loop CPU (\d+) us a tick", (tmp_path / "logs" / f"robot-{i}.log").read_text())
              for i in range(4)]
     assert all(lp and int(lp.group(1)) > 100 and 0 < int(lp.group(2)) < 20_000 for lp in loops), loops
+    # the trace carries each sample's time: a period the world fell behind on is missing, and counted
+    trace = np.load(tmp_path / "trace.npz")
+    t = trace["t"]
+    assert trace["q"].shape == (len(t), 4, 3) and len(t) == m["samples"] and t[0] == 0.0 and t[-1] == pytest.approx(6.0)
+    period = np.floor(t / 0.02 + 1e-9)  # a sample is taken at the first 1 ms step of its period, or later
+    assert np.all(np.diff(period) >= 1) and m["samples"] + m["samples_missed"] <= 301
+    gaps = np.diff(period) - 1  # periods with no sample between consecutive samples
+    assert int(gaps[t[1:] > 1.0].sum()) <= m["samples_missed"] <= int(gaps.sum())  # counted from the start barrier on
 
 
 def test_up_lockstep_equals_sim_with_speed_limits_on(tmp_path):

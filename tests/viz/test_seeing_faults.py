@@ -330,3 +330,13 @@ def test_the_summary_lists_the_fault_counters_of_a_run_with_faults():
     assert rows["oldest state used"] == "0.42 s"
     assert rows["robots alive"] == "36 of 37 at the end"
     assert "messages delayed" not in rows
+
+
+def test_the_summary_says_when_the_real_time_world_fell_behind():
+    m = {"robots": 7, "obstacles": 0, "seed": 0, "dt": 0.02, "governor": True, "duration_s": 20.0,
+         "interrupted": False, "converged_at_s": None, "final_position_error_max_m": 0.1,
+         "final_orientation_error_max_rad": 0.1, "min_robot_distance_m": 0.5, "min_obstacle_distance_m": None,
+         "collisions": 0, "last_freeze_end_s": None, "wall_s": 11.0, "messages_dropped": 0, "cmd_misses": 0,
+         "bad_messages": 0, "samples": 937, "samples_missed": 64}
+    assert "world behind" not in console.summary({**m, "samples_missed": 0}, "paper-50hz")
+    assert "64 control periods not sampled (of 1001)" in console.summary(m, "paper-50hz")
