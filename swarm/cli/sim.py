@@ -25,6 +25,10 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
     args.record_hz = record_rate(args)
     if args.plots is not None and args.plots.exists() and not args.plots.is_dir():
         raise BadInput(f"--plots {args.plots}: exists and is not a directory")
+    parent = args.plots.absolute().parent if args.plots is not None else None
+    if parent is not None and not args.plots.exists() and not parent.is_dir():
+        raise BadInput(f"--plots {args.plots}: {parent} " + ("is not a directory" if parent.exists() else
+                       "does not exist (the plots' folder itself is made if missing)"))
     viz = viz_options(args, args.viz, "needs --viz", extra=(("--speed", args.speed),))
     if viz is not None:
         check_viz_port(viz)

@@ -65,6 +65,9 @@ def test_paper_seed_through_cli_writes_contract_metrics(tmp_path):
         (["sim", "--seed", "-1"], "--seed"),
         (["sim", "--scenario", "no-such-scenario"], "no such file"),
         (["sim", "--duration", "abc"], "--duration"),
+        (["sim", "--scenario", "/tmp"], "is a directory"),
+        (["sim", "--duration", "1", "--plots", "/etc/passwd/fig2"], "/etc/passwd is not a directory"),
+        (["sim", "--duration", "1", "--plots", "/nonexistent/a/fig2"], "/nonexistent/a does not exist"),
     ],
 )
 def test_bad_command_line_exits_2_with_a_clear_message(args, needle):
