@@ -219,3 +219,24 @@ def test_a_viewer_that_does_not_start_in_time_leaves_the_run_going_and_says_how_
     assert out.returncode == 0, out.stderr
     assert "the swarm goes on without it" in out.stdout and "swarm viz --connect tcp/127.0.0.1:" in out.stdout
     assert json.loads(metrics.read_text())["steps"] == 50
+
+
+def test_processes_say_what_they_do_and_log_level_quiets_them(tmp_path):
+    """Each process says when it is connected and when a run begins and ends (with its counters);
+    --log-level warning, handed to every process, leaves only warnings and errors."""
+    cmd, _ = up(tmp_path / "a", "--robots", "2", "--duration", "1", "--quiet")
+    (tmp_path / "a").mkdir()
+    assert subprocess.run(cmd, capture_output=True, text=True, timeout=120).returncode == 0
+    logs = tmp_path / "a" / "logs"
+    robot, leader, world = ((logs / f"{name}.log").read_text() for name in ("robot-0", "leader", "world"))
+    assert "robot 0: connected" in robot and re.search(r"robot 0: run \S+ \(lock-step, 2 robots\)", robot)
+    assert re.search(r"robot 0, run \S+: \d+ ticks, .* duplicated, loop CPU", robot)
+    assert "leader: connected" in leader and re.search(r"leader: run \S+ begins", leader)
+    assert re.search(r"leader: run \S+ (ended|stopped): \d+ references sent", leader)
+    assert "world: connected" in world and re.search(r"world: every robot and the leader alive; run \S+ begins", world)
+    assert "world: done at t = 1.0 s" in world
+    cmd, _ = up(tmp_path / "b", "--robots", "2", "--duration", "1", "--quiet", "--log-level", "warning")
+    (tmp_path / "b").mkdir()
+    assert subprocess.run(cmd, capture_output=True, text=True, timeout=120).returncode == 0
+    for log in (tmp_path / "b" / "logs").glob("*.log"):
+        assert " INFO: " not in log.read_text(), log.name
