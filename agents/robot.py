@@ -408,12 +408,25 @@ class Agent:
 
     def _on_estop(self, e: protocol.Estop, key: str = "") -> None:
         """The emergency stop: latched by the guard (a real drive halts within a period: the guard's
-        thread); a lock-step robot commands zero while it is engaged."""
-        if not self.bad.verdict(key, self.w_estop.check(e.t, e.seq), "the emergency stop's t or seq"):
-            return
+        thread); a lock-step robot commands zero while it is engaged. Safety first: an engage that decodes
+        is always obeyed, whatever its t and seq (a forged message far ahead must never make a later
+        stop look old); a release only when it moves forward and is newer than every engage obeyed."""
+        verdict = self.w_estop.check(e.t, e.seq)
+        if e.engaged:
+            if verdict not in (window.OK, window.DUPLICATE):
+                self.bad.verdict(key, verdict, "the emergency stop's t or seq")  # counted, and obeyed all the same
+            self._estop_seq = max(self._estop_seq, e.seq)
+        else:
+            if not self.bad.verdict(key, verdict, "the emergency stop's t or seq"):
+                return
+            if e.seq <= self._estop_seq:
+                self.bad.stale += 1  # older than an engage obeyed: the stop holds
+                return
         self.estopped = e.reason or "engaged" if e.engaged else None
         if self.guard is not None:
             self.guard.estop(e.engaged, e.reason)
+
+    _estop_seq = -1  # the largest seq of an engaged emergency stop obeyed
 
     def _on_alive_msg(self, key: str, up: bool) -> None:
         """A liveliness token came or went. A robot's: it is alive, or dead (a static body). A new token
@@ -546,7 +559,8 @@ class Agent:
         two of its states has no bound: its window is on this robot's own clock instead (lock-step: a
         state of a tick at most one ahead of this robot's; real time: t at most t_span ahead of now),
         and per sender only forward (older: stale; the same again: a duplicate)."""
-        if s.id == self.id:
+        if s.id == self.id:  # it never hears its own (put with no loopback): another sender with its id
+            self.bad.reject(key, ProtocolError(f"a state with this robot's own id {s.id} from elsewhere (an impostor)"))
             return
         if self.cfg.lockstep:
             nxt = self._next_tick()

@@ -21,9 +21,9 @@ session), so oversized payloads reach the router, whose filter drops them. It se
 (congestion control BLOCK), so nothing it counts as sent is lost on its own side. It keeps, per key
 and per receiver, what it sent and what each receiver must make of it: "bad" (malformed, beyond a
 bound, a jump: BadMessages.count), "stale" (older than the receiver's window: BadMessages.stale),
-"ignored" (a state carrying the receiver's own id, which a robot drops without counting), "zenoh"
-(beyond the size filter: never delivered), or "uncounted" (a receiver that keeps no counter it
-reports: the leader, the launcher, the run followers, nobody at all on world/snapshot).
+"zenoh" (beyond the size filter: never delivered), or "uncounted" (a receiver that keeps no counter it
+reports: the run followers, nobody at all on world/snapshot). A state carrying the receiver's own id
+is bad (an impostor: a robot never hears its own).
 
 A cell key reaches every robot subscribed to that cell (its 3 x 3 block, and for one tick the block
 it left). The bench follows every robot's cell from its pose (it subscribes to robot/*/pose) and
@@ -303,7 +303,7 @@ class Attack:
 
     def verdicts(self, spec) -> list[tuple[str, str]] | None:
         """What each receiver must make of a message now: a list as given, or for a cell attack (cell,
-        owner) the cell's subscribers now (bad, or ignored for the owner's own id); None when some robot's
+        owner) the cell's subscribers now (bad, the owner too: a state with its own id is an impostor); None when some robot's
         membership of the cell is not certain (the message is then not sent)."""
         if isinstance(spec, list):
             return spec
@@ -311,7 +311,7 @@ class Attack:
         subs = self.cells.subscribers(c)
         if subs is None:
             return None
-        return [(f"robot {j}", IGNORED if j == owner else BAD) for j in subs] or [("no subscriber", UNCOUNTED)]
+        return [(f"robot {j}", BAD) for j in subs] or [("no subscriber", UNCOUNTED)]
 
 
 def run_attack(session, attack: Attack, ledger: Ledger, rate: float, seconds: float) -> float:
@@ -532,8 +532,7 @@ def main() -> int:
         print(f"  {who:22} {sum(e.values()):10d} {'':8} {'':8} {'':8} | {what}")
     print("  (the world's bad = its metrics' bad_messages minus the robots' own counts, which it adds from their "
           "statuses;\n   duplicates are reported by neither the robots' exit line nor the metrics: none was sent, "
-          "so bad + stale is exact;\n   'ignored': a state carrying the receiver's own id, dropped by a robot "
-          "without counting it)")
+          "so bad + stale is exact)")
 
     print("\nthe run:")
     print(f"  exit code {rc}, failure {m.get('failure')!r}, collisions {m.get('collisions')}, cmd_misses "

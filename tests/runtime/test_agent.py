@@ -223,3 +223,24 @@ def test_agent_module_imports_nothing_of_the_world_nor_numpy():
     src = open(robot.__file__).read()
     assert "world" not in [line.split()[1].split(".")[0] for line in src.splitlines()
                            if line.startswith(("import ", "from "))]
+
+
+def test_an_engaged_emergency_stop_is_always_obeyed_and_a_release_only_when_newer():
+    """A forged release far ahead (seq 2^53) must not make the operator's later stop look old: an engage
+    that decodes is obeyed whatever its t and seq (and counted when out of order); a release only when it
+    moves forward and is newer than every engage obeyed."""
+    w = Wire()
+    stop = lambda t, seq, engaged: w.put(keys.estop(F), protocol.Estop(t=t, seq=seq, engaged=engaged, reason="test"))  # noqa: E731
+    stop(1.7e9 + 5, 2**53, False)  # the forged release: adopted (nothing was engaged), the window now far ahead
+    assert w.agent.estopped is None
+    stop(1.7e9 + 10, 1_700_000_010_000, True)  # the operator's stop: older by the window, obeyed all the same
+    assert w.agent.estopped == "test" and w.agent.bad.stale == 1
+    stop(1.7e9 + 11, 1_700_000_011_000, False)  # a release is refused while the window is that far ahead
+    assert w.agent.estopped == "test"
+    w2 = Wire()
+    stop2 = lambda seq, engaged: w2.put(keys.estop(F), protocol.Estop(t=1.7e9, seq=seq, engaged=engaged, reason="x"))  # noqa: E731
+    stop2(1000, True)
+    stop2(999, False)  # older than the stop obeyed: it holds
+    assert w2.agent.estopped == "x"
+    stop2(1001, False)
+    assert w2.agent.estopped is None
