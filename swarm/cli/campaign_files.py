@@ -65,6 +65,7 @@ def campaign_command(args: argparse.Namespace) -> str:
 
 
 def scenario_flags(args: argparse.Namespace) -> list[str]:
+    """The flags every run of the campaign shares, as `swarm sim` and `swarm up` take them."""
     out = []
     for flag, value in (("--robots", args.robots), ("--duration", args.duration), ("--dt", args.dt)):
         if value is not None:

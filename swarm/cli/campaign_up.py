@@ -93,7 +93,10 @@ def compare_traces(q_up: np.ndarray, q_sim: np.ndarray) -> TraceDiff:
 
 
 def metric_differences(up: dict, sim: dict, keys=SAME) -> list[str]:
-    """'key: A (swarm up) != B (swarm sim)' for every key (nested objects by their leaves) that differs."""
+    """'key: A (swarm up) != B (swarm sim)' for every key (nested objects by their leaves) that differs. A
+    key swarm sim does not report is not compared (without faults it has no faults object and no
+    robots_alive_at_end; swarm up's world always counts the robots alive)."""
+    keys = [k for k in keys if k in sim]
     a = flatten({k: up.get(k) for k in keys})
     b = flatten({k: sim.get(k) for k in keys})
     return [f"{k}: {a.get(k)!r} (swarm up) != {b.get(k)!r} (swarm sim)" for k in dict.fromkeys([*a, *b])
@@ -358,19 +361,24 @@ def line(c: Check, total: int, dt: float) -> str:
 # --------------------------------------------------------------------------- up.csv
 
 UP_COLUMNS = ("row", "scenario", "seed", "drop", "result", "first_differing_tick", "first_differing_t_s",
-              "robots_differing", "ticks_differing", "metrics_differing", "why", "up_exit", "collisions",
+              "robots_differing", "ticks_differing", "metrics_differing", "why", "up_said", "up_exit", "collisions",
               "converged_at_s", "min_robot_distance_m", "robots_alive_at_end", "messages_dropped", "files",
               "command", "wallclock.up_s", "wallclock.sim_s")
 
 
 def up_row(c: Check, dt: float) -> dict:
+    """A row of up.csv (UP_COLUMNS); up_said: what swarm up itself says made its run depart from lock-step's
+    schedule (missed commands, robots lost, overruns, restarts: swarm.core.metrics.nondeterminism)."""
+    from swarm.core.metrics import nondeterminism
+
     t = c.trace or TraceDiff(None)
     m = c.up or {}
     return {"row": c.row, "scenario": c.scenario, "seed": c.seed, "drop": c.drop, "result": c.result,
             "first_differing_tick": t.first_tick, "first_differing_t_s": None if t.first_tick is None
             else round(t.first_tick * dt, 9), "robots_differing": " ".join(map(str, t.robots)) or None,
             "ticks_differing": t.ticks if c.trace is not None else None,
-            "metrics_differing": " | ".join(c.metrics) or None, "why": t.shape or c.why, "up_exit": c.exit,
+            "metrics_differing": " | ".join(c.metrics) or None, "why": t.shape or c.why,
+            "up_said": "; ".join(nondeterminism(m)) or None, "up_exit": c.exit,
             "collisions": m.get("collisions"), "converged_at_s": m.get("converged_at_s"),
             "min_robot_distance_m": m.get("min_robot_distance_m"), "robots_alive_at_end": m.get("robots_alive_at_end"),
             "messages_dropped": m.get("messages_dropped"), "files": c.out or None, "command": c.command or None,

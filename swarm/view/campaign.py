@@ -252,7 +252,7 @@ def write_index(out_dir, command: str, columns: Sequence[str], summary: Sequence
 
 UP_START, UP_END = "<!-- up-check:start -->", "<!-- up-check:end -->"
 UP_SHOWN = ("row", "seed", "drop", "result", "first_differing_tick", "robots_differing", "metrics_differing", "why",
-            "collisions", "converged_at_s", "files", "wallclock.up_s", "wallclock.sim_s")
+            "up_said", "collisions", "converged_at_s", "files", "wallclock.up_s", "wallclock.sim_s")
 
 
 def write_up_section(out_dir, rows: Sequence[dict], asked: int, note: str | None = None) -> Path | None:
@@ -270,7 +270,7 @@ def write_up_section(out_dir, rows: Sequence[dict], asked: int, note: str | None
              "column, with each row's <code>swarm up</code> command.</p>"]
     if note:
         parts.append(f"<p class='warning'>{esc(note)}</p>")
-    parts += [_table(UP_SHOWN, rows, left=("result", "robots_differing", "metrics_differing", "why", "files")),
+    parts += [_table(UP_SHOWN, rows, left=("result", "robots_differing", "metrics_differing", "why", "up_said", "files")),
               UP_END]
     block = "\n".join(parts)
     text = path.read_text(encoding="utf-8")

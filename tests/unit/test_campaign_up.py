@@ -43,6 +43,9 @@ def test_metric_differences_go_down_to_the_faults_leaves():
     sim = {"collisions": 0, "converged_at_s": 40.5, "faults": {"dropped": {"state": 10, "pose": 3}, "killed": 1},
            "wall_s": 1.0}
     assert metric_differences(dict(sim, wall_s=9.0), sim) == []
+    assert metric_differences({"collisions": 0, "robots_alive_at_end": 7}, {"collisions": 0}) == []  # no faults
+    assert metric_differences({"collisions": 0}, {"collisions": 0, "robots_alive_at_end": 7}) == [
+        "robots_alive_at_end: None (swarm up) != 7 (swarm sim)"]
     up = {**sim, "converged_at_s": 40.52, "faults": {"dropped": {"state": 11, "pose": 3}, "killed": 1}}
     assert metric_differences(up, sim, keys=("collisions", "converged_at_s", "faults")) == [
         "converged_at_s: 40.52 (swarm up) != 40.5 (swarm sim)",
