@@ -21,7 +21,7 @@ equal to the simulation's recording at every tick (np.array_equal) and its metri
 
 The default duration is 60 s, not the paper's 120 s: lock-step `swarm up` with 37 robots runs 30-45 ticks
 a second on an idle 2-core machine, so the seven cases take 8-12 minutes at 60 s (3000 ticks each) and
-twice that at 120 s; on a 2-core VM shared with other test runs (load 30-40), the seven at 60 s took 29
+twice that at 120 s; on a 2-core VM shared with other test runs (load 30-40), the seven at 60 s took 20-29
 minutes. 60 s holds every fault (the last, the partition, ends at 22 s) and the convergence of the kill,
 partition and hang cases; --duration 120 runs the whole paper.
 
