@@ -52,6 +52,7 @@ from swarm.cli import console
 from swarm.cli.campaign_files import (WALL_CLOCK, Point, cell, flatten, overrides, scenario_flags, scenario_source,
                                       write_csv)
 from swarm.cli.common import EXIT_INTERRUPTED, EXIT_OK, BadInput, StopEvent
+from swarm.launch.child import PARENT_ENV
 
 EXIT_DIFFERS = 3
 UP_CSV = "up.csv"
@@ -167,7 +168,8 @@ def run_up(argv: list[str], output: Path, limit_s: float, stop, tick) -> UpRun:
 
     t0 = time.perf_counter()
     with open(output, "wb") as out:
-        proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, process_group=0)
+        proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, process_group=0,
+                                env={**os.environ, PARENT_ENV: str(os.getpid())})  # it dies with the campaign
     run = UpRun()
     try:
         while True:

@@ -20,6 +20,7 @@ from swarm.cli import console
 from swarm.cli.console import exit_status, progress_line, summary
 from swarm.core.metrics import violations
 from swarm.launch.plan import DEFAULT_LISTEN, RestartPolicy, UpOptions, VizOptions, make_plan
+from swarm.launch.child import die_with_parent
 from swarm.launch.supervisor import Supervisor, compile_project, exit_text
 from swarm.proto import keys
 
@@ -74,6 +75,7 @@ class ViewerUrl:
 
 
 def cmd_up(args, started: float) -> int:
+    die_with_parent()  # started by another swarm command (swarm campaign --up): dies with it, however it dies
     if args.inventory is not None:
         from swarm.cli.up_inventory import cmd_up_inventory
 
