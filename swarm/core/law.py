@@ -296,11 +296,18 @@ def robot_command(x, y, th, ox, oy, r_self, t, xl, yl, thl, vl, wl, nx, ny, nr, 
     if bound < 1.0:  # the speed bound: after the threshold, before the governor
         v *= bound
         w *= bound
-        # b / |x| * x can land one rounding above b: clip, or a receiver checking the bound refuses it
+        # b / |x| * x can land one rounding above b: clip, or a receiver checking the bound refuses it;
         vb = p[P_V_MAX] if p[P_V_MAX] > 0.0 else MAX_SPEED
         wb = p[P_W_MAX] if p[P_W_MAX] > 0.0 else MAX_TURN
-        v = max(-vb, min(vb, v))
-        w = max(-wb, min(wb, w))
+        # comparisons, not min/max: a NaN stays NaN (min(vb, nan) is vb and would hide it)
+        if v > vb:
+            v = vb
+        elif v < -vb:
+            v = -vb
+        if w > wb:
+            w = wb
+        elif w < -wb:
+            w = -wb
     scale = 1.0
     if p[P_GOVERNOR] != 0.0:
         sv = 1.0 if v >= 0.0 else -1.0
