@@ -149,6 +149,10 @@ class Agent:
         # what this robot accepts: the scenario's ids and radii (swarm.proto.protocol.Limits), and from each
         # sender only times and sequence numbers that move forward within a window (swarm.proto.window)
         self.limits = Limits.of(cfg.robots, cfg.reach)
+        self._vb = cfg.v_max if cfg.v_max > 0 else law.MAX_SPEED  # the speed bounds a command is held within
+        self._wb = cfg.w_max if cfg.w_max > 0 else law.MAX_TURN
+        self._dec_state, self._dec_ref = protocol.decoder("state", self.limits), protocol.decoder("ref", self.limits)
+        self._key_ids: dict[str, int] = {}  # cell key -> the robot id at its end (real time: parsed once)
         if self.drive is not None and getattr(self.drive, "limits", False) is None:
             self.drive.limits = self.limits  # the simulated drive decodes poses with the scenario's bounds
         self._spans = window.spans(cfg.dt, WATCHDOG_S)
@@ -498,30 +502,58 @@ class Agent:
         """Real time (loop thread): decode the references and neighbour states waiting in the inboxes,
         in one batch under one lock (no per-message wake-up: the loop is already running)."""
         self.take_poses(self.drive.drain())  # one that came since the loop woke (the newest wins)
-        decode, bad = protocol.decode, []
-        refs, states = [], []
-        limits = self.limits
+        bad, refs, states = [], [], []
+        dec = self._dec_ref
         for key, data in self._ref_inbox.drain():
             try:
-                refs.append((decode(data, "ref", None, limits), key))
+                refs.append((dec(data), key))
             except ProtocolError as e:
                 bad.append((key, e))
+        dec, ids = self._dec_state, self._key_ids
         for box in self._cells.values():
             for key, data in box.drain():
-                try:
+                j = ids.get(key)
+                if j is None:
                     j = keys.cell_robot(key)
                     if j is None:
-                        raise ProtocolError(f"not a cell key: {key!r}")
-                    states.append((decode(data, "state", j, limits), key))
+                        bad.append((key, ProtocolError(f"not a cell key: {key!r}")))
+                        continue
+                    if len(ids) >= 4096:  # keys of robots long gone (or a stranger's): bounded
+                        ids.clear()
+                    ids[key] = j
+                try:
+                    states.append((dec(data, j), key))
                 except ProtocolError as e:
                     bad.append((key, e))
         with self.lock:
             for ref, key in refs:
                 self._on_ref(ref, key)
-            for st, key in states:
-                self._on_state(st, key)
+            if states:
+                self._on_states(states)
             for key, e in bad:
                 self.bad.reject(key, e)
+
+    def _on_states(self, states: list[tuple[State, str]]) -> None:
+        """Real time (under the lock): _on_state for a batch of (state, key), with one reading of the clocks."""
+        now = self.sim_time(self.clock.time())
+        ahead = math.inf if now is None else now + self._spans[0]
+        mono = self.clock.monotonic()
+        me, table, rx, away, windows = self.id, self.table, self.rx, self.away, self.w_state
+        for s, key in states:
+            j, t = s.id, s.t
+            if j == me or t > ahead:
+                self._on_state(s, key)  # refused, and counted, the long way
+                continue
+            w = windows.get(j)
+            if w is None:
+                w = windows[j] = window.Window(math.inf, 2**62)  # forward only (see _on_state)
+            v = w.check(t, s.seq)
+            if v != window.OK and not self.bad.verdict(key, v, f"robot {j}'s t or seq"):
+                continue
+            self.states_received += 1
+            table[j] = s
+            rx[j] = (0.0 if now is None or now <= t else now - t, mono)
+            away.discard(j)
 
     def _due(self) -> bool:
         if self.pose is None:
@@ -577,7 +609,8 @@ class Agent:
         w = self.w_state.get(s.id)
         if w is None:
             w = self.w_state[s.id] = window.Window(math.inf, 2**62)  # forward only (see above)
-        if not self.bad.verdict(key, w.check(s.t, s.seq), f"robot {s.id}'s t or seq"):
+        v = w.check(s.t, s.seq)
+        if v != window.OK and not self.bad.verdict(key, v, f"robot {s.id}'s t or seq"):
             return
         self.states_received += 1
         self.table[s.id] = s
@@ -715,7 +748,7 @@ class Agent:
         nx, ny, nr, nR, nk, na = [], [], [], [], [], []
         robots = stale = 0
         oldest = 0.0
-        table, dead, waiting = self.table, self.dead, self.waiting
+        table, dead, waiting, away, rx, speed = self.table, self.dead, self.waiting, self.away, self.rx, self.speed
         dead_near = []
         mono = None if seq is not None else self.clock.monotonic()
         offer2 = self._offer_r * self._offer_r
@@ -730,14 +763,15 @@ class Agent:
                 is_stale = nb.seq != seq
                 age = 0.0
             else:
-                if j in self.away:
+                if j in away:
                     continue
                 dx = x - nb.x
                 dy = y - nb.y
                 if dx * dx + dy * dy >= offer2:
-                    self.away.add(j)
+                    away.add(j)
                     continue
-                age = self._age(j, mono)
+                a0, m0 = rx.get(j, (0.0, mono))  # _age(j, mono)
+                age = a0 + (mono - m0 if mono > m0 else 0.0) * speed
                 is_stale = age > STALE_AFTER_S
             dx = x - nb.x
             dy = y - nb.y
@@ -961,11 +995,18 @@ class Agent:
         else:
             with self.lock:
                 v, w = self.command(t, x, y, th, r, None, pose_t)
-            # the speed bound scales v and w to the bound up to a rounding: a command one ulp beyond it would be
-            # refused, and the world would hold the previous one (seen once near an obstacle, at 100 rad/s)
-            vb = self.cfg.v_max if self.cfg.v_max > 0 else law.MAX_SPEED
-            wb = self.cfg.w_max if self.cfg.w_max > 0 else law.MAX_TURN
-            v, w = max(-vb, min(vb, v)), max(-wb, min(wb, w))
+            # the law clips its speed bound's rounding; the governor's scaling can add one more ulp: a command one
+            # ulp beyond the bound would be refused, and the world would hold the previous one (seen once near an
+            # obstacle, at 100 rad/s). Comparisons, not min/max: a NaN stays a NaN (the codec refuses it)
+            vb, wb = self._vb, self._wb
+            if v > vb:
+                v = vb
+            elif v < -vb:
+                v = -vb
+            if w > wb:
+                w = wb
+            elif w < -wb:
+                w = -wb
         # state and command go out back to back, so zenoh sends them in one write (one wake-up of its
         # thread instead of two); the command is stamped with its pose's time: a drive (or the world)
         # sees how old its input is

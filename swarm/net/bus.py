@@ -357,7 +357,12 @@ class ZenohBus:
     def put(self, key: str, payload: bytes, reliable: bool = False, loopback: bool = True,
             attachment: bytes | None = None) -> None:
         if attachment is None:
-            self._publisher(key, reliable, loopback).put(payload)
+            try:  # the common case, declared: no lock (OrderedDict's methods are atomic under the GIL)
+                self._pubs.move_to_end((key, reliable, loopback))
+                pub = self._pubs[(key, reliable, loopback)]
+            except KeyError:  # not declared (or just evicted by another thread)
+                pub = self._publisher(key, reliable, loopback)
+            pub.put(payload)
         else:
             self._publisher(key, reliable, loopback).put(payload, attachment=attachment)
 

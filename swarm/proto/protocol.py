@@ -493,7 +493,17 @@ _unpackb = msgpack.unpackb
 def decode(payload: bytes, kind: str | None = None, key_id: int | None = None, limits: "Limits | None" = None):
     """Validate and decode a payload; `kind` is the expected kind, `key_id` the id in its key, `limits`
     the scenario's bounds (ids, radii, speeds, arena) on top of the physical ones. Raises only
-    ProtocolError."""
+    ProtocolError. The kinds of every control period (state, pose, ref, cmd) go through decoder()."""
+    if kind in _HOT_BOUNDS:
+        hot = _HOT.get((kind, id(limits)))
+        if hot is None or hot[0] is not limits:
+            return decoder(kind, limits)(payload, key_id)
+        return hot[1](payload, key_id)
+    return _decode_checked(payload, kind, key_id, limits)
+
+
+def _decode_checked(payload, kind: str | None, key_id: int | None, limits: "Limits | None"):
+    """decode() the general way: every check in turn, with the reason of the first that fails."""
     try:
         msg = _decode(payload, kind, key_id)
         if limits is not None:
@@ -715,6 +725,89 @@ class Limits:
                 self.check(s)
 
 _SNAP_FIELDS = ("id", "x", "y", "theta", "v", "w", "stopped", "alive")
+
+
+# --------------------------------------------------------------------------- the hot path
+
+# The kinds every robot (or the world) decodes every control period, with the physical bounds of their
+# _CHECK functions: |field| <= bound (which also says finite); a state also has 0 < r < R.
+_HOT_BOUNDS: dict[str, tuple[tuple[str, float], ...]] = {
+    "state": (("t", MAX_TIME), ("x", MAX_COORD), ("y", MAX_COORD), ("theta", MAX_ANGLE), ("R", MAX_COORD)),
+    "pose": (("t", MAX_TIME), ("x", MAX_COORD), ("y", MAX_COORD), ("theta", MAX_ANGLE)),
+    "ref": (("t", MAX_TIME), ("x", MAX_COORD), ("y", MAX_COORD), ("theta", MAX_ANGLE), ("v", MAX_SPEED),
+            ("w", MAX_TURN)),
+    "cmd": (("t", MAX_TIME), ("v", MAX_SPEED), ("w", MAX_TURN)),
+}
+_HOT: dict[tuple[str, int], tuple["Limits | None", object]] = {}  # (kind, id(limits)) -> (limits, decoder)
+
+
+def decoder(kind: str, limits: Limits | None = None):
+    """f(payload, key_id=None): decode(payload, kind, key_id, limits) for a kind of every control period
+    (state, pose, ref, cmd), as one generated function: the payload unpacked once, every field's type,
+    bound and limit checked in one expression, the message built without a dataclass __init__. It
+    accepts exactly what decode() accepts of those kinds, but for numbers sent as ints: anything it does
+    not accept at once goes the general way (_decode_checked), which says what is wrong, or converts.
+    Generated once per kind and Limits (a process has one or two; kept while they live)."""
+    hot = _HOT.get((kind, id(limits)))
+    if hot is not None and hot[0] is limits:
+        return hot[1]
+    if len(_HOT) >= 64:  # limits of ended runs: let them go
+        _HOT.clear()
+    f = _HOT[(kind, id(limits))] = (limits, _compile_hot(kind, limits))
+    return f[1]
+
+
+def _compile_hot(kind: str, limits: Limits | None):
+    spec = _SPEC[kind]
+    cls = KINDS[kind]
+    var = {_FIELD.get(n, n): f"a{i}" for i, (n, _) in enumerate(spec)}  # python name -> local
+    types = {"n": "float", "i": "int", "id": "int", "b": "bool"}
+    ns: dict = {"unpackb": _unpackb, "slow": _decode_checked, "new": object.__new__, "setattr": object.__setattr__,
+                "cls": cls, "limits": limits}
+    cond = [f"type({var[_FIELD.get(n, n)]}) is {types[t]}" for n, t in spec]
+    for n, t in spec:
+        if t in ("i", "id"):
+            cond.append(f"0 <= {var[_FIELD.get(n, n)]} <= {MAX_ROBOTS - 1 if t == 'id' else 2**53}")
+    for i, (name, bound) in enumerate(_HOT_BOUNDS[kind]):
+        ns[f"B{i}"] = bound
+        cond.append(f"-B{i} <= {var[name]} <= B{i}")
+    if kind == "state":
+        cond.append(f"0 < {var['r']} < {var['R']}")
+    if limits is not None:
+        tol = 1 + 1e-9  # as Limits.check
+        ns.update(ROBOTS=limits.robots, RADIUS=limits.radius * tol, VMAX=limits.v_max * tol,
+                  WMAX=limits.w_max * tol)
+        if kind == "state":
+            cond += [f"{var['id']} < ROBOTS", f"{var['R']} <= RADIUS"]
+        if kind == "cmd":
+            cond += [f"abs({var['v']}) <= VMAX", f"abs({var['w']}) <= WMAX"]
+        if limits.bounds is not None and kind in ("state", "pose"):
+            ns["XMIN"], ns["XMAX"], ns["YMIN"], ns["YMAX"] = limits.bounds
+            cond += [f"XMIN <= {var['x']} <= XMAX", f"YMIN <= {var['y']} <= YMAX"]
+    if kind == "state":
+        cond.append(f"(key_id is None or {var['id']} == key_id)")
+    rename = [f"                d[{_FIELD[n]!r}] = d.pop({n!r})" for n, _ in spec if n in _FIELD]
+    body = ["def dec(payload, key_id=None):",
+            f"    if type(payload) is bytes and len(payload) <= {MAX_PAYLOAD}:",
+            "        try:",
+            "            d = unpackb(payload, raw=False, strict_map_key=True)",
+            "        except Exception:",
+            f"            return slow(payload, {kind!r}, key_id, limits)",
+            f"        if type(d) is dict and len(d) == {len(spec) + 2} and d.get('kind') == {kind!r} and "
+            f"type(d.get('v')) is int and d['v'] == {VERSION}:",
+            "            try:",
+            *[f"                {var[_FIELD.get(n, n)]} = d[{n!r}]" for n, _ in spec],
+            "            except KeyError:",
+            f"                return slow(payload, {kind!r}, key_id, limits)",
+            "            if " + " and ".join(cond) + ":",
+            "                del d['v'], d['kind']",
+            *rename,
+            "                m = new(cls)",
+            "                setattr(m, '__dict__', d)",
+            "                return m",
+            f"    return slow(payload, {kind!r}, key_id, limits)"]
+    exec(compile("\n".join(body), f"<protocol hot decoder for {kind}>", "exec"), ns)
+    return ns["dec"]
 
 
 def _item(row, where: str, names: tuple[str, ...]) -> dict:

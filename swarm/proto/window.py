@@ -62,6 +62,10 @@ class Window:
 
     def check(self, t: float, seq: int) -> str:
         """Adopt (t, seq) if it is in the window (OK), else say why not."""
+        t0 = self.t
+        if t0 is not None and self.seq < seq <= self.seq + self.seq_span and t0 <= t <= t0 + self.t_span:
+            self.t, self.seq, self._cand, self._run = t, seq, None, 0  # the common case: _verdict's OK
+            return OK
         v = self.peek(t, seq)
         if v in (JUMP, STALE):
             c = self._cand

@@ -259,3 +259,49 @@ def test_fast_decoder_agrees_with_the_general_path(kind, data):
     else:
         assert fast == slow
         assert all(type(getattr(fast, f)) is type(getattr(slow, f)) for f in type(fast).__dataclass_fields__)
+
+
+_LIMITS = (None, p.Limits.of(37, 1.2), p.Limits.of(5, 0.5, v_max=1.0, w_max=2.0, arena=(-3.0, 3.0, -2.0, 2.0), margin=0.5))
+
+
+def _near_bounds(kind: str):
+    """A valid `kind` message with fields replaced by values at and beyond every bound we check."""
+    base = msgpack.unpackb(p.encode(next(m for m in MESSAGES if p._KIND_OF[type(m)] == kind)))
+    edges = [0, 1, 4, 5, 36, 37, 2**53, 2**53 + 1, -1, True, 0.0, -0.0, 0.3, 0.5, 0.50000000049, 1.0, 1.2,
+             1.2000000013, 2.0, 3.0, 3.5, 3.6, -3.5, 100.0, 100.1, 1e6, 1e6 + 1, 1e9, 1e9 + 1, -1e9,
+             math.nan, math.inf, -math.inf, "x", None]
+    edit = st.dictionaries(st.sampled_from(sorted(base)), st.sampled_from(edges), max_size=3)
+    return st.tuples(st.just(base), edit)
+
+
+@pytest.mark.parametrize("kind", sorted(p._HOT_BOUNDS))
+@settings(max_examples=300, deadline=None)
+@given(data=st.data())
+def test_hot_decoders_agree_with_the_general_path(kind, data):
+    """decoder(kind, limits) accepts what the general path accepts (or hands it over) and refuses the
+    rest with the same reason: with the scenario's limits, the arena and the id in the key."""
+    base, edit = data.draw(_near_bounds(kind))
+    limits = data.draw(st.sampled_from(_LIMITS))
+    key_id = data.draw(st.sampled_from([None, 0, 3, 4])) if kind == "state" else None
+    payload = msgpack.packb({**base, **edit}, use_bin_type=True)
+    outcomes = []
+    for f in (lambda: p.decoder(kind, limits)(payload, key_id), lambda: p._decode_checked(payload, kind, key_id, limits)):
+        try:
+            outcomes.append(f())
+        except p.ProtocolError as e:
+            outcomes.append(str(e))
+    hot, slow = outcomes
+    assert hot == slow
+    if not isinstance(slow, str):
+        assert all(type(getattr(hot, f)) is type(getattr(slow, f)) for f in type(hot).__dataclass_fields__)
+        assert hash(hot) == hash(slow) and repr(hot) == repr(slow)
+
+
+def test_hot_decoders_refuse_what_is_not_bytes_or_too_long():
+    kind = "state"
+    good = p.encode(p.State(id=3, t=1.0, seq=5, x=1.0, y=2.0, theta=0.1, r=0.3, R=1.2, frozen=False))
+    assert p.decoder(kind)(bytearray(good), 3) == p.decoder(kind)(good, 3)  # the general path takes other buffers
+    with pytest.raises(p.ProtocolError, match="exceeds"):
+        p.decoder(kind)(good + bytes(p.MAX_PAYLOAD), 3)
+    with pytest.raises(p.ProtocolError, match="payload must be bytes"):
+        p.decoder(kind)("text", 3)
