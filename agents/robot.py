@@ -338,7 +338,28 @@ class Agent:
     # the loop if it has work. A bad message is dropped and counted, never raised.
 
     def _on_state_msg(self, key: str, data: bytes) -> None:
-        self._receive(key, data, "state", keys.cell_robot(key), self._on_state)
+        """Lock-step: a neighbour's state (_receive for the message of every neighbour, every tick)."""
+        if self.ended:
+            return
+        j = self._key_ids.get(key)
+        try:
+            if j is None:
+                j = keys.cell_robot(key)
+                if j is None:
+                    raise ProtocolError(f"not a cell key: {key!r}")
+                if len(self._key_ids) >= 4096:  # keys of robots long gone (or a stranger's): bounded
+                    self._key_ids.clear()
+                self._key_ids[key] = j
+            s = self._dec_state(data, j)
+        except ProtocolError as e:
+            with self.lock:
+                self.bad.reject(key, e)
+            return
+        with self.lock:
+            self._on_state(s, key)
+            due = self._due()
+        if due:
+            self.wake.set()
 
     def _on_pose_msg(self, key: str, data: bytes) -> None:
         self._receive(key, data, "pose", None, self._on_pose)

@@ -390,10 +390,14 @@ class ZenohBus:
         return h
 
     def subscribe(self, key_expr: str, fn: Handler) -> Closable:
-        fn = guarded(fn, self.errors, "a subscriber")
+        errors = self.errors
 
-        def cb(sample) -> None:
-            fn(str(sample.key_expr), sample.payload.to_bytes())
+        def cb(sample) -> None:  # guarded(), inlined: one Python frame less per message on zenoh's thread
+            key = str(sample.key_expr)
+            try:
+                fn(key, sample.payload.to_bytes())
+            except Exception as e:
+                errors.reject(key, RuntimeError(f"a subscriber raised {type(e).__name__}: {e}"))
 
         return self._keep(_Undeclare(self.session.declare_subscriber(key_expr, self._handler(cb))))
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, fields
+from dataclasses import MISSING, dataclass, fields
 
 import msgpack
 
@@ -311,6 +311,32 @@ KINDS: dict[str, type] = {"ref": Ref, "pose": Pose, "cmd": Cmd, "state": State, 
                           "progress": Progress, "run": Run, "estop": Estop, "bodies": Bodies, "claim": Claim,
                           "faultstats": FaultStats, "event": Event}
 _KIND_OF = {cls: kind for kind, cls in KINDS.items()}
+
+
+def _fast_init(cls: type) -> None:
+    """Give a frozen dataclass an __init__ that fills its __dict__ directly: the same signature and
+    defaults, the same object (fields, eq, hash, repr, frozen after it), built in a third of the time
+    (a frozen dataclass's own __init__ calls object.__setattr__ once per field: about 2 us for a state,
+    and a robot builds several messages every control period)."""
+    ns: dict = {}
+    params, stores = [], []
+    for f in fields(cls):
+        if f.default_factory is not MISSING:  # type: ignore[misc]
+            raise TypeError(f"{cls.__name__}.{f.name}: a default factory is not supported here")
+        if f.default is MISSING:
+            params.append(f.name)
+        else:
+            ns[f"_default_{f.name}"] = f.default
+            params.append(f"{f.name}=_default_{f.name}")
+        stores.append(f"    d[{f.name!r}] = {f.name}")
+    src = f"def __init__(self, {', '.join(params)}):\n    d = self.__dict__\n" + "\n".join(stores)
+    exec(compile(src, f"<protocol __init__ of {cls.__name__}>", "exec"), ns)
+    ns["__init__"].__qualname__ = f"{cls.__name__}.__init__"
+    cls.__init__ = ns["__init__"]
+
+
+for _cls in (*KINDS.values(), Obstacle, RobotSnap, Body):
+    _fast_init(_cls)
 
 
 # --------------------------------------------------------------------------- encoding

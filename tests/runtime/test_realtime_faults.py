@@ -260,7 +260,9 @@ def test_the_real_time_world_holds_a_missing_command_one_period_then_brakes_then
     assert len(set(ramp)) >= 5
     assert all(v == 0.0 for t, v in applied if t > last + 0.25 + 2 * scn.dt)
     assert world.stopped[0] and metrics["robots_alive_at_end"] == 0  # (no tokens on this bus)
-    assert world.cmd_held == 1 and world.watchdog_stops == 1
+    # held at least once when it fell silent (a command of the answered phase that a loaded machine delays past
+    # its period is held too: real time); stopped once
+    assert world.cmd_held >= 1 and world.watchdog_stops == 1
 
 
 def test_the_real_time_world_drops_commands_by_the_model_and_adds_up_each_process_counters(write_scenario):
