@@ -43,7 +43,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return EXIT_BAD_INPUT
-    from swarm.core.scenario import ScenarioError
+    from swarm.core.errors import ScenarioError
 
     if getattr(args, "log_level", None):  # for this process and every process it starts (their environment)
         os.environ["SWARM_LOG_LEVEL"] = args.log_level

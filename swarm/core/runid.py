@@ -12,8 +12,6 @@ scenario, naming the first difference, instead of silently spoiling it.
 
 from __future__ import annotations
 
-import hashlib
-import secrets
 import time
 import tomllib
 from dataclasses import replace
@@ -29,12 +27,16 @@ def canonical(scn) -> str:
 
 def digest(scn) -> str:
     """Hex sha256 of the canonical scenario."""
+    import hashlib  # here: a robot process never needs it (libcrypto is ~3 MiB of its memory)
+
     return hashlib.sha256(canonical(scn).encode("utf-8")).hexdigest()
 
 
 def new_run_id(clock=None) -> str:
     """A run id: the wall-clock start (UTC, to the second) and 6 random hex digits."""
     now = clock.time() if clock is not None else time.time()
+    import secrets  # here: a robot process never makes a run id (secrets loads libcrypto)
+
     return time.strftime("%Y%m%dT%H%M%S", time.gmtime(now)) + "-" + secrets.token_hex(3)
 
 
@@ -90,7 +92,6 @@ def faults_of(text: str, robots: int, where: str):
     Raises ScenarioError (where, key, reason) for a table that does not check (a hostile run message)."""
     import tomllib
 
-    from swarm.core import faults as fl
     from swarm.core.errors import ScenarioError
 
     try:
@@ -100,6 +101,7 @@ def faults_of(text: str, robots: int, where: str):
     table = doc.get("faults")
     if table is None:
         return None
+    from swarm.core import faults as fl  # numpy: only a robot of a run with faults needs it (~8 MiB)
     run = doc.get("run") if isinstance(doc.get("run"), dict) else {}
     duration, seed = run.get("duration"), run.get("seed", 0)
     if not isinstance(duration, (int, float)) or isinstance(duration, bool) or not isinstance(seed, int):
