@@ -1,16 +1,20 @@
 """One robot's real-time control period, alone: its CPU, and where it goes.
 
-    python bench/robot_tick.py [--robots 37] [--ticks 3000] [--bus memory|zenoh] [--profile]
+    python bench/robot_tick.py [--robots 37] [--ticks 3000] [--mode realtime|lockstep] [--bus memory|zenoh]
+                               [--idle 0.02] [--profile]
 
-The agent of the robot with the most neighbours in the built-in paper-50hz formation (N robots near their
-slots around the leader, the formation squeezed by a fifth so that neighbours are within reach) runs the real-time loop's step on a
-bus while this script feeds it, every control period, what `swarm up` would: the states of every
+The agent of the robot with the most neighbours in the built-in paper-50hz formation (N robots near
+their slots around the leader, the formation squeezed by a fifth so that neighbours are within reach)
+runs the real-time loop's step on a bus while this script feeds it, every control period, what `swarm up` would: the states of every
 robot in its 3x3 cells, the leader's reference and its own pose. The agent's part of each period
 (drain and decode its inboxes, the law, encode and publish its state, command and status) is timed
 with the thread's CPU clock, as the robot process logs it ("loop CPU ... us a tick", which
 bench/up_speed.py reads). --bus zenoh: a router and two client sessions in this process (the feeder's
 sends are not timed; zenoh's own threads are not counted, as in a robot process); --bus memory: the
-Python part alone. --profile: the same periods under cProfile, the functions by own time.
+Python part alone. --idle 0.02: sleep between periods as a robot does (its CPU per period then triples:
+cold caches). --mode lockstep: a lock-step tick instead, on a memory bus, its messages handed to
+the agent's bus callbacks (zenoh's thread runs those in a robot process) and its loop's step, all timed
+together. --profile: the same periods under cProfile, the functions by own time.
 
 Prints the mean, median and p90 CPU per period [us] and what the agent heard.
 """
@@ -69,11 +73,58 @@ def busiest(scn) -> int:
     return max(range(scn.n), key=near)
 
 
+def lockstep(agent, scn, me: int, others: list[int], ticks: int, prof) -> tuple[list[float], int]:
+    """Lock-step ticks: the messages of each tick handed to the agent's bus callbacks as zenoh's thread
+    would (its pose, every state in its 3x3 cells, the reference), and its loop's tick_lockstep(); the
+    CPU of both (the thread's: this one runs them all), the payloads encoded beforehand."""
+    f = FLEET
+    agent._on_clock_msg(keys.world_clock(f), protocol.encode(protocol.Clock(t=0.0, seq=0, epoch=0.0, speed=1.0)))
+    pose_key, ref_key = keys.robot_pose(f, me), keys.leader_ref(f)
+    cpu, heard = [], 0
+    for k in range(ticks + 20):
+        t = k * scn.dt
+        slots, lead = formation(scn, t)
+        x, y, th = slots[me]
+        states = []
+        for j in others:
+            sx, sy, sth = slots[j]
+            if abs(sx - x) < 1.5 * scn.cell_side and abs(sy - y) < 1.5 * scn.cell_side:
+                c = keys.cell_of(sx, sy, scn.cell_side)
+                states.append((keys.cell(f, c[0], c[1], j), protocol.encode(protocol.State(
+                    id=j, t=t, seq=k, x=sx, y=sy, theta=sth, r=scn.r, R=scn.R, frozen=False))))
+        ref = protocol.encode(protocol.Ref(t, k, *lead))
+        pose = protocol.encode(protocol.Pose(t=t, seq=k, x=x, y=y, theta=th))
+        if prof is not None and k >= 20:
+            prof.enable()
+        c0 = time.thread_time()
+        agent._on_pose_msg(pose_key, pose)
+        while agent.tick_lockstep():  # starts tick k: its state goes out
+            pass
+        agent._on_ref_msg(ref_key, ref)
+        for key, data in states:
+            agent._on_state_msg(key, data)
+        done = agent.k_done
+        while agent.tick_lockstep():  # inputs complete: the command goes out
+            pass
+        c1 = time.thread_time()
+        if prof is not None:
+            prof.disable()
+        if agent.k_done != k or done == k:
+            sys.exit(f"tick {k} was not computed once its inputs came (k_done {agent.k_done})")
+        if k >= 20:
+            cpu.append(1e6 * (c1 - c0))
+            heard += agent.neighbours
+    return cpu, heard
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--robots", type=int, default=37)
     ap.add_argument("--ticks", type=int, default=3000, help="control periods to time (default 3000)")
-    ap.add_argument("--bus", choices=("memory", "zenoh"), default="zenoh")
+    ap.add_argument("--mode", choices=("realtime", "lockstep"), default="realtime")
+    ap.add_argument("--bus", choices=("memory", "zenoh"), default="zenoh", help="real time (lock-step: memory)")
+    ap.add_argument("--idle", type=float, default=0.0, help="real time: wall seconds to sleep before each period, as a robot waits for its next pose (0.02 at "
+                         "50 Hz); the default 0 times a hot loop")
     ap.add_argument("--profile", action="store_true", help="cProfile the agent's part, functions by own time")
     a = ap.parse_args()
     if a.robots < 2 or a.ticks < 10:
@@ -81,10 +132,10 @@ def main() -> None:
 
     scn = load("paper-50hz", Overrides(robots=a.robots))
     me = busiest(scn)
-    cfg = robot_config(scn, me, lockstep=False)
+    cfg = robot_config(scn, me, lockstep=a.mode == "lockstep")
     clock = FakeClock()
     router = None
-    if a.bus == "memory":
+    if a.bus == "memory" or a.mode == "lockstep":
         net = MemoryNet()
         bus, feed = MemoryBus(net), MemoryBus(net)
     else:
@@ -110,7 +161,9 @@ def main() -> None:
     heard = 0
     prof = cProfile.Profile() if a.profile else None
     dt = scn.dt
-    for k in range(a.ticks + 20):
+    if a.mode == "lockstep":
+        cpu, heard = lockstep(agent, scn, me, others, a.ticks, prof)
+    for k in range(a.ticks + 20 if a.mode == "realtime" else 0):
         t = k * dt
         clock.advance(dt)
         slots, lead = formation(scn, t)
@@ -123,6 +176,8 @@ def main() -> None:
                     id=j, t=t, seq=k, x=sx, y=sy, theta=sth, r=scn.r, R=scn.R, frozen=False)))
         feed.put(ref_key, protocol.encode(protocol.Ref(t, k, *lead)))
         feed.put(pose_key, protocol.encode(protocol.Pose(t=t, seq=k, x=x, y=y, theta=th)))
+        if a.idle > 0:
+            time.sleep(a.idle)  # a robot between poses: its caches go cold (the same work costs ~3x: docs/runtime.md)
         got = agent.drive.wait()  # the pose goes last on the feeder's one link: the rest is in
         if prof is not None and k >= 20:
             prof.enable()
@@ -141,7 +196,8 @@ def main() -> None:
         if b is not None:
             b.close()
     cpu.sort()
-    print(f"robot {me} of {scn.n} (paper-50hz formation), bus {a.bus}, {len(cpu)} periods: "
+    print(f"robot {me} of {scn.n} (paper-50hz formation), {a.mode}, bus {'memory' if router is None else 'zenoh'}, "
+          f"{len(cpu)} periods: "
           f"{heard / len(cpu):.1f} neighbours a period, {agent.bad.count} bad messages")
     print(f"CPU per period: mean {statistics.fmean(cpu):.0f} us, median {cpu[len(cpu) // 2]:.0f} us, "
           f"p90 {cpu[math.floor(0.9 * len(cpu))]:.0f} us")

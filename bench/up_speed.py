@@ -1,6 +1,6 @@
 """`swarm up` speed: launch, lock-step ticks per second, real-time round trip, CPU and RSS per robot.
 
-    python bench/up_speed.py [--robots 7 19 37] [--duration 20] [--speed 1]
+    python bench/up_speed.py [--robots 7 19 37] [--duration 20] [--speed 1] [--rounds 3] [--floor]
 
 For each N it runs `swarm up` twice (lock-step, then real time at 50 Hz) as a user would, and
 samples every child process with psutil while the run is under way. Figures:
@@ -13,7 +13,8 @@ samples every child process with psutil while the run is under way. Figures:
   loop us     real time: CPU of a robot's loop thread per control period [us], the mean over robots
               (from their logs); bench/zenoh_floor.py measures the same for a loop that only moves
               the messages
-Targets (issue 3, N = 37 on 2 cores): launch <= 5 s, >= 100 ticks/s, p99 <= 10 ms, <= 60 MiB.
+--floor runs bench/zenoh_floor.py (both modes) after each round's two runs, so that swarm and its floor
+are measured back to back; --rounds 3 prints the median of each column too (the README's figures).
 """
 
 from __future__ import annotations
@@ -88,6 +89,27 @@ def loop_us(log_dir: Path) -> float:
     return sum(found) / len(found) if found else float("nan")
 
 
+FLOOR_TICKS = re.compile(r"([\d.]+) ticks/s")
+FLOOR_RT = re.compile(r"round trip median ([\d.]+) ms, p99 ([\d.]+) ms")
+FLOOR_LOOP = re.compile(r"loop thread (\d+) us of CPU")
+
+
+def floor(n: int, duration: float) -> dict:
+    """bench/zenoh_floor.py at N robots, both modes: ticks/s, round trip median and p99 [ms], loop us (real time)."""
+    me = Path(__file__).resolve().parent / "zenoh_floor.py"
+    out = {}
+    for mode in ("lockstep", "realtime"):
+        text = subprocess.run([sys.executable, str(me), "--robots", str(n), "--duration", str(duration), "--mode", mode],
+                              capture_output=True, text=True, timeout=120 + 10 * duration, check=True).stdout
+        if mode == "lockstep":
+            out["ticks"] = float(FLOOR_TICKS.search(text).group(1))
+        else:
+            m = FLOOR_RT.search(text)
+            out["median"], out["p99"] = float(m.group(1)), float(m.group(2))
+            out["loop"] = float(FLOOR_LOOP.search(text).group(1))
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--robots", type=int, nargs="+", default=[7, 19, 37])
@@ -95,21 +117,36 @@ def main() -> None:
     ap.add_argument("--speed", type=float, default=1.0,
                     help="real-time runs: simulated seconds per wall second (default 1; 0.25 puts a quarter of "
                          "the load on the machine)")
+    ap.add_argument("--rounds", type=int, default=1, help="rounds per N; with more than one, the medians too")
+    ap.add_argument("--floor", action="store_true",
+                    help="each round also runs bench/zenoh_floor.py (both modes) right after swarm's runs")
     a = ap.parse_args()
+    if a.rounds < 1:
+        ap.error("--rounds must be at least 1")
     out = Path(tempfile.mkdtemp(prefix="swarm-bench-"))
     print(f"{os.cpu_count()} CPUs; runs of {a.duration:g} simulated s of paper-50hz (real time at speed {a.speed:g}); "
           f"logs in {out}")
-    print(f"{'N':>4} {'launch s':>9} {'ticks/s':>8} {'rt median ms':>13} {'rt p99 ms':>10} {'robot CPU %':>12} "
-          f"{'robot RSS MiB':>14} {'loop us':>8} {'converged':>10} {'collisions':>10}")
+    cols = ("launch s", "ticks/s", "rt median ms", "rt p99 ms", "robot CPU %", "RSS mean", "RSS max", "loop us")
+    fcols = ("floor ticks/s", "floor median", "floor p99", "floor loop us") if a.floor else ()
+    print(f"{'N':>4} {'round':>5} " + " ".join(f"{c:>13}" for c in cols + fcols) + f" {'converged':>10} {'collisions':>10}")
     for n in a.robots:
-        ls, res = run(n, a.duration, "lockstep", out)
-        rt, _ = run(n, a.duration, "realtime", out, a.speed)
-        tps = ls["steps"] / ls["run_wall_s"]
-        print(f"{n:>4} {ls['launch_s']:>9.2f} {tps:>8.1f} {rt.get('round_trip_ms_median', float('nan')):>13.2f} "
-              f"{rt.get('round_trip_ms_p99', float('nan')):>10.2f} {res['cpu_pct']:>12.1f} "
-              f"{res['rss_mean']:>6.1f}/{res['rss_max']:<7.1f} {loop_us(out / f'logs-realtime-{n}'):>8.0f} "
-              f"{str(ls['converged_at_s']):>10} "
-              f"{ls['collisions'] + rt['collisions']:>10}", flush=True)
+        rows = []
+        for r in range(a.rounds):
+            (out / f"r{r}").mkdir(exist_ok=True)
+            ls, res = run(n, a.duration, "lockstep", out / f"r{r}")
+            rt, _ = run(n, a.duration, "realtime", out / f"r{r}", a.speed)
+            row = [ls["launch_s"], ls["steps"] / ls["run_wall_s"], rt.get("round_trip_ms_median", float("nan")),
+                   rt.get("round_trip_ms_p99", float("nan")), res["cpu_pct"], res["rss_mean"], res["rss_max"],
+                   loop_us(out / f"r{r}" / f"logs-realtime-{n}")]
+            if a.floor:
+                f = floor(n, a.duration)
+                row += [f["ticks"], f["median"], f["p99"], f["loop"]]
+            rows.append(row)
+            print(f"{n:>4} {r + 1:>5} " + " ".join(f"{v:>13.2f}" for v in row) +
+                  f" {str(ls['converged_at_s']):>10} {ls['collisions'] + rt['collisions']:>10}", flush=True)
+        if a.rounds > 1:
+            med = [sorted(col)[len(col) // 2] for col in zip(*rows)]
+            print(f"{n:>4} {'med':>5} " + " ".join(f"{v:>13.2f}" for v in med), flush=True)
 
 
 if __name__ == "__main__":
