@@ -13,9 +13,10 @@ import numpy as np
 
 from swarm.core import faultgen as fg
 from swarm.core import faults as fl
+from swarm.core import law
 
 WATCHDOG_S = 0.5  # the world's watchdog: no new command for longer than this stops a robot
-BRAKE_S = 0.25  # after the one-period hold, a robot without a new command brakes to a stop over this long
+BRAKE_S = law.BRAKE_S  # after the one-period hold, a robot without a new command brakes to a stop over this long
 CLASSES = ("state", "pose", "cmd", "ref")  # faultgen.CLS_* order
 
 
@@ -33,13 +34,7 @@ def horizon(faults, dt: float, brake_s: float = BRAKE_S) -> float:
     body safe over that (docs/faults.md, Safe under faults)."""
     if not commands_may_miss(faults):
         return dt
-    steps, since = 1.0, 1
-    while True:
-        f = 1.0 if since <= 1 else max(0.0, 1.0 - (since - 1) * dt / brake_s)
-        if f <= 0.0:
-            return dt * steps
-        steps += f
-        since += 1
+    return law.hold_horizon(dt, brake_s)
 
 
 class FaultState:

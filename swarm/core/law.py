@@ -31,6 +31,7 @@ THRESHOLD_ALWAYS = 2
 # Safety governor: over one step a robot closes at most GOVERNOR_FRACTION of its
 # clearance to a static body, and half of that to another robot (which may close too).
 GOVERNOR_FRACTION = 0.5
+BRAKE_S = 0.25  # s: a world without a robot's new command holds its last one a period, then brakes over this long
 
 # Layout of the float64 parameter vector `p` (build it with swarm.core.scenario.Control.vector).
 P_K1 = 0
@@ -325,3 +326,15 @@ def robot_command(x, y, th, ox, oy, r_self, t, xl, yl, thl, vl, wl, nx, ny, nr, 
     mem[M_ETH] = eth
     mem[M_SCALE] = scale
     return v, w
+
+
+def hold_horizon(dt, brake_s=BRAKE_S):
+    """How long one command may act [s] when the next may be missing: its period, the world's one-period
+    hold, then the brake ramp (swarm.core.faultkernel.brake_factor), as whole periods' shares of dt."""
+    steps, since = 1.0, 1
+    while True:
+        f = 1.0 if since <= 1 else max(0.0, 1.0 - (since - 1) * dt / brake_s)
+        if f <= 0.0:
+            return dt * steps
+        steps += f
+        since += 1

@@ -29,7 +29,7 @@ def doc() -> dict:
 def test_realtime_world_integrates_exact_arcs_lazily_and_stops_silent_robots(write_scenario):
     scn = scenario_file.load(write_scenario(doc()))
     net = MemoryNet()
-    world = World(MemoryBus(net), scn, F, lockstep=False, speed=4.0)
+    world = World(MemoryBus(net), scn, F, lockstep=False, speed=2.0)
     world.start()
     drive = MemoryBus(net)  # robot 0 answers every pose with (V, W); robot 1 never answers; robot 2 sends junk
     poses: list[protocol.Pose] = []
