@@ -1028,16 +1028,8 @@ class Agent:
                 v, w = self.command(t, x, y, th, r, None, pose_t)
             # the law clips its speed bound's rounding; the governor's scaling can add one more ulp: a command one
             # ulp beyond the bound would be refused, and the world would hold the previous one (seen once near an
-            # obstacle, at 100 rad/s). Comparisons, not min/max: a NaN stays a NaN (the codec refuses it)
-            vb, wb = self._vb, self._wb
-            if v > vb:
-                v = vb
-            elif v < -vb:
-                v = -vb
-            if w > wb:
-                w = wb
-            elif w < -wb:
-                w = -wb
+            # obstacle, at 100 rad/s). A NaN stays a NaN (the codec refuses it)
+            v, w = law.clip(v, self._vb), law.clip(w, self._wb)
         # state and command go out back to back, so zenoh sends them in one write (one wake-up of its
         # thread instead of two); the command is stamped with its pose's time: a drive (or the world)
         # sees how old its input is

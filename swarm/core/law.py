@@ -205,6 +205,17 @@ def speed_bound_scale(v, w, v_max, w_max):
 
 
 @_jit
+def clip(x, b):
+    """x held within [-b, b] by comparisons, not min/max: a NaN stays NaN (min(b, nan) is b and would hide
+    it: a law that overflows must be refused, never driven at the bound)."""
+    if x > b:
+        return b
+    if x < -b:
+        return -b
+    return x
+
+
+@_jit
 def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, na, n, dt, reach, sense, obstacle_r, v_max, hx, hy):
     """Largest |v| [m/s] with which one step of length dt keeps every body safe, and whether the
     robot must not move toward some body at all (1.0) or may (0.0).
@@ -300,15 +311,8 @@ def robot_command(x, y, th, ox, oy, r_self, t, xl, yl, thl, vl, wl, nx, ny, nr, 
         # b / |x| * x can land one rounding above b: clip, or a receiver checking the bound refuses it;
         vb = p[P_V_MAX] if p[P_V_MAX] > 0.0 else MAX_SPEED
         wb = p[P_W_MAX] if p[P_W_MAX] > 0.0 else MAX_TURN
-        # comparisons, not min/max: a NaN stays NaN (min(vb, nan) is vb and would hide it)
-        if v > vb:
-            v = vb
-        elif v < -vb:
-            v = -vb
-        if w > wb:
-            w = wb
-        elif w < -wb:
-            w = -wb
+        v = clip(v, vb)
+        w = clip(w, wb)
     scale = 1.0
     if p[P_GOVERNOR] != 0.0:
         sv = 1.0 if v >= 0.0 else -1.0
