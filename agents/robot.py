@@ -63,7 +63,8 @@ log = logging.getLogger("swarm.robot")
 WAIT_TIMEOUT_S = 1.0  # lock-step: wall seconds to wait for a tick's inputs before going on without them
 STATUS_PERIOD_S = 0.1  # simulated seconds between status messages
 STALE_AFTER_S = 0.5  # real time: a neighbour state older than this (simulated s) counts as stale (status)
-HORIZON_CAP_S = 0.5  # real time: the governor's horizon is at most how long a command may act plus this
+HORIZON_CAP_S = 0.5  # real time: the governor's horizon is at most HOLD_PERIODS control periods plus this
+HOLD_PERIODS = 2  # real time: a command acts its period and, when the next is missing, one more (then brakes)
 POSE_LATE_PERIODS = 1.5  # real time, periodic poses: a pose this many periods after the last one is lost
 LISTEN_PERIODS = 3  # real time: control periods a robot listens (commands 0) after its first pose
 WATCHDOG_S = 0.5  # the world's (or a drive's) watchdog: the windows on t and seq cover twice that, at least 2 s
@@ -194,7 +195,6 @@ class Agent:
         self._first_pose_t: float | None = None
         # real time: what it knows without messages (docs/faults.md, Safe under faults)
         self.horizon_floor = horizon_floor
-        self._hold_s = law.hold_horizon(cfg.dt)  # real time: how long a command may act (the hold, then the brake)
         self.counters = counters
         self.rx: dict[int, tuple[float, float]] = {}  # j -> (age of its state when it came [s], monotonic receipt)
         self.dead_age: dict[int, float] = {}  # j -> age of its last state when its token went [s]
@@ -263,15 +263,6 @@ class Agent:
         """Keep the obstacles, indexed by cell so a tick looks only at the 3x3 cells around it."""
         self.obstacles = [(o.x, o.y, o.r, o.R) for o in obstacles]
         self.p[law.P_OBSTACLE_R] = max((o.r for o in obstacles), default=0.0)  # the governor's bound (swarm.core.law)
-        cfg = self.cfg
-        if not cfg.lockstep and cfg.governor and cfg.v_max <= 0.0:
-            # real time without a speed bound: how far a stale body may have come is its age times the fastest
-            # any robot's governor lets it go, at the shortest horizon any robot uses (the hold and brake with a
-            # fresh pose). The law's own default, its step over this robot's horizon, holds only when every robot
-            # has the same horizon (lock-step and swarm sim); in real time each adds its own pose's age.
-            per_step = min(0.5 * law.GOVERNOR_FRACTION * (cfg.reach - cfg.r),
-                           law.GOVERNOR_FRACTION * (cfg.sense - self.p[law.P_OBSTACLE_R]))
-            self.p[law.P_V_MAX] = per_step / self._hold_s
         self._ocells = {}
         self._onear = {}
         for m, (x, y, _r, _R) in enumerate(self.obstacles):
@@ -830,16 +821,15 @@ class Agent:
                 pose_t: float | None = None) -> tuple[float, float]:
         """The law for this robot at time t with pose (x, y, th) and live reference ref = (xl, yl, thl, vl, wl).
         Real time (seq None): each body comes with its age (bodies(): the governor takes the distance it may
-        have moved since off its clearance), and the governor's horizon is how long the command may act
-        plus the age of the robot's own pose (pose_t), at most HORIZON_CAP_S more, and at least
-        horizon_floor: the command stays in force until the next one lands, a period later, and when that
-        one is missing the world holds it one period more and then brakes along its ramp
-        (swarm.core.law.hold_horizon: on a loaded machine the next command is often late by more than a
-        period; lock-step keeps the period: the world applies a command for exactly dt)."""
+        have moved since off its clearance), and the governor's horizon is two control periods plus the age
+        of the robot's own pose (pose_t), at most HORIZON_CAP_S more, and at least horizon_floor: the
+        command stays in force until the next one lands, a period later, and when that one is missing the
+        world holds it one period more before it brakes (lock-step keeps the period: the world applies a
+        command for exactly dt)."""
         nx, ny, nr, nR, nk, na, robots, stale = self.bodies(x, y, seq, t)
         if seq is None:
             lag = max(0.0, t - pose_t) if pose_t is not None else 0.0
-            self.p[law.P_DT] = max(self.horizon_floor, self._hold_s + min(HORIZON_CAP_S, lag))
+            self.p[law.P_DT] = max(self.horizon_floor, HOLD_PERIODS * self.cfg.dt + min(HORIZON_CAP_S, lag))
             self.max_age = max(self.max_age, self.oldest_state_s)
         xl, yl, thl, vl, wl = ref
         v, w = law.robot_command(x, y, th, self.cfg.dx, self.cfg.dy, self.cfg.r, t, xl, yl, thl, vl, wl,

@@ -192,19 +192,16 @@ def test_real_time_tick_uses_the_newest_data_and_advances_the_reference():
         assert (w.cmds[-1].v, w.cmds[-1].w) == (0.0, 0.0)
     w.put(keys.robot_pose(F, cfg.id), Pose(t=1.0, seq=50, x=-1.0, y=0.0, theta=0.0))
     assert w.agent.tick_realtime(1.1)
-    # the leader moved 0.05 m along its heading since its last message; the governor's horizon is how long
-    # the command may act (its period, the world's hold of a missing next one, its brake ramp) plus the
-    # pose's age (0.1 s)
-    horizon = law.hold_horizon(0.02) + 0.1
-    v, om = law_command((-1.0, 0.0, 0.0), (0.05, 0.0, 0.0, 0.5, 0.0), 1.1, [], cfg=cfg, horizon=horizon)
+    # the leader moved 0.05 m along its heading since its last message; the governor's horizon is two
+    # periods (its own and the world's hold of a missing next one) plus the pose's age (0.1 s)
+    v, om = law_command((-1.0, 0.0, 0.0), (0.05, 0.0, 0.0, 0.5, 0.0), 1.1, [], cfg=cfg, horizon=2 * 0.02 + 0.1)
     assert w.cmds[-1].v == pytest.approx(v, abs=1e-15) and w.cmds[-1].w == pytest.approx(om, abs=1e-15)
-    assert w.agent.horizon_s == pytest.approx(horizon)
+    assert w.agent.horizon_s == pytest.approx(0.14)
 
 
 def test_real_time_governor_horizon_counts_the_own_pose_and_is_capped():
-    """The horizon is how long a command may act (its period, the world's one-period hold and its brake
-    ramp: law.hold_horizon) plus the own pose's age (capped); neighbour states' ages go to the law body by
-    body (tests/runtime/test_realtime_faults.py), not into the horizon."""
+    """The horizon is two periods plus the own pose's age (capped); neighbour states' ages go to the law
+    body by body (tests/runtime/test_realtime_faults.py), not into the horizon."""
     cfg = Config(**{**CFG.__dict__, "lockstep": False})
     w = Wire(cfg)
     w.agent._first_pose_t = 0.0  # past the listening start
@@ -212,12 +209,10 @@ def test_real_time_governor_horizon_counts_the_own_pose_and_is_capped():
     w.put(keys.cell(F, 0, 0, 8), State(id=8, t=1.7, seq=85, x=0.5, y=0.2, theta=0.0, r=0.3, R=1.2, frozen=False))
     w.put(keys.robot_pose(F, cfg.id), Pose(t=2.0, seq=100, x=0.0, y=0.0, theta=0.0))
     assert w.agent.tick_realtime(2.05)
-    hold = law.hold_horizon(0.02)
-    assert hold == pytest.approx(0.02 * (2 + sum(1 - k * 0.02 / law.BRAKE_S for k in range(1, 13))))  # 7.76 periods
-    assert w.agent.horizon_s == pytest.approx(hold + 0.05)  # the command's hold and brake + own pose's age
+    assert w.agent.horizon_s == pytest.approx(2 * 0.02 + 0.05)  # two periods + own pose's age
     w.put(keys.robot_pose(F, cfg.id), Pose(t=2.02, seq=101, x=0.0, y=0.0, theta=0.0))
     assert w.agent.tick_realtime(2.6)  # pose 0.58 s old: capped
-    assert w.agent.horizon_s == pytest.approx(hold + robot.HORIZON_CAP_S)
+    assert w.agent.horizon_s == pytest.approx(2 * 0.02 + robot.HORIZON_CAP_S)
 
 
 def test_agent_module_imports_nothing_of_the_world_nor_numpy():

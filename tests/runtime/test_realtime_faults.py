@@ -79,13 +79,10 @@ def test_a_neighbours_age_goes_to_the_law_and_a_live_one_in_range_is_never_forgo
     assert rig.agent.tick_realtime(rig.now())
     body = [(1.0, 0.6, 0.3, 1.2, law.KIND_ROBOT)]
     ref = (0.025, 0.0, 0.0, 0.5, 0.0)
-    hold = law.hold_horizon(CFG.dt)  # the horizon with a fresh pose: the command's period, hold and brake
-    expected = law_with_ages(rig.agent, (0.0, 0.0, 0.0), ref, 2.05, body, [0.35], hold)
+    expected = law_with_ages(rig.agent, (0.0, 0.0, 0.0), ref, 2.05, body, [0.35], 2 * CFG.dt)
     assert (rig.cmds[-1].v, rig.cmds[-1].w) == pytest.approx(expected, rel=1e-9)  # (times from 1e6 s: 1e-11 off)
-    fresh = law_with_ages(rig.agent, (0.0, 0.0, 0.0), ref, 2.05, body, [0.0], hold)
-    assert fresh[0] > rig.cmds[-1].v > 0.0  # 0.35 s old, it may have come closer by that much: slower
-    # how far it may have come: its age times the fastest a robot's governor lets it go (the shortest horizon)
-    assert rig.agent.p[law.P_V_MAX] == pytest.approx(0.5 * law.GOVERNOR_FRACTION * (CFG.reach - CFG.r) / hold)
+    fresh = law_with_ages(rig.agent, (0.0, 0.0, 0.0), ref, 2.05, body, [0.0], 2 * CFG.dt)
+    assert fresh[0] > 0.1 and rig.cmds[-1].v == 0.0  # fresh, it would drive on; 0.35 s old, it may be anywhere near
     # 5 s later, nothing heard of robot 7 (2 s used to forget it): still a body, 5.35 s old
     rig.clock.advance(5.0)
     rig.pose(11)
