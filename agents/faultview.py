@@ -22,7 +22,7 @@ from __future__ import annotations
 from swarm.core import faultgen as fg
 from swarm.core import faults as fl
 from swarm.core import kinematics
-from swarm.core.faultsim import TickSchedule
+from swarm.core.faultsim import TickSchedule, arrival
 
 
 class FaultView:
@@ -102,17 +102,6 @@ class FaultView:
             for s in [s for s in d if s <= old]:
                 del d[s]
 
-    @staticmethod
-    def _arrival(ring: dict[int, int], k: int, dmax: int, newest: int) -> int:
-        """The send tick of the newest message of `ring` that arrives at k, newer than `newest` (-1: none)."""
-        for d in range(dmax + 1):
-            s = k - d
-            if s < 0 or s <= newest:
-                break
-            if ring.get(s) == d:
-                return s
-        return -1
-
     # ------------------------------------------------------------------ tick k
 
     def start(self, k: int, pose: tuple[float, float, float]) -> tuple[float, float, float] | None:
@@ -138,7 +127,7 @@ class FaultView:
         else:
             lost, late = self.pose_link.decide(k, t)
             self.ring_pose[k] = self._note(fg.CLS_POSE, lost, late)
-        s = self._arrival(self.ring_pose, k, self.dmax, self.kp)
+        s = arrival(self.ring_pose, k, self.dmax, self.kp)
         if s >= 0 and self._alive_at(s):
             self.kp = s
             self.pbase = self.poses[s]
@@ -167,7 +156,7 @@ class FaultView:
             self.refs[k] = ref
             lost, late = self.ref_link.decide(k, k * self.dt)
             self.ring_ref[k] = self._note(fg.CLS_REF, lost, late)
-        s = self._arrival(self.ring_ref, k, self.dmax, self.kr)
+        s = arrival(self.ring_ref, k, self.dmax, self.kr)
         if s >= 0 and self._alive_at(s):
             self.kr = s
             self.ref_kr = self.refs[s]
@@ -194,7 +183,7 @@ class FaultView:
         elif xy is None and self.schedule.active(j, k):
             self.tk[j] = -(k + 2)
         tkj = self.tk.get(j, -1)
-        s = self._arrival(ring, k, self.dmax, tkj if tkj >= 0 else -tkj - 2)
+        s = arrival(ring, k, self.dmax, tkj if tkj >= 0 else -tkj - 2)
         if s >= 0 and self._alive_at(s):
             self.tk[j] = s
             self.tpos[j] = raw[s]

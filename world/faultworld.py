@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from swarm.core import faultgen as fg
 from swarm.core import faults as fl
-from swarm.core.faultsim import BRAKE_S, CLASSES, TickSchedule
+from swarm.core.faultsim import BRAKE_S, CLASSES, TickSchedule, arrival
 from swarm.proto.protocol import Bodies, Body
 
 NONE = -2
@@ -134,7 +134,7 @@ class WorldFaults:
                 self.stopped[i] = False  # a dead robot is a static body as dead, not as stopped
                 out.append((0.0, 0.0))
                 continue
-            s = self._arrival(ring, k, self.wsrc[i])
+            s = arrival(ring, k, self.dmax, self.wsrc[i])
             if s >= 0:
                 self.wsrc[i], self.wlast[i] = s, k
                 self.wnew[i] = cmdh[s]
@@ -155,15 +155,6 @@ class WorldFaults:
         """The robots frozen at k for the metrics: by their laws (swarm sim's definition under faults), the
         dead ones never."""
         return [self.law_frozen[i] and not self.dead(i, k) for i in range(self.n)]
-
-    def _arrival(self, ring: dict[int, int], k: int, newest: int) -> int:
-        for d in range(self.dmax + 1):
-            s = k - d
-            if s < 0 or s <= newest:
-                break
-            if ring.get(s) == d:
-                return s
-        return -1
 
     # ------------------------------------------------------------------ counters
 

@@ -120,6 +120,18 @@ class FaultState:
 
 
 
+def arrival(ring: dict[int, int], k: int, dmax: int, newest: int) -> int:
+    """Lock-step under faults: the send tick of the newest message of `ring` (send tick -> its delay in
+    ticks, -1 lost) that arrives at tick k, newer than `newest`; -1: none (agents.faultview, world.faultworld)."""
+    for d in range(dmax + 1):
+        s = k - d
+        if s < 0 or s <= newest:
+            break
+        if ring.get(s) == d:
+            return s
+    return -1
+
+
 class TickSchedule:
     """The process faults in ticks, as the fault kernel applies them: robot i's process state at tick k
     (faultgen.PROC_*), and whether a restart or a resume happens exactly at k (a listening tick).
