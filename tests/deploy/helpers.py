@@ -7,13 +7,13 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 from swarm.core import scenario_file
 from swarm.core.scenario_file import to_toml
+from tests.integration.helpers import wait_until  # noqa: F401  (for the deploy tests)
 
 ROOT = Path(__file__).resolve().parents[2]
 ENTRY = [sys.executable, "-m", "swarm.cli"]
@@ -85,14 +85,3 @@ class Procs:
         for name in list(self.procs):
             self.stop(name)
 
-
-def wait_until(pred, timeout_s: float, what: str, every_s: float = 0.05):
-    """pred()'s first truthy value within timeout_s, else AssertionError naming `what`."""
-    end = time.monotonic() + timeout_s
-    while True:
-        got = pred()
-        if got:
-            return got
-        if time.monotonic() >= end:
-            raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
-        time.sleep(every_s)

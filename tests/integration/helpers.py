@@ -19,6 +19,23 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def wait_until(pred, timeout_s: float, what: str, poke=None, every_s: float = 0.02):
+    """pred()'s first truthy value within timeout_s, else AssertionError naming `what` (for conditions
+    with no event to wait on: a file, a log line, a process, what a listener heard). poke() runs between
+    tries: a new zenoh subscription reaches the router asynchronously, so a first message may need
+    repeating."""
+    end = time.monotonic() + timeout_s
+    while True:
+        got = pred()
+        if got:
+            return got
+        if time.monotonic() >= end:
+            raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+        if poke is not None:
+            poke()
+        time.sleep(every_s)
+
+
 def up(tmp_path: Path, *args: str, fleet: str = "t") -> tuple[list[str], Path]:
     metrics = tmp_path / "metrics.json"
     cmd = [sys.executable, "-m", "swarm.cli", "up", "--listen", f"tcp/127.0.0.1:{free_port()}", "--fleet", fleet,

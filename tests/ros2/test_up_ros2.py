@@ -16,7 +16,7 @@ import pytest
 
 from swarm.net.bus import ZenohBus, zenoh_config
 from swarm.proto import keys, ros2
-from tests.integration.helpers import descendants, free_port, up, wait_for_ticks
+from tests.integration.helpers import descendants, free_port, up, wait_for_ticks, wait_until
 
 pytestmark = pytest.mark.integration
 CLI = [sys.executable, "-m", "swarm.cli"]
@@ -77,11 +77,6 @@ def _child(proc, role: str, robot_id: int | None = None) -> psutil.Process:
     raise AssertionError(f"no {role} child")
 
 
-def _wait(pred, timeout_s: float, what: str) -> None:
-    end = time.monotonic() + timeout_s
-    while not pred():
-        assert time.monotonic() < end, f"timed out waiting for {what}"
-        time.sleep(0.02)
 
 
 def test_five_ros2_robots_converge_on_rmw_zenoh(tmp_path):
@@ -116,7 +111,7 @@ def test_watchdog_estop_and_ctrl_c_put_zero_velocity_on_cmd_vel(tmp_path):
     try:
         wait_for_ticks(cmd, "t", 150, proc)  # 3 s of motion
         listener = CmdVel(endpoint, 3)
-        _wait(lambda: all(listener.moving(i) > 10 for i in range(3)), 20, "robots moving")
+        wait_until(lambda: all(listener.moving(i) > 10 for i in range(3)), 20, "robots moving")
 
         # the emergency stop: every robot zero, held until the release
         t0 = time.monotonic()
@@ -135,19 +130,19 @@ def test_watchdog_estop_and_ctrl_c_put_zero_velocity_on_cmd_vel(tmp_path):
         assert [listener.moving(i) for i in range(3)] == n_before
         subprocess.run(CLI + ["stop", "--release", "--fleet", "t", "--connect", endpoint], check=True, timeout=60,
                        capture_output=True)
-        _wait(lambda: all(listener.moving(i) > n_before[i] for i in range(3)), 10, "moving again after release")
+        wait_until(lambda: all(listener.moving(i) > n_before[i] for i in range(3)), 10, "moving again after release")
 
         # the pose stream stops (the world hangs): each robot's guard halts it within 0.5 s
         world = _child(proc, "world")
         world.send_signal(signal.SIGSTOP)
         t0 = time.monotonic()
         try:
-            _wait(lambda: all(listener.first_zero_after(i, t0) is not None for i in range(3)), 5, "zero after hang")
+            wait_until(lambda: all(listener.first_zero_after(i, t0) is not None for i in range(3)), 5, "zero after hang")
             for i in range(3):
                 assert listener.first_zero_after(i, t0) - t0 < 0.5 + 0.2, f"robot {i} took too long"
         finally:
             world.send_signal(signal.SIGCONT)
-        _wait(lambda: all(listener.moving(i) > n_before[i] + 5 for i in range(3)), 10, "moving again after resume")
+        wait_until(lambda: all(listener.moving(i) > n_before[i] + 5 for i in range(3)), 10, "moving again after resume")
 
         # Ctrl-C on a robot: zero velocity before it exits
         victim = _child(proc, "robot", 1)
@@ -159,7 +154,7 @@ def test_watchdog_estop_and_ctrl_c_put_zero_velocity_on_cmd_vel(tmp_path):
         # the leader lost: the others stop at once
         t0 = time.monotonic()
         _child(proc, "leader").kill()
-        _wait(lambda: all(listener.first_zero_after(i, t0) is not None for i in (0, 2)), 5, "zero after leader lost")
+        wait_until(lambda: all(listener.first_zero_after(i, t0) is not None for i in (0, 2)), 5, "zero after leader lost")
         for i in (0, 2):
             assert listener.first_zero_after(i, t0) - t0 < 0.5
     finally:

@@ -7,7 +7,6 @@ import os
 import queue
 import re
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -19,6 +18,7 @@ import psutil
 import pytest
 
 from swarm.view.viz import STATE_COLORS, rgb
+from tests.integration.helpers import free_port, wait_until  # noqa: F401  (for the viewer tests)
 
 CHROMIUM = "/usr/bin/chromium"
 # software WebGL (SwiftShader), offline, no profile noise
@@ -28,23 +28,6 @@ FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "-
 needs_chromium = pytest.mark.skipif(not Path(CHROMIUM).exists(), reason=f"{CHROMIUM} is not installed "
                                     "(apt-get install chromium; CI installs it)")
 URL_LINE = re.compile(r"^viewer: (http\S+)")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_until(predicate, timeout_s: float, what: str):
-    end = time.monotonic() + timeout_s
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > end:
-            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-        time.sleep(0.05)
 
 
 @contextlib.contextmanager
