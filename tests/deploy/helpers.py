@@ -23,14 +23,14 @@ ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), *sys.path])}
 
 def small_turtlebot3(path: Path, duration: float = 40.0) -> Path:
     """The built-in turtlebot3 formation (7 robots, r 0.15, R 0.6, v_max 0.22, w_max 2.84, 20 Hz) with
-    each robot 0.5-0.8 m behind its slot, no obstacle, arena.bounds [-3, 9, -3, 3]: it converges at
-    about 30 s (swarm sim: 29.85 s)."""
+    each robot 0.5-0.8 m behind its slot, no obstacle, arena.bounds [-3, 9, -3, 6] (the slots stay inside
+    for 50 s): it converges at about 30 s (swarm sim: 29.85 s)."""
     scn = scenario_file.load("turtlebot3", progress=scenario_file.silent)
     rng = np.random.default_rng(1)
     poses = np.zeros((scn.n, 3))
     poses[:, :2] = scn.offsets + np.array([-0.6, -0.5]) + rng.uniform(-0.1, 0.1, (scn.n, 2))
     poses[:, 2] = rng.uniform(-0.5, 0.5, scn.n)
-    small = scn.replace(poses=poses, obstacles=np.zeros((0, 4)), duration=duration, bounds=(-3.0, 9.0, -3.0, 3.0))
+    small = scn.replace(poses=poses, obstacles=np.zeros((0, 4)), duration=duration, bounds=(-3.0, 9.0, -3.0, 6.0))
     path.write_text(to_toml(small))
     return path
 
