@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from swarm.launch.plan import DEFAULT_LISTEN, VIZ_HOST, VizOptions
-from swarm.net.bus import ZENOH_RUNTIME
+from swarm.net.bus import ROUTER_RUNTIME, ZENOH_RUNTIME
 from swarm.proto import keys
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -161,14 +161,17 @@ def open_bus(args, mode: str = "client", listen: list[str] | None = None, timeou
     that identity's own folder): mutual TLS with its certificate, which the router's access control
     knows by name; the endpoints must then be tls/ and default to the identity's config.
 
-    lean: zenoh's single-worker runtime (docs/runtime.md), for the many small robot processes. Not
-    for the world: there one worker thread both receives (running our callbacks, which need the GIL)
-    and sends, and a burst of reliable puts from the main thread (which holds the GIL while it waits
-    for room in the send queue) stalled it until the router closed the link after 5 s ("Unable to
-    push non droppable network message"), once per ~2000 ticks at N = 37.
+    lean: zenoh's lean runtime (swarm.net.bus.ZENOH_RUNTIME, docs/runtime.md), for the many small robot
+    processes. Not for the world: there one worker thread both receives (running our callbacks, which
+    need the GIL) and sends, and a burst of reliable puts from the main thread (which holds the GIL
+    while it waits for room in the send queue) stalled it until the router closed the link after 5 s
+    ("Unable to push non droppable network message"), once per ~2000 ticks at N = 37. A router gets
+    swarm.net.bus.ROUTER_RUNTIME. A ZENOH_RUNTIME of the user's own environment wins.
     """
     if lean:
         os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)  # before zenoh starts its runtime
+    elif mode == "router":
+        os.environ.setdefault("ZENOH_RUNTIME", ROUTER_RUNTIME)
     from swarm.net.bus import ZenohBus, zenoh_config
 
     secure_dir = getattr(args, "secure", None)

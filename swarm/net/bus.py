@@ -322,10 +322,22 @@ def size_limits() -> list[dict]:
              "size_limit": MAX_LARGE_PAYLOAD}]
 
 
-# zenoh's runtime setting for many small processes (docs/runtime.md): one worker thread, the other pools
-# handed over to it. Halves the threads and the CPU of 40 processes on 2 cores. It must be in
-# the environment before zenoh starts its runtime, so the launcher sets it for its children.
-ZENOH_RUNTIME = "(app:(worker_threads:1),rx:(handover:app),tx:(handover:app),acc:(handover:app),net:(handover:app))"
+# zenoh's runtime settings (the ZENOH_RUNTIME environment variable; docs/runtime.md, and docs/faults.md,
+# Cutting a network). They must be in the environment before zenoh starts its runtime: open_bus sets them.
+#
+# zenoh closes a TCP link with SO_LINGER 10 s (compiled in), so closing a link that still holds unsent
+# data (its peer is behind a network cut) blocks the worker thread that closes it for up to 10 s
+# (eclipse-zenoh/zenoh#1101). Hence at least one worker more than such a close can take:
+#
+# - many small processes (robots, the leader): every pool handed over to the application pool (half the
+#   threads and much less CPU of 40 processes on 2 cores than zenoh's defaults), with 2 workers: with one,
+#   a robot cut off from its router froze its whole session for 10 s on the close and came back 10-40 s
+#   after the cut ended (tests/integration/test_netns.py); 2 cost no measurable lock-step speed;
+ZENOH_RUNTIME = "(app:(worker_threads:2),rx:(handover:app),tx:(handover:app),acc:(handover:app),net:(handover:app))"
+# - the router: every link it loses to a cut closes on a receiving worker; with zenoh's 2, a cut of 4 robots
+#   blocked both for 10 s and the router received nothing meanwhile, so the robots outside the cut lost it
+#   too. 16 receiving workers: a cut of up to 15 links at once leaves the router receiving.
+ROUTER_RUNTIME = "(rx:(worker_threads:16))"
 
 
 PUBLISHERS = 64  # declared publishers a ZenohBus keeps (a robot uses 3 or 4: cmd, status, its cell)

@@ -268,8 +268,10 @@ def test_a_namespace_of_robots_cut_off_for_2_s_is_stopped_by_the_watchdog_and_re
     2 s. The world's watchdog stops every robot of a within its 0.5 s (the snapshots' stopped flags, to a
     few control periods of the world's loop); nobody restarts a process (the supervisor restarts on exit
     only: the same PIDs in a before and after); the cut robots come back by themselves, every robot is
-    alive at the end and nobody collides. Convergence is printed, not asserted: zenoh clients behind a
-    silent cut took about 20 s to rejoin here (docs/faults.md, Cutting a network)."""
+    alive at the end, nobody collides, and the swarm converges. The cut robots are back within 5 wall s of
+    the cut's end: before swarm gave zenoh a worker thread more than a link's 10 s close can block (robots
+    and router, swarm.net.bus), they took 10-20 s in 9 runs of 12 and the swarm converged in 4 (docs/faults.md,
+    Cutting a network)."""
     import dataclasses
 
     from swarm.launch.plan import UpOptions, make_plan
@@ -361,8 +363,11 @@ def test_a_namespace_of_robots_cut_off_for_2_s_is_stopped_by_the_watchdog_and_re
     print("cut at t = %.2f s; back by t = %.2f s; stopped after %s s; converged at %s, final error %s m" % (
         t_cut, back_t, {i: round(next(t for t, st, _v in during if st[i]) - t_cut, 3) for i in cut},
         m["converged_at_s"], m["final_position_error_max_m"]))
-    assert m["collisions"] == 0 and m["failure"] is None, {k: m.get(k) for k in ("collisions", "failure")}
+    said = {k: m.get(k) for k in ("collisions", "failure", "converged_at_s", "final_position_error_max_m")}
+    assert m["collisions"] == 0 and m["failure"] is None, said
     assert m["robots_lost"] >= len(cut) and m["robots_alive_at_end"] == CUT_N  # lost for the cut, then back
+    assert back_t - (t_cut + CUT_FOR_S * CUT_SPEED) <= 5.0 * CUT_SPEED, (t_cut, back_t)
+    assert m["converged_at_s"] is not None, said
 
 
 def _ns_pids(ns: str) -> list[int]:
