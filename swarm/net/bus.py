@@ -331,7 +331,7 @@ def size_limits() -> list[dict]:
 #
 # - many small processes (robots, the leader): every pool handed over to the application pool (half the
 #   threads and much less CPU of 40 processes on 2 cores than zenoh's defaults), with 2 workers: with one,
-#   a robot cut off from its router froze its whole session for 10 s on the close and came back 10-40 s
+#   a robot cut off from its router froze its whole session for 10 s on the close and came back 10-20 s
 #   after the cut ended (tests/integration/test_netns.py); 2 cost no measurable lock-step speed;
 ZENOH_RUNTIME = "(app:(worker_threads:2),rx:(handover:app),tx:(handover:app),acc:(handover:app),net:(handover:app))"
 # - the router: every link it loses to a cut closes on a receiving worker; with zenoh's 2, a cut of 4 robots
