@@ -24,7 +24,7 @@ def fleet(tmp_path):
     procs = Procs(tmp_path)
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    scenario = small_turtlebot3(tmp_path / "tb3small.toml", duration=50.0)
+    scenario = small_turtlebot3(tmp_path / "tb3small.toml")
     inv = tmp_path / "fleet.toml"
     inv.write_text(inventory_text(7, endpoint))
 
