@@ -466,6 +466,7 @@ def _read_metrics(path: Path) -> dict | None:
 def metrics_from_progress(scn, mode: str, p) -> dict:
     """The metrics of a run whose world wrote none (it was lost): what its last progress message said,
     null where it said nothing."""
+    from swarm.core.metrics import step_time
     from world.referee import Referee
 
     m = Referee(scn).metrics(0.0, False, mode)
@@ -475,9 +476,12 @@ def metrics_from_progress(scn, mode: str, p) -> dict:
     def opt(x: float):
         return None if x < 0 else x
 
-    m.update(duration_s=p.t, converged_at_s=opt(p.converged_at), final_position_error_max_m=opt(p.position_error),
+    def opt_time(x: float):  # step times rounded as swarm.core.metrics.record rounds them (163 * 0.02 reads 3.26)
+        return None if x < 0 else step_time(x)
+
+    m.update(duration_s=step_time(p.t), converged_at_s=opt_time(p.converged_at), final_position_error_max_m=opt(p.position_error),
              final_orientation_error_max_rad=opt(p.orientation_error), min_robot_distance_m=opt(p.min_distance),
-             min_obstacle_distance_m=opt(p.min_obstacle), collisions=p.collisions, last_freeze_end_s=opt(p.last_freeze),
+             min_obstacle_distance_m=opt(p.min_obstacle), collisions=p.collisions, last_freeze_end_s=opt_time(p.last_freeze),
              cmd_misses=p.misses, bad_messages=p.bad, messages_dropped=p.dropped, steps=p.seq,
              robots_alive_at_end=p.alive, **({"lockstep_overruns": p.overruns} if mode == "lockstep" else {}))
     return m

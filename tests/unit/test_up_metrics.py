@@ -1,0 +1,21 @@
+"""The metrics `swarm up` writes for a run whose world was lost (from its last progress message): the same
+rounding of step times as every other run's metrics (swarm.core.metrics.record)."""
+
+from __future__ import annotations
+
+from swarm.cli.up import metrics_from_progress
+from swarm.core import scenario_file
+from swarm.proto.protocol import Progress
+
+
+def test_a_lost_worlds_step_times_read_as_the_failure_line_says():
+    scn = scenario_file.load("paper-50hz", scenario_file.Overrides(robots=3), progress=scenario_file.silent)
+    t = 163 * scn.dt  # 3.2600000000000002: the world lost at tick 163 (CI once saw this exact value)
+    p = Progress(t=t, seq=163, duration=scn.duration, robots=3, alive=3, converged=0, frozen=0, min_distance=1.5,
+                 misses=0, bad=0, converged_at=t, last_freeze=t)
+    m = metrics_from_progress(scn, "lockstep", p)
+    assert t != 3.26 and f"{t:g}" == "3.26"
+    assert m["duration_s"] == m["converged_at_s"] == m["last_freeze_end_s"] == 3.26 and m["steps"] == 163
+    m = metrics_from_progress(scn, "lockstep", Progress(t=t, seq=163, duration=scn.duration, robots=3, alive=3,
+                                                        converged=0, frozen=0, min_distance=1.5, misses=0, bad=0))
+    assert m["converged_at_s"] is None and m["last_freeze_end_s"] is None  # -1: the progress said nothing
