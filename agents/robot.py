@@ -63,6 +63,7 @@ log = logging.getLogger("swarm.robot")
 WAIT_TIMEOUT_S = 1.0  # lock-step: wall seconds to wait for a tick's inputs before going on without them
 STATUS_PERIOD_S = 0.1  # simulated seconds between status messages
 STALE_AFTER_S = 0.5  # real time: a neighbour state older than this (simulated s) counts as stale (status)
+CONFIRM_AFTER_S = 1.0  # real time: a robot whose token came back and sent no state for this long (wall s) is away
 HORIZON_CAP_S = 0.5  # real time: the governor's horizon is at most HOLD_PERIODS control periods plus this
 HOLD_PERIODS = 2  # real time: a command acts its period and, when the next is missing, one more (then brakes)
 POSE_LATE_PERIODS = 1.5  # real time, periodic poses: a pose this many periods after the last one is lost
@@ -174,6 +175,7 @@ class Agent:
         self.deadline = 0.0
         self.prev_xy: tuple[float, float] | None = None
         # counters
+        self.refs_taken = 0
         self.states_received = 0
         self.loop_cpu_s = 0.0  # CPU time of the loop thread handling its wake-ups (thread_time; bench/up_speed.py)
         self.ticks = 0
@@ -199,6 +201,7 @@ class Agent:
         self.rx: dict[int, tuple[float, float]] = {}  # j -> (age of its state when it came [s], monotonic receipt)
         self.dead_age: dict[int, float] = {}  # j -> age of its last state when its token went [s]
         self.away: set[int] = set()  # live robots whose last state was out of range: not used until a newer one
+        self.unconfirmed: dict[int, float] = {}  # j -> monotonic deadline: its token came back, no state since
         self._offer_r = cfg.reach + (cfg.sense - cfg.reach) / 3.0  # reach + L: what this robot surely hears
         self.max_age = 0.0  # the oldest neighbour state a command used [s]
         self.reports = 0  # faultstats sent
@@ -575,6 +578,8 @@ class Agent:
             table[j] = s
             rx[j] = (0.0 if now is None or now <= t else now - t, mono)
             away.discard(j)
+            if self.unconfirmed:
+                self.unconfirmed.pop(j, None)
 
     def _due(self) -> bool:
         if self.pose is None:
@@ -641,6 +646,7 @@ class Agent:
         else:  # its age when it came: now on the swarm's clock minus its time (never below 0: clocks differ)
             self.rx[s.id] = (0.0 if now is None else max(0.0, now - s.t), self.clock.monotonic())
             self.away.discard(s.id)
+            self.unconfirmed.pop(s.id, None)
 
     def _on_alive(self, j: int, up: bool) -> None:
         """Robot j's token came (up) or went (under the lock): a robot that goes stays a static body at
@@ -648,6 +654,8 @@ class Agent:
         if up:
             if j in self.dead:
                 log.info("robot %d: robot %d back (its liveliness token is here again)", self.id, j)
+                if not self.cfg.lockstep and j in self.table:
+                    self.unconfirmed[j] = self.clock.monotonic() + CONFIRM_AFTER_S
             self.dead.discard(j)
             self.dead_age.pop(j, None)
         else:
@@ -669,6 +677,7 @@ class Agent:
         if not self.bad.verdict(key, self.w_ref.check(ref.t, ref.seq), "the reference's t or seq"):
             return
         self.ref = ref
+        self.refs_taken += 1
         if self.guard is not None:
             self.guard.ref(ref.t)
         if self.cfg.lockstep and ref.seq > self.k_done:
@@ -761,7 +770,10 @@ class Agent:
         one state per robot id and never drops a live one), with its age; but a live robot whose last
         state is out of range (farther than reach + L from this robot now, as the simulator's fault
         kernel forgets one) is left out until a newer state of it comes: it left this robot's cells, or
-        this robot left its own, and its old position says nothing of where it is.
+        this robot left its own, and its old position says nothing of where it is. So is a robot whose
+        token came back (one of the two was cut off) and that has sent no state for CONFIRM_AFTER_S
+        since: were it in this robot's cells, its states would come every period; it moved away meanwhile
+        (docs/faults.md, Cutting a network: kept, it froze this robot for the rest of the run).
         Returns lists nx, ny, nr, nR, nk, na (the age [s] of what is known of each body: 0 in lock-step
         and for obstacles; real time: a live robot's state's age now, a dead one's age when its token
         went) and the numbers of robots and stale robots used."""
@@ -785,6 +797,12 @@ class Agent:
                 age = 0.0
             else:
                 if j in away:
+                    continue
+                if j in self.unconfirmed and mono >= self.unconfirmed[j]:
+                    del self.unconfirmed[j]
+                    away.add(j)
+                    log.info("robot %d: robot %d sent no state in %g s since its token came back: taken as away",
+                             self.id, j, CONFIRM_AFTER_S)
                     continue
                 dx = x - nb.x
                 dy = y - nb.y
@@ -1154,10 +1172,10 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                 if fbus is not None:
                     fbus.detach()
                 current.clear()
-            log.info("robot %d, run %s: %d ticks, %d skipped, %d states received, %d bad messages, %d stale, "
-                     "%d duplicated, loop CPU %.0f us a tick", robot_id, agent.cfg.run, agent.ticks, agent.skipped,
-                     agent.states_received, agent.bad.count, agent.bad.stale, agent.bad.duplicates,
-                     1e6 * agent.loop_cpu_s / max(1, agent.ticks))
+            log.info("robot %d, run %s: %d ticks, %d skipped, %d states and %d references received, %d bad messages, "
+                     "%d stale, %d duplicated, loop CPU %.0f us a tick", robot_id, agent.cfg.run, agent.ticks,
+                     agent.skipped, agent.states_received, agent.refs_taken, agent.bad.count, agent.bad.stale,
+                     agent.bad.duplicates, 1e6 * agent.loop_cpu_s / max(1, agent.ticks))
             served.append(agent)
             if once:
                 break

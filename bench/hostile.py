@@ -355,8 +355,8 @@ def run_attack(session, attack: Attack, ledger: Ledger, rate: float, seconds: fl
     return time.monotonic() - t0
 
 
-ROBOT_LINE = re.compile(r"robot (\d+), run (\S+): (\d+) ticks, (\d+) skipped, (\d+) states received, "
-                        r"(\d+) bad messages, (\d+) stale")
+ROBOT_LINE = re.compile(r"robot (\d+), run (\S+): (\d+) ticks, (\d+) skipped, (\d+) states and \d+ references "
+                        r"received, (\d+) bad messages, (\d+) stale")
 
 
 LEADER_LINE = re.compile(r"leader: run (\S+) (?:ended|stopped): (\d+) references sent; clock messages refused (\d+), "

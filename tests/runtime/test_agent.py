@@ -244,3 +244,44 @@ def test_an_engaged_emergency_stop_is_always_obeyed_and_a_release_only_when_newe
     assert w2.agent.estopped == "x"
     stop2(1001, False)
     assert w2.agent.estopped is None
+
+
+def test_a_robot_whose_token_came_back_and_sent_no_state_for_a_second_is_away():
+    """Real time: after one of two robots was cut off, the other's old state says nothing of where it is
+    now (it may have moved on while this one stood halted). Kept forever, it froze a cut robot for the
+    rest of a run (docs/faults.md, Cutting a network). If no state of it comes within CONFIRM_AFTER_S of
+    its token's return it is away (left out until a newer state comes); a state in time keeps it."""
+    from swarm.core.clock import FakeClock
+
+    cfg = Config(**{**CFG.__dict__, "lockstep": False})
+    for sends_in_time in (False, True):
+        clock = FakeClock()
+        net = MemoryNet()
+        agent = robot.Agent(MemoryBus(net), cfg, F, clock=clock)
+        agent.start([])
+        probe = MemoryBus(net)
+        key = keys.cell(F, *keys.cell_of(0.6, 0.0, cfg.sense), 8)
+
+        def state(seq):
+            probe.put(key, protocol.encode(State(id=8, t=0.02 * seq, seq=seq, x=0.6, y=0.0, theta=0.0, r=0.3,
+                                                 R=1.2, frozen=False)))
+            agent._take_inboxes()
+
+        def robots_near():
+            nx, _ny, _nr, _nR, nk, _na, robots, _stale = agent.bodies(0.0, 0.0, None, 0.0)
+            return robots
+
+        token = probe.token(keys.alive(F, "robot", 8))
+        state(1)
+        assert robots_near() == 1
+        token.close()  # lost: a static body where it was
+        token = probe.token(keys.alive(F, "robot", 8))  # back
+        clock.advance(0.5)
+        if sends_in_time:
+            state(2)
+        assert robots_near() == 1
+        clock.advance(robot.CONFIRM_AFTER_S)
+        assert robots_near() == (1 if sends_in_time else 0)
+        state(3)  # a newer state brings it back in any case
+        assert robots_near() == 1
+        agent.close()
