@@ -80,8 +80,10 @@ def _child(proc, role: str, robot_id: int | None = None) -> psutil.Process:
 
 
 def test_five_ros2_robots_converge_on_rmw_zenoh(tmp_path):
+    # speed 2, not 3: on a slow 2-core machine (session 13's, 3.5 times slower than session 12's) speed 3
+    # overloaded the cores and a late command carried two robots into each other once (docs/runtime.md, Real time)
     cmd, metrics = up(tmp_path, "--robots", "5", "--mode", "realtime", "--drive", "ros2", "--duration", "60",
-                      "--speed", "3", "--quiet")
+                      "--speed", "2", "--quiet")
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
     assert out.returncode == 0, out.stderr + "".join(p.read_text()[-2000:] for p in (tmp_path / "logs").glob("*.log"))
     m = json.loads(metrics.read_text())
