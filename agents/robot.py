@@ -782,6 +782,7 @@ class Agent:
         robots = stale = 0
         oldest = 0.0
         table, dead, waiting, away, rx, speed = self.table, self.dead, self.waiting, self.away, self.rx, self.speed
+        unconfirmed = self.unconfirmed
         dead_near = []
         mono = None if seq is not None else self.clock.monotonic()
         offer2 = self._offer_r * self._offer_r
@@ -798,8 +799,8 @@ class Agent:
             else:
                 if j in away:
                     continue
-                if j in self.unconfirmed and mono >= self.unconfirmed[j]:
-                    del self.unconfirmed[j]
+                if j in unconfirmed and mono >= unconfirmed[j]:
+                    del unconfirmed[j]
                     away.add(j)
                     log.info("robot %d: robot %d sent no state in %g s since its token came back: taken as away",
                              self.id, j, CONFIRM_AFTER_S)
