@@ -18,10 +18,19 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import time
 from dataclasses import MISSING, dataclass, fields
 
 import msgpack
+
+try:  # the compiled wire codec of the kinds of every period (setup.py builds it where a C compiler is found)
+    from swarm.proto import _wire
+except ImportError:
+    _wire = None
+
+if os.environ.get("SWARM_PURE_PYTHON"):  # the generated Python codec alone (tests compare the two)
+    _wire = None
 
 VERSION = 1
 MAX_PAYLOAD = 64 << 10  # bytes: any message but the large kinds (a state is ~100 bytes); larger is refused unread
@@ -509,7 +518,10 @@ def _compile_encode(kind: str):
     src = f"def enc(m):\n    return packb({{'v': {VERSION}, 'kind': {kind!r}, {items}}}, use_bin_type=True)"
     ns = {"packb": msgpack.packb}
     exec(compile(src, f"<protocol fast encoder for {kind}>", "exec"), ns)
-    return ns["enc"]
+    types = dict(_SPEC[kind])
+    if _wire is None or any(types[wire] not in ("n", "i", "id", "b") for _, wire in _WIRE_NAMES[kind]):
+        return ns["enc"]
+    return _wire.Encoder(kind, VERSION, [(wire, types[wire], name) for name, wire in _WIRE_NAMES[kind]], ns["enc"])
 
 
 _FAST_ENCODE: dict[type, object] = {}
@@ -833,7 +845,41 @@ def _compile_hot(kind: str, limits: Limits | None):
             "                return m",
             f"    return slow(payload, {kind!r}, key_id, limits)"]
     exec(compile("\n".join(body), f"<protocol hot decoder for {kind}>", "exec"), ns)
-    return ns["dec"]
+    return ns["dec"] if _wire is None else _compile_wire(kind, limits, ns["dec"])
+
+
+def _compile_wire(kind: str, limits: Limits | None, fallback):
+    """The compiled decoder (swarm/proto/_wire.c) of the same conditions as _compile_hot's, on the canonical
+    layout only (the encoder's keys in its order, float64 numbers): anything else goes to fallback."""
+    types = dict(_SPEC[kind])
+    order = [(wire, types[wire], name) for name, wire in _WIRE_NAMES[kind]]
+    at = {wire: i for i, (wire, _, _) in enumerate(order)}
+    conds = [(_wire.IMAX, i, i, 0.0, 0.0, MAX_ROBOTS - 1 if t == "id" else 2**53)
+             for i, (_, t, _) in enumerate(order) if t in ("i", "id")]
+
+    def rng(wire: str, lo: float, hi: float) -> None:
+        conds.append((_wire.RANGE, at[wire], at[wire], lo, hi, 0))
+
+    for name, bound in _HOT_BOUNDS[kind]:
+        rng(_WIRE.get(name, name), -bound, bound)
+    if kind == "state":
+        conds += [(_wire.GT0, at["r"], at["r"], 0.0, 0.0, 0), (_wire.LT, at["r"], at["R"], 0.0, 0.0, 0)]
+    if limits is not None:
+        tol = 1 + 1e-9  # as Limits.check and _compile_hot
+        if kind == "state":
+            if limits.robots < 1:
+                return fallback  # no id is in the scenario: the fallback says so
+            conds.append((_wire.IMAX, at["id"], at["id"], 0.0, 0.0, limits.robots - 1))
+            rng("R", -math.inf, limits.radius * tol)
+        if kind == "cmd":  # abs(a) <= b, as a range
+            rng("vel", -(limits.v_max * tol), limits.v_max * tol)
+            rng("w", -(limits.w_max * tol), limits.w_max * tol)
+        if limits.bounds is not None and kind in ("state", "pose"):
+            xmin, xmax, ymin, ymax = limits.bounds
+            rng("x", xmin, xmax)
+            rng("y", ymin, ymax)
+    return _wire.Decoder(kind, VERSION, order, conds, at["id"] if kind == "state" else -1, MAX_PAYLOAD, KINDS[kind],
+                         fallback)
 
 
 def _item(row, where: str, names: tuple[str, ...]) -> dict:

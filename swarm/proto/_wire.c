@@ -1,0 +1,521 @@
+/* The wire codec of the flat message kinds of every control period, compiled (docs/runtime.md, "A robot's
+ * control period"). swarm.proto.protocol builds one Decoder and one Encoder per kind from its own tables
+ * (_SPEC, _WIRE_NAMES, _HOT_BOUNDS, Limits): this file holds no field, bound or key of its own, so the
+ * contract lives in one place. It is optional: without a compiler the same generated Python runs.
+ *
+ * Decoder(payload, key_id=None) accepts only the canonical layout (a msgpack map of exactly the encoder's
+ * keys in the encoder's order, float64 numbers, unsigned ints, true/false, nothing after it) with every
+ * condition it was given holding; anything else goes to its fallback (the generated Python decoder), which
+ * accepts or names what is wrong. So it can only be faster, never more lenient.
+ *
+ * Encoder(msg) writes the bytes msgpack.packb writes for the same dict (float -> float64, int -> the
+ * shortest form, bool -> true/false); a field of any other type goes to its fallback (msgpack itself). */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <string.h>
+
+#define MAX_FIELDS 32
+#define MAX_CONDS 64
+#define MAX_KEY 31
+
+static PyObject *empty_tuple;
+
+enum { T_FLOAT = 'n', T_INT = 'i', T_BOOL = 'b' };
+enum { C_RANGE = 0, C_LT = 1, C_GT0 = 2, C_IMAX = 3 };
+
+typedef struct {
+    int kind, a, b;
+    double lo, hi;
+    unsigned long long imax;
+} Cond;
+
+typedef struct {
+    PyObject_HEAD
+    vectorcallfunc vectorcall;
+    PyObject *cls, *fallback;
+    int nf, nc, idfield;
+    Py_ssize_t maxlen;
+    unsigned char prefix[80];
+    Py_ssize_t prefix_len;
+    unsigned char key[MAX_FIELDS][MAX_KEY + 1];
+    int keylen[MAX_FIELDS];
+    char type[MAX_FIELDS];
+    PyObject *name[MAX_FIELDS]; /* the Python attribute of each field, in the dataclass's order of the wire */
+    Cond cond[MAX_CONDS];
+} Decoder;
+
+static int put_str(unsigned char *out, Py_ssize_t cap, Py_ssize_t *len, PyObject *s) {
+    Py_ssize_t n;
+    const char *u = PyUnicode_AsUTF8AndSize(s, &n);
+    if (u == NULL)
+        return -1;
+    if (n > MAX_KEY || *len + 1 + n > cap) {
+        PyErr_SetString(PyExc_ValueError, "a key too long for the compiled codec");
+        return -1;
+    }
+    out[(*len)++] = (unsigned char)(0xa0 | n);
+    memcpy(out + *len, u, (size_t)n);
+    *len += n;
+    return 0;
+}
+
+/* The map header and the version and kind entries of a kind with nf fields. */
+static int make_prefix(unsigned char *out, Py_ssize_t cap, Py_ssize_t *len, int nf, long version, PyObject *kind) {
+    PyObject *v = PyUnicode_FromString("v"), *k = PyUnicode_FromString("kind");
+    int rc = -1;
+    *len = 0;
+    if (v == NULL || k == NULL || nf + 2 > 0xffff || version < 0 || version > 127)
+        goto done;
+    if (nf + 2 <= 15) {
+        out[(*len)++] = (unsigned char)(0x80 | (nf + 2)); /* fixmap */
+    } else {
+        out[(*len)++] = 0xde; /* map 16 */
+        out[(*len)++] = (unsigned char)((nf + 2) >> 8);
+        out[(*len)++] = (unsigned char)((nf + 2) & 0xff);
+    }
+    if (put_str(out, cap, len, v) < 0)
+        goto done;
+    out[(*len)++] = (unsigned char)version;
+    if (put_str(out, cap, len, k) < 0 || put_str(out, cap, len, kind) < 0)
+        goto done;
+    rc = 0;
+done:
+    if (rc < 0 && !PyErr_Occurred())
+        PyErr_SetString(PyExc_ValueError, "a kind the compiled codec cannot hold");
+    Py_XDECREF(v);
+    Py_XDECREF(k);
+    return rc;
+}
+
+static int fields_of(PyObject *fields, int *nf, unsigned char key[][MAX_KEY + 1], int *keylen, char *type,
+                     PyObject **name) {
+    /* fields: a sequence of (wire name, type code, python name) */
+    Py_ssize_t n = PySequence_Size(fields);
+    if (n < 0)
+        return -1;
+    if (n > MAX_FIELDS) {
+        PyErr_SetString(PyExc_ValueError, "too many fields for the compiled codec");
+        return -1;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *f = PySequence_GetItem(fields, i);
+        PyObject *wire, *pyname;
+        const char *t;
+        if (f == NULL)
+            return -1;
+        if (!PyArg_ParseTuple(f, "UsU", &wire, &t, &pyname)) {
+            Py_DECREF(f);
+            return -1;
+        }
+        Py_ssize_t len = 0;
+        if (put_str(key[i], MAX_KEY + 1, &len, wire) < 0) {
+            Py_DECREF(f);
+            return -1;
+        }
+        keylen[i] = (int)len;
+        if (strcmp(t, "n") == 0)
+            type[i] = T_FLOAT;
+        else if (strcmp(t, "i") == 0 || strcmp(t, "id") == 0)
+            type[i] = T_INT;
+        else if (strcmp(t, "b") == 0)
+            type[i] = T_BOOL;
+        else {
+            Py_DECREF(f);
+            PyErr_Format(PyExc_ValueError, "field type %s is not for the compiled codec", t);
+            return -1;
+        }
+        Py_INCREF(pyname);
+        PyUnicode_InternInPlace(&pyname);
+        name[i] = pyname;
+        Py_DECREF(f);
+    }
+    *nf = (int)n;
+    return 0;
+}
+
+/* ------------------------------------------------------------------------------------------- decoding */
+
+static PyObject *Decoder_vectorcall(PyObject *callable, PyObject *const *args, size_t nargsf, PyObject *kwnames);
+
+static PyObject *Decoder_new(PyTypeObject *tp, PyObject *args, PyObject *kw) {
+    /* Decoder(kind, version, fields, conds, idfield, maxlen, cls, fallback)
+     * conds: (kind, a, b, lo, hi, imax) tuples (C_RANGE: lo <= f[a] <= hi; C_LT: f[a] < f[b]; C_GT0: 0 < f[a];
+     * C_IMAX: int f[a] <= imax); idfield: the field that must equal key_id when given (-1: none). */
+    PyObject *kind, *fields, *conds, *cls, *fallback;
+    long version;
+    int idfield;
+    Py_ssize_t maxlen;
+    if (!PyArg_ParseTuple(args, "UlOOinOO", &kind, &version, &fields, &conds, &idfield, &maxlen, &cls, &fallback))
+        return NULL;
+    Decoder *d = (Decoder *)tp->tp_alloc(tp, 0);
+    if (d == NULL)
+        return NULL;
+    d->vectorcall = Decoder_vectorcall;
+    Py_INCREF(cls);
+    d->cls = cls;
+    Py_INCREF(fallback);
+    d->fallback = fallback;
+    d->idfield = idfield;
+    d->maxlen = maxlen;
+    if (fields_of(fields, &d->nf, d->key, d->keylen, d->type, d->name) < 0 ||
+        make_prefix(d->prefix, sizeof d->prefix, &d->prefix_len, d->nf, version, kind) < 0)
+        goto fail;
+    if (idfield >= d->nf || (idfield >= 0 && d->type[idfield] != T_INT)) {
+        PyErr_SetString(PyExc_ValueError, "idfield is not an int field");
+        goto fail;
+    }
+    Py_ssize_t nc = PySequence_Size(conds);
+    if (nc < 0)
+        goto fail;
+    if (nc > MAX_CONDS) {
+        PyErr_SetString(PyExc_ValueError, "too many conditions for the compiled codec");
+        goto fail;
+    }
+    for (Py_ssize_t i = 0; i < nc; i++) {
+        PyObject *c = PySequence_GetItem(conds, i);
+        Cond *k = &d->cond[i];
+        if (c == NULL)
+            goto fail;
+        int ok = PyArg_ParseTuple(c, "iiiddK", &k->kind, &k->a, &k->b, &k->lo, &k->hi, &k->imax);
+        Py_DECREF(c);
+        if (!ok)
+            goto fail;
+        if (k->a < 0 || k->a >= d->nf || k->b < 0 || k->b >= d->nf || k->kind < C_RANGE || k->kind > C_IMAX ||
+            (k->kind == C_IMAX) != (d->type[k->a] == T_INT) || d->type[k->a] == T_BOOL ||
+            (k->kind == C_LT && d->type[k->b] != T_FLOAT)) {
+            PyErr_SetString(PyExc_ValueError, "a condition that does not fit its fields");
+            goto fail;
+        }
+    }
+    d->nc = (int)nc;
+    return (PyObject *)d;
+fail:
+    Py_DECREF(d);
+    return NULL;
+}
+
+static void Decoder_dealloc(Decoder *d) {
+    Py_XDECREF(d->cls);
+    Py_XDECREF(d->fallback);
+    for (int i = 0; i < d->nf; i++)
+        Py_XDECREF(d->name[i]);
+    Py_TYPE(d)->tp_free((PyObject *)d);
+}
+
+static inline uint64_t be64(const unsigned char *p) {
+    uint64_t v = 0;
+    for (int i = 0; i < 8; i++)
+        v = (v << 8) | p[i];
+    return v;
+}
+
+/* 1: decoded into num/uint; 0: not the canonical layout (or a condition fails): the fallback decides. */
+static int parse(Decoder *d, const unsigned char *p, Py_ssize_t n, double *num, uint64_t *uint, PyObject *key_id) {
+    const unsigned char *end = p + n;
+    if (n < d->prefix_len || memcmp(p, d->prefix, (size_t)d->prefix_len) != 0)
+        return 0;
+    p += d->prefix_len;
+    for (int i = 0; i < d->nf; i++) {
+        int kl = d->keylen[i];
+        if (end - p < kl + 1 || memcmp(p, d->key[i], (size_t)kl) != 0)
+            return 0;
+        p += kl;
+        unsigned char c = *p++;
+        if (d->type[i] == T_FLOAT) {
+            if (c != 0xcb || end - p < 8)
+                return 0;
+            uint64_t bits = be64(p);
+            memcpy(&num[i], &bits, 8);
+            p += 8;
+        } else if (d->type[i] == T_INT) {
+            int w;
+            if (c <= 0x7f) {
+                uint[i] = c;
+                continue;
+            }
+            switch (c) {
+            case 0xcc: w = 1; break;
+            case 0xcd: w = 2; break;
+            case 0xce: w = 4; break;
+            case 0xcf: w = 8; break;
+            default: return 0; /* negative: the fallback names it */
+            }
+            if (end - p < w)
+                return 0;
+            uint64_t v = 0;
+            for (int b = 0; b < w; b++)
+                v = (v << 8) | p[b];
+            uint[i] = v;
+            p += w;
+        } else {
+            if (c != 0xc2 && c != 0xc3)
+                return 0;
+            uint[i] = c == 0xc3;
+        }
+    }
+    if (p != end)
+        return 0;
+    for (int i = 0; i < d->nc; i++) {
+        Cond *k = &d->cond[i];
+        switch (k->kind) {
+        case C_RANGE:
+            if (!(k->lo <= num[k->a] && num[k->a] <= k->hi))
+                return 0;
+            break;
+        case C_LT:
+            if (!(num[k->a] < num[k->b]))
+                return 0;
+            break;
+        case C_GT0:
+            if (!(0.0 < num[k->a]))
+                return 0;
+            break;
+        case C_IMAX:
+            if (uint[k->a] > k->imax)
+                return 0;
+            break;
+        }
+    }
+    if (d->idfield >= 0 && key_id != NULL && key_id != Py_None) {
+        if (!PyLong_CheckExact(key_id))
+            return 0;
+        int overflow;
+        long long kid = PyLong_AsLongLongAndOverflow(key_id, &overflow);
+        if (overflow || kid < 0 || (uint64_t)kid != uint[d->idfield]) {
+            PyErr_Clear();
+            return 0;
+        }
+    }
+    return 1;
+}
+
+static PyObject *Decoder_vectorcall(PyObject *callable, PyObject *const *args, size_t nargsf, PyObject *kwnames) {
+    Decoder *d = (Decoder *)callable;
+    Py_ssize_t nargs = PyVectorcall_NARGS(nargsf);
+    if (kwnames != NULL || nargs < 1 || nargs > 2)
+        return PyObject_Vectorcall(d->fallback, args, nargsf, kwnames);
+    PyObject *payload = args[0], *key_id = nargs > 1 ? args[1] : NULL;
+    double num[MAX_FIELDS];
+    uint64_t uint[MAX_FIELDS];
+    if (!PyBytes_CheckExact(payload) || PyBytes_GET_SIZE(payload) > d->maxlen ||
+        !parse(d, (const unsigned char *)PyBytes_AS_STRING(payload), PyBytes_GET_SIZE(payload), num, uint, key_id))
+        return PyObject_Vectorcall(d->fallback, args, nargsf, kwnames);
+    PyObject *dict = PyDict_New();
+    if (dict == NULL)
+        return NULL;
+    for (int i = 0; i < d->nf; i++) {
+        PyObject *v;
+        if (d->type[i] == T_FLOAT)
+            v = PyFloat_FromDouble(num[i]);
+        else if (d->type[i] == T_INT)
+            v = PyLong_FromUnsignedLongLong(uint[i]);
+        else {
+            v = uint[i] ? Py_True : Py_False;
+            Py_INCREF(v);
+        }
+        if (v == NULL || PyDict_SetItem(dict, d->name[i], v) < 0) {
+            Py_XDECREF(v);
+            Py_DECREF(dict);
+            return NULL;
+        }
+        Py_DECREF(v);
+    }
+    /* object.__new__(cls), then its __dict__ (a frozen dataclass refuses setattr; object's does not) */
+    PyObject *m = PyBaseObject_Type.tp_new((PyTypeObject *)d->cls, empty_tuple, NULL);
+    if (m == NULL || PyObject_GenericSetDict(m, dict, NULL) < 0) {
+        Py_XDECREF(m);
+        Py_DECREF(dict);
+        return NULL;
+    }
+    Py_DECREF(dict);
+    return m;
+}
+
+static PyTypeObject DecoderType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "swarm.proto._wire.Decoder",
+    .tp_basicsize = sizeof(Decoder),
+    .tp_dealloc = (destructor)Decoder_dealloc,
+    .tp_vectorcall_offset = offsetof(Decoder, vectorcall),
+    .tp_call = PyVectorcall_Call,
+    .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_VECTORCALL,
+    .tp_doc = "Decoder(kind, version, fields, conds, idfield, maxlen, cls, fallback): a kind's canonical layout, compiled",
+    .tp_new = Decoder_new,
+};
+
+/* ------------------------------------------------------------------------------------------- encoding */
+
+typedef struct {
+    PyObject_HEAD
+    vectorcallfunc vectorcall;
+    PyObject *fallback;
+    int nf;
+    unsigned char prefix[80];
+    Py_ssize_t prefix_len;
+    unsigned char key[MAX_FIELDS][MAX_KEY + 1];
+    int keylen[MAX_FIELDS];
+    char type[MAX_FIELDS];
+    PyObject *name[MAX_FIELDS];
+} Encoder;
+
+static PyObject *Encoder_vectorcall(PyObject *callable, PyObject *const *args, size_t nargsf, PyObject *kwnames);
+
+static PyObject *Encoder_new(PyTypeObject *tp, PyObject *args, PyObject *kw) {
+    /* Encoder(kind, version, fields, fallback) */
+    PyObject *kind, *fields, *fallback;
+    long version;
+    if (!PyArg_ParseTuple(args, "UlOO", &kind, &version, &fields, &fallback))
+        return NULL;
+    Encoder *e = (Encoder *)tp->tp_alloc(tp, 0);
+    if (e == NULL)
+        return NULL;
+    e->vectorcall = Encoder_vectorcall;
+    Py_INCREF(fallback);
+    e->fallback = fallback;
+    if (fields_of(fields, &e->nf, e->key, e->keylen, e->type, e->name) < 0 ||
+        make_prefix(e->prefix, sizeof e->prefix, &e->prefix_len, e->nf, version, kind) < 0) {
+        Py_DECREF(e);
+        return NULL;
+    }
+    return (PyObject *)e;
+}
+
+static void Encoder_dealloc(Encoder *e) {
+    Py_XDECREF(e->fallback);
+    for (int i = 0; i < e->nf; i++)
+        Py_XDECREF(e->name[i]);
+    Py_TYPE(e)->tp_free((PyObject *)e);
+}
+
+static unsigned char *put_be(unsigned char *p, uint64_t v, int w) {
+    for (int b = w - 1; b >= 0; b--) {
+        p[b] = (unsigned char)(v & 0xff);
+        v >>= 8;
+    }
+    return p + w;
+}
+
+/* msgpack's shortest form of an int (msgpack's pack_template.h); 0: out of 64-bit range. */
+static unsigned char *put_int(unsigned char *p, PyObject *o) {
+    int overflow;
+    long long v = PyLong_AsLongLongAndOverflow(o, &overflow);
+    if (overflow > 0) {
+        unsigned long long u = PyLong_AsUnsignedLongLong(o);
+        if (u == (unsigned long long)-1 && PyErr_Occurred()) {
+            PyErr_Clear();
+            return NULL;
+        }
+        *p++ = 0xcf;
+        return put_be(p, u, 8);
+    }
+    if (overflow < 0 || (v == -1 && PyErr_Occurred())) {
+        PyErr_Clear();
+        return NULL;
+    }
+    if (v < -(1LL << 5)) {
+        if (v < -(1LL << 15)) {
+            if (v < -(1LL << 31)) {
+                *p++ = 0xd3;
+                return put_be(p, (uint64_t)v, 8);
+            }
+            *p++ = 0xd2;
+            return put_be(p, (uint64_t)v, 4);
+        }
+        if (v < -(1 << 7)) {
+            *p++ = 0xd1;
+            return put_be(p, (uint64_t)v, 2);
+        }
+        *p++ = 0xd0;
+        return put_be(p, (uint64_t)v, 1);
+    }
+    if (v < (1 << 7)) {
+        *p++ = (unsigned char)(v & 0xff); /* positive or negative fixint */
+        return p;
+    }
+    if (v < (1LL << 16)) {
+        if (v < (1 << 8)) {
+            *p++ = 0xcc;
+            return put_be(p, (uint64_t)v, 1);
+        }
+        *p++ = 0xcd;
+        return put_be(p, (uint64_t)v, 2);
+    }
+    if (v < (1LL << 32)) {
+        *p++ = 0xce;
+        return put_be(p, (uint64_t)v, 4);
+    }
+    *p++ = 0xcf;
+    return put_be(p, (uint64_t)v, 8);
+}
+
+static PyObject *Encoder_vectorcall(PyObject *callable, PyObject *const *args, size_t nargsf, PyObject *kwnames) {
+    Encoder *e = (Encoder *)callable;
+    if (kwnames != NULL || PyVectorcall_NARGS(nargsf) != 1)
+        return PyObject_Vectorcall(e->fallback, args, nargsf, kwnames);
+    unsigned char buf[80 + MAX_FIELDS * (MAX_KEY + 1 + 9)];
+    unsigned char *p = buf;
+    memcpy(p, e->prefix, (size_t)e->prefix_len);
+    p += e->prefix_len;
+    for (int i = 0; i < e->nf; i++) {
+        PyObject *o = PyObject_GetAttr(args[0], e->name[i]);
+        if (o == NULL)
+            return NULL;
+        memcpy(p, e->key[i], (size_t)e->keylen[i]);
+        p += e->keylen[i];
+        if (o == Py_True || o == Py_False) {
+            *p++ = o == Py_True ? 0xc3 : 0xc2;
+        } else if (PyLong_CheckExact(o)) {
+            p = put_int(p, o);
+        } else if (PyFloat_Check(o)) {
+            double x = PyFloat_AS_DOUBLE(o);
+            uint64_t bits;
+            memcpy(&bits, &x, 8);
+            *p++ = 0xcb;
+            p = put_be(p, bits, 8);
+        } else {
+            p = NULL; /* anything else: msgpack's own answer (or its error) */
+        }
+        Py_DECREF(o);
+        if (p == NULL)
+            return PyObject_Vectorcall(e->fallback, args, nargsf, kwnames);
+    }
+    return PyBytes_FromStringAndSize((const char *)buf, p - buf);
+}
+
+static PyTypeObject EncoderType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "swarm.proto._wire.Encoder",
+    .tp_basicsize = sizeof(Encoder),
+    .tp_dealloc = (destructor)Encoder_dealloc,
+    .tp_vectorcall_offset = offsetof(Encoder, vectorcall),
+    .tp_call = PyVectorcall_Call,
+    .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_VECTORCALL,
+    .tp_doc = "Encoder(kind, version, fields, fallback): msgpack bytes of a flat message, compiled",
+    .tp_new = Encoder_new,
+};
+
+static struct PyModuleDef wire_module = {
+    PyModuleDef_HEAD_INIT, "swarm.proto._wire", "The flat kinds' wire codec, compiled (swarm.proto.protocol).", -1, NULL,
+};
+
+PyMODINIT_FUNC PyInit__wire(void) {
+    if (PyType_Ready(&DecoderType) < 0 || PyType_Ready(&EncoderType) < 0)
+        return NULL;
+    if (empty_tuple == NULL && (empty_tuple = PyTuple_New(0)) == NULL)
+        return NULL;
+    PyObject *m = PyModule_Create(&wire_module);
+    if (m == NULL)
+        return NULL;
+    Py_INCREF(&DecoderType);
+    Py_INCREF(&EncoderType);
+    if (PyModule_AddObject(m, "Decoder", (PyObject *)&DecoderType) < 0 ||
+        PyModule_AddObject(m, "Encoder", (PyObject *)&EncoderType) < 0 ||
+        PyModule_AddIntConstant(m, "RANGE", C_RANGE) < 0 || PyModule_AddIntConstant(m, "LT", C_LT) < 0 ||
+        PyModule_AddIntConstant(m, "GT0", C_GT0) < 0 || PyModule_AddIntConstant(m, "IMAX", C_IMAX) < 0) {
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
+}
