@@ -8,8 +8,9 @@ It knows only what it hears on the bus:
   world/clock         the clock (lock-step ticks, or the real-time epoch)
   alive/robot/*       liveliness: a robot that disappears stays a static body at its last pose
 and publishes its state on its cell key, its command on robot/<id>/cmd (reliable) and a status.
-The law is swarm.core.law.robot_command, the very function `swarm sim` compiles, run here as plain
-Python (no numpy, no compiler: a robot process starts fast and stays small). This module
+The law is swarm.core.law.robot_command, the very function `swarm sim` compiles, run here without
+numpy or numba (a robot process starts fast and stays small): compiled from its C transcription where
+setup.py built it (swarm.core.fastlaw: the same bits, tested), else as plain Python. This module
 imports nothing of the world: the same agent drives a simulated or a real robot.
 
 Lock-step tick k (the world owns the clock; docs/runtime.md):
@@ -49,7 +50,7 @@ import threading
 import time
 
 from swarm.proto import keys, protocol
-from swarm.core import kinematics, law
+from swarm.core import fastlaw, kinematics, law
 from swarm.core import runid
 from swarm.core.clock import WALL
 from swarm.launch.child import settle_heap
@@ -63,6 +64,7 @@ log = logging.getLogger("swarm.robot")
 WAIT_TIMEOUT_S = 1.0  # lock-step: wall seconds to wait for a tick's inputs before going on without them
 STATUS_PERIOD_S = 0.1  # simulated seconds between status messages
 STALE_AFTER_S = 0.5  # real time: a neighbour state older than this (simulated s) counts as stale (status)
+KEY_IDS_MAX = 4096  # cell keys whose robot id a robot keeps parsed (more: it starts over)
 CONFIRM_AFTER_S = 1.0  # real time: a robot whose token came back and sent no state for this long (wall s) is away
 HORIZON_CAP_S = 0.5  # real time: the governor's horizon is at most HOLD_PERIODS control periods plus this
 HOLD_PERIODS = 2  # real time: a command acts its period and, when the next is missing, one more (then brakes)
@@ -534,15 +536,20 @@ class Agent:
             except ProtocolError as e:
                 bad.append((key, e))
         dec, ids = self._dec_state, self._key_ids
+        wire = protocol._wire
         for box in self._cells.values():
-            for key, data in box.drain():
+            items = box.drain()
+            if wire is not None:  # the loop below, compiled (swarm/proto/_wire.c)
+                wire.decode_states(items, dec, ids, keys.cell_robot, states, bad, ProtocolError, KEY_IDS_MAX)
+                continue
+            for key, data in items:
                 j = ids.get(key)
                 if j is None:
                     j = keys.cell_robot(key)
                     if j is None:
                         bad.append((key, ProtocolError(f"not a cell key: {key!r}")))
                         continue
-                    if len(ids) >= 4096:  # keys of robots long gone (or a stranger's): bounded
+                    if len(ids) >= KEY_IDS_MAX:  # keys of robots long gone (or a stranger's): bounded
                         ids.clear()
                     ids[key] = j
                 try:
@@ -851,7 +858,7 @@ class Agent:
             self.p[law.P_DT] = max(self.horizon_floor, HOLD_PERIODS * self.cfg.dt + min(HORIZON_CAP_S, lag))
             self.max_age = max(self.max_age, self.oldest_state_s)
         xl, yl, thl, vl, wl = ref
-        v, w = law.robot_command(x, y, th, self.cfg.dx, self.cfg.dy, self.cfg.r, t, xl, yl, thl, vl, wl,
+        v, w = fastlaw.robot_command(x, y, th, self.cfg.dx, self.cfg.dy, self.cfg.r, t, xl, yl, thl, vl, wl,
                                  nx, ny, nr, nR, nk, na, len(nx), self.mem, self.p)
         self.neighbours, self.stale = robots, stale
         self.stale_total += stale
@@ -976,7 +983,7 @@ class Agent:
             nx, ny, nr, nR, nk, na = view.bodies(k, static, self.obstacles, self.cfg.r, self.cfg.R, law.KIND_ROBOT,
                                                  law.KIND_OBSTACLE)
             xl, yl, thl, vl, wl = r
-            v, w = law.robot_command(b.x, b.y, b.theta, self.cfg.dx, self.cfg.dy, self.cfg.r, k * self.cfg.dt, xl, yl,
+            v, w = fastlaw.robot_command(b.x, b.y, b.theta, self.cfg.dx, self.cfg.dy, self.cfg.r, k * self.cfg.dt, xl, yl,
                                      thl, vl, wl, nx, ny, nr, nR, nk, na, len(nx), self.mem, self.p)
             self.neighbours = sum(1 for kind in nk if kind == law.KIND_ROBOT)
         view.commanded(k, v, w)
@@ -1155,8 +1162,11 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
             current[:] = [agent]
             if runs.latest is not None and runs.latest.run != run.run:
                 agent.end()  # another run began while this one was being set up
-            log.info("robot %d: run %s (%s, %d robots)", robot_id, run.run, "lock-step" if run.lockstep else "real time",
-                     run.robots)
+            log.info("robot %d: run %s (%s, %d robots; law and wire codec %s)", robot_id, run.run,
+                     "lock-step" if run.lockstep else "real time", run.robots,
+                     "compiled" if fastlaw.COMPILED and protocol._wire is not None else
+                     f"law {'compiled' if fastlaw.COMPILED else 'Python'}, codec "
+                     f"{'compiled' if protocol._wire is not None else 'Python'}")
             try:
                 agent.start(obstacles)
                 settle_heap()

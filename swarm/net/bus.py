@@ -29,6 +29,8 @@ import threading
 from collections import OrderedDict, deque
 from typing import Callable, Protocol
 
+from swarm.proto import protocol as _protocol
+
 Handler = Callable[[str, bytes], None]
 AliveHandler = Callable[[str, bool], None]
 RawHandler = Callable[[str, bytes, bytes | None], None]  # key, payload, attachment (None: the sample had none)
@@ -520,6 +522,9 @@ class _ZenohInbox:
         return str(s.key_expr), payload
 
     def drain(self) -> list[tuple[str, bytes]]:
+        wire = _protocol._wire  # None where it is not built (or SWARM_PURE_PYTHON)
+        if wire is not None:  # the same loop compiled (swarm/proto/_wire.c): no bytecode per sample
+            return wire.drain(self.sub.try_recv, self.WAKE)
         out = []
         recv = self.sub.try_recv
         while (s := recv()) is not None:

@@ -496,14 +496,211 @@ static PyTypeObject EncoderType = {
     .tp_new = Encoder_new,
 };
 
+
+/* ------------------------------------------------------------------------------------------- inboxes */
+
+static PyObject *s_payload, *s_to_bytes, *s_attachment, *s_key_expr;
+
+/* The (key, payload) of a zenoh sample, or Py_None for a wake-up (an empty payload with the wake attachment):
+ * swarm.net.bus._ZenohInbox._item. A new reference; NULL with an exception. */
+static PyObject *sample_item(PyObject *s, PyObject *wake) {
+    PyObject *z = PyObject_GetAttr(s, s_payload);
+    if (z == NULL)
+        return NULL;
+    PyObject *b = PyObject_CallMethodNoArgs(z, s_to_bytes);
+    Py_DECREF(z);
+    if (b == NULL)
+        return NULL;
+    if (!PyBytes_Check(b)) {
+        Py_DECREF(b);
+        PyErr_SetString(PyExc_TypeError, "a sample's payload.to_bytes() gave no bytes");
+        return NULL;
+    }
+    if (PyBytes_GET_SIZE(b) == 0) { /* a real message is never empty: only then look for the wake marker */
+        PyObject *a = PyObject_GetAttr(s, s_attachment);
+        if (a == NULL) {
+            Py_DECREF(b);
+            return NULL;
+        }
+        if (a != Py_None) {
+            PyObject *ab = PyObject_CallMethodNoArgs(a, s_to_bytes);
+            Py_DECREF(a);
+            if (ab == NULL) {
+                Py_DECREF(b);
+                return NULL;
+            }
+            int is_wake = PyObject_RichCompareBool(ab, wake, Py_EQ);
+            Py_DECREF(ab);
+            if (is_wake != 0) {
+                Py_DECREF(b);
+                if (is_wake < 0)
+                    return NULL;
+                Py_RETURN_NONE;
+            }
+        } else {
+            Py_DECREF(a);
+        }
+    }
+    PyObject *ke = PyObject_GetAttr(s, s_key_expr);
+    if (ke == NULL) {
+        Py_DECREF(b);
+        return NULL;
+    }
+    PyObject *k = PyObject_Str(ke);
+    Py_DECREF(ke);
+    if (k == NULL) {
+        Py_DECREF(b);
+        return NULL;
+    }
+    PyObject *t = PyTuple_Pack(2, k, b);
+    Py_DECREF(k);
+    Py_DECREF(b);
+    return t;
+}
+
+static PyObject *wire_drain(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "drain(try_recv, wake) takes 2 arguments");
+        return NULL;
+    }
+    PyObject *recv = args[0], *wake = args[1];
+    PyObject *out = PyList_New(0);
+    if (out == NULL)
+        return NULL;
+    for (;;) {
+        PyObject *s = PyObject_CallNoArgs(recv);
+        if (s == NULL)
+            goto fail;
+        if (s == Py_None) {
+            Py_DECREF(s);
+            return out;
+        }
+        PyObject *item = sample_item(s, wake);
+        Py_DECREF(s);
+        if (item == NULL)
+            goto fail;
+        if (item != Py_None && PyList_Append(out, item) < 0) {
+            Py_DECREF(item);
+            goto fail;
+        }
+        Py_DECREF(item);
+    }
+fail:
+    Py_DECREF(out);
+    return NULL;
+}
+
+/* decode_states(items, dec, ids, parse, states, bad, error, limit): for each (key, payload) of items, the
+ * robot id of its cell key (ids caches parse(key); cleared when it holds limit keys), then dec(payload, id)
+ * appended to states as (state, key); a key parse refuses, or an error dec raises, goes to bad as (key, error).
+ * agents.robot.Agent._take_inboxes's loop over its cells, without a bytecode per message. */
+static PyObject *wire_decode_states(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 8) {
+        PyErr_SetString(PyExc_TypeError, "decode_states(items, dec, ids, parse, states, bad, error, limit)");
+        return NULL;
+    }
+    PyObject *items = args[0], *dec = args[1], *ids = args[2], *parse = args[3], *states = args[4], *bad = args[5];
+    PyObject *error = args[6];
+    Py_ssize_t limit = PyLong_AsSsize_t(args[7]);
+    if (limit == -1 && PyErr_Occurred())
+        return NULL;
+    if (!PyList_Check(items) || !PyDict_Check(ids) || !PyList_Check(states) || !PyList_Check(bad)) {
+        PyErr_SetString(PyExc_TypeError, "decode_states: items, states and bad are lists, ids a dict");
+        return NULL;
+    }
+    for (Py_ssize_t i = 0; i < PyList_GET_SIZE(items); i++) {
+        PyObject *it = PyList_GET_ITEM(items, i);
+        if (!PyTuple_Check(it) || PyTuple_GET_SIZE(it) != 2) {
+            PyErr_SetString(PyExc_TypeError, "decode_states: items are (key, payload) pairs");
+            return NULL;
+        }
+        PyObject *key = PyTuple_GET_ITEM(it, 0), *payload = PyTuple_GET_ITEM(it, 1);
+        PyObject *j = PyDict_GetItemWithError(ids, key); /* borrowed */
+        if (j == NULL) {
+            if (PyErr_Occurred())
+                return NULL;
+            PyObject *pj = PyObject_CallOneArg(parse, key);
+            if (pj == NULL)
+                return NULL;
+            if (pj == Py_None) {
+                Py_DECREF(pj);
+                PyObject *e = PyObject_CallFunction(error, "N", PyUnicode_FromFormat("not a cell key: %R", key));
+                if (e == NULL)
+                    return NULL;
+                PyObject *t = PyTuple_Pack(2, key, e);
+                Py_DECREF(e);
+                if (t == NULL || PyList_Append(bad, t) < 0) {
+                    Py_XDECREF(t);
+                    return NULL;
+                }
+                Py_DECREF(t);
+                continue;
+            }
+            if (PyDict_GET_SIZE(ids) >= limit) /* keys of robots long gone (or a stranger's): bounded */
+                PyDict_Clear(ids);
+            int rc = PyDict_SetItem(ids, key, pj);
+            Py_DECREF(pj);
+            if (rc < 0)
+                return NULL;
+            j = PyDict_GetItemWithError(ids, key);
+            if (j == NULL)
+                return NULL;
+        }
+        PyObject *call[2] = {payload, j};
+        PyObject *m = PyObject_Vectorcall(dec, call, 2, NULL);
+        PyObject *t;
+        if (m == NULL) {
+            if (!PyErr_ExceptionMatches(error))
+                return NULL;
+            PyObject *type, *value, *tb;
+            PyErr_Fetch(&type, &value, &tb);
+            PyErr_NormalizeException(&type, &value, &tb);
+            if (tb != NULL)
+                PyException_SetTraceback(value, tb);
+            Py_XDECREF(type);
+            Py_XDECREF(tb);
+            if (value == NULL)
+                return NULL;
+            t = PyTuple_Pack(2, key, value);
+            Py_DECREF(value);
+            if (t == NULL || PyList_Append(bad, t) < 0) {
+                Py_XDECREF(t);
+                return NULL;
+            }
+        } else {
+            t = PyTuple_Pack(2, m, key);
+            Py_DECREF(m);
+            if (t == NULL || PyList_Append(states, t) < 0) {
+                Py_XDECREF(t);
+                return NULL;
+            }
+        }
+        Py_DECREF(t);
+    }
+    Py_RETURN_NONE;
+}
+
+static PyMethodDef wire_methods[] = {
+    {"drain", (PyCFunction)(void (*)(void))wire_drain, METH_FASTCALL,
+     "drain(try_recv, wake): the (key, payload) of every sample try_recv() gives until None, wake-ups left out"},
+    {"decode_states", (PyCFunction)(void (*)(void))wire_decode_states, METH_FASTCALL,
+     "decode_states(items, dec, ids, parse, states, bad, error, limit): decode a batch of cell states"},
+    {NULL, NULL, 0, NULL},
+};
+
 static struct PyModuleDef wire_module = {
-    PyModuleDef_HEAD_INIT, "swarm.proto._wire", "The flat kinds' wire codec, compiled (swarm.proto.protocol).", -1, NULL,
+    PyModuleDef_HEAD_INIT, "swarm.proto._wire", "The flat kinds' wire codec, compiled (swarm.proto.protocol).", -1, wire_methods,
 };
 
 PyMODINIT_FUNC PyInit__wire(void) {
     if (PyType_Ready(&DecoderType) < 0 || PyType_Ready(&EncoderType) < 0)
         return NULL;
     if (empty_tuple == NULL && (empty_tuple = PyTuple_New(0)) == NULL)
+        return NULL;
+    if ((s_payload = PyUnicode_InternFromString("payload")) == NULL ||
+        (s_to_bytes = PyUnicode_InternFromString("to_bytes")) == NULL ||
+        (s_attachment = PyUnicode_InternFromString("attachment")) == NULL ||
+        (s_key_expr = PyUnicode_InternFromString("key_expr")) == NULL)
         return NULL;
     PyObject *m = PyModule_Create(&wire_module);
     if (m == NULL)
