@@ -1162,11 +1162,9 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
             current[:] = [agent]
             if runs.latest is not None and runs.latest.run != run.run:
                 agent.end()  # another run began while this one was being set up
-            log.info("robot %d: run %s (%s, %d robots; law and wire codec %s)", robot_id, run.run,
+            log.info("robot %d: run %s (%s, %d robots; law %s, wire codec %s)", robot_id, run.run,
                      "lock-step" if run.lockstep else "real time", run.robots,
-                     "compiled" if fastlaw.COMPILED and protocol._wire is not None else
-                     f"law {'compiled' if fastlaw.COMPILED else 'Python'}, codec "
-                     f"{'compiled' if protocol._wire is not None else 'Python'}")
+                     "compiled" if fastlaw.COMPILED else "Python", "compiled" if protocol._wire is not None else "Python")
             try:
                 agent.start(obstacles)
                 settle_heap()
