@@ -13,6 +13,7 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <stddef.h>
+#include <limits.h>
 #include <stdint.h>
 #include <string.h>
 
@@ -680,11 +681,149 @@ static PyObject *wire_decode_states(PyObject *module, PyObject *const *args, Py_
     Py_RETURN_NONE;
 }
 
+
+/* ------------------------------------------------------------------------------------------- states */
+
+static PyObject *s_id, *s_t, *s_seq, *s_seq_span, *s_t_span, *s_cand, *s_run;
+
+/* 1: robot j's state (t, seq) is in its window's common case (swarm.proto.window.Window.check's first test),
+ * and the window took it; 0: it is not (nothing changed: the full check decides); -1: an error. */
+static int window_take(PyObject *w, double t, PyObject *seq) {
+    PyObject *t0 = PyObject_GetAttr(w, s_t);
+    if (t0 == NULL)
+        return -1;
+    if (!PyFloat_CheckExact(t0)) { /* None: not anchored yet */
+        Py_DECREF(t0);
+        return 0;
+    }
+    double t0v = PyFloat_AS_DOUBLE(t0);
+    Py_DECREF(t0);
+    PyObject *seq0 = PyObject_GetAttr(w, s_seq), *span = PyObject_GetAttr(w, s_seq_span);
+    PyObject *tspan = PyObject_GetAttr(w, s_t_span);
+    int ok = -1;
+    if (seq0 == NULL || span == NULL || tspan == NULL)
+        goto done;
+    ok = 0;
+    if (!PyLong_CheckExact(seq0) || !PyLong_CheckExact(span) || !PyLong_CheckExact(seq) || !PyFloat_Check(tspan))
+        goto done;
+    int o1, o2, o3;
+    long long a = PyLong_AsLongLongAndOverflow(seq0, &o1), b = PyLong_AsLongLongAndOverflow(span, &o2);
+    long long q = PyLong_AsLongLongAndOverflow(seq, &o3);
+    if (o1 || o2 || o3 || PyErr_Occurred() || b < 0 || a > LLONG_MAX - b) {
+        PyErr_Clear();
+        goto done;
+    }
+    if (!(a < q && q <= a + b && t0v <= t && t <= t0v + PyFloat_AS_DOUBLE(tspan)))
+        goto done;
+    PyObject *tf = PyFloat_FromDouble(t), *zero = PyLong_FromLong(0);
+    ok = -1;
+    if (tf != NULL && zero != NULL && PyObject_SetAttr(w, s_t, tf) == 0 && PyObject_SetAttr(w, s_seq, seq) == 0 &&
+        PyObject_SetAttr(w, s_cand, Py_None) == 0 && PyObject_SetAttr(w, s_run, zero) == 0)
+        ok = 1;
+    Py_XDECREF(tf);
+    Py_XDECREF(zero);
+done:
+    Py_XDECREF(seq0);
+    Py_XDECREF(span);
+    Py_XDECREF(tspan);
+    return ok;
+}
+
+/* take_states(states, me, ahead, now, mono, windows, table, rx, away, unconfirmed, slow): real time, a batch of
+ * decoded neighbour states (agents.robot.Agent._on_states). A state of another robot, not ahead of this
+ * robot's clock (t <= ahead), that its sender's window takes in the common case is taken here: table[j] = s,
+ * rx[j] = (its age now, mono), j neither away nor unconfirmed any more. Any other goes to slow(s, key), in
+ * its turn (the windows see the states in order). Returns how many were taken here. */
+static PyObject *wire_take_states(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 11) {
+        PyErr_SetString(PyExc_TypeError,
+                        "take_states(states, me, ahead, now, mono, windows, table, rx, away, unconfirmed, slow)");
+        return NULL;
+    }
+    PyObject *states = args[0], *me = args[1], *now = args[3], *mono = args[4], *windows = args[5];
+    PyObject *table = args[6], *rx = args[7], *away = args[8], *unconfirmed = args[9], *slow = args[10];
+    double ahead = PyFloat_AsDouble(args[2]);
+    if (ahead == -1.0 && PyErr_Occurred())
+        return NULL;
+    if (!PyList_Check(states) || !PyDict_Check(windows) || !PyDict_Check(table) || !PyDict_Check(rx) ||
+        !PySet_Check(away) || !PyDict_Check(unconfirmed)) {
+        PyErr_SetString(PyExc_TypeError, "take_states: states a list, windows, table, rx, unconfirmed dicts, away a set");
+        return NULL;
+    }
+    double nowv = 0.0;
+    int has_now = now != Py_None;
+    if (has_now && (nowv = PyFloat_AsDouble(now)) == -1.0 && PyErr_Occurred())
+        return NULL;
+    Py_ssize_t taken = 0;
+    for (Py_ssize_t i = 0; i < PyList_GET_SIZE(states); i++) {
+        PyObject *it = PyList_GET_ITEM(states, i);
+        if (!PyTuple_Check(it) || PyTuple_GET_SIZE(it) != 2) {
+            PyErr_SetString(PyExc_TypeError, "take_states: states are (state, key) pairs");
+            return NULL;
+        }
+        PyObject *st = PyTuple_GET_ITEM(it, 0), *key = PyTuple_GET_ITEM(it, 1);
+        PyObject *j = PyObject_GetAttr(st, s_id), *tt = PyObject_GetAttr(st, s_t), *seq = PyObject_GetAttr(st, s_seq);
+        int fast = 0;
+        if (j == NULL || tt == NULL || seq == NULL)
+            goto fail;
+        if (PyFloat_CheckExact(tt) && PyFloat_AS_DOUBLE(tt) <= ahead) {
+            int mine = PyObject_RichCompareBool(j, me, Py_EQ);
+            if (mine < 0)
+                goto fail;
+            PyObject *w = mine ? NULL : PyDict_GetItemWithError(windows, j); /* borrowed */
+            if (w == NULL && PyErr_Occurred())
+                goto fail;
+            if (w != NULL) {
+                Py_INCREF(w);
+                fast = window_take(w, PyFloat_AS_DOUBLE(tt), seq);
+                Py_DECREF(w);
+                if (fast < 0)
+                    goto fail;
+            }
+        }
+        if (fast) {
+            double t = PyFloat_AS_DOUBLE(tt);
+            PyObject *age = PyFloat_FromDouble(!has_now || nowv <= t ? 0.0 : nowv - t);
+            PyObject *pair = age == NULL ? NULL : PyTuple_Pack(2, age, mono);
+            Py_XDECREF(age);
+            if (pair == NULL || PyDict_SetItem(table, j, st) < 0 || PyDict_SetItem(rx, j, pair) < 0 ||
+                PySet_Discard(away, j) < 0) {
+                Py_XDECREF(pair);
+                goto fail;
+            }
+            Py_DECREF(pair);
+            if (PyDict_GET_SIZE(unconfirmed) > 0) {
+                int has = PyDict_Contains(unconfirmed, j);
+                if (has < 0 || (has && PyDict_DelItem(unconfirmed, j) < 0))
+                    goto fail;
+            }
+            taken++;
+        } else {
+            PyObject *r = PyObject_CallFunctionObjArgs(slow, st, key, NULL);
+            if (r == NULL)
+                goto fail;
+            Py_DECREF(r);
+        }
+        Py_DECREF(j);
+        Py_DECREF(tt);
+        Py_DECREF(seq);
+        continue;
+    fail:
+        Py_XDECREF(j);
+        Py_XDECREF(tt);
+        Py_XDECREF(seq);
+        return NULL;
+    }
+    return PyLong_FromSsize_t(taken);
+}
+
 static PyMethodDef wire_methods[] = {
     {"drain", (PyCFunction)(void (*)(void))wire_drain, METH_FASTCALL,
      "drain(try_recv, wake): the (key, payload) of every sample try_recv() gives until None, wake-ups left out"},
     {"decode_states", (PyCFunction)(void (*)(void))wire_decode_states, METH_FASTCALL,
      "decode_states(items, dec, ids, parse, states, bad, error, limit): decode a batch of cell states"},
+    {"take_states", (PyCFunction)(void (*)(void))wire_take_states, METH_FASTCALL,
+     "take_states(states, me, ahead, now, mono, windows, table, rx, away, unconfirmed, slow): take a batch of states"},
     {NULL, NULL, 0, NULL},
 };
 
@@ -700,7 +839,12 @@ PyMODINIT_FUNC PyInit__wire(void) {
     if ((s_payload = PyUnicode_InternFromString("payload")) == NULL ||
         (s_to_bytes = PyUnicode_InternFromString("to_bytes")) == NULL ||
         (s_attachment = PyUnicode_InternFromString("attachment")) == NULL ||
-        (s_key_expr = PyUnicode_InternFromString("key_expr")) == NULL)
+        (s_key_expr = PyUnicode_InternFromString("key_expr")) == NULL ||
+        (s_id = PyUnicode_InternFromString("id")) == NULL || (s_t = PyUnicode_InternFromString("t")) == NULL ||
+        (s_seq = PyUnicode_InternFromString("seq")) == NULL ||
+        (s_seq_span = PyUnicode_InternFromString("seq_span")) == NULL ||
+        (s_t_span = PyUnicode_InternFromString("t_span")) == NULL ||
+        (s_cand = PyUnicode_InternFromString("_cand")) == NULL || (s_run = PyUnicode_InternFromString("_run")) == NULL)
         return NULL;
     PyObject *m = PyModule_Create(&wire_module);
     if (m == NULL)

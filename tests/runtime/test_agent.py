@@ -284,3 +284,47 @@ def test_a_robot_whose_token_came_back_and_sent_no_state_for_a_second_is_away():
         state(3)  # a newer state brings it back in any case
         assert robots_near() == 1
         agent.close()
+
+
+@pytest.mark.skipif(protocol._wire is None, reason="the compiled codec is not built here (no C compiler)")
+def test_the_compiled_state_batch_takes_what_the_python_one_takes():
+    """Real time: a batch of neighbour states with every case the sender windows and the agent tell apart
+    (new senders, in order, duplicates, stale, far jumps repeated until they re-anchor, its own id, ahead of
+    its clock, a robot whose token came back) leaves the same table, ages, windows and counts whether the
+    compiled loop (swarm/proto/_wire.c, take_states) or the Python one takes it."""
+    from swarm.core.clock import FakeClock
+
+    cfg = Config(**{**CFG.__dict__, "lockstep": False})
+
+    def st(j, seq, t=None, x=0.5):
+        return State(id=j, t=0.02 * seq if t is None else t, seq=seq, x=x, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False)
+
+    batches = [
+        [st(4, 1), st(5, 1), st(4, 2)],  # new senders (the long way), then the common case
+        [st(4, 2), st(4, 1), st(5, 3), st(3, 4), st(6, 1, t=1e6)],  # duplicate, stale, ok, own id, ahead
+        [st(5, 10**6), st(5, 10**6 + 1), st(5, 10**6 + 2), st(5, 4), st(4, 3, x=1.0)],  # ahead of its clock
+        [st(7, 1), st(7, 1), st(4, 4), st(5, 5), st(5, 6)],  # three stale in a row that agree: its sender restarted
+    ]
+    results = []
+    for wire in (protocol._wire, None):
+        clock = FakeClock()
+        agent = robot.Agent(MemoryBus(MemoryNet()), cfg, F, clock=clock)
+        agent.start([])
+        agent.epoch, agent.speed = clock.time() - 100.0, 1.0  # the run began 100 s ago: states are 100 s old
+        agent.unconfirmed[5] = clock.monotonic() + 1.0
+        saved, protocol._wire = protocol._wire, wire
+        try:
+            with agent.lock:
+                for b in batches:
+                    clock.advance(0.1)
+                    agent._on_states([(s, keys.cell(F, 0, 0, s.id)) for s in b])
+        finally:
+            protocol._wire = saved
+        windows = {j: (w.t, w.seq, w._cand, w._run) for j, w in agent.w_state.items()}
+        results.append((dict(agent.table), dict(agent.rx), set(agent.away), dict(agent.unconfirmed), windows,
+                        agent.states_received, agent.bad.count, agent.bad.stale, agent.bad.duplicates))
+        agent.close()
+    assert results[0] == results[1]
+    table, _, _, unconfirmed, _, received, bad, stale, duplicates = results[0]
+    assert table[4].seq == 4 and table[5].seq == 6 and 7 in table and 3 not in table and 6 not in table
+    assert unconfirmed == {} and received > 0 and bad > 0 and stale > 0 and duplicates > 0
