@@ -802,7 +802,13 @@ class Agent:
         dead_near = []
         mono = None if seq is not None else self.clock.monotonic()
         offer2 = self._offer_r * self._offer_r
-        for j in sorted(table):
+        wire = protocol._wire if seq is None else None
+        ids = sorted(table) if wire is None else ()
+        if wire is not None:  # real time: the loop below over ids, compiled (swarm/proto/_wire.c)
+            nx, ny, nr, nR, nk, na, robots, stale, oldest, dead_near = wire.live_bodies(
+                table, dead, away, unconfirmed, rx, speed, mono, x, y, offer2, r2, STALE_AFTER_S, law.KIND_ROBOT,
+                self._unconfirmed_away)
+        for j in ids:
             nb = table[j]
             if j in dead:
                 dead_near.append(nb)
@@ -818,8 +824,7 @@ class Agent:
                 if j in unconfirmed and mono >= unconfirmed[j]:
                     del unconfirmed[j]
                     away.add(j)
-                    log.info("robot %d: robot %d sent no state in %g s since its token came back: taken as away",
-                             self.id, j, CONFIRM_AFTER_S)
+                    self._unconfirmed_away(j)
                     continue
                 dx = x - nb.x
                 dy = y - nb.y
@@ -851,6 +856,10 @@ class Agent:
                 na.append(0.0 if seq is not None else self.dead_age.get(nb.id, 0.0))
         self.oldest_state_s = oldest
         return nx, ny, nr, nR, nk, na, robots, stale
+
+    def _unconfirmed_away(self, j: int) -> None:
+        log.info("robot %d: robot %d sent no state in %g s since its token came back: taken as away",
+                 self.id, j, CONFIRM_AFTER_S)
 
     def command(self, t: float, x: float, y: float, th: float, ref: tuple, seq: int | None,
                 pose_t: float | None = None) -> tuple[float, float]:

@@ -5,7 +5,9 @@ The control law is written once, in plain scalar Python that numba can compile
 modules as they are and never loads numba. The batched simulator calls
 `compiled("swarm.core.law")`, which executes the same source file a second time as a
 separate module (`swarm.core.law_jit`) whose `@_jit` decorator is `numba.njit`. One source,
-two executions: there is no second implementation to drift.
+two executions: there is no second implementation to drift. (A robot process may run a C
+transcription of robot_command instead, swarm/core/_law.c through swarm.core.fastlaw, which a test
+holds to law.py's bits: docs/design.md.)
 
 Compiled code is cached on disk under a directory named after a hash of every
 kernel source file, so an edited law can never run against a stale cache (numba's

@@ -817,6 +817,146 @@ static PyObject *wire_take_states(PyObject *module, PyObject *const *args, Py_ss
     return PyLong_FromSsize_t(taken);
 }
 
+
+static PyObject *s_x, *s_y, *s_r, *s_R;
+
+static int attr_double(PyObject *o, PyObject *name, double *out) {
+    PyObject *v = PyObject_GetAttr(o, name);
+    if (v == NULL)
+        return -1;
+    *out = PyFloat_AsDouble(v);
+    Py_DECREF(v);
+    return *out == -1.0 && PyErr_Occurred() ? -1 : 0;
+}
+
+static int append_double(PyObject *list, double v) {
+    PyObject *f = PyFloat_FromDouble(v);
+    int rc = f == NULL ? -1 : PyList_Append(list, f);
+    Py_XDECREF(f);
+    return rc;
+}
+
+/* live_bodies(table, dead, away, unconfirmed, rx, speed, mono, x, y, offer2, r2, stale_after, kind, expired):
+ * real time, agents.robot.Agent.bodies()'s loop over its table, robots in ascending id: a dead one goes to
+ * the dead list; one away is left out; one unconfirmed past its deadline becomes away (expired(j) says so);
+ * one at offer2 or farther (squared) becomes away; one closer than r2 (squared) is a body with its age now
+ * (rx[j] = (age when it came, mono then), growing at speed). Returns (nx, ny, nr, nR, nk, na, robots, stale,
+ * oldest, dead). */
+static PyObject *wire_live_bodies(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 14) {
+        PyErr_SetString(PyExc_TypeError, "live_bodies(table, dead, away, unconfirmed, rx, speed, mono, x, y, offer2, "
+                                         "r2, stale_after, kind, expired)");
+        return NULL;
+    }
+    PyObject *table = args[0], *dead = args[1], *away = args[2], *unconfirmed = args[3], *rx = args[4];
+    PyObject *kind = args[12], *expired = args[13];
+    double v[7];
+    for (int i = 0; i < 7; i++) {
+        v[i] = PyFloat_AsDouble(args[5 + i]);
+        if (v[i] == -1.0 && PyErr_Occurred())
+            return NULL;
+    }
+    double speed = v[0], mono = v[1], x = v[2], y = v[3], offer2 = v[4], r2 = v[5], stale_after = v[6];
+    if (!PyDict_Check(table) || !PyAnySet_Check(dead) || !PySet_Check(away) || !PyDict_Check(unconfirmed) ||
+        !PyDict_Check(rx)) {
+        PyErr_SetString(PyExc_TypeError, "live_bodies: table, unconfirmed, rx dicts; dead, away sets");
+        return NULL;
+    }
+    PyObject *ids = PyDict_Keys(table), *out[6] = {NULL}, *dead_near = PyList_New(0), *result = NULL;
+    if (ids == NULL || dead_near == NULL || PyList_Sort(ids) < 0)
+        goto done;
+    for (int i = 0; i < 6; i++)
+        if ((out[i] = PyList_New(0)) == NULL)
+            goto done;
+    Py_ssize_t robots = 0, stale = 0;
+    double oldest = 0.0;
+    for (Py_ssize_t i = 0; i < PyList_GET_SIZE(ids); i++) {
+        PyObject *j = PyList_GET_ITEM(ids, i), *nb = PyDict_GetItemWithError(table, j); /* borrowed */
+        if (nb == NULL) {
+            if (!PyErr_Occurred())
+                PyErr_SetString(PyExc_RuntimeError, "live_bodies: the table changed under it");
+            goto done;
+        }
+        int c = PySet_Contains(dead, j);
+        if (c < 0)
+            goto done;
+        if (c) {
+            if (PyList_Append(dead_near, nb) < 0)
+                goto done;
+            continue;
+        }
+        if ((c = PySet_Contains(away, j)) < 0)
+            goto done;
+        if (c)
+            continue;
+        PyObject *until = PyDict_GetItemWithError(unconfirmed, j);
+        if (until == NULL && PyErr_Occurred())
+            goto done;
+        if (until != NULL) {
+            PyObject *due = PyFloat_FromDouble(mono);
+            int past = due == NULL ? -1 : PyObject_RichCompareBool(due, until, Py_GE);
+            Py_XDECREF(due);
+            if (past < 0)
+                goto done;
+            if (past) {
+                Py_INCREF(j);
+                int rc = PyDict_DelItem(unconfirmed, j) < 0 || PySet_Add(away, j) < 0;
+                PyObject *r = rc ? NULL : PyObject_CallOneArg(expired, j);
+                Py_DECREF(j);
+                if (r == NULL)
+                    goto done;
+                Py_DECREF(r);
+                continue;
+            }
+        }
+        double bx, by, br, bR;
+        if (attr_double(nb, s_x, &bx) < 0 || attr_double(nb, s_y, &by) < 0)
+            goto done;
+        double dx = x - bx, dy = y - by;
+        if (dx * dx + dy * dy >= offer2) {
+            if (PySet_Add(away, j) < 0)
+                goto done;
+            continue;
+        }
+        double a0 = 0.0, m0 = mono;
+        PyObject *got = PyDict_GetItemWithError(rx, j);
+        if (got == NULL && PyErr_Occurred())
+            goto done;
+        if (got != NULL) {
+            if (!PyTuple_Check(got) || PyTuple_GET_SIZE(got) != 2) {
+                PyErr_SetString(PyExc_TypeError, "live_bodies: rx holds (age, mono) pairs");
+                goto done;
+            }
+            a0 = PyFloat_AsDouble(PyTuple_GET_ITEM(got, 0));
+            if (a0 == -1.0 && PyErr_Occurred())
+                goto done;
+            m0 = PyFloat_AsDouble(PyTuple_GET_ITEM(got, 1));
+            if (m0 == -1.0 && PyErr_Occurred())
+                goto done;
+        }
+        double age = a0 + (mono > m0 ? mono - m0 : 0.0) * speed;
+        int is_stale = age > stale_after;
+        if (dx * dx + dy * dy < r2) {
+            if (attr_double(nb, s_r, &br) < 0 || attr_double(nb, s_R, &bR) < 0 || append_double(out[0], bx) < 0 ||
+                append_double(out[1], by) < 0 || append_double(out[2], br) < 0 || append_double(out[3], bR) < 0 ||
+                PyList_Append(out[4], kind) < 0 || append_double(out[5], age) < 0)
+                goto done;
+            robots += 1;
+            stale += is_stale;
+            if (age > oldest)
+                oldest = age; /* max(oldest, age) */
+        }
+    }
+    result = Py_BuildValue("(OOOOOOnndO)", out[0], out[1], out[2], out[3], out[4], out[5], robots, stale, oldest,
+                           dead_near);
+done:
+    Py_XDECREF(ids);
+    Py_XDECREF(dead_near);
+    for (int i = 0; i < 6; i++)
+        Py_XDECREF(out[i]);
+    return result;
+}
+
 static PyMethodDef wire_methods[] = {
     {"drain", (PyCFunction)(void (*)(void))wire_drain, METH_FASTCALL,
      "drain(try_recv, wake): the (key, payload) of every sample try_recv() gives until None, wake-ups left out"},
@@ -824,6 +964,8 @@ static PyMethodDef wire_methods[] = {
      "decode_states(items, dec, ids, parse, states, bad, error, limit): decode a batch of cell states"},
     {"take_states", (PyCFunction)(void (*)(void))wire_take_states, METH_FASTCALL,
      "take_states(states, me, ahead, now, mono, windows, table, rx, away, unconfirmed, slow): take a batch of states"},
+    {"live_bodies", (PyCFunction)(void (*)(void))wire_live_bodies, METH_FASTCALL,
+     "live_bodies(table, dead, away, unconfirmed, rx, speed, mono, x, y, offer2, r2, stale_after, kind, expired)"},
     {NULL, NULL, 0, NULL},
 };
 
@@ -844,7 +986,9 @@ PyMODINIT_FUNC PyInit__wire(void) {
         (s_seq = PyUnicode_InternFromString("seq")) == NULL ||
         (s_seq_span = PyUnicode_InternFromString("seq_span")) == NULL ||
         (s_t_span = PyUnicode_InternFromString("t_span")) == NULL ||
-        (s_cand = PyUnicode_InternFromString("_cand")) == NULL || (s_run = PyUnicode_InternFromString("_run")) == NULL)
+        (s_cand = PyUnicode_InternFromString("_cand")) == NULL || (s_run = PyUnicode_InternFromString("_run")) == NULL ||
+        (s_x = PyUnicode_InternFromString("x")) == NULL || (s_y = PyUnicode_InternFromString("y")) == NULL ||
+        (s_r = PyUnicode_InternFromString("r")) == NULL || (s_R = PyUnicode_InternFromString("R")) == NULL)
         return NULL;
     PyObject *m = PyModule_Create(&wire_module);
     if (m == NULL)

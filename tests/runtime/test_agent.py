@@ -328,3 +328,49 @@ def test_the_compiled_state_batch_takes_what_the_python_one_takes():
     table, _, _, unconfirmed, _, received, bad, stale, duplicates = results[0]
     assert table[4].seq == 4 and table[5].seq == 6 and 7 in table and 3 not in table and 6 not in table
     assert unconfirmed == {} and received > 0 and bad > 0 and stale > 0 and duplicates > 0
+
+
+@pytest.mark.skipif(protocol._wire is None, reason="the compiled codec is not built here (no C compiler)")
+@pytest.mark.parametrize("seed", range(20))
+def test_the_compiled_bodies_are_the_python_ones(seed):
+    """Real time: bodies() over a table of live, dead, away and unconfirmed robots (some past their deadline),
+    near and far, fresh and stale, with obstacles: the same bodies in the same order, the same ages and counts,
+    and the same robots left away, whether the compiled loop (swarm/proto/_wire.c, live_bodies) or Python runs."""
+    import random
+
+    from swarm.core.clock import FakeClock
+
+    rng = random.Random(seed)
+    cfg = Config(**{**CFG.__dict__, "lockstep": False})
+    results = []
+    for wire in (protocol._wire, None):
+        rng.seed(seed)
+        clock = FakeClock()
+        agent = robot.Agent(MemoryBus(MemoryNet()), cfg, F, clock=clock)
+        agent.start([protocol.Obstacle(rng.uniform(-2, 2), rng.uniform(-2, 2), 0.3, 1.0) for _ in range(3)])
+        agent.speed = rng.choice([1.0, 2.0])
+        mono = clock.monotonic()
+        for j in rng.sample(range(16), 12):
+            if j == cfg.id:
+                continue
+            agent.table[j] = State(id=j, t=1.0, seq=50, x=rng.uniform(-3, 3), y=rng.uniform(-3, 3), theta=0.0, r=0.3,
+                                   R=rng.choice([1.0, 1.2]), frozen=False)
+            if rng.random() < 0.8:
+                agent.rx[j] = (rng.choice([0.0, 0.3, 0.6]), mono - rng.uniform(0.0, 0.5))
+            u = rng.random()
+            if u < 0.15:
+                agent.dead.add(j)
+                agent.dead_age[j] = 0.4
+            elif u < 0.25:
+                agent.away.add(j)
+            elif u < 0.45:
+                agent.unconfirmed[j] = mono + rng.choice([-0.1, 0.0, 0.5])
+        saved, protocol._wire = protocol._wire, wire
+        try:
+            with agent.lock:
+                got = agent.bodies(rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), None, 1.0)
+        finally:
+            protocol._wire = saved
+        results.append((got, set(agent.away), dict(agent.unconfirmed), agent.oldest_state_s))
+        agent.close()
+    assert results[0] == results[1]
