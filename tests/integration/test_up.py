@@ -229,7 +229,8 @@ def test_processes_say_what_they_do_and_log_level_quiets_them(tmp_path):
     assert subprocess.run(cmd, capture_output=True, text=True, timeout=120).returncode == 0
     logs = tmp_path / "a" / "logs"
     robot, leader, world = ((logs / f"{name}.log").read_text() for name in ("robot-0", "leader", "world"))
-    assert "robot 0: connected" in robot and re.search(r"robot 0: run \S+ \(lock-step, 2 robots\)", robot)
+    assert "robot 0: connected" in robot and re.search(r"robot 0: run \S+ \(lock-step, 2 robots; law (compiled|Python), "
+                                                       r"wire codec (compiled|Python)\)", robot)
     assert re.search(r"robot 0, run \S+: \d+ ticks, .* duplicated, loop CPU", robot)
     assert "leader: connected" in leader and re.search(r"leader: run \S+ begins", leader)
     assert re.search(r"leader: run \S+ (ended|stopped): \d+ references sent", leader)
