@@ -204,16 +204,24 @@ static void governor_speed_limit(double x, double y, double r_self, const double
 
 /* ------------------------------------------------------------------------------------------- Python */
 
-static int floats_of(PyObject *seq, Py_ssize_t n, double *out, const char *what) {
+/* *items: the items of a list or tuple with at least n (borrowed; NULL when empty); -1: an error naming it. */
+static int items_of(PyObject *seq, Py_ssize_t n, const char *what, PyObject ***items) {
     if (!PyList_Check(seq) && !PyTuple_Check(seq)) {
-        PyErr_Format(PyExc_TypeError, "%s: a list or tuple of floats", what);
+        PyErr_Format(PyExc_TypeError, "%s: a list or tuple of numbers", what);
         return -1;
     }
-    PyObject **items = PySequence_Fast_ITEMS(seq);
     if (PySequence_Fast_GET_SIZE(seq) < n) {
         PyErr_Format(PyExc_IndexError, "%s: fewer than %zd items", what, n);
         return -1;
     }
+    *items = PySequence_Fast_ITEMS(seq);
+    return 0;
+}
+
+static int floats_of(PyObject *seq, Py_ssize_t n, double *out, const char *what) {
+    PyObject **items;
+    if (items_of(seq, n, what, &items) < 0)
+        return -1;
     for (Py_ssize_t i = 0; i < n; i++) {
         PyObject *o = items[i];
         out[i] = PyFloat_CheckExact(o) ? PyFloat_AS_DOUBLE(o) : PyFloat_AsDouble(o);
@@ -224,15 +232,9 @@ static int floats_of(PyObject *seq, Py_ssize_t n, double *out, const char *what)
 }
 
 static int longs_of(PyObject *seq, Py_ssize_t n, long *out, const char *what) {
-    if (!PyList_Check(seq) && !PyTuple_Check(seq)) {
-        PyErr_Format(PyExc_TypeError, "%s: a list or tuple of ints", what);
+    PyObject **items;
+    if (items_of(seq, n, what, &items) < 0)
         return -1;
-    }
-    PyObject **items = PySequence_Fast_ITEMS(seq);
-    if (PySequence_Fast_GET_SIZE(seq) < n) {
-        PyErr_Format(PyExc_IndexError, "%s: fewer than %zd items", what, n);
-        return -1;
-    }
     for (Py_ssize_t i = 0; i < n; i++) {
         out[i] = PyLong_AsLong(items[i]);
         if (out[i] == -1 && PyErr_Occurred())
