@@ -36,6 +36,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from agents import robot  # noqa: E402
+from swarm.core import fastlaw  # noqa: E402
 from swarm.core.clock import FakeClock  # noqa: E402
 from swarm.core.runid import robot_config  # noqa: E402
 from swarm.core.scenario_file import Overrides, load  # noqa: E402
@@ -198,7 +199,9 @@ def main() -> None:
     cpu.sort()
     print(f"robot {me} of {scn.n} (paper-50hz formation), {a.mode}, bus {'memory' if router is None else 'zenoh'}, "
           f"{len(cpu)} periods: "
-          f"{heard / len(cpu):.1f} neighbours a period, {agent.bad.count} bad messages")
+          f"{heard / len(cpu):.1f} neighbours a period, {agent.bad.count} bad messages; law "
+          f"{'compiled' if fastlaw.COMPILED else 'Python'}, wire codec {'compiled' if protocol._wire else 'Python'}"
+          " (SWARM_PURE_PYTHON=1: both Python)")
     print(f"CPU per period: mean {statistics.fmean(cpu):.0f} us, median {cpu[len(cpu) // 2]:.0f} us, "
           f"p90 {cpu[math.floor(0.9 * len(cpu))]:.0f} us")
     if prof is not None:

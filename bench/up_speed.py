@@ -13,6 +13,8 @@ samples every child process with psutil while the run is under way. Figures:
   loop us     real time: CPU of a robot's loop thread per control period [us], the mean over robots
               (from their logs); bench/zenoh_floor.py measures the same for a loop that only moves
               the messages
+  robots ran  "compiled" (the C wire codec and law, swarm/proto/_wire.c and swarm/core/_law.c) or
+              "Python": set SWARM_PURE_PYTHON=1 to measure the Python back to back
 --floor runs bench/zenoh_floor.py (both modes) after each round's two runs, so that swarm and its floor
 are measured back to back; --rounds 3 prints the median of each column too (the README's figures).
 """
@@ -91,6 +93,19 @@ def loop_us(log_dir: Path) -> float:
     return sum(found) / len(found) if found else float("nan")
 
 
+RUNS_WITH = re.compile(r"law (compiled|Python), wire codec (compiled|Python)")
+
+
+def runs_with(log_dir: Path) -> str:
+    """What the robots ran, from their logs: 'compiled', 'Python', or 'law X, codec Y' (SWARM_PURE_PYTHON, or
+    a machine where setup.py found no compiler)."""
+    seen = {m.groups() for f in log_dir.glob("robot-*.log") for m in RUNS_WITH.finditer(f.read_text())}
+    if len(seen) != 1:
+        return "mixed" if seen else "unknown"
+    law, codec = seen.pop()
+    return law if law == codec else f"law {law}, codec {codec}"
+
+
 FLOOR_TICKS = re.compile(r"([\d.]+) ticks/s")
 FLOOR_RT = re.compile(r"round trip median ([\d.]+) ms, p99 ([\d.]+) ms")
 FLOOR_LOOP = re.compile(r"loop thread (\d+) us of CPU")
@@ -135,7 +150,8 @@ def main() -> None:
           f"logs in {out}")
     cols = ("launch s", "ticks/s", "rt median ms", "rt p99 ms", "robot CPU %", "RSS mean", "RSS max", "loop us")
     fcols = ("floor ticks/s", "floor median", "floor p99", "floor loop us") if a.floor else ()
-    print(f"{'N':>4} {'round':>5} " + " ".join(f"{c:>13}" for c in cols + fcols) + f" {'converged':>10} {'collisions':>10}")
+    print(f"{'N':>4} {'round':>5} " + " ".join(f"{c:>13}" for c in cols + fcols) +
+          f" {'converged':>10} {'collisions':>10}  robots ran")
     for n in a.robots:
         rows = []
         for r in range(a.rounds):
@@ -150,7 +166,8 @@ def main() -> None:
                 row += [f["ticks"], f["median"], f["p99"], f["loop"]]
             rows.append(row)
             print(f"{n:>4} {r + 1:>5} " + " ".join(f"{v:>13.2f}" for v in row) +
-                  f" {str(ls['converged_at_s']):>10} {ls['collisions'] + rt['collisions']:>10}", flush=True)
+                  f" {str(ls['converged_at_s']):>10} {ls['collisions'] + rt['collisions']:>10}"
+                  f"  {runs_with(out / f'r{r}' / f'logs-realtime-{n}')}", flush=True)
         if a.rounds > 1:
             med = [statistics.median(v for v in col if not math.isnan(v)) if any(not math.isnan(v) for v in col)
                    else math.nan for col in zip(*rows)]
