@@ -877,7 +877,7 @@ class Agent:
             self.max_age = max(self.max_age, self.oldest_state_s)
         xl, yl, thl, vl, wl = ref
         v, w = fastlaw.robot_command(x, y, th, self.cfg.dx, self.cfg.dy, self.cfg.r, t, xl, yl, thl, vl, wl,
-                                 nx, ny, nr, nR, nk, na, len(nx), self.mem, self.p)
+                                     nx, ny, nr, nR, nk, na, len(nx), self.mem, self.p)
         self.neighbours, self.stale = robots, stale
         self.stale_total += stale
         return v, w
@@ -1002,7 +1002,7 @@ class Agent:
                                                  law.KIND_OBSTACLE)
             xl, yl, thl, vl, wl = r
             v, w = fastlaw.robot_command(b.x, b.y, b.theta, self.cfg.dx, self.cfg.dy, self.cfg.r, k * self.cfg.dt, xl, yl,
-                                     thl, vl, wl, nx, ny, nr, nR, nk, na, len(nx), self.mem, self.p)
+                                         thl, vl, wl, nx, ny, nr, nR, nk, na, len(nx), self.mem, self.p)
             self.neighbours = sum(1 for kind in nk if kind == law.KIND_ROBOT)
         view.commanded(k, v, w)
         return v, w, r
