@@ -74,6 +74,21 @@ class ViewerUrl:
 # --------------------------------------------------------------------------- swarm up
 
 
+def python_note() -> str | None:
+    """Why the robots here will run slower, if they will: their wire codec or law is Python, not compiled
+    (setup.py found no C compiler at install, or SWARM_PURE_PYTHON is set). None when both are compiled."""
+    from swarm.core import fastlaw
+    from swarm.proto import protocol
+
+    missing = [what for what, ok in (("wire codec", protocol._wire is not None), ("law", fastlaw.COMPILED)) if not ok]
+    if not missing:
+        return None
+    why = "SWARM_PURE_PYTHON is set" if os.environ.get("SWARM_PURE_PYTHON") else \
+        "no C compiler was found when swarm was installed: install gcc and run pip install -e . again"
+    return (f"note: the robots' {' and '.join(missing)} {'run' if len(missing) > 1 else 'runs'} as Python ({why}); "
+            "a robot's period costs about a third more CPU (docs/runtime.md)")
+
+
 def cmd_up(args, started: float) -> int:
     die_with_parent()  # started by another swarm command (swarm campaign --up): dies with it, however it dies
     if args.inventory is not None:
@@ -165,6 +180,9 @@ def cmd_up(args, started: float) -> int:
         f"{'governor on' if scn.control.governor else 'governor off'}; logs in {log_dir}"
         + (f" ({removed} older log folder{'s' if removed > 1 else ''} removed: the {KEEP_LOGS} newest are kept)"
            if removed else ""))
+    note = python_note()
+    if note is not None:
+        say(note)
     recorder = None
     with StopEvent(hard_second=False) as stop, Supervisor(plan, log_dir) as sup:
         bus = None

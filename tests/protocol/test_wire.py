@@ -143,3 +143,4 @@ def test_compiled_encoder_takes_float_subclasses_as_msgpack_does():
     msg = p.Cmd(t=F(1.5), seq=2, v=F(-0.25), w=0.0)
     assert p._compile_encode("cmd")(msg) == _python_encoder("cmd")(msg)
     assert p.decode(p.encode(msg)) == p.Cmd(t=1.5, seq=2, v=-0.25, w=0.0)
+

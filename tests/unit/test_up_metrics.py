@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from swarm.cli.up import metrics_from_progress
 from swarm.core import scenario_file
+from swarm.proto import protocol
 from swarm.proto.protocol import Progress
 
 
@@ -19,3 +20,19 @@ def test_a_lost_worlds_step_times_read_as_the_failure_line_says():
     m = metrics_from_progress(scn, "lockstep", Progress(t=t, seq=163, duration=scn.duration, robots=3, alive=3,
                                                         converged=0, frozen=0, min_distance=1.5, misses=0, bad=0))
     assert m["converged_at_s"] is None and m["last_freeze_end_s"] is None  # -1: the progress said nothing
+
+
+def test_swarm_up_says_when_the_robots_run_python(monkeypatch):
+    """No note when both are compiled; one that says which part runs as Python, and why, when not."""
+    from swarm.cli.up import python_note
+    from swarm.core import fastlaw
+
+    monkeypatch.delenv("SWARM_PURE_PYTHON", raising=False)
+    monkeypatch.setattr(fastlaw, "COMPILED", True)
+    assert python_note() is None
+    monkeypatch.setattr(protocol, "_wire", None)
+    note = python_note()
+    assert "wire codec runs as Python" in note and "no C compiler" in note and "law" not in note
+    monkeypatch.setattr(fastlaw, "COMPILED", False)
+    monkeypatch.setenv("SWARM_PURE_PYTHON", "1")
+    assert "wire codec and law run as Python (SWARM_PURE_PYTHON is set)" in python_note()
