@@ -96,9 +96,7 @@ def guarded(fn, errors, what: str, default=None):
 def _errors():
     import logging
 
-    from swarm.proto.protocol import BadMessages
-
-    return BadMessages(logging.getLogger("swarm.bus"))
+    return _protocol.BadMessages(logging.getLogger("swarm.bus"))
 
 
 # --------------------------------------------------------------------------- in memory

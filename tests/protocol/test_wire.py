@@ -52,7 +52,7 @@ def _outcome(f):
         return "ProtocolError: " + str(e)
     except (OverflowError, TypeError, ValueError) as e:
         return f"{type(e).__name__}: {e}"
-    return m if not isinstance(m, bytes) else m
+    return m
 
 
 _values = {
