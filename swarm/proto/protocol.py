@@ -518,10 +518,17 @@ def _compile_encode(kind: str):
     src = f"def enc(m):\n    return packb({{'v': {VERSION}, 'kind': {kind!r}, {items}}}, use_bin_type=True)"
     ns = {"packb": msgpack.packb}
     exec(compile(src, f"<protocol fast encoder for {kind}>", "exec"), ns)
-    types = dict(_SPEC[kind])
-    if _wire is None or any(types[wire] not in ("n", "i", "id", "b") for _, wire in _WIRE_NAMES[kind]):
+    order = _wire_order(kind)
+    if _wire is None or any(t not in ("n", "i", "id", "b") for _, t, _ in order):
         return ns["enc"]
-    return _wire.Encoder(kind, VERSION, [(wire, types[wire], name) for name, wire in _WIRE_NAMES[kind]], ns["enc"])
+    return _wire.Encoder(kind, VERSION, order, ns["enc"])
+
+
+def _wire_order(kind: str) -> list[tuple[str, str, str]]:
+    """A flat kind's fields as the compiled codec takes them: (wire name, _SPEC type, Python name), in the
+    encoder's order (the dataclass's)."""
+    types = dict(_SPEC[kind])
+    return [(wire, types[wire], name) for name, wire in _WIRE_NAMES[kind]]
 
 
 _FAST_ENCODE: dict[type, object] = {}
@@ -851,8 +858,7 @@ def _compile_hot(kind: str, limits: Limits | None):
 def _compile_wire(kind: str, limits: Limits | None, fallback):
     """The compiled decoder (swarm/proto/_wire.c) of the same conditions as _compile_hot's, on the canonical
     layout only (the encoder's keys in its order, float64 numbers): anything else goes to fallback."""
-    types = dict(_SPEC[kind])
-    order = [(wire, types[wire], name) for name, wire in _WIRE_NAMES[kind]]
+    order = _wire_order(kind)
     at = {wire: i for i, (wire, _, _) in enumerate(order)}
     conds = [(_wire.IMAX, i, i, 0.0, 0.0, MAX_ROBOTS - 1 if t == "id" else 2**53)
              for i, (_, t, _) in enumerate(order) if t in ("i", "id")]
