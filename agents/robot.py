@@ -155,7 +155,12 @@ class Agent:
         self._vb = cfg.v_max if cfg.v_max > 0 else law.MAX_SPEED  # the speed bounds a command is held within
         self._wb = cfg.w_max if cfg.w_max > 0 else law.MAX_TURN
         self._dec_state, self._dec_ref = protocol.decoder("state", self.limits), protocol.decoder("ref", self.limits)
-        self._key_ids: dict[str, int] = {}  # cell key -> the robot id at its end (real time: parsed once)
+        self._key_ids: dict[str, int] = {}  # cell key -> the robot id at its end (parsed once)
+        # lock-step, no faults: neighbour states taken in C on the bus's thread (swarm/proto/_wire.c, StateSink;
+        # anything but the common case goes to _on_state_msg)
+        wire = protocol._wire
+        self._state_sink = wire.StateSink(self, self._dec_state, self._key_ids, self._on_state_msg, self._sink_error) \
+            if wire is not None and cfg.lockstep and self.view is None and hasattr(bus, "subscribe_sink") else None
         if self.drive is not None and getattr(self.drive, "limits", False) is None:
             self.drive.limits = self.limits  # the simulated drive decodes poses with the scenario's bounds
         self._spans = window.spans(cfg.dt, WATCHDOG_S)
@@ -314,13 +319,24 @@ class Agent:
         want = now | self._block_prev
         for c in want - self._cells.keys():
             key = keys.cell_any(self.fleet, *c)
-            self._cells[c] = (self.bus.subscribe(key, self._on_state_msg) if self.cfg.lockstep
-                              else self.bus.inbox(key))
+            self._cells[c] = self._subscribe_cell(key) if self.cfg.lockstep else self.bus.inbox(key)
         for c in self._cells.keys() - want:
             self._cells.pop(c).close()
         self._settled = cell == self._cell
         self._cell = cell
         self._block_prev = now
+
+    def _subscribe_cell(self, key: str):
+        """Lock-step: a cell's states, through the compiled sink where there is one (no faults, a bus that takes
+        it, the wire codec built), else through _on_state_msg: the same rules either way."""
+        if self._state_sink is None:
+            return self.bus.subscribe(key, self._on_state_msg)
+        return self.bus.subscribe_sink(key, self._state_sink)
+
+    def _sink_error(self, key: str | None, e: BaseException) -> None:
+        """The compiled sink's errors (a message that tripped a bug costs that message): counted and logged."""
+        with self.lock:
+            self.bad.reject(key or "?", RuntimeError(f"taking a state raised {type(e).__name__}: {e}"))
 
     @property
     def horizon_s(self) -> float:

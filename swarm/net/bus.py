@@ -6,6 +6,7 @@
     bus.wanted(key)                             # would anyone receive a put on key? (skip costly work if not)
     sub = bus.subscribe(key_expr, fn)           # fn(key: str, payload: bytes), on a bus thread
     sub = bus.subscribe_raw(key_expr, fn)       # fn(key, payload, attachment: bytes | None), same thread
+    sub = bus.subscribe_sink(key_expr, sink)    # a compiled sink (swarm.proto._wire.StateSink), same thread
     box = bus.inbox(key_expr, depth=64)         # kept until box.drain() -> [(key, payload), ...] (newest depth)
     box.wait()                                  # block until something came (or box.wake()); drain() has the rest
     tok = bus.token(key)                        # a liveliness token; tok.close() withdraws it
@@ -53,6 +54,7 @@ class Bus(Protocol):
     def wanted(self, key: str) -> bool: ...
     def subscribe(self, key_expr: str, fn: Handler) -> Closable: ...
     def subscribe_raw(self, key_expr: str, fn: RawHandler) -> Closable: ...
+    def subscribe_sink(self, key_expr: str, sink) -> Closable: ...  # optional: a bus without it gets fn callbacks
     def inbox(self, key_expr: str, depth: int = 64) -> Inbox: ...
     def token(self, key: str) -> Closable: ...
     def watch_alive(self, key_expr: str, fn: AliveHandler) -> Closable: ...
@@ -212,6 +214,10 @@ class MemoryBus:
     def subscribe_raw(self, key_expr: str, fn: RawHandler) -> Closable:
         """subscribe(), and fn also gets the sample's attachment (None if it had none)."""
         return self._keep(self.net.subs, (key_expr, _Raw(guarded(fn, self.errors, "a subscriber")), self))
+
+    def subscribe_sink(self, key_expr: str, sink) -> Closable:
+        """subscribe() for a compiled sink (swarm.proto._wire.StateSink): it takes (key, payload) here."""
+        return self.subscribe(key_expr, sink.take)
 
     def inbox(self, key_expr: str, depth: int = 64) -> Inbox:
         box = _MemoryInbox(depth)
@@ -422,6 +428,12 @@ class ZenohBus:
             fn(str(sample.key_expr), sample.payload.to_bytes(), None if a is None else a.to_bytes())
 
         return self._keep(_Undeclare(self.session.declare_subscriber(key_expr, self._handler(cb))))
+
+    def subscribe_sink(self, key_expr: str, sink) -> Closable:
+        """subscribe() for a compiled sink (swarm.proto._wire.StateSink): zenoh hands it each sample on its
+        receiving thread, and it reads the key and payload itself (no Python frame per message; it never
+        raises: it counts its own errors)."""
+        return self._keep(_Undeclare(self.session.declare_subscriber(key_expr, self._handler(sink))))
 
     def inbox(self, key_expr: str, depth: int = 64) -> Inbox:
         """Samples wait in a zenoh ring channel (the newest `depth`) until drain(): zenoh's thread

@@ -21,7 +21,7 @@
 #define MAX_CONDS 64
 #define MAX_KEY 31
 
-static PyObject *empty_tuple;
+static PyObject *empty_tuple, *one_int;
 
 enum { T_FLOAT = 'n', T_INT = 'i', T_BOOL = 'b' };
 enum { C_RANGE = 0, C_LT = 1, C_GT0 = 2, C_IMAX = 3 };
@@ -957,6 +957,347 @@ done:
     return result;
 }
 
+/* ------------------------------------------------------------------------------------------- lock-step states */
+
+/* StateSink(agent, dec, ids, slow, report): a lock-step robot's neighbour states, taken on zenoh's receiving
+ * thread without a Python frame in the common case (agents.robot.Agent._on_state_msg and _on_state, lock-step,
+ * no faults). Called with a zenoh sample (ZenohBus.subscribe_sink) or as take(key, payload) (MemoryBus). A
+ * state whose cell key's id is known (ids), that dec decodes, of another robot, not ahead of the robot's next
+ * tick, and that its sender's window takes in the common case, is taken under the agent's lock: counted, put in
+ * its table, and no longer waited for if it is of the tick under way; the loop is woken (agent.wake) when
+ * agent._due() says so, which can only change once nobody is waited for. Any other message goes, untouched, to
+ * slow(key, payload) (the Python, which takes, refuses or counts it); an error of either goes to
+ * report(key, error). Nothing raises into the bus. */
+typedef struct {
+    PyObject_HEAD
+    vectorcallfunc vectorcall;
+    PyObject *agent, *dec, *ids, *slow, *report, *lock, *wake;
+} StateSink;
+
+static PyObject *s_ended, *s_acquire, *s_release, *s_view, *s_k_started, *s_pose, *s_w_state, *s_table,
+    *s_states_received, *s_waiting, *s_due, *s_set, *s_lock, *s_wake;
+
+static PyObject *StateSink_vectorcall(PyObject *callable, PyObject *const *args, size_t nargsf, PyObject *kwnames);
+
+static PyObject *StateSink_new(PyTypeObject *tp, PyObject *args, PyObject *kw) {
+    PyObject *agent, *dec, *ids, *slow, *report;
+    if (!PyArg_ParseTuple(args, "OOO!OO", &agent, &dec, &PyDict_Type, &ids, &slow, &report))
+        return NULL;
+    StateSink *k = (StateSink *)tp->tp_alloc(tp, 0);
+    if (k == NULL)
+        return NULL;
+    k->vectorcall = StateSink_vectorcall;
+    Py_INCREF(agent);
+    k->agent = agent;
+    Py_INCREF(dec);
+    k->dec = dec;
+    Py_INCREF(ids);
+    k->ids = ids;
+    Py_INCREF(slow);
+    k->slow = slow;
+    Py_INCREF(report);
+    k->report = report;
+    k->lock = PyObject_GetAttr(agent, s_lock); /* both made once with the agent */
+    k->wake = PyObject_GetAttr(agent, s_wake);
+    if (k->lock == NULL || k->wake == NULL) {
+        Py_DECREF(k);
+        return NULL;
+    }
+    return (PyObject *)k;
+}
+
+static int StateSink_traverse(StateSink *k, visitproc visit, void *arg) {
+    Py_VISIT(k->agent);
+    Py_VISIT(k->dec);
+    Py_VISIT(k->ids);
+    Py_VISIT(k->slow);
+    Py_VISIT(k->report);
+    Py_VISIT(k->lock);
+    Py_VISIT(k->wake);
+    return 0;
+}
+
+static int StateSink_clear(StateSink *k) {
+    Py_CLEAR(k->agent);
+    Py_CLEAR(k->dec);
+    Py_CLEAR(k->ids);
+    Py_CLEAR(k->slow);
+    Py_CLEAR(k->report);
+    Py_CLEAR(k->lock);
+    Py_CLEAR(k->wake);
+    return 0;
+}
+
+static void StateSink_dealloc(StateSink *k) {
+    PyObject_GC_UnTrack(k);
+    StateSink_clear(k);
+    Py_TYPE(k)->tp_free((PyObject *)k);
+}
+
+/* An int attribute as a long long: 1, 0 when it is not an int that fits (the common case does not hold), -1. */
+static int attr_ll(PyObject *o, PyObject *name, long long *out) {
+    PyObject *v = PyObject_GetAttr(o, name);
+    if (v == NULL)
+        return -1;
+    int ok = 0;
+    if (PyLong_CheckExact(v)) {
+        int overflow;
+        *out = PyLong_AsLongLongAndOverflow(v, &overflow);
+        if (*out == -1 && PyErr_Occurred()) {
+            Py_DECREF(v);
+            return -1;
+        }
+        ok = !overflow;
+    }
+    Py_DECREF(v);
+    return ok;
+}
+
+/* Under the agent's lock: 1 if state st (robot j's) was taken in the common case, 0 if it is not that case
+ * (nothing changed), -1 on an error. *due: the loop has work. */
+static int sink_take(StateSink *k, PyObject *st, int *due) {
+    PyObject *a = k->agent, *j = NULL, *tt = NULL, *seq = NULL, *me = NULL, *w = NULL, *windows = NULL;
+    int rc = -1;
+    *due = 0;
+    PyObject *view = PyObject_GetAttr(a, s_view);
+    if (view == NULL)
+        return -1;
+    int faults = view != Py_None; /* under faults the fault layer decides: the Python's */
+    Py_DECREF(view);
+    if (faults)
+        return 0;
+    j = PyObject_GetAttr(st, s_id);
+    tt = PyObject_GetAttr(st, s_t);
+    seq = PyObject_GetAttr(st, s_seq);
+    me = PyObject_GetAttr(a, s_id);
+    if (j == NULL || tt == NULL || seq == NULL || me == NULL)
+        goto done;
+    rc = 0;
+    int mine = PyObject_RichCompareBool(j, me, Py_EQ);
+    if (mine != 0 || !PyFloat_CheckExact(tt) || !PyLong_CheckExact(seq)) {
+        rc = mine < 0 ? -1 : 0;
+        goto done;
+    }
+    int overflow;
+    long long q = PyLong_AsLongLongAndOverflow(seq, &overflow), started, pseq = -1;
+    if (overflow || (q == -1 && PyErr_Occurred())) {
+        PyErr_Clear();
+        goto done;
+    }
+    int got = attr_ll(a, s_k_started, &started);
+    if (got <= 0) {
+        rc = got;
+        goto done;
+    }
+    PyObject *pose = PyObject_GetAttr(a, s_pose);
+    if (pose == NULL) {
+        rc = -1;
+        goto done;
+    }
+    if (pose != Py_None)
+        got = attr_ll(pose, s_seq, &pseq);
+    Py_DECREF(pose);
+    if (got <= 0) {
+        rc = got;
+        goto done;
+    }
+    long long now = started > pseq ? started : pseq; /* Agent._next_tick, no faults: now + 1 */
+    if (q > now + 1) /* ahead of this robot: refused, and counted, the long way */
+        goto done;
+    windows = PyObject_GetAttr(a, s_w_state);
+    if (windows == NULL || !PyDict_Check(windows)) {
+        rc = windows == NULL ? -1 : 0;
+        goto done;
+    }
+    w = PyDict_GetItemWithError(windows, j); /* borrowed */
+    if (w == NULL) {
+        rc = PyErr_Occurred() ? -1 : 0; /* its first state: the Python makes its window */
+        goto done;
+    }
+    Py_INCREF(w);
+    rc = window_take(w, PyFloat_AS_DOUBLE(tt), seq);
+    if (rc != 1)
+        goto done;
+    /* taken: from here on every step must happen (an error is reported, not undone) */
+    rc = -1;
+    PyObject *n = PyObject_GetAttr(a, s_states_received);
+    if (n == NULL)
+        goto done;
+    PyObject *n1 = PyNumber_Add(n, one_int);
+    Py_DECREF(n);
+    if (n1 == NULL)
+        goto done;
+    int bad = PyObject_SetAttr(a, s_states_received, n1);
+    Py_DECREF(n1);
+    PyObject *table = bad < 0 ? NULL : PyObject_GetAttr(a, s_table);
+    if (table == NULL)
+        goto done;
+    bad = PyObject_SetItem(table, j, st);
+    Py_DECREF(table);
+    if (bad < 0)
+        goto done;
+    PyObject *waiting = PyObject_GetAttr(a, s_waiting);
+    if (waiting == NULL)
+        goto done;
+    if (!PySet_Check(waiting) || (q == started && PySet_Discard(waiting, j) < 0)) {
+        if (!PyErr_Occurred())
+            PyErr_SetString(PyExc_TypeError, "the agent's waiting is not a set");
+        Py_DECREF(waiting);
+        goto done;
+    }
+    Py_ssize_t left = PySet_GET_SIZE(waiting);
+    Py_DECREF(waiting);
+    rc = 1;
+    if (left == 0) { /* while someone is waited for, _due() is only true for a new pose, which woke the loop itself */
+        PyObject *d = PyObject_CallMethodNoArgs(a, s_due);
+        if (d == NULL || (*due = PyObject_IsTrue(d)) < 0)
+            rc = -1;
+        Py_XDECREF(d);
+    }
+done:
+    Py_XDECREF(j);
+    Py_XDECREF(tt);
+    Py_XDECREF(seq);
+    Py_XDECREF(me);
+    Py_XDECREF(w);
+    Py_XDECREF(windows);
+    return rc;
+}
+
+/* Hand the pending exception to report(key, error); 0, or -1 when even that failed (then it is unraisable). */
+static void sink_report(StateSink *k, PyObject *key) {
+    PyObject *type, *value, *tb;
+    PyErr_Fetch(&type, &value, &tb);
+    PyErr_NormalizeException(&type, &value, &tb);
+    if (value == NULL) {
+        Py_XDECREF(type);
+        Py_XDECREF(tb);
+        return;
+    }
+    if (tb != NULL)
+        PyException_SetTraceback(value, tb);
+    PyObject *r = PyObject_CallFunctionObjArgs(k->report, key != NULL ? key : Py_None, value, NULL);
+    Py_XDECREF(type);
+    Py_XDECREF(value);
+    Py_XDECREF(tb);
+    if (r == NULL)
+        PyErr_WriteUnraisable(k->report);
+    Py_XDECREF(r);
+}
+
+/* The message (key, payload); never raises. */
+static void sink_message(StateSink *k, PyObject *key, PyObject *payload) {
+    PyObject *ended = PyObject_GetAttr(k->agent, s_ended);
+    if (ended == NULL) {
+        sink_report(k, key);
+        return;
+    }
+    int over = PyObject_IsTrue(ended);
+    Py_DECREF(ended);
+    if (over != 0) {
+        if (over < 0)
+            sink_report(k, key);
+        return;
+    }
+    int rc = 0, due = 0;
+    PyObject *j = PyUnicode_CheckExact(key) ? PyDict_GetItemWithError(k->ids, key) : NULL; /* borrowed */
+    if (j == NULL && PyErr_Occurred()) {
+        sink_report(k, key);
+        return;
+    }
+    if (j != NULL) {
+        PyObject *call[2] = {payload, j};
+        Py_INCREF(j);
+        PyObject *st = PyObject_Vectorcall(k->dec, call, 2, NULL);
+        Py_DECREF(j);
+        if (st == NULL) {
+            PyErr_Clear(); /* the Python decodes it again and names what is wrong */
+        } else {
+            PyObject *got = PyObject_CallMethodNoArgs(k->lock, s_acquire);
+            if (got == NULL) {
+                Py_DECREF(st);
+                sink_report(k, key);
+                return;
+            }
+            Py_DECREF(got);
+            rc = sink_take(k, st, &due);
+            Py_DECREF(st);
+            PyObject *exc_type, *exc_value, *exc_tb;
+            PyErr_Fetch(&exc_type, &exc_value, &exc_tb); /* release even after an error */
+            PyObject *r = PyObject_CallMethodNoArgs(k->lock, s_release);
+            Py_XDECREF(r);
+            if (r == NULL)
+                PyErr_WriteUnraisable(k->lock);
+            PyErr_Restore(exc_type, exc_value, exc_tb);
+            if (rc < 0) {
+                sink_report(k, key);
+                return;
+            }
+        }
+    }
+    if (rc == 0) { /* not the common case: the Python's, from the start */
+        PyObject *r = PyObject_CallFunctionObjArgs(k->slow, key, payload, NULL);
+        if (r == NULL)
+            sink_report(k, key);
+        Py_XDECREF(r);
+        return;
+    }
+    if (due) {
+        PyObject *r = PyObject_CallMethodNoArgs(k->wake, s_set);
+        if (r == NULL)
+            sink_report(k, key);
+        Py_XDECREF(r);
+    }
+}
+
+/* sink(sample): a zenoh sample (on zenoh's thread) */
+static PyObject *StateSink_vectorcall(PyObject *callable, PyObject *const *args, size_t nargsf, PyObject *kwnames) {
+    StateSink *k = (StateSink *)callable;
+    if (PyVectorcall_NARGS(nargsf) != 1 || kwnames != NULL) {
+        PyErr_SetString(PyExc_TypeError, "a StateSink takes one zenoh sample");
+        return NULL;
+    }
+    PyObject *item = sample_item(args[0], Py_None);
+    if (item == NULL) {
+        sink_report(k, NULL);
+        Py_RETURN_NONE;
+    }
+    if (item != Py_None)
+        sink_message(k, PyTuple_GET_ITEM(item, 0), PyTuple_GET_ITEM(item, 1));
+    Py_DECREF(item);
+    Py_RETURN_NONE;
+}
+
+/* sink.take(key, payload): the same for a bus that has no zenoh samples (swarm.net.bus.MemoryBus) */
+static PyObject *StateSink_take(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "take(key, payload)");
+        return NULL;
+    }
+    sink_message((StateSink *)self, args[0], args[1]);
+    Py_RETURN_NONE;
+}
+
+static PyMethodDef StateSink_methods[] = {
+    {"take", (PyCFunction)(void (*)(void))StateSink_take, METH_FASTCALL, "take(key, payload): one message"},
+    {NULL, NULL, 0, NULL},
+};
+
+static PyTypeObject StateSinkType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "swarm.proto._wire.StateSink",
+    .tp_basicsize = sizeof(StateSink),
+    .tp_dealloc = (destructor)StateSink_dealloc,
+    .tp_traverse = (traverseproc)StateSink_traverse,
+    .tp_clear = (inquiry)StateSink_clear,
+    .tp_vectorcall_offset = offsetof(StateSink, vectorcall),
+    .tp_call = PyVectorcall_Call,
+    .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_VECTORCALL | Py_TPFLAGS_HAVE_GC,
+    .tp_doc = "StateSink(agent, dec, ids, slow, report): a lock-step robot's neighbour states, taken in C",
+    .tp_methods = StateSink_methods,
+    .tp_new = StateSink_new,
+};
+
 static PyMethodDef wire_methods[] = {
     {"drain", (PyCFunction)(void (*)(void))wire_drain, METH_FASTCALL,
      "drain(try_recv, wake): the (key, payload) of every sample try_recv() gives until None, wake-ups left out"},
@@ -974,9 +1315,11 @@ static struct PyModuleDef wire_module = {
 };
 
 PyMODINIT_FUNC PyInit__wire(void) {
-    if (PyType_Ready(&DecoderType) < 0 || PyType_Ready(&EncoderType) < 0)
+    if (PyType_Ready(&DecoderType) < 0 || PyType_Ready(&EncoderType) < 0 || PyType_Ready(&StateSinkType) < 0)
         return NULL;
     if (empty_tuple == NULL && (empty_tuple = PyTuple_New(0)) == NULL)
+        return NULL;
+    if (one_int == NULL && (one_int = PyLong_FromLong(1)) == NULL)
         return NULL;
     if ((s_payload = PyUnicode_InternFromString("payload")) == NULL ||
         (s_to_bytes = PyUnicode_InternFromString("to_bytes")) == NULL ||
@@ -988,14 +1331,28 @@ PyMODINIT_FUNC PyInit__wire(void) {
         (s_t_span = PyUnicode_InternFromString("t_span")) == NULL ||
         (s_cand = PyUnicode_InternFromString("_cand")) == NULL || (s_run = PyUnicode_InternFromString("_run")) == NULL ||
         (s_x = PyUnicode_InternFromString("x")) == NULL || (s_y = PyUnicode_InternFromString("y")) == NULL ||
-        (s_r = PyUnicode_InternFromString("r")) == NULL || (s_R = PyUnicode_InternFromString("R")) == NULL)
+        (s_r = PyUnicode_InternFromString("r")) == NULL || (s_R = PyUnicode_InternFromString("R")) == NULL ||
+        (s_ended = PyUnicode_InternFromString("ended")) == NULL ||
+        (s_acquire = PyUnicode_InternFromString("acquire")) == NULL ||
+        (s_release = PyUnicode_InternFromString("release")) == NULL ||
+        (s_view = PyUnicode_InternFromString("view")) == NULL ||
+        (s_k_started = PyUnicode_InternFromString("k_started")) == NULL ||
+        (s_pose = PyUnicode_InternFromString("pose")) == NULL ||
+        (s_w_state = PyUnicode_InternFromString("w_state")) == NULL ||
+        (s_table = PyUnicode_InternFromString("table")) == NULL ||
+        (s_states_received = PyUnicode_InternFromString("states_received")) == NULL ||
+        (s_waiting = PyUnicode_InternFromString("waiting")) == NULL ||
+        (s_due = PyUnicode_InternFromString("_due")) == NULL || (s_set = PyUnicode_InternFromString("set")) == NULL ||
+        (s_lock = PyUnicode_InternFromString("lock")) == NULL || (s_wake = PyUnicode_InternFromString("wake")) == NULL)
         return NULL;
     PyObject *m = PyModule_Create(&wire_module);
     if (m == NULL)
         return NULL;
     Py_INCREF(&DecoderType);
     Py_INCREF(&EncoderType);
+    Py_INCREF(&StateSinkType);
     if (PyModule_AddObject(m, "Decoder", (PyObject *)&DecoderType) < 0 ||
+        PyModule_AddObject(m, "StateSink", (PyObject *)&StateSinkType) < 0 ||
         PyModule_AddObject(m, "Encoder", (PyObject *)&EncoderType) < 0 ||
         PyModule_AddIntConstant(m, "RANGE", C_RANGE) < 0 || PyModule_AddIntConstant(m, "LT", C_LT) < 0 ||
         PyModule_AddIntConstant(m, "GT0", C_GT0) < 0 || PyModule_AddIntConstant(m, "IMAX", C_IMAX) < 0) {

@@ -374,3 +374,132 @@ def test_the_compiled_bodies_are_the_python_ones(seed):
         results.append((got, set(agent.away), dict(agent.unconfirmed), agent.oldest_state_s))
         agent.close()
     assert results[0] == results[1]
+
+
+def _lockstep_run(sink: bool, seed: int) -> tuple:
+    """A lock-step agent fed 12 ticks of hostile neighbour traffic (seeded) through its bus: the compiled sink
+    (swarm/proto/_wire.c, StateSink) or, with the sink taken away before start(), _on_state_msg. What it ends
+    with, and the ticks it computed."""
+    import random
+
+    import msgpack
+
+    rng = random.Random(seed)
+    w = Wire.__new__(Wire)
+    w.net = MemoryNet()
+    w.agent = robot.Agent(MemoryBus(w.net), CFG, F, wait_timeout=60.0)
+    assert (w.agent._state_sink is not None) == (protocol._wire is not None)
+    if not sink:
+        w.agent._state_sink = None
+    w.agent.start([])
+    w.probe = MemoryBus(w.net)
+    w.cmds, w.states, w.statuses = [], [], []
+    w.probe.subscribe(keys.robot_cmd(F, CFG.id), lambda k, b: w.cmds.append(protocol.decode(b, "cmd")))
+    ref = (0.0, 0.0, 0.0, 0.5, 0.0)
+    wakes, done = [], []
+
+    def state(j, k, x, key_id=None, seq=None, t=None):
+        cx, cy = keys.cell_of(x, 0.0, CFG.sense) if math.isfinite(x) else (0, 0)
+        return keys.cell(F, cx, cy, j if key_id is None else key_id), protocol.encode(State(
+            id=j, t=k * CFG.dt if t is None else t, seq=k if seq is None else seq, x=x, y=0.0, theta=0.0, r=0.3,
+            R=1.2, frozen=False))
+
+    for k in range(12):
+        t = k * CFG.dt
+        w.put(keys.leader_ref(F), Ref(t=t, seq=k, x=ref[0], y=ref[1], theta=ref[2], v=ref[3], w=ref[4]))
+        w.put(keys.robot_pose(F, CFG.id), Pose(t=t, seq=k, x=0.0, y=0.0, theta=0.0))
+        w.agent.tick_lockstep()
+        w.agent.wake.clear()
+        msgs = [state(j, k, 0.4 * j - 1.0) for j in (1, 2, 5, 6) if rng.random() < 0.9]
+        hostile = [
+            state(5, k, 0.2),  # the same state again: a duplicate
+            state(6, k - 2, 0.2),  # stale
+            state(2, k + 2, 0.2),  # ahead of this robot's next tick
+            state(CFG.id, k, 0.2),  # its own id from elsewhere
+            state(7, k, 0.2, key_id=8),  # the key's id is not the payload's
+            state(9, k, float("nan")),  # a NaN: the decoder refuses it
+            (keys.cell(F, 0, 0, 2), b"\xc1garbage"),
+            (f"swarm/{F}/cell/0/0/robot", protocol.encode(State(id=2, t=t, seq=k, x=0.0, y=0.0, theta=0.0, r=0.3,
+                                                               R=1.2, frozen=False))),  # not a robot id
+            (keys.cell(F, 0, 0, 10), msgpack.packb({"y": 0.0, "x": 0.5, "kind": "state", "v": protocol.VERSION,
+                                                    "t": t, "seq": k, "theta": 0.0, "r": 0.3, "R": 1.2,
+                                                    "frozen": False, "id": 10})),  # another key order: fine, the long way
+            state(11, 10**6, 0.3, t=t),  # a seq far ahead
+        ]
+        msgs += rng.sample(hostile, rng.randint(0, len(hostile)))
+        rng.shuffle(msgs)
+        for key, data in msgs:
+            w.probe.put(key, data)
+            wakes.append(w.agent.wake.is_set())
+        if k == 0:
+            w.put(keys.world_clock(F), Clock(t=t, seq=k, epoch=0.0, speed=1.0))
+        done.append(w.agent.tick_lockstep() or w.agent.tick_lockstep())
+        if k == 11:
+            w.agent.end()
+            w.probe.put(*state(1, k + 1, 0.3))  # after the end: nothing is taken
+    a = w.agent
+    windows = {j: (v.t, v.seq, v._cand, v._run) for j, v in a.w_state.items()}
+    out = (dict(a.table), windows, set(a.waiting), a.states_received, a.bad.count, a.bad.stale, a.bad.duplicates,
+           a.k_done, [(c.seq, c.v, c.w) for c in w.cmds], wakes, done)
+    a.close()
+    return out
+
+
+@pytest.mark.skipif(protocol._wire is None, reason="the compiled codec is not built here (no C compiler)")
+@pytest.mark.parametrize("seed", range(12))
+def test_the_compiled_lockstep_sink_takes_what_the_python_callback_takes(seed):
+    """Lock-step: neighbour states through the compiled sink or through _on_state_msg, with every case they tell
+    apart (a sender's first state, the common case, duplicates, stale, ahead, its own id, a key that lies about
+    the id, NaN, garbage, a key with no robot id, another key order, after the end): the same tables, windows,
+    waits, counts, wake-ups after each message, commands, and ticks computed."""
+    with_sink, without = _lockstep_run(True, seed), _lockstep_run(False, seed)
+    assert with_sink == without
+    table, _, _, received, bad, stale, duplicates, k_done, cmds, _, done = with_sink
+    assert k_done >= 8 and len(cmds) == sum(done) >= 4 and received > 0 and bad > 0  # a tick missing a state waits
+    assert 1 in table and CFG.id not in table
+
+
+@pytest.mark.skipif(protocol._wire is None, reason="the compiled codec is not built here (no C compiler)")
+def test_the_lockstep_sink_reads_zenoh_samples_and_counts_its_own_errors():
+    """The sink as zenoh calls it (a sample: key_expr, payload.to_bytes(), attachment) takes a state; an error
+    inside it (here a table that refuses items) is counted as a bad message, never raised into zenoh's thread."""
+
+    class Bytes:
+        def __init__(self, b):
+            self.b = b
+
+        def to_bytes(self):
+            return self.b
+
+    class Sample:
+        def __init__(self, key, payload):
+            self.key_expr, self.payload, self.attachment = key, Bytes(payload), None
+
+    w = Wire()
+    sink = w.agent._state_sink
+    assert sink is not None
+    ref = (0.0, 0.0, 0.0, 0.5, 0.0)
+    w.tick(0, (0.0, 0.0, 0.0), ref, [(5, (1.0, 0.0, 0.0))])
+    w.put(keys.leader_ref(F), Ref(t=0.02, seq=1, x=0.0, y=0.0, theta=0.0, v=0.5, w=0.0))
+    w.put(keys.robot_pose(F, CFG.id), Pose(t=0.02, seq=1, x=0.0, y=0.0, theta=0.0))
+    assert not w.agent.tick_lockstep() and w.agent.waiting == {5}
+    w.agent.wake.clear()
+    one = protocol.encode(State(id=5, t=0.02, seq=1, x=1.0, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False))
+    assert sink(Sample(keys.cell(F, 0, 0, 5), one)) is None
+    assert w.agent.waiting == set() and w.agent.wake.is_set() and w.agent.table[5].seq == 1
+    assert w.agent.tick_lockstep() and len(w.cmds) == 2
+
+    class Refusing(dict):
+        def __setitem__(self, key, value):
+            raise RuntimeError("no room")
+
+    before = w.agent.bad.count
+    w.agent.table = Refusing(w.agent.table)
+    two = protocol.encode(State(id=5, t=0.04, seq=2, x=1.0, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False))
+    w.put(keys.robot_pose(F, CFG.id), Pose(t=0.04, seq=2, x=0.0, y=0.0, theta=0.0))
+    w.agent.tick_lockstep()
+    assert sink(Sample(keys.cell(F, 0, 0, 5), two)) is None
+    assert w.agent.bad.count == before + 1
+    assert not w.agent.lock.locked()  # released on the way out of the error
+    with pytest.raises(TypeError):
+        sink()
