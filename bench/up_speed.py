@@ -15,8 +15,9 @@ samples every child process with psutil while the run is under way. Figures:
               the messages
   robots ran  "compiled" (the C wire codec and law, swarm/proto/_wire.c and swarm/core/_law.c) or
               "Python": set SWARM_PURE_PYTHON=1 to measure the Python back to back
---floor runs bench/zenoh_floor.py (both modes) after each round's two runs, so that swarm and its floor
-are measured back to back; --rounds 3 prints the median of each column too (the README's figures).
+--floor runs bench/zenoh_floor.py (lock-step, lock-step with swarm's wait rule: "floor wait t/s", and real
+time) after each round's two runs, so that swarm and its floor are measured back to back; --rounds 3 prints
+the median of each column too (the README's figures).
 """
 
 from __future__ import annotations
@@ -112,19 +113,20 @@ FLOOR_LOOP = re.compile(r"loop thread (\d+) us of CPU")
 
 
 def floor(n: int, duration: float) -> dict:
-    """bench/zenoh_floor.py at N robots, both modes: ticks/s, round trip median and p99 [ms], loop us (real time)."""
+    """bench/zenoh_floor.py at N robots: lock-step ticks/s without and with swarm's wait rule (--wait), and the
+    real-time round trip median and p99 [ms] and loop us."""
     me = Path(__file__).resolve().parent / "zenoh_floor.py"
-    out = {"ticks": math.nan, "median": math.nan, "p99": math.nan, "loop": math.nan}
-    for mode in ("lockstep", "realtime"):
-        done = subprocess.run([sys.executable, str(me), "--robots", str(n), "--duration", str(duration), "--mode", mode],
-                              capture_output=True, text=True, timeout=120 + 10 * duration)
+    out = {"ticks": math.nan, "wait_ticks": math.nan, "median": math.nan, "p99": math.nan, "loop": math.nan}
+    for mode, extra in (("lockstep", []), ("lockstep", ["--wait"]), ("realtime", [])):
+        done = subprocess.run([sys.executable, str(me), "--robots", str(n), "--duration", str(duration), "--mode", mode,
+                               *extra], capture_output=True, text=True, timeout=120 + 10 * duration)
         text = done.stdout
         if done.returncode != 0:  # said, and left out of the medians (nan), never taken for a figure
-            print(f"bench/zenoh_floor.py --mode {mode} failed (exit {done.returncode}): "
+            print(f"bench/zenoh_floor.py --mode {mode} {' '.join(extra)} failed (exit {done.returncode}): "
                   f"{done.stderr.strip()[-400:]}", file=sys.stderr)
             continue
         if mode == "lockstep":
-            out["ticks"] = float(FLOOR_TICKS.search(text).group(1))
+            out["wait_ticks" if extra else "ticks"] = float(FLOOR_TICKS.search(text).group(1))
         else:
             m = FLOOR_RT.search(text)
             out["median"], out["p99"] = float(m.group(1)), float(m.group(2))
@@ -141,7 +143,8 @@ def main() -> None:
                          "the load on the machine)")
     ap.add_argument("--rounds", type=int, default=1, help="rounds per N; with more than one, the medians too")
     ap.add_argument("--floor", action="store_true",
-                    help="each round also runs bench/zenoh_floor.py (both modes) right after swarm's runs")
+                    help="each round also runs bench/zenoh_floor.py (both modes, and lock-step with the wait rule) "
+                         "right after swarm's runs")
     a = ap.parse_args()
     if a.rounds < 1:
         ap.error("--rounds must be at least 1")
@@ -149,7 +152,7 @@ def main() -> None:
     print(f"{os.cpu_count()} CPUs; runs of {a.duration:g} simulated s of paper-50hz (real time at speed {a.speed:g}); "
           f"logs in {out}")
     cols = ("launch s", "ticks/s", "rt median ms", "rt p99 ms", "robot CPU %", "RSS mean", "RSS max", "loop us")
-    fcols = ("floor ticks/s", "floor median", "floor p99", "floor loop us") if a.floor else ()
+    fcols = ("floor ticks/s", "floor wait t/s", "floor median", "floor p99", "floor loop us") if a.floor else ()
     print(f"{'N':>4} {'round':>5} " + " ".join(f"{c:>13}" for c in cols + fcols) +
           f" {'converged':>10} {'collisions':>10}  robots ran")
     for n in a.robots:
@@ -163,7 +166,7 @@ def main() -> None:
                    loop_us(out / f"r{r}" / f"logs-realtime-{n}")]
             if a.floor:
                 f = floor(n, a.duration)
-                row += [f["ticks"], f["median"], f["p99"], f["loop"]]
+                row += [f["ticks"], f["wait_ticks"], f["median"], f["p99"], f["loop"]]
             rows.append(row)
             print(f"{n:>4} {r + 1:>5} " + " ".join(f"{v:>13.2f}" for v in row) +
                   f" {str(ls['converged_at_s']):>10} {ls['collisions'] + rt['collisions']:>10}"

@@ -1,7 +1,7 @@
 """The floor under `swarm up`: the same processes and messages, with robots that compute nothing.
 
     python bench/zenoh_floor.py [--robots 37] [--duration 20] [--mode realtime|lockstep] [--rate 50]
-                                [--work-us 0] [--transport tcp|unix] [--layout formation|start]
+                                [--work-us 0] [--transport tcp|unix] [--layout formation|start] [--wait]
 
 It starts what `swarm up` starts (a router, a world, N robot processes, each a zenoh client of the
 router with swarm's session settings and runtime) and moves the same messages. Real time: the world
@@ -10,7 +10,10 @@ the states in the 3x3 cells around its slot in the built-in scenario's formation
 position: `--layout start`), sends its state on its own cell key and a command that echoes the pose's
 time; the world drains its command inbox and takes the round trip. Lock-step: the world sends every
 pose of a tick at once and waits for every command before the next tick (its robots wait for no
-neighbour, so this bounds swarm's rate from above). Robots do nothing else, or spin `--work-us` of CPU
+neighbour, so this bounds swarm's rate from above). `--wait` adds swarm's wait rule to lock-step: a
+robot sends its state on its pose, then takes its command only once the state of that tick of every
+robot in its 3x3 cells is in (it blocks on a cell's inbox that still lacks one): the floor of swarm's
+two-phase tick, which no code in a robot can beat (docs/runtime.md). Robots do nothing else, or spin `--work-us` of CPU
 a period to stand in for decoding, the law and encoding. So the figures are what zenoh and 40 processes
 cost on this machine: the floor under `python bench/up_speed.py` (docs/runtime.md compares them).
 
@@ -37,7 +40,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from swarm.net.bus import ZENOH_RUNTIME, ZenohBus, zenoh_config  # noqa: E402
+from swarm.net.bus import ZENOH_RUNTIME, ZenohBus, _ZenohInbox, zenoh_config  # noqa: E402
 
 PREFIX = "floor"
 POSE = struct.Struct("<dI")  # time sent (CLOCK_MONOTONIC, shared by the machine's processes), robot id
@@ -59,12 +62,14 @@ def cells_of(n: int, layout: str) -> list[tuple[int, int]]:
     return [keys.cell_of(float(x), float(y), sc.cell_side) for x, y in points]
 
 
-def robot(i: int, n: int, endpoint: str, layout: str) -> None:
+def robot(i: int, n: int, endpoint: str, layout: str, wait: bool) -> None:
     cells = cells_of(n, layout)
     cx, cy = cells[i]
+    near_cells = [(cx + a, cy + b) for a in (-1, 0, 1) for b in (-1, 0, 1)]
+    others = [sum(1 for j in range(n) if j != i and cells[j] == c) for c in near_cells]  # robots in each cell
     with ZenohBus(zenoh_config("client", connect=[endpoint])) as bus:
         pose = bus.inbox(f"{PREFIX}/robot/{i}/pose", depth=8)
-        near = [bus.inbox(f"{PREFIX}/cell/{cx + a}/{cy + b}/*", depth=64) for a in (-1, 0, 1) for b in (-1, 0, 1)]
+        near = [bus.inbox(f"{PREFIX}/cell/{c[0]}/{c[1]}/*", depth=64) for c in near_cells]
         mine, cmd = f"{PREFIX}/cell/{cx}/{cy}/{i}", f"{PREFIX}/robot/{i}/cmd"
         token = bus.token(f"{PREFIX}/alive/{i}")
         work = float(os.environ.get("FLOOR_WORK_US", "0")) * 1e-6
@@ -76,6 +81,9 @@ def robot(i: int, n: int, endpoint: str, layout: str) -> None:
             nonlocal stop
             stop = True
             pose.wake()
+            for c in near_cells:  # a robot blocked on a cell (--wait) wakes too: a local wake-up sample there
+                bus.session.put(f"{PREFIX}/cell/{c[0]}/{c[1]}/wake", b"", attachment=_ZenohInbox.WAKE,
+                                allowed_destination=bus._z.Locality.SESSION_LOCAL)
 
         signal.signal(signal.SIGTERM, on_term)
         while not stop:
@@ -83,15 +91,35 @@ def robot(i: int, n: int, endpoint: str, layout: str) -> None:
             if not got:
                 continue
             c0 = time.thread_time()
-            for box in near:
-                states += len(box.drain())
+            body = got[-1][1]
+            if wait:  # lock-step as swarm: the state first, then the states of this tick of every robot near
+                bus.put(mine, body + PAD, loopback=False)
+                stamp, have = body[:POSE.size], [0] * len(near)
+                while not stop:
+                    for c, box in enumerate(near):
+                        for _key, data in box.drain():
+                            if data[:POSE.size] == stamp:  # this tick's (the pose's bytes lead a state)
+                                have[c] += 1
+                                states += 1
+                    short = [c for c in range(len(near)) if have[c] < others[c]]
+                    if not short:
+                        break
+                    loop_cpu += time.thread_time() - c0
+                    for _key, data in near[short[0]].wait():  # blocks in zenoh until that cell has something
+                        if data[:POSE.size] == stamp:
+                            have[short[0]] += 1
+                            states += 1
+                    c0 = time.thread_time()
+            else:
+                for box in near:
+                    states += len(box.drain())
             periods += 1
             if work:
                 end = time.thread_time() + work
                 while time.thread_time() < end:
                     pass
-            body = got[-1][1]
-            bus.put(mine, body + PAD, loopback=False)
+            if not wait:
+                bus.put(mine, body + PAD, loopback=False)
             bus.put(cmd, body, reliable=True)
             loop_cpu += time.thread_time() - c0
         Path(os.environ["FLOOR_OUT"], f"robot-{i}.json").write_text(json.dumps(
@@ -182,18 +210,23 @@ def main() -> None:
                     help="tcp on 127.0.0.1 (as swarm up), or a unix socket (unixsock-stream)")
     ap.add_argument("--layout", choices=("formation", "start"), default="formation",
                     help="robots' cells: their formation slots (dense) or their start poses (spread out)")
+    ap.add_argument("--wait", action="store_true",
+                    help="lock-step: each robot sends its state, then waits for this tick's state of every robot in "
+                         "its 3x3 cells before its command (swarm's wait rule; without it the floor waits for no one)")
     ap.add_argument("--role", choices=("router", "world", "robot"), help=argparse.SUPPRESS)
     ap.add_argument("--id", type=int, default=0, help=argparse.SUPPRESS)
     ap.add_argument("--endpoint", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.robots < 1 or a.duration <= 0 or a.rate <= 0 or a.work_us < 0:
         ap.error("--robots, --duration and --rate must be positive, --work-us not negative")
+    if a.wait and a.mode != "lockstep":
+        ap.error("--wait is a lock-step rule: give --mode lockstep")
     if a.role == "router":
         return router(a.endpoint)
     if a.role == "world":
         return world(a.robots, a.endpoint, a.duration, a.rate, a.mode == "lockstep")
     if a.role == "robot":
-        return robot(a.id, a.robots, a.endpoint, a.layout)
+        return robot(a.id, a.robots, a.endpoint, a.layout, a.wait)
 
     tmp = Path(tempfile.mkdtemp(prefix="floor-"))
     if a.transport == "tcp":
@@ -204,7 +237,7 @@ def main() -> None:
         endpoint = f"unixsock-stream/{tmp / 'router.sock'}"
     env = dict(os.environ, FLOOR_WORK_US=str(a.work_us), FLOOR_OUT=str(tmp), PYTHONPATH=str(ROOT))
     me = [sys.executable, __file__, "--robots", str(a.robots), "--duration", str(a.duration), "--rate", str(a.rate),
-          "--endpoint", endpoint, "--layout", a.layout, "--mode", a.mode]
+          "--endpoint", endpoint, "--layout", a.layout, "--mode", a.mode] + (["--wait"] if a.wait else [])
     procs: dict[str, list[subprocess.Popen]] = {"router": [], "world": [], "robot": []}
 
     def start(role: str, *extra: str, **kw) -> subprocess.Popen:
@@ -248,7 +281,8 @@ def main() -> None:
         loop_us = sum(r["loop_us"] for r in rows) / max(1, len(rows))
         cores = {role: sum(c1[p.pid] - c0[p.pid] for p in ps) / (w1 - w0) for role, ps in procs.items()}
         if a.mode == "lockstep":
-            head = f"N = {a.robots}, lock-step, {a.transport}, {a.layout}, work {a.work_us:g} us/tick, {a.duration:g} s: " \
+            head = f"N = {a.robots}, lock-step{' waiting for states' if a.wait else ''}, {a.transport}, {a.layout}, " \
+                   f"work {a.work_us:g} us/tick, {a.duration:g} s: " \
                    f"{res['ticks_per_s']:.1f} ticks/s; "
         else:
             head = f"N = {a.robots}, {a.rate:g} Hz, {a.transport}, {a.layout}, work {a.work_us:g} us/period, " \

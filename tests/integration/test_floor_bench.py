@@ -14,14 +14,17 @@ BENCH = Path(__file__).resolve().parents[2] / "bench" / "zenoh_floor.py"
 
 
 @pytest.mark.parametrize("mode, figure", [("realtime", r"round trip median [\d.]+ ms, p99 [\d.]+ ms"),
-                                          ("lockstep", r"[\d.]+ ticks/s")])
+                                          ("lockstep", r"[\d.]+ ticks/s"),
+                                          ("lockstep --wait", r"lock-step waiting for states, .* [\d.]+ ticks/s")])
 def test_floor_bench_measures_and_cleans_up(mode, figure):
     before = {p.pid for p in psutil.process_iter()}
-    out = subprocess.run([sys.executable, str(BENCH), "--robots", "3", "--duration", "1", "--mode", mode],
+    out = subprocess.run([sys.executable, str(BENCH), "--robots", "5", "--duration", "1", "--mode", *mode.split()],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert re.search(figure, out.stdout), out.stdout
     assert re.search(r"robot [\d.]+ % each", out.stdout), out.stdout
+    if "--wait" in mode:  # 5 robots in formation share cells: each waited for some states every tick
+        assert float(re.search(r"([\d.]+) states per robot", out.stdout).group(1)) > 1.0, out.stdout
     left = [p for p in psutil.process_iter(["pid", "cmdline"])
             if p.pid not in before and "zenoh_floor" in " ".join(p.info["cmdline"] or [])]
     for p in left:
