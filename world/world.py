@@ -557,92 +557,105 @@ class World:
                      reliable=True)
         with self.lock:
             self._running = True
-        for k in range(n_steps + 1):
-            self.k, self.t = k, k * dt
-            t = self.t
-            if k > 0:
-                if not self._hold(stop):
-                    return stop.is_set()
-                if wf is not None:
-                    self._begin_faults(k)
-                    # before clock k: the leader answers it with the reference of k + 1, which a robot
-                    # returning at k + 1 must hear
-                    if not self._await_returns(k + 1, stop):
-                        return stop.is_set()
-                    self._publish_bodies(k)
-                self._publish_tick(t, k)
-            if wf is None:
-                self._sample(t)
-                self._report()
-                if k == n_steps:
-                    break
-            else:  # the supervisor acts on the world's tick
-                self._report(force=self._signal_due(k))
-            # wait for cmd_k of every live robot (under faults: of every robot whose process runs at k, at
-            # the last tick too: their fault counters come just before their commands)
-            deadline = self.clock.monotonic() + self.tick_timeout
-            with self.lock:
-                self._await = k
-                ups = self.leader_ups
-            while True:
-                if stop.is_set():
-                    return True
-                self._resend_clock()  # a leader that came back during this tick hears the clock at once
-                with self.lock:
-                    waiting = self._missing()
-                    if not waiting:
-                        self._await = -1
-                        pending, self._pending = self._pending, {}
-                        break
-                    left = deadline - self.clock.monotonic()
-                    # no reference without the leader: a tick whose leader is away, or came back during it,
-                    # is held (no miss) until the leader is back and answered
-                    away = left <= 0 and (not self.leader_alive or self.leader_ups != ups)
-                    ups = self.leader_ups
-                    if left <= 0 and not away:
-                        self.misses += len(waiting)
-                        self._miss_events += 1
-                        if self._miss_events <= 10 or self._miss_events % 100 == 0:
-                            log.warning("world: no command from robot%s %s for tick %d (t = %g s) within %g s; %s "
-                                        "held (%d ticks with misses so far)", "s" if len(waiting) > 1 else "",
-                                        ", ".join(map(str, waiting[:8])), k, t, self.tick_timeout,
-                                        "they are" if len(waiting) > 1 else "it is", self._miss_events)
-                        self._await = -1
-                        pending, self._pending = self._pending, {}
-                        break
-                if away:  # no reference without the leader: hold the tick until it is back (no miss)
+        # without faults the check of a step's wait rule (it only counts) runs once the next tick's poses are
+        # out: off the path every robot waits on
+        later = None
+        try:
+            for k in range(n_steps + 1):
+                self.k, self.t = k, k * dt
+                t = self.t
+                if k > 0:
                     if not self._hold(stop):
                         return stop.is_set()
-                    deadline = self.clock.monotonic() + self.tick_timeout
-                    continue
-                self.wake.wait(min(left, 0.5))
-                self.wake.clear()
-            before = np.array(self.q)[:, :2]
-            if wf is not None:  # the commands the fault schedule lets through, held, braked or stopped
-                applied = wf.apply(k, pending)
-                self._sample(t)  # under faults once the laws of k are known (their freezes are the metrics')
-                if k == n_steps:
-                    break
-            for i in range(self.n):
-                if wf is not None:
-                    self.cmd[i] = applied[i]
-                    self.stopped[i] = wf.stopped[i]
-                    if i in pending:
+                    if wf is not None:
+                        self._begin_faults(k)
+                        # before clock k: the leader answers it with the reference of k + 1, which a robot
+                        # returning at k + 1 must hear
+                        if not self._await_returns(k + 1, stop):
+                            return stop.is_set()
+                        self._publish_bodies(k)
+                    self._publish_tick(t, k)
+                if wf is None:
+                    self._sample(t)
+                    self._report()
+                    if later is not None:  # the last step's check, now that this tick's poses are out
+                        self._check_wait_rule(*later)
+                        later = None
+                    if k == n_steps:
+                        break
+                else:  # the supervisor acts on the world's tick
+                    self._report(force=self._signal_due(k))
+                # wait for cmd_k of every live robot (under faults: of every robot whose process runs at k, at
+                # the last tick too: their fault counters come just before their commands)
+                deadline = self.clock.monotonic() + self.tick_timeout
+                with self.lock:
+                    self._await = k
+                    ups = self.leader_ups
+                while True:
+                    if stop.is_set():
+                        return True
+                    self._resend_clock()  # a leader that came back during this tick hears the clock at once
+                    with self.lock:
+                        waiting = self._missing()
+                        if not waiting:
+                            self._await = -1
+                            pending, self._pending = self._pending, {}
+                            break
+                        left = deadline - self.clock.monotonic()
+                        # no reference without the leader: a tick whose leader is away, or came back during it,
+                        # is held (no miss) until the leader is back and answered
+                        away = left <= 0 and (not self.leader_alive or self.leader_ups != ups)
+                        ups = self.leader_ups
+                        if left <= 0 and not away:
+                            self.misses += len(waiting)
+                            self._miss_events += 1
+                            if self._miss_events <= 10 or self._miss_events % 100 == 0:
+                                log.warning("world: no command from robot%s %s for tick %d (t = %g s) within %g s; %s "
+                                            "held (%d ticks with misses so far)", "s" if len(waiting) > 1 else "",
+                                            ", ".join(map(str, waiting[:8])), k, t, self.tick_timeout,
+                                            "they are" if len(waiting) > 1 else "it is", self._miss_events)
+                            self._await = -1
+                            pending, self._pending = self._pending, {}
+                            break
+                    if away:  # no reference without the leader: hold the tick until it is back (no miss)
+                        if not self._hold(stop):
+                            return stop.is_set()
+                        deadline = self.clock.monotonic() + self.tick_timeout
+                        continue
+                    self.wake.wait(min(left, 0.5))
+                    self.wake.clear()
+                before = np.array(self.q)[:, :2]
+                if wf is not None:  # the commands the fault schedule lets through, held, braked or stopped
+                    applied = wf.apply(k, pending)
+                    self._sample(t)  # under faults once the laws of k are known (their freezes are the metrics')
+                    if k == n_steps:
+                        break
+                for i in range(self.n):
+                    if wf is not None:
+                        self.cmd[i] = applied[i]
+                        self.stopped[i] = wf.stopped[i]
+                        if i in pending:
+                            self.cmd_time[i] = t
+                    elif i in pending:
+                        self.cmd[i] = pending.pop(i)
                         self.cmd_time[i] = t
-                elif i in pending:
-                    self.cmd[i] = pending.pop(i)
-                    self.cmd_time[i] = t
-                    self.stopped[i] = False
-                elif t - self.cmd_time[i] > self.watchdog + 1e-9:  # watchdog: stop a silent robot
-                    self.cmd[i] = (0.0, 0.0)
-                    self.stopped[i] = True
-                v, w = self.cmd[i]
-                kinematics.step_pose(self.q[i], self.comp[i], v, w, dt)
-                if not all(math.isfinite(a) for a in self.q[i]):
-                    self.failure = (f"robot {i}'s pose became non-finite at tick {k + 1} (t = {t + dt:g} s): "
-                                    f"x, y, theta = {self.q[i]} after the command (v {v:g}, w {w:g})")
-                    return stop.is_set()
-            self._check_wait_rule(t + dt, before)
+                        self.stopped[i] = False
+                    elif t - self.cmd_time[i] > self.watchdog + 1e-9:  # watchdog: stop a silent robot
+                        self.cmd[i] = (0.0, 0.0)
+                        self.stopped[i] = True
+                    v, w = self.cmd[i]
+                    kinematics.step_pose(self.q[i], self.comp[i], v, w, dt)
+                    if not all(math.isfinite(a) for a in self.q[i]):
+                        self.failure = (f"robot {i}'s pose became non-finite at tick {k + 1} (t = {t + dt:g} s): "
+                                        f"x, y, theta = {self.q[i]} after the command (v {v:g}, w {w:g})")
+                        return stop.is_set()
+                if wf is None:
+                    later = (t + dt, before, self.alive.copy())
+                else:
+                    self._check_wait_rule(t + dt, before)
+        finally:
+            if later is not None:
+                self._check_wait_rule(*later)
         return stop.is_set()
 
     # ------------------------------------------------------------------ lock-step under faults
@@ -732,7 +745,7 @@ class World:
     def _publish_bodies(self, k: int) -> None:
         self.bus.put(keys.world_bodies(self.fleet), protocol.encode(self.wf.bodies(k, self.q)), reliable=True)
 
-    def _check_wait_rule(self, t: float, before: np.ndarray) -> None:
+    def _check_wait_rule(self, t: float, before: np.ndarray, alive: np.ndarray | None = None) -> None:
         """Lock-step: count the pairs of live robots the agents' wait rule did not cover this tick.
 
         On pose_k agent i subscribes to the block around its cell at k and keeps the block around its
@@ -743,9 +756,10 @@ class World:
         within reach at k, but the wait at k was not sure (farther than wait_reach at k-1, or j's cell at
         k-1 outside held(i, k-1)); (b) within wait_reach at k-1 (so maybe awaited), but j's cell at k
         outside held(i, k). Neither can happen while no robot moves more than L in a tick; when one does,
-        the run may differ from swarm sim."""
+        the run may differ from swarm sim. alive: the live robots at the step (default: now)."""
         wf = self.wf
-        live = np.flatnonzero(self.alive if wf is None else [self.alive[i] and wf.running(i, self.k) for i in range(self.n)])
+        alive = self.alive if alive is None else alive
+        live = np.flatnonzero(alive if wf is None else [self.alive[i] and wf.running(i, self.k) for i in range(self.n)])
         side = self.scn.cell_side
         c0 = np.floor(before / side)  # cells at k-1
         if self._cells_hist is None:  # the start blocks are subscribed before tick 0
