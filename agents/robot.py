@@ -90,9 +90,11 @@ class Agent:
     thread has something to do (a new tick, or a tick whose inputs are complete). The loop thread
     does every bus call (publish, move subscriptions, drain inboxes): callbacks never call the bus.
     One wake-up a tick or two instead of one per message: on 2 cores that is most of the agent's CPU.
-    Lock-step takes everything through callbacks (its wait rule needs each state as it arrives). Real
-    time uses callbacks only for liveliness and the clock: the loop blocks on its pose inbox and
-    drains the reference and cell inboxes itself (take_poses, _take_inboxes).
+    Lock-step takes everything through callbacks (its wait rule needs each state as it arrives); its
+    neighbour states through a compiled sink where it was built (swarm.proto._wire.StateSink: the same
+    rules as _on_state_msg, which gets anything but their common case). Real time uses callbacks only
+    for liveliness and the clock: the loop blocks on its pose inbox and drains the reference and cell
+    inboxes itself (take_poses, _take_inboxes).
     """
 
     def __init__(self, bus, cfg: Config, fleet: str = "default", wait_timeout: float = WAIT_TIMEOUT_S,

@@ -1,0 +1,68 @@
+"""The world's own work a lock-step tick, part by part (no bus traffic timed but its puts on a memory bus).
+
+    python bench/world_tick.py [--robots 37] [--repeat 300]
+
+Builds the world of the built-in paper-50hz scenario with N robots, every robot alive and in its slot
+around the leader at t = 10 s, and times (warm, the mean of --repeat calls) what `World._run_lockstep`
+does each tick besides waiting: the check that every awaited command is in (run on every command, so
+N times a tick), moving every robot one exact arc, the wait-rule check, the metrics sample, and
+publishing the clock and every pose (encoding and memory-bus puts). Which of them stand between the
+last command of tick k and the first pose of tick k + 1 (the path every robot waits on) is in
+docs/runtime.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import timeit
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+
+from swarm.core import kinematics  # noqa: E402
+from swarm.core.scenario_file import Overrides, load  # noqa: E402
+from swarm.net.bus import MemoryBus, MemoryNet  # noqa: E402
+from world.world import World  # noqa: E402
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--robots", type=int, default=37)
+    ap.add_argument("--repeat", type=int, default=300, help="calls timed per part (default 300)")
+    a = ap.parse_args()
+    if a.robots < 2 or a.repeat < 1:
+        ap.error("--robots must be at least 2 and --repeat at least 1")
+    scn = load("paper-50hz", Overrides(robots=a.robots))
+    world = World(MemoryBus(MemoryNet()), scn, "bench", lockstep=True)
+    world.alive[:] = True
+    x, y, th, _, _ = scn.leader.state(10.0)
+    for i in range(scn.n):
+        world.q[i][:] = [x + float(scn.offsets[i][0]), y + float(scn.offsets[i][1]), th]
+    before = np.array(world.q)[:, :2] - 0.01  # every robot moved 1.4 cm this tick
+    world.k, world._await = 500, 500
+
+    def steps() -> None:
+        for i in range(scn.n):
+            kinematics.step_pose(world.q[i], world.comp[i], 0.5, 0.1, scn.dt)
+
+    parts = [
+        (f"commands-in check, x{scn.n} (one per command)", lambda: world._missing(), scn.n),
+        (f"{scn.n} exact arcs", steps, 1),
+        ("wait-rule check", lambda: world._check_wait_rule(10.0, before), 1),
+        ("metrics sample", lambda: world._sample(10.0), 1),
+        (f"clock and {scn.n} poses published", lambda: world._publish_tick(10.0, 500), 1),
+    ]
+    print(f"the world's work a lock-step tick at N = {scn.n} (warm, mean of {a.repeat} calls):")
+    for name, fn, times in parts:
+        q, comp = [list(p) for p in world.q], [list(c) for c in world.comp]
+        us = 1e6 * timeit.timeit(fn, number=a.repeat) / a.repeat * times
+        world.q, world.comp = q, comp  # every part sees the same poses
+        print(f"  {name:<42} {us:8.0f} us")
+
+
+if __name__ == "__main__":
+    main()

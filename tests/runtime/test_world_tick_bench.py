@@ -1,0 +1,25 @@
+"""bench/world_tick.py (the world's part of a lock-step tick, quoted in docs/runtime.md) runs and says what it timed."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+BENCH = Path(__file__).resolve().parents[2] / "bench" / "world_tick.py"
+
+
+def test_world_tick_bench_times_every_part():
+    out = subprocess.run([sys.executable, str(BENCH), "--robots", "5", "--repeat", "2"], capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    parts = re.findall(r"^  (.+?)\s+(\d+) us$", out.stdout, re.M)
+    assert [p for p, _ in parts] == ["commands-in check, x5 (one per command)", "5 exact arcs", "wait-rule check",
+                                     "metrics sample", "clock and 5 poses published"], out.stdout
+    assert all(int(us) >= 0 for _, us in parts)
+
+
+def test_world_tick_bench_refuses_a_bad_count():
+    out = subprocess.run([sys.executable, str(BENCH), "--robots", "1"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "--robots must be at least 2" in out.stderr
