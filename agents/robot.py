@@ -557,6 +557,8 @@ class Agent:
         wire = protocol._wire
         for box in self._cells.values():
             items = box.drain()
+            if not items:  # most of the 9 cells, most periods
+                continue
             if wire is not None:  # the loop below, compiled (swarm/proto/_wire.c)
                 wire.decode_states(items, dec, ids, keys.cell_robot, states, bad, ProtocolError, KEY_IDS_MAX)
                 continue
