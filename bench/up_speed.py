@@ -13,6 +13,8 @@ samples every child process with psutil while the run is under way. Figures:
   loop us     real time: CPU of a robot's loop thread per control period [us], the mean over robots
               (from their logs); bench/zenoh_floor.py measures the same for a loop that only moves
               the messages
+  steal %     the share of this machine's CPU its host took during swarm's two runs (a VM's steal time,
+              from /proc/stat): where it is high, the figures are the host's, not swarm's
   robots ran  "compiled" (the C wire codec and law, swarm/proto/_wire.c and swarm/core/_law.c) or
               "Python": set SWARM_PURE_PYTHON=1 to measure the Python back to back
 --floor runs bench/zenoh_floor.py (lock-step, lock-step with swarm's wait rule: "floor wait t/s", and real
@@ -43,6 +45,21 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def cpu_counters() -> tuple[int, int]:
+    """(all, stolen) CPU time of this machine so far [clock ticks] from /proc/stat; (0, 0) where there is none."""
+    try:
+        f = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:9]]
+    except (OSError, ValueError):
+        return 0, 0
+    return sum(f), f[7]  # user nice system idle iowait irq softirq steal
+
+
+def steal_pct(before: tuple[int, int], after: tuple[int, int]) -> float:
+    """The share of the machine's CPU time the host took (steal) between two cpu_counters() [%]."""
+    total = after[0] - before[0]
+    return 100.0 * (after[1] - before[1]) / total if total > 0 else math.nan
 
 
 def run(n: int, duration: float, mode: str, out: Path, speed: float = 1.0) -> tuple[dict, dict]:
@@ -153,14 +170,16 @@ def main() -> None:
           f"logs in {out}")
     cols = ("launch s", "ticks/s", "rt median ms", "rt p99 ms", "robot CPU %", "RSS mean", "RSS max", "loop us")
     fcols = ("floor ticks/s", "floor wait t/s", "floor median", "floor p99", "floor loop us") if a.floor else ()
-    print(f"{'N':>4} {'round':>5} " + " ".join(f"{c:>13}" for c in cols + fcols) +
+    print(f"{'N':>4} {'round':>5} " + " ".join(f"{c:>13}" for c in cols + fcols + ("steal %",)) +
           f" {'converged':>10} {'collisions':>10}  robots ran")
     for n in a.robots:
         rows = []
         for r in range(a.rounds):
             (out / f"r{r}").mkdir(exist_ok=True)
+            c0 = cpu_counters()
             ls, res = run(n, a.duration, "lockstep", out / f"r{r}")
             rt, _ = run(n, a.duration, "realtime", out / f"r{r}", a.speed)
+            stolen = steal_pct(c0, cpu_counters())
             row = [ls["launch_s"], ls["steps"] / ls["run_wall_s"], rt.get("round_trip_ms_median", float("nan")),
                    rt.get("round_trip_ms_p99", float("nan")), res["cpu_pct"], res["rss_mean"], res["rss_max"],
                    loop_us(out / f"r{r}" / f"logs-realtime-{n}")]
@@ -168,6 +187,7 @@ def main() -> None:
                 f = floor(n, a.duration)
                 row += [f["ticks"], f["wait_ticks"], f["median"], f["p99"], f["loop"]]
             rows.append(row)
+            row.append(stolen)
             print(f"{n:>4} {r + 1:>5} " + " ".join(f"{v:>13.2f}" for v in row) +
                   f" {str(ls['converged_at_s']):>10} {ls['collisions'] + rt['collisions']:>10}"
                   f"  {runs_with(out / f'r{r}' / f'logs-realtime-{n}')}", flush=True)
