@@ -40,26 +40,15 @@ from pathlib import Path
 
 import psutil
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from swarm.cli.console import cpu_counters, steal_pct  # noqa: E402
+
 
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def cpu_counters() -> tuple[int, int]:
-    """(all, stolen) CPU time of this machine so far [clock ticks] from /proc/stat; (0, 0) where there is none."""
-    try:
-        f = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:9]]
-    except (OSError, ValueError):
-        return 0, 0
-    return sum(f), f[7]  # user nice system idle iowait irq softirq steal
-
-
-def steal_pct(before: tuple[int, int], after: tuple[int, int]) -> float:
-    """The share of the machine's CPU time the host took (steal) between two cpu_counters() [%]."""
-    total = after[0] - before[0]
-    return 100.0 * (after[1] - before[1]) / total if total > 0 else math.nan
 
 
 def run(n: int, duration: float, mode: str, out: Path, speed: float = 1.0) -> tuple[dict, dict]:
@@ -180,6 +169,7 @@ def main() -> None:
             ls, res = run(n, a.duration, "lockstep", out / f"r{r}")
             rt, _ = run(n, a.duration, "realtime", out / f"r{r}", a.speed)
             stolen = steal_pct(c0, cpu_counters())
+            stolen = math.nan if stolen is None else stolen
             row = [ls["launch_s"], ls["steps"] / ls["run_wall_s"], rt.get("round_trip_ms_median", float("nan")),
                    rt.get("round_trip_ms_p99", float("nan")), res["cpu_pct"], res["rss_mean"], res["rss_max"],
                    loop_us(out / f"r{r}" / f"logs-realtime-{n}")]

@@ -83,6 +83,26 @@ def table(rows: Sequence[tuple[str, str]], title: str | None = None) -> str:
     return "\n".join(lines) + "\n"
 
 
+def cpu_counters() -> tuple[int, int]:
+    """(all, stolen) CPU time of this machine so far [clock ticks], from Linux's /proc/stat; (0, 0) elsewhere."""
+    try:
+        with open("/proc/stat") as f:
+            v = [int(x) for x in f.readline().split()[1:9]]  # user nice system idle iowait irq softirq steal
+    except (OSError, ValueError):
+        return 0, 0
+    return (sum(v), v[7]) if len(v) == 8 else (0, 0)
+
+
+def steal_pct(before: tuple[int, int], after: tuple[int, int]) -> float | None:
+    """The share of this machine's CPU time its host took between two cpu_counters() [%] (a virtual
+    machine's steal time: its cores ran someone else's work), or None where it is not known."""
+    total = after[0] - before[0]
+    return round(100.0 * (after[1] - before[1]) / total, 1) if total > 0 else None
+
+
+STEAL_NOTE_PCT = 5.0  # the summary says what the host took from a run's machine from this share on
+
+
 def fmt(value: object, unit: str = "", digits: int = 4) -> str:
     """A metric for humans: None as '-', floats with `digits` significant digits."""
     if value is None:
@@ -142,7 +162,11 @@ def summary(m: dict, name: str) -> str:
     v = violations(m)
     if v:
         rows.append(("CHECKS FAILED", ", ".join(v)))
-    rows.append(("wall time", fmt(m["wall_s"], "s", 3)))
+    wall = fmt(m["wall_s"], "s", 3)
+    stolen = m.get("host_steal_pct")
+    if isinstance(stolen, (int, float)) and stolen >= STEAL_NOTE_PCT:
+        wall += f"  (the host took {stolen:g} % of this machine's CPU meanwhile: a slow run may be its, not swarm's)"
+    rows.append(("wall time", wall))
     return table(rows, "summary")
 
 

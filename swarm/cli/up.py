@@ -17,7 +17,7 @@ from swarm.cli.common import (EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, Stop
                               check_listen_free, check_out_dir, check_viz_port, fleet_of, load_scenario, open_bus,
                               record_rate, scenario_args, viz_options, write_json)
 from swarm.cli import console
-from swarm.cli.console import exit_status, progress_line, summary
+from swarm.cli.console import cpu_counters, exit_status, progress_line, steal_pct, summary
 from swarm.core.metrics import violations
 from swarm.launch.plan import DEFAULT_LISTEN, RestartPolicy, UpOptions, VizOptions, make_plan
 from swarm.launch.child import die_with_parent
@@ -96,6 +96,7 @@ def cmd_up(args, started: float) -> int:
 
         return cmd_up_inventory(args, started)
     scn = load_scenario(args)  # bad input is refused here, before anything starts
+    cpu0 = cpu_counters()
     from swarm.core.scenario_file import advisories
 
     for note in advisories(scn):
@@ -278,6 +279,7 @@ def cmd_up(args, started: float) -> int:
     metrics["launcher_bad_messages"] = 0 if _BAD_PROGRESS is None else _BAD_PROGRESS.count
     metrics["robot_restarts"] = sup.restarted
     metrics["leader_restarts"] = sup.leader_restarted
+    metrics["host_steal_pct"] = steal_pct(cpu0, cpu_counters())
     write_json(metrics_path, metrics)
     record_note = _close_recorder(recorder, metrics, args.record)
     if not args.quiet and ran:

@@ -36,3 +36,19 @@ def test_swarm_up_says_when_the_robots_run_python(monkeypatch):
     monkeypatch.setattr(fastlaw, "COMPILED", False)
     monkeypatch.setenv("SWARM_PURE_PYTHON", "1")
     assert "wire codec and law run as Python (SWARM_PURE_PYTHON is set)" in python_note()
+
+
+def test_the_summary_says_when_the_host_took_the_machines_cpu():
+    """A virtual machine's steal time, from /proc/stat: the share between two readings, and a note beside the
+    wall time from 5 % on (none below, none when it is not known)."""
+    from swarm.cli.console import cpu_counters, steal_pct, summary
+
+    total, stolen = cpu_counters()
+    assert total >= stolen >= 0
+    assert steal_pct((1000, 10), (2000, 310)) == 30.0 and steal_pct((5, 1), (5, 1)) is None
+    scn = scenario_file.load("paper-50hz", scenario_file.Overrides(robots=3), progress=scenario_file.silent)
+    m = {**metrics_from_progress(scn, "lockstep", None), "wall_s": 406.0, "interrupted": False}
+    for pct, said in ((31.9, True), (4.9, False), (None, False)):
+        text = summary({**m, "host_steal_pct": pct}, "paper-50hz")
+        assert ("the host took 31.9 % of this machine's CPU" in text) == said, text
+        assert "406 s" in text
