@@ -266,7 +266,7 @@ class Agent:
             self.w_clock.reset()
         for c in list(self._cells):
             self._cells.pop(c).close()
-            self._cells[c] = self.bus.subscribe(keys.cell_any(f, *c), self._on_state_msg)
+            self._cells[c] = self._subscribe_cell(keys.cell_any(f, *c))
         if self._all_sub is not None:
             self._listen_all(False)
             self._listen_all(True)
