@@ -1164,7 +1164,7 @@ done:
     return rc;
 }
 
-/* Hand the pending exception to report(key, error); 0, or -1 when even that failed (then it is unraisable). */
+/* Hand the pending exception to report(key, error); if even that fails, the error is written as unraisable. */
 static void sink_report(StateSink *k, PyObject *key) {
     PyObject *type, *value, *tb;
     PyErr_Fetch(&type, &value, &tb);
