@@ -9,6 +9,7 @@ numbers: errors against the live reference, a robot is frozen while it is inside
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -18,6 +19,7 @@ from swarm.core.metrics import CONVERGED_ANGLE_RAD, CONVERGED_POSITION_M, step_t
 from swarm.core.scenario import Scenario
 
 FREEZE_MERGE_S = 0.1
+COLLISIONS_LOGGED = 20  # a run logs its first collisions one by one, then says that it stops
 _BLOCK = 256  # rows of the pairwise distance matrix computed at once
 
 
@@ -39,6 +41,7 @@ class Referee:
         self.min_ro = math.inf
         self.collisions = 0
         self._inside: set[tuple[int, int]] = set()
+        self.new_collisions: list[tuple[int, int, float]] = []  # the last sample's: (i, j or n + obstacle, distance)
         self.pmax = 0.0
         self.emax = 0.0
         self.converged_now = 0
@@ -96,7 +99,9 @@ class Referee:
                 self.min_ro = min(self.min_ro, float(d.min()))
                 for i, m in zip(*np.nonzero(d < orr[None, :])):
                     inside.add((int(a + i), self.n + int(m)))
-        self.collisions += len(inside - self._inside)
+        new = sorted(inside - self._inside)
+        self.collisions += len(new)
+        self.new_collisions = [(i, j, self._distance(x, y, i, j)) for i, j in new]
         self._inside = inside
         if frozen_by_law is not None:
             frozen = np.asarray(frozen_by_law, bool)
@@ -107,6 +112,23 @@ class Referee:
             starts = frozen & (t - self._frozen_until > FREEZE_MERGE_S + 0.5 * self.scn.dt)
             self.freeze_intervals += int(np.count_nonzero(starts))
             self._frozen_until[frozen] = t
+
+    def _distance(self, x: np.ndarray, y: np.ndarray, i: int, j: int) -> float:
+        """Centre distance of robot i to robot j, or to obstacle j - n's boundary (negative inside)."""
+        if j < self.n:
+            return math.hypot(float(x[i] - x[j]), float(y[i] - y[j]))
+        ox, oy, orr = self.obstacles[j - self.n, :3]
+        return math.hypot(float(x[i] - ox), float(y[i] - oy)) - float(orr)
+
+    def describe(self, t: float) -> list[str]:
+        """One line per collision that began at the last sample (t), for a log: who, when, how close."""
+        out = []
+        for i, j, d in self.new_collisions:
+            if j < self.n:
+                out.append("collision at t = %.3f s: robots %d and %d are %.3f m apart (r = %g m)" % (t, i, j, d, max(self.r[i], self.r[j])))
+            else:
+                out.append("collision at t = %.3f s: robot %d is inside obstacle %d (%.3f m past its edge)" % (t, i, j - self.n, -d))
+        return out
 
     def converged_at(self) -> float | None:
         """The first sample time from which every later sample had every live robot converged."""
@@ -120,3 +142,15 @@ class Referee:
             collisions=self.collisions, last_freeze_end_s=self.last_frozen_t, wall_s=wall_s,
             interrupted=interrupted, mode=mode, freeze_intervals=self.freeze_intervals, samples=self.samples,
             **extra)
+
+
+def log_collisions(ref: Referee, t: float, log: logging.Logger = logging.getLogger("swarm.world")) -> None:
+    """Log the collisions that began at the last sample, up to the first COLLISIONS_LOGGED of the run, so a
+    run that collided says who and when, not only how many (the count in the metrics is always whole)."""
+    first = ref.collisions - len(ref.new_collisions)  # collisions before this sample
+    for n, line in enumerate(ref.describe(t), start=first + 1):
+        if n > COLLISIONS_LOGGED:
+            if first <= COLLISIONS_LOGGED:
+                log.warning("more than %d collisions: the rest are counted in the metrics, not logged", COLLISIONS_LOGGED)
+            return
+        log.warning("%s", line)

@@ -42,7 +42,7 @@ from swarm.core.inventory import Fleet
 from swarm.launch.child import settle_heap
 from swarm.proto import keys, protocol, window
 from swarm.proto.protocol import Clock, Obstacle, Obstacles, ProtocolError, RobotSnap, Run, Snapshot
-from world.referee import Referee
+from world.referee import Referee, log_collisions
 
 log = logging.getLogger("swarm.referee")
 
@@ -243,6 +243,8 @@ class RefereeWorld:
             self.trace.append(self.q.copy())
         xl, yl, thl, _v, _w = kinematics.leader_state(self.table, t)
         self.referee.sample(t, self.q, live, (xl, yl, thl))
+        if self.referee.new_collisions:
+            log_collisions(self.referee, t, log)
         key = keys.world_snapshot(self.name)
         if self.bus.wanted(key):
             stale = ~self.seen | (age > self.opts.watchdog)

@@ -391,6 +391,8 @@ class World:
         xl, yl, thl, _v, _w = kinematics.leader_state(self.table, t)
         self.referee.sample(t, q, self._counted(), (xl, yl, thl),
                             None if self.wf is None else self.wf.frozen(self.k))
+        if self.referee.new_collisions:
+            log_collisions(self.referee, t)
 
     def _counted(self) -> np.ndarray:
         """The robots convergence and errors are over: the live ones; under faults (lock-step) those whose

@@ -174,7 +174,7 @@ def test_compose_services_as_processes_in_namespaces_converge(tmp_path):
     why = _netns_unavailable()
     if why:
         pytest.skip(why)
-    env = {"SWARM_SPEED": "1", "SWARM_DURATION": "60"}
+    env = {"SWARM_SPEED": "2", "SWARM_DURATION": "60"}  # the compose file's own example: 30 wall s
     out = _config(COMPOSE, env)
     assert out.returncode == 0, out.stderr
     services = yaml.safe_load(out.stdout)["services"]

@@ -61,6 +61,35 @@ def test_collisions_and_faults_by_hand():
     assert referee.collisions == sum(1 for e in got if e[1] == "collision") == 3
 
 
+def test_the_referee_names_each_collision_when_it_begins_and_the_log_stops_after_the_first_ones(caplog):
+    from world import referee as rf
+
+    scn = three_robots()
+    referee = Referee(scn)
+    lines = []
+    for k, (x1, p2, alive, _stopped) in enumerate(STEPS):
+        q = np.stack([np.array([0.0, x1, p2[0]]), np.array([0.0, 0.0, p2[1]]), np.zeros(3)], axis=1)
+        referee.sample(0.1 * k, q, np.array(alive), (0.0, 0.0, 0.0))
+        lines += referee.describe(0.1 * k)
+    gap = float(np.hypot(0.3, 0.2)) - 0.5
+    assert lines == ["collision at t = 0.000 s: robots 0 and 1 are 0.250 m apart (r = 0.3 m)",
+                     "collision at t = 0.300 s: robots 0 and 1 are 0.290 m apart (r = 0.3 m)",
+                     "collision at t = 0.300 s: robot 2 is inside obstacle 0 (%.3f m past its edge)" % -gap]
+
+    # a run that keeps colliding logs the first COLLISIONS_LOGGED one by one, says it stops, then is quiet
+    referee = Referee(scn)
+    caplog.set_level("WARNING", logger="swarm.world")
+    for k in range(2 * rf.COLLISIONS_LOGGED + 6):
+        x1 = 0.25 if k % 2 == 0 else 1.0  # in, out, in, ...
+        referee.sample(0.1 * k, np.array([[0.0, 0.0, 0.0], [x1, 0.0, 0.0], [5.0, 0.0, 0.0]]), np.ones(3, bool),
+                       (0.0, 0.0, 0.0))
+        rf.log_collisions(referee, 0.1 * k)
+    said = [r.getMessage() for r in caplog.records]
+    assert referee.collisions == rf.COLLISIONS_LOGGED + 3
+    assert len(said) == rf.COLLISIONS_LOGGED + 1 and said[-1].startswith("more than 20 collisions")
+    assert all(m.startswith("collision at t = ") for m in said[:rf.COLLISIONS_LOGGED])
+
+
 def test_a_robot_dead_at_the_first_snapshot_is_an_event():
     d = record.EventDeriver(three_robots())
     evs = d.snapshot(0.0, 0, np.array([0.0, 2.0, 5.0]), np.zeros(3), np.array([True, False, True]), np.ones(3, bool))
