@@ -42,7 +42,7 @@ from swarm.core.geometry import pairs_within
 from swarm.core.scenario import Scenario
 from world.faultworld import brake_factor
 from world.realtime_faults import RealtimeFaults
-from world.referee import Referee
+from world.referee import Referee, log_collisions
 
 log = logging.getLogger("swarm.world")
 

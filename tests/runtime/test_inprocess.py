@@ -47,6 +47,9 @@ def test_lockstep_counts_steps_longer_than_its_wait_rule_assumes(write_scenario,
                for r in caplog.records)
     assert "may differ from swarm sim" in summary(metrics, "t")
     assert "may differ" not in summary({**metrics, "lockstep_overruns": 0}, "t")
+    # the world names each collision it counts (world.referee.log_collisions)
+    said = [r.getMessage() for r in caplog.records if r.getMessage().startswith("collision at t = ")]
+    assert len(said) == metrics["collisions"] and all("robots 0 and 1 are " in m for m in said), said
 
 
 def test_lockstep_flags_a_robot_that_outran_its_own_subscriptions(write_scenario):
