@@ -122,13 +122,10 @@ class Referee:
 
     def describe(self, t: float) -> list[str]:
         """One line per collision that began at the last sample (t), for a log: who, when, how close."""
-        out = []
-        for i, j, d in self.new_collisions:
-            if j < self.n:
-                out.append("collision at t = %.3f s: robots %d and %d are %.3f m apart (r = %g m)" % (t, i, j, d, max(self.r[i], self.r[j])))
-            else:
-                out.append("collision at t = %.3f s: robot %d is inside obstacle %d (%.3f m past its edge)" % (t, i, j - self.n, -d))
-        return out
+        return [f"collision at t = {t:.3f} s: robots {i} and {j} are {d:.3f} m apart "
+                f"(r = {max(self.r[i], self.r[j]):g} m)" if j < self.n else
+                f"collision at t = {t:.3f} s: robot {i} is inside obstacle {j - self.n} ({-d:.3f} m past its edge)"
+                for i, j, d in self.new_collisions]
 
     def converged_at(self) -> float | None:
         """The first sample time from which every later sample had every live robot converged."""
@@ -151,6 +148,7 @@ def log_collisions(ref: Referee, t: float, log: logging.Logger = logging.getLogg
     for n, line in enumerate(ref.describe(t), start=first + 1):
         if n > COLLISIONS_LOGGED:
             if first <= COLLISIONS_LOGGED:
-                log.warning("more than %d collisions: the rest are counted in the metrics, not logged", COLLISIONS_LOGGED)
+                log.warning("more than %d collisions: the rest are counted in the metrics, not logged",
+                            COLLISIONS_LOGGED)
             return
         log.warning("%s", line)
