@@ -410,7 +410,10 @@ class ZenohBus:
     def subscribe(self, key_expr: str, fn: Handler) -> Closable:
         errors = self.errors
 
+        pin = pin_thread
+
         def cb(sample) -> None:  # guarded(), inlined: one Python frame less per message on zenoh's thread
+            pin()
             key = str(sample.key_expr)
             try:
                 fn(key, sample.payload.to_bytes())
@@ -424,6 +427,7 @@ class ZenohBus:
         fn = guarded(fn, self.errors, "a subscriber")
 
         def cb(sample) -> None:
+            pin_thread()
             a = sample.attachment
             fn(str(sample.key_expr), sample.payload.to_bytes(), None if a is None else a.to_bytes())
 
@@ -455,6 +459,7 @@ class ZenohBus:
         fn = guarded(fn, self.errors, "a liveliness watcher")
 
         def cb(sample) -> None:
+            pin_thread()
             fn(str(sample.key_expr), sample.kind == put_kind)
 
         return self._keep(_Undeclare(self.session.liveliness().declare_subscriber(key_expr, self._handler(cb),
@@ -471,6 +476,7 @@ class ZenohBus:
         answer = guarded(answer, self.errors, "a queryable's reply")
 
         def cb(query) -> None:
+            pin_thread()
             answer(str(query.key_expr), query)
 
         return self._keep(_Undeclare(self.session.declare_queryable(key_expr, cb)))
@@ -497,6 +503,26 @@ class ZenohBus:
 
 
 _LOG_READY = False
+_PINNED = threading.local()
+
+
+def _pin_thread_ctypes() -> None:
+    if not getattr(_PINNED, "done", False):
+        import ctypes
+
+        _PINNED.done = True
+        ctypes.pythonapi.PyGILState_Ensure()
+
+
+# Every callback zenoh runs calls this first, on zenoh's thread with the GIL held: it keeps that thread's
+# Python thread state for the life of the process. Without it CPython makes and deletes a thread state for
+# each callback (pyo3 takes the GIL with PyGILState_Ensure), with an mmap, page faults and a munmap of its
+# frame stack: about a tenth of a lock-step robot's CPU (docs/runtime.md). Compiled where _wire is built
+# (a C thread-local flag), else the same Ensure through ctypes; the flag is per thread either way.
+try:
+    from swarm.proto._wire import pin_thread
+except ImportError:  # not built (no C compiler at install)
+    pin_thread = _pin_thread_ctypes
 
 
 def _init_zenoh_log(zenoh) -> None:

@@ -1250,9 +1250,29 @@ static void sink_message(StateSink *k, PyObject *key, PyObject *payload) {
     }
 }
 
+/* A thread that Python did not start (zenoh's) gets a fresh Python thread state for every callback and
+   loses it after: pyo3 takes the GIL with PyGILState_Ensure, and the matching Release deletes a thread state
+   whose count falls to 0, with the 16 KiB frame stack CPython maps for it (an mmap, page faults and a munmap
+   a message: docs/runtime.md). One Ensure never released keeps this thread's state for the life of the
+   process; every later callback then only takes and drops the GIL. Call it with the GIL held. */
+static _Thread_local int thread_pinned = 0;
+
+static void pin_this_thread(void) {
+    if (!thread_pinned) {
+        thread_pinned = 1;
+        (void)PyGILState_Ensure();
+    }
+}
+
+static PyObject *wire_pin_thread(PyObject *module, PyObject *unused) {
+    pin_this_thread();
+    Py_RETURN_NONE;
+}
+
 /* sink(sample): a zenoh sample (on zenoh's thread) */
 static PyObject *StateSink_vectorcall(PyObject *callable, PyObject *const *args, size_t nargsf, PyObject *kwnames) {
     StateSink *k = (StateSink *)callable;
+    pin_this_thread();
     if (PyVectorcall_NARGS(nargsf) != 1 || kwnames != NULL) {
         PyErr_SetString(PyExc_TypeError, "a StateSink takes one zenoh sample");
         return NULL;
@@ -1299,6 +1319,8 @@ static PyTypeObject StateSinkType = {
 };
 
 static PyMethodDef wire_methods[] = {
+    {"pin_thread", wire_pin_thread, METH_NOARGS,
+     "pin_thread(): keep this thread's Python thread state (a callback on zenoh's thread: see swarm.net.bus)"},
     {"drain", (PyCFunction)(void (*)(void))wire_drain, METH_FASTCALL,
      "drain(try_recv, wake): the (key, payload) of every sample try_recv() gives until None, wake-ups left out"},
     {"decode_states", (PyCFunction)(void (*)(void))wire_decode_states, METH_FASTCALL,
