@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import socket
+import subprocess
+import sys
 import threading
 import time
 
@@ -122,6 +124,73 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+_THREAD_STATE = r"""
+import sys, threading, time
+from swarm.net import bus as busmod
+
+pin = sys.argv[1]
+if pin == "ctypes":
+    busmod.pin_thread = busmod._pin_thread_ctypes
+elif pin == "none":
+    busmod.pin_thread = lambda: None
+endpoint = sys.argv[2]
+router = busmod.ZenohBus(busmod.zenoh_config("router", listen=[endpoint]))
+try:
+    with busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint])) as a, \
+            busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint])) as b:
+        mine = threading.local()
+        calls = []  # (native thread id, what this thread's local held)
+        cond = threading.Condition()
+
+        def on(k, p):
+            with cond:
+                calls.append((threading.get_native_id(), getattr(mine, "tid", None)))
+                mine.tid = threading.get_native_id()
+                cond.notify_all()
+
+        b.subscribe("swarm/t/robot/*/cmd", on)
+        deadline = time.monotonic() + 10
+        while True:  # the subscription reaches the router asynchronously
+            a.put("swarm/t/robot/1/cmd", b"hello", reliable=True)
+            with cond:
+                if cond.wait_for(lambda: bool(calls), timeout=0.05):
+                    break
+            assert time.monotonic() < deadline, "no message through the router"
+        for i in range(100):
+            a.put("swarm/t/robot/1/cmd", bytes([i]), reliable=True)
+        with cond:
+            assert cond.wait_for(lambda: len(calls) >= 101, timeout=10), "100 messages"
+            seen = list(calls)
+finally:
+    router.close()
+print(threading.get_native_id(), *(f"{t}:{h}" for t, h in seen))
+"""
+
+
+@pytest.mark.parametrize("pin", ["compiled", "ctypes", "none"])
+def test_zenohs_threads_keep_their_python_thread_state_between_callbacks(pin):
+    """A callback on zenoh's thread runs on the thread state the first one made (bus.pin_thread): a
+    threading.local lives in the thread state, so what one callback left there is there for the next
+    one on the same thread. Without the pin ("none") CPython makes a fresh state for each callback and
+    each one finds nothing. In a fresh process: zenoh's threads are the process's, and other tests
+    pin them."""
+    if pin == "compiled" and busmod.pin_thread is busmod._pin_thread_ctypes:
+        pytest.skip("swarm.proto._wire is not built")
+    out = subprocess.run([sys.executable, "-c", _THREAD_STATE, pin, f"tcp/127.0.0.1:{_free_port()}"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    me, *calls = out.stdout.split()
+    seen = [(int(t), None if h == "None" else int(h)) for t, h in (c.split(":") for c in calls)]
+    assert len(seen) >= 101 and all(t != int(me) for t, _ in seen)  # zenoh's threads, not the main one
+    known = set()
+    for tid, held in seen:
+        if pin == "none":
+            assert held is None
+        else:
+            assert held == (tid if tid in known else None), (tid, held)
+        known.add(tid)
 
 
 @pytest.mark.timeout(60)
