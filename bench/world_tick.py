@@ -4,8 +4,8 @@
 
 Builds the world of the built-in paper-50hz scenario with N robots, every robot alive and in its slot
 around the leader at t = 10 s, and times (warm, the mean of --repeat calls) what `World._run_lockstep`
-does each tick besides waiting: the check that every awaited command is in (run on every command, so
-N times a tick), moving every robot one exact arc, the wait-rule check, the metrics sample, and
+does each tick besides waiting: taking the N commands (on zenoh's threads, each with its check that
+every awaited command is in), moving every robot one exact arc, the wait-rule check, the metrics sample, and
 publishing the clock and every pose (encoding and memory-bus puts). Which of them stand between the
 last command of tick k and the first pose of tick k + 1 (the path every robot waits on) is in
 docs/runtime.md.
@@ -25,6 +25,7 @@ import numpy as np  # noqa: E402
 
 from swarm.core import kinematics  # noqa: E402
 from swarm.core.scenario_file import Overrides, load  # noqa: E402
+from swarm.proto import keys, protocol  # noqa: E402
 from swarm.net.bus import MemoryBus, MemoryNet  # noqa: E402
 from world.world import World  # noqa: E402
 
@@ -49,8 +50,18 @@ def main() -> None:
         for i in range(scn.n):
             kinematics.step_pose(world.q[i], world.comp[i], 0.5, 0.1, scn.dt)
 
+    cmd_keys = [keys.robot_cmd("bench", i) for i in range(scn.n)]
+    cmds = [protocol.encode(protocol.Cmd(t=10.0, seq=500, v=0.5, w=0.1)) for _ in range(scn.n)]
+
+    def take_commands() -> None:  # what zenoh's threads run for a tick's commands (World._on_cmd)
+        world.cmd_seq = [-1] * scn.n
+        world._awaited = set(range(scn.n))
+        for key, payload in zip(cmd_keys, cmds):
+            world._on_cmd(key, payload)
+        world.wake.clear()
+
     parts = [
-        (f"commands-in check, x{scn.n} (one per command)", lambda: world._missing(), scn.n),
+        (f"{scn.n} commands taken (World._on_cmd)", take_commands, 1),
         (f"{scn.n} exact arcs", steps, 1),
         ("wait-rule check", lambda: world._check_wait_rule(10.0, before), 1),
         ("metrics sample", lambda: world._sample(10.0), 1),

@@ -141,6 +141,8 @@ class World:
         self.lock = threading.Lock()
         self.wake = threading.Event()  # set by a bus event the run loop waits for
         self._await = -1  # lock-step: the tick whose commands are awaited
+        self._awaited: set[int] = set()  # lock-step: robots whose command of _await had not come (see _on_cmd)
+        self._dec_cmd = protocol.decoder("cmd", self.limits)
         self._pending: dict[int, tuple[float, float]] = {}
         self.bad = protocol.BadMessages(log)
         self.robot_bad: dict[int, int] = {}
@@ -174,7 +176,7 @@ class World:
                                               lockstep=self.lockstep, scenario=runid.canonical(self.scn)))
         self._handles.append(self.bus.serve(keys.world_run(f), lambda key: self._run_reply))
         if self.lockstep:
-            self._handles.append(self.bus.subscribe(keys.robot_any(f, "cmd"), lambda k, b: ev(("cmd", k, b))))
+            self._handles.append(self.bus.subscribe(keys.robot_any(f, "cmd"), self._on_cmd))
             self._handles.append(self.bus.subscribe(keys.robot_any(f, "status"), lambda k, b: ev(("status", k, b))))
             if self.wf is not None:
                 self._handles.append(self.bus.subscribe(keys.robot_any(f, "faults"), lambda k, b: ev(("faults", k, b))))
@@ -235,12 +237,48 @@ class World:
         awaited tick's commands are complete (or a robot came or went)."""
         with self.lock:
             self._handle(item)
-            due = item[0] in ("alive", "leader", "state") or (self._await >= 0 and not self._missing())
+            due = item[0] in ("alive", "leader", "state") or (self._await >= 0 and not self._awaited)
         if due:
             self.wake.set()
 
     _leader_back = False  # the leader's token came back during the run (lock-step: repeat the clock for it)
     leader_ups = 0  # times the leader's token appeared
+
+    def _on_cmd(self, key: str, data: bytes) -> None:
+        """Lock-step: a command, on the bus's thread. event(("cmd", key, data)) in few steps: 37 of these a
+        tick run on zenoh's threads. The run loop is woken when the last awaited command came (_awaited: it
+        sets it from _missing() at each wake-up; a robot that came or went wakes it anyway)."""
+        i = self._cmd_ids.get(key)
+        if i is None:  # not a command key of this world: named the long way
+            self.event(("cmd", key, data))
+            return
+        try:
+            c = self._dec_cmd(data)
+        except ProtocolError as e:
+            with self.lock:
+                self.bad.reject(key, e)
+            return
+        with self.lock:
+            try:
+                self._take_cmd(i, c)
+            except ProtocolError as e:
+                self.bad.reject(key, e)
+                return
+            due = self._await >= 0 and not self._awaited
+        if due:
+            self.wake.set()
+
+    def _take_cmd(self, i: int, c: protocol.Cmd) -> None:
+        """Lock-step (under the lock): only the command of the tick under way counts (the world publishes
+        tick k before anyone can answer it); a later seq is refused, an earlier one is late (stale)."""
+        if c.seq == self.k and c.seq > self.cmd_seq[i]:
+            self.cmd_seq[i] = c.seq
+            self._pending[i] = (c.v, c.w)
+            self._awaited.discard(i)
+        elif c.seq > self.k:
+            raise ProtocolError(f"a command for tick {c.seq} while the world is at tick {self.k}")
+        else:
+            self.bad.stale += 1
 
     def _missing(self) -> list[int]:
         """Live robots whose command for the awaited tick has not come (call under the lock)."""
@@ -259,16 +297,7 @@ class World:
                 raise ProtocolError(f"not a robot of this world: {key!r}")
             i = parsed.id
             if tag == "cmd":  # lock-step (real time takes its commands in _take_commands)
-                c = protocol.decode(data, "cmd", None, self.limits)
-                # lock-step: only the command of the tick under way counts (the world publishes tick k
-                # before anyone can answer it); a later seq is refused, an earlier one is late (stale)
-                if c.seq == self.k and c.seq > self.cmd_seq[i]:
-                    self.cmd_seq[i] = c.seq
-                    self._pending[i] = (c.v, c.w)
-                elif c.seq > self.k:
-                    raise ProtocolError(f"a command for tick {c.seq} while the world is at tick {self.k}")
-                else:
-                    self.bad.stale += 1
+                self._take_cmd(i, protocol.decode(data, "cmd", None, self.limits))
             elif tag == "status":
                 s = protocol.decode(data, "status", None, self.limits)
                 if self.bad.verdict(key, self.w_status[i].check(s.t, int(round(s.t / self.scn.dt))), "the status's t"):
@@ -592,6 +621,7 @@ class World:
                 deadline = self.clock.monotonic() + self.tick_timeout
                 with self.lock:
                     self._await = k
+                    self._awaited = set(self._missing())
                     ups = self.leader_ups
                 while True:
                     if stop.is_set():
@@ -599,6 +629,7 @@ class World:
                     self._resend_clock()  # a leader that came back during this tick hears the clock at once
                     with self.lock:
                         waiting = self._missing()
+                        self._awaited = set(waiting)
                         if not waiting:
                             self._await = -1
                             pending, self._pending = self._pending, {}

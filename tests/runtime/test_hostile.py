@@ -130,10 +130,41 @@ def _callbacks(net: MemoryNet):
     cbs = [(keys.robot_pose(F, 1), agent._on_pose_msg), (keys.leader_ref(F), agent._on_ref_msg),
            (keys.world_clock(F), agent._on_clock_msg), (keys.cell(F, 0, -8, 2), agent._on_state_msg),
            (keys.world_clock(F), lead.on_clock)]
-    for tag, key in (("cmd", keys.robot_cmd(F, 2)), ("status", keys.robot_status(F, 2)), ("state", keys.cell(F, 0, 0, 2)),
-                     ("cmd", "swarm/t/robot/9/cmd")):
+    cbs += [(keys.robot_cmd(F, 2), world._on_cmd), ("swarm/t/robot/9/cmd", world._on_cmd)]  # as subscribed
+    for tag, key in (("status", keys.robot_status(F, 2)), ("state", keys.cell(F, 0, 0, 2))):
         cbs.append((key, lambda k, b, tag=tag: world.event((tag, k, b))))
     return cbs, (world, agent, lead)
+
+
+def test_the_world_wakes_its_loop_when_the_last_awaited_command_comes():
+    """Lock-step: commands come on zenoh's thread (World._on_cmd). The run loop is woken by the last
+    command it awaits, not before (nor by a refused, stale or foreign one), and each command is counted
+    as the long way (event) counts it."""
+    from world.world import World
+
+    scn = scenario_file.load("paper-50hz", Overrides(robots=3, duration=1.0))
+    world = World(MemoryBus(MemoryNet()), scn, F, lockstep=True)
+    world.alive[:] = True
+    world.k = 5
+    world._await = 5  # as the run loop does: the tick awaited, then who has not answered it
+    world._awaited = set(world._missing())
+
+    def cmd(i, seq, v=0.1):
+        world._on_cmd(keys.robot_cmd(F, i), protocol.encode(protocol.Cmd(t=seq * scn.dt, seq=seq, v=v, w=0.0)))
+
+    cmd(0, 5)
+    cmd(0, 5)  # the same again: stale
+    cmd(1, 4)  # late: stale
+    cmd(1, 6)  # ahead of the world: refused
+    world._on_cmd(keys.robot_cmd(F, 2), b"\x93garbage")  # refused
+    world._on_cmd("swarm/t/robot/9/cmd", protocol.encode(protocol.Cmd(t=0.1, seq=5, v=0.0, w=0.0)))  # not ours
+    cmd(2, 5, v=1e9)  # beyond the speed limit: refused
+    assert not world.wake.is_set() and world._missing() == [1, 2]
+    assert world.bad.stale == 2 and world.bad.count == 4
+    cmd(1, 5)
+    assert not world.wake.is_set()
+    cmd(2, 5)
+    assert world.wake.is_set() and world._missing() == [] and sorted(world._pending) == [0, 1, 2]
 
 
 _values = st.one_of(st.none(), st.booleans(), st.integers(-2**63, 2**64 - 1), st.floats(), st.text(max_size=8),
