@@ -314,7 +314,10 @@ def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen:
 
 def size_limits() -> list[dict]:
     """zenoh low_pass_filter rules: the large kinds (snapshot, obstacles, run, bodies) up to the
-    codec's large limit, every other swarm key and the ROS 2 topics a drive uses up to the small one."""
+    codec's large limit, every other swarm key and the ROS 2 topics a drive uses up to the small one.
+    On ingress only: every process (the router too) checks what comes in, so a payload is checked where
+    it enters our router and again where it enters a process (behind a router that is not ours); egress
+    rules checked the same payloads twice more (docs/protocol.md)."""
     from swarm.proto.protocol import MAX_LARGE_PAYLOAD, MAX_PAYLOAD
 
     large = [f"swarm/*/world/{k}" for k in ("snapshot", "obstacles", "run", "bodies")]
@@ -322,9 +325,9 @@ def size_limits() -> list[dict]:
              "swarm/*/world/clock", "swarm/*/world/progress", "swarm/*/world/config/*", "swarm/*/world/events",
              "swarm/*/world/claim/*", "**/cmd_vel/**", "**/cmd_vel", "**/odom/**", "**/odom"]
     everything = ["put", "delete", "query", "reply"]
-    return [{"id": "swarm-small", "flows": ["ingress", "egress"], "messages": everything, "key_exprs": small,
+    return [{"id": "swarm-small", "flows": ["ingress"], "messages": everything, "key_exprs": small,
              "size_limit": MAX_PAYLOAD},
-            {"id": "swarm-large", "flows": ["ingress", "egress"], "messages": everything, "key_exprs": large,
+            {"id": "swarm-large", "flows": ["ingress"], "messages": everything, "key_exprs": large,
              "size_limit": MAX_LARGE_PAYLOAD}]
 
 
