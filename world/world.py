@@ -131,6 +131,7 @@ class World:
         self.watchdog_stops = 0  # real time: robots the watchdog stopped
         self._pose_keys = [keys.robot_pose(fleet, i) for i in range(n)]
         self._cmd_ids = {keys.robot_cmd(fleet, i): i for i in range(n)}
+        self._status_ids = {keys.robot_status(fleet, i): i for i in range(n)}
         self.cmd_seq = [-1] * n  # lock-step: tick of the newest command
         self.cmd_time = [-math.inf] * n  # sim time (lock-step) or monotonic wall time (real time) of the newest command
         self.stopped = [True] * n
@@ -292,10 +293,12 @@ class World:
             if tag in ("alive", "leader"):
                 self._on_alive(tag, key, data)
                 return
-            parsed = keys.parse(key)
-            if parsed is None or parsed.id is None or parsed.id >= self.n:
-                raise ProtocolError(f"not a robot of this world: {key!r}")
-            i = parsed.id
+            i = self._status_ids.get(key) if tag == "status" else None  # the common case: a key of ours
+            if i is None:
+                parsed = keys.parse(key)
+                if parsed is None or parsed.id is None or parsed.id >= self.n:
+                    raise ProtocolError(f"not a robot of this world: {key!r}")
+                i = parsed.id
             if tag == "cmd":  # lock-step (real time takes its commands in _take_commands)
                 self._take_cmd(i, protocol.decode(data, "cmd", None, self.limits))
             elif tag == "status":
