@@ -58,6 +58,7 @@ from agents.follow import NoAnswer, RunFollower, check_run, query_until  # noqa:
 from agents.guard import REF_TIMEOUT_S, Guard, arena_of
 from swarm.proto import window
 from swarm.proto.protocol import Cmd, Config, Limits, ProtocolError, State, Status
+from swarm.core.wake import Wake
 
 log = logging.getLogger("swarm.robot")
 
@@ -138,7 +139,7 @@ class Agent:
         self._cmd_key, self._status_key = keys.robot_cmd(fleet, self.id), keys.robot_status(fleet, self.id)
         self._faults_key = keys.robot_faults(fleet, self.id)
         self.lock = threading.Lock()
-        self.wake = threading.Event()
+        self.wake = Wake()
         self.table: dict[int, State] = {}  # the last state of every robot heard (alive: not in self.dead)
         self.dead: set[int] = set()
         self.obstacles: list[tuple[float, float, float, float]] = []

@@ -40,6 +40,7 @@ from swarm.launch.child import settle_heap
 from swarm.proto.protocol import Clock, Obstacle, Obstacles, Pose, ProtocolError, RobotSnap, Run, Snapshot
 from swarm.core.geometry import pairs_within
 from swarm.core.scenario import Scenario
+from swarm.core.wake import Wake
 from world.faultworld import brake_factor
 from world.realtime_faults import RealtimeFaults
 from world.referee import Referee, log_collisions
@@ -140,7 +141,7 @@ class World:
         self.table = scn.leader.table()
         self.referee = Referee(scn)
         self.lock = threading.Lock()
-        self.wake = threading.Event()  # set by a bus event the run loop waits for
+        self.wake = Wake()  # set by a bus event the run loop waits for
         self._await = -1  # lock-step: the tick whose commands are awaited
         self._awaited: set[int] = set()  # lock-step: robots whose command of _await had not come (see _on_cmd)
         self._dec_cmd = protocol.decoder("cmd", self.limits)

@@ -15,7 +15,7 @@ def test_world_tick_bench_times_every_part():
                          text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     parts = re.findall(r"^  (.+?)\s+(\d+) us$", out.stdout, re.M)
-    assert [p for p, _ in parts] == ["commands-in check, x5 (one per command)", "5 exact arcs", "wait-rule check",
+    assert [p for p, _ in parts] == ["5 commands taken (World._on_cmd)", "5 exact arcs", "wait-rule check",
                                      "metrics sample", "clock and 5 poses published"], out.stdout
     assert all(int(us) >= 0 for _, us in parts)
 

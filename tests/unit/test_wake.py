@@ -1,0 +1,75 @@
+"""swarm.core.wake.Wake: threading.Event's semantics, and no set() ever lost."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from swarm.core.wake import Wake
+
+
+@pytest.mark.parametrize("cls", [Wake, threading.Event])
+def test_set_stays_set_until_cleared(cls):
+    w = cls()
+    assert not w.is_set() and w.wait(0.0) is False
+    w.set()
+    w.set()  # twice: still one state
+    assert w.is_set() and w.wait(0.0) is True and w.wait(1.0) is True  # a set stays set
+    w.clear()
+    assert not w.is_set()
+    t0 = time.monotonic()
+    assert w.wait(0.05) is False and time.monotonic() - t0 >= 0.04  # waits its timeout
+    assert w.wait(-1.0) is False  # a negative timeout is no wait
+
+
+@pytest.mark.timeout(30)
+def test_a_set_from_another_thread_wakes_a_waiter():
+    w = Wake()
+    woke = []
+    t = threading.Thread(target=lambda: woke.append(w.wait(25.0)), daemon=True)
+    t.start()
+    time.sleep(0.05)  # the waiter is (most likely) blocked: the case under test
+    w.set()
+    t.join(10.0)
+    assert not t.is_alive() and woke == [True]  # woken by the set, not by its timeout
+
+
+@pytest.mark.timeout(60)
+def test_no_set_is_lost_under_contention():
+    """Two setters take turns with the loop: each bumps a counter, sets, and waits until the loop has
+    seen its value; the loop waits, clears and reads the counter, as a run loop does. Every set must
+    wake it: a lost one shows as a wait that ran out its timeout while the counter had moved."""
+    w = Wake()
+    lock = threading.Lock()
+    state = {"n": 0, "seen": 0}
+    seen_cond = threading.Condition(lock)
+    rounds = 2000
+    lost = 0
+
+    def setter():
+        for _ in range(rounds):
+            with lock:
+                state["n"] += 1
+                mine = state["n"]
+            w.set()
+            with seen_cond:
+                seen_cond.wait_for(lambda: state["seen"] >= mine, timeout=10)
+
+    threads = [threading.Thread(target=setter, daemon=True) for _ in range(2)]
+    for t in threads:
+        t.start()
+    deadline = time.monotonic() + 40
+    while state["seen"] < 2 * rounds and time.monotonic() < deadline:
+        t0 = time.monotonic()
+        w.wait(1.0)
+        waited = time.monotonic() - t0
+        w.clear()
+        with seen_cond:
+            lost += waited >= 0.9 and state["n"] != state["seen"]
+            state["seen"] = state["n"]
+            seen_cond.notify_all()
+    for t in threads:
+        t.join(10.0)
+    assert state["seen"] == 2 * rounds and lost == 0
