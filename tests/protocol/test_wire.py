@@ -144,3 +144,100 @@ def test_compiled_encoder_takes_float_subclasses_as_msgpack_does():
     assert p._compile_encode("cmd")(msg) == _python_encoder("cmd")(msg)
     assert p.decode(p.encode(msg)) == p.Cmd(t=1.5, seq=2, v=-0.25, w=0.0)
 
+
+
+class _Bytes:
+    def __init__(self, b: bytes) -> None:
+        self.b = b
+
+    def to_bytes(self) -> bytes:
+        return self.b
+
+
+class _Sample:
+    """What a zenoh ring channel's try_recv() gives: key_expr, payload and attachment."""
+
+    def __init__(self, key: str, payload: bytes, attachment: bytes | None = None) -> None:
+        self.key_expr, self.payload = key, _Bytes(payload)
+        self.attachment = None if attachment is None else _Bytes(attachment)
+
+
+def _channel(samples: list) -> object:
+    it = iter(samples)
+    return lambda: next(it, None)
+
+
+def _python_drain_states(channels, wake, dec, ids, states, bad, limit) -> None:
+    """The same as drain_states, in Python: swarm.net.bus._ZenohInbox's drain (without the compiled
+    drain), then agents.robot.Agent._take_inboxes's Python loop over the items."""
+    from swarm.proto import keys
+
+    for recv in channels:
+        items = []
+        while (s := recv()) is not None:
+            payload = s.payload.to_bytes()
+            if not payload and s.attachment is not None and s.attachment.to_bytes() == wake:
+                continue
+            items.append((str(s.key_expr), payload))
+        for key, data in items:
+            j = ids.get(key)
+            if j is None:
+                j = keys.cell_robot(key)
+                if j is None:
+                    bad.append((key, p.ProtocolError(f"not a cell key: {key!r}")))
+                    continue
+                if len(ids) >= limit:
+                    ids.clear()
+                ids[key] = j
+            try:
+                states.append((dec(data, j), key))
+            except p.ProtocolError as e:
+                bad.append((key, e))
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_drain_states_takes_what_the_python_loop_takes(seed):
+    """A real-time robot's 9 cell inboxes drained and decoded in one compiled call (drain_states) give
+    the same states, errors, key cache and order as the inboxes' Python drain and the agent's Python loop,
+    over valid states, wake-ups, empty payloads, garbage, keys that are not cell keys, and a key cache at
+    its limit."""
+    import random
+
+    from swarm.proto import keys
+
+    rng = random.Random(seed)
+    wake = b"swarm-inbox-wake"
+    limits = p.Limits.of(37, 1.2)
+    dec = p.decoder("state", limits)
+
+    def sample():
+        j = rng.randrange(40)
+        key = rng.choice([f"swarm/f/cell/{rng.randrange(-2, 2)}/{rng.randrange(-2, 2)}/{j}", "swarm/f/cell/0/0/x",
+                          "swarm/f/cell/0/0/007", "swarm/f/cell/0/0"])
+        kind = rng.random()
+        if kind < 0.5:
+            s = p.State(id=j, t=rng.uniform(0, 100), seq=rng.randrange(10**6), x=rng.uniform(-50, 50),
+                        y=rng.uniform(-50, 50), theta=rng.uniform(-3, 3), r=0.3, R=rng.choice([1.0, 1.2, 5.0]),
+                        frozen=rng.random() < 0.2)
+            return _Sample(key, p.encode(s))
+        if kind < 0.6:
+            return _Sample(key, b"", wake)
+        if kind < 0.7:
+            return _Sample(key, b"", rng.choice([None, b"other"]))
+        return _Sample(key, rng.randbytes(rng.randrange(1, 40)))
+
+    cells = [[sample() for _ in range(rng.randrange(0, 6))] for _ in range(9)]
+    outs = []
+    for compiled in (True, False):
+        ids = {f"swarm/f/cell/0/0/{k}": k for k in range(rng.randrange(0, 6))} if not outs else dict(outs[0][3])
+        ids0 = dict(ids)
+        states, bad = [], []
+        chans = [_channel(list(c)) for c in cells]
+        if compiled:
+            assert p._wire.drain_states(chans, wake, dec, ids, keys.cell_robot, states, bad, p.ProtocolError, 8) is None
+        else:
+            _python_drain_states(chans, wake, dec, ids, states, bad, 8)
+        outs.append((states, [(k, type(e), str(e)) for k, e in bad], ids, ids0))
+    (s1, b1, i1, _), (s2, b2, i2, _) = outs
+    assert s1 == s2 and b1 == b2 and i1 == i2
+    assert s1 or b1  # the corpus had something in it
