@@ -194,8 +194,6 @@ class Agent:
         self.seq = 0
         self._last_status_t = -math.inf
         self._cells: dict[tuple[int, int], object] = {}
-        self._recvs: tuple | None = None  # real time: (each cell inbox's try_recv in _cells' order, the wake
-        #                                   marker), () when an inbox has none, None: to build (_take_inboxes)
         self._state_keys: dict[tuple[int, int], str] = {}  # this robot's state key in each cell it has been in
         self._block_prev: set[tuple[int, int]] = set()
         self._cell: tuple[int, int] | None = None
@@ -313,7 +311,6 @@ class Agent:
         for h in list(self._cells.values()) + self._handles[::-1]:
             h.close()
         self._cells.clear()
-        self._recvs = None
         self._handles.clear()
 
     def _move_cells(self, x: float, y: float) -> None:
@@ -323,7 +320,6 @@ class Agent:
             return  # the common case: same cell as last tick, old block already released
         now = block(*cell)
         want = now | self._block_prev
-        self._recvs = None  # the cells change: their inboxes' receivers with them (_take_inboxes)
         for c in want - self._cells.keys():
             key = keys.cell_any(self.fleet, *c)
             self._cells[c] = self._subscribe_cell(key) if self.cfg.lockstep else self.bus.inbox(key)
@@ -560,17 +556,7 @@ class Agent:
                 bad.append((key, e))
         dec, ids = self._dec_state, self._key_ids
         wire = protocol._wire
-        boxes = self._cells.values()
-        if wire is not None and boxes:
-            recvs = self._recvs
-            if recvs is None:  # the cells changed: each inbox's own receive (zenoh's; other buses have none)
-                recvs = [getattr(b, "try_recv", None) for b in boxes]
-                recvs = self._recvs = (recvs, getattr(next(iter(boxes)), "WAKE", None)) if None not in recvs else ()
-            if recvs:  # zenoh's inboxes: the loop below over every cell in one compiled call
-                wire.drain_states(recvs[0], recvs[1], dec, ids, keys.cell_robot, states, bad, ProtocolError,
-                                  KEY_IDS_MAX)
-                boxes = ()
-        for box in boxes:
+        for box in self._cells.values():
             items = box.drain()
             if not items:  # most of the 9 cells, most periods
                 continue

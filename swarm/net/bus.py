@@ -551,7 +551,6 @@ class _ZenohInbox:
 
     def __init__(self, sub, session, key_expr: str, zenoh) -> None:
         self.sub, self.session, self.key_expr, self._z = sub, session, key_expr, zenoh
-        self.try_recv = sub.try_recv  # for a compiled loop over several inboxes (swarm.proto._wire.drain_states)
 
     def _item(self, s) -> tuple[str, bytes] | None:
         payload = s.payload.to_bytes()

@@ -729,43 +729,6 @@ done:
     return ok;
 }
 
-/* drain_states(recvs, wake, dec, ids, parse, states, bad, error, limit): drain(recv, wake) of each of recvs
- * (a real-time robot's cell inboxes, in order), then decode_states(items, dec, ids, parse, states, bad, error,
- * limit) of what came: agents.robot.Agent._take_inboxes's loop over its 9 cells in one call. */
-static PyObject *wire_drain_states(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
-    if (nargs != 9) {
-        PyErr_SetString(PyExc_TypeError, "drain_states(recvs, wake, dec, ids, parse, states, bad, error, limit)");
-        return NULL;
-    }
-    if (!PyList_Check(args[0])) {
-        PyErr_SetString(PyExc_TypeError, "drain_states: recvs is a list");
-        return NULL;
-    }
-    PyObject *recvs = args[0];
-    PyObject *dargs[8];
-    for (int a = 1; a < 8; a++)
-        dargs[a] = args[a + 1];
-    for (Py_ssize_t i = 0; i < PyList_GET_SIZE(recvs); i++) {
-        PyObject *pair[2] = {PyList_GET_ITEM(recvs, i), args[1]};
-        Py_INCREF(pair[0]); /* the list may change under a callback: hold the recv while it runs */
-        PyObject *items = wire_drain(module, pair, 2);
-        Py_DECREF(pair[0]);
-        if (items == NULL)
-            return NULL;
-        if (PyList_GET_SIZE(items) > 0) {
-            dargs[0] = items;
-            PyObject *r = wire_decode_states(module, dargs, 8);
-            if (r == NULL) {
-                Py_DECREF(items);
-                return NULL;
-            }
-            Py_DECREF(r);
-        }
-        Py_DECREF(items);
-    }
-    Py_RETURN_NONE;
-}
-
 /* take_states(states, me, ahead, now, mono, windows, table, rx, away, unconfirmed, slow): real time, a batch of
  * decoded neighbour states (agents.robot.Agent._on_states). A state of another robot, not ahead of this
  * robot's clock (t <= ahead), that its sender's window takes in the common case is taken here: table[j] = s,
@@ -1362,8 +1325,6 @@ static PyMethodDef wire_methods[] = {
      "drain(try_recv, wake): the (key, payload) of every sample try_recv() gives until None, wake-ups left out"},
     {"decode_states", (PyCFunction)(void (*)(void))wire_decode_states, METH_FASTCALL,
      "decode_states(items, dec, ids, parse, states, bad, error, limit): decode a batch of cell states"},
-    {"drain_states", (PyCFunction)(void (*)(void))wire_drain_states, METH_FASTCALL,
-     "drain_states(recvs, wake, dec, ids, parse, states, bad, error, limit): drain and decode_states of each inbox"},
     {"take_states", (PyCFunction)(void (*)(void))wire_take_states, METH_FASTCALL,
      "take_states(states, me, ahead, now, mono, windows, table, rx, away, unconfirmed, slow): take a batch of states"},
     {"live_bodies", (PyCFunction)(void (*)(void))wire_live_bodies, METH_FASTCALL,
