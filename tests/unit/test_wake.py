@@ -26,11 +26,19 @@ def test_set_stays_set_until_cleared(cls):
 
 @pytest.mark.timeout(30)
 def test_a_set_from_another_thread_wakes_a_waiter():
+    """The waiter may be blocked or about to block when the set comes: either way it returns, long
+    before its timeout (a blocked waiter every round: test_no_set_is_lost_under_contention)."""
     w = Wake()
     woke = []
-    t = threading.Thread(target=lambda: woke.append(w.wait(25.0)), daemon=True)
+    ready = threading.Event()
+
+    def waiter():
+        ready.set()
+        woke.append(w.wait(25.0))
+
+    t = threading.Thread(target=waiter, daemon=True)
     t.start()
-    time.sleep(0.05)  # the waiter is (most likely) blocked: the case under test
+    assert ready.wait(10.0)
     w.set()
     t.join(10.0)
     assert not t.is_alive() and woke == [True]  # woken by the set, not by its timeout
