@@ -32,8 +32,8 @@ Real time: for every new pose it takes the newest reference (advanced exactly al
 leader's arc to now on its own clock) and neighbour states, and publishes state and command; the
 command carries the time of the pose it was computed from. States and references wait in bus
 inboxes (zenoh ring channels) and the loop decodes them in one batch at each pose: zenoh's thread
-runs no Python for them, which saves about a fifth of a robot's CPU. What it does without a message
-(docs/faults.md): it keeps the last state of every live neighbour with its age (the time since
+runs no Python for them and never waits for the robot's GIL (docs/runtime.md, session 18). What it
+does without a message (docs/faults.md): it keeps the last state of every live neighbour with its age (the time since
 receipt on its own clock plus the age the state had when it came) and never forgets a live one; the
 law's governor takes each body's age off its clearance (older than STALE_AFTER_S also counts as
 stale in the status); a robot whose liveliness token goes is a static body at its last state; without

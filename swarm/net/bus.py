@@ -443,7 +443,8 @@ class ZenohBus:
     def inbox(self, key_expr: str, depth: int = 64) -> Inbox:
         """Samples wait in a zenoh ring channel (the newest `depth`) until drain(): zenoh's thread
         never runs Python for them (no GIL, no callback), and the owner decodes them in one batch.
-        A robot's neighbour states take this path in real time (about a fifth less CPU per robot)."""
+        A robot's neighbour states take this path in real time: its receiving thread never waits for the GIL
+        (docs/runtime.md, session 18)."""
         sub = self.session.declare_subscriber(key_expr, self._z.handlers.RingChannel(depth))
         return self._keep(_ZenohInbox(sub, self.session, key_expr, self._z))
 
