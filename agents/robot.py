@@ -188,6 +188,7 @@ class Agent:
         self.refs_taken = 0
         self.states_received = 0
         self.loop_cpu_s = 0.0  # CPU time of the loop thread handling its wake-ups (thread_time; bench/up_speed.py)
+        self.process_cpu_s = 0.0  # CPU time of the whole process (zenoh's threads too) while its loop ran
         self.ticks = 0
         self.skipped = 0
         self.stale_total = 0
@@ -1209,10 +1210,14 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                 settle_heap()
                 if guard is not None:
                     guard.start(lambda: agent.sim_time(clock.time()))
-                if cfg.lockstep:
-                    _loop_lockstep(agent, stop)
-                else:
-                    _loop_realtime(agent, stop, clock.time)
+                p0 = time.process_time()
+                try:
+                    if cfg.lockstep:
+                        _loop_lockstep(agent, stop)
+                    else:
+                        _loop_realtime(agent, stop, clock.time)
+                finally:
+                    agent.process_cpu_s = time.process_time() - p0
             finally:
                 if guard is not None:
                     guard.close()
@@ -1221,9 +1226,10 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                     fbus.detach()
                 current.clear()
             log.info("robot %d, run %s: %d ticks, %d skipped, %d states and %d references received, %d bad messages, "
-                     "%d stale, %d duplicated, loop CPU %.0f us a tick", robot_id, agent.cfg.run, agent.ticks,
-                     agent.skipped, agent.states_received, agent.refs_taken, agent.bad.count, agent.bad.stale,
-                     agent.bad.duplicates, 1e6 * agent.loop_cpu_s / max(1, agent.ticks))
+                     "%d stale, %d duplicated, loop CPU %.0f us a tick, process CPU %.0f us a tick", robot_id,
+                     agent.cfg.run, agent.ticks, agent.skipped, agent.states_received, agent.refs_taken, agent.bad.count,
+                     agent.bad.stale, agent.bad.duplicates, 1e6 * agent.loop_cpu_s / max(1, agent.ticks),
+                     1e6 * agent.process_cpu_s / max(1, agent.ticks))
             served.append(agent)
             if once:
                 break

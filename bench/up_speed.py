@@ -13,6 +13,9 @@ samples every child process with psutil while the run is under way. Figures:
   loop us     real time: CPU of a robot's loop thread per control period [us], the mean over robots
               (from their logs); bench/zenoh_floor.py measures the same for a loop that only moves
               the messages
+  process us  real time: CPU of a robot's whole process (zenoh's threads too) per control period while its
+              loop ran [us], the mean over robots (from their logs): what the loop figure cannot hide by
+              moving work to another thread; the floor's beside it ("floor proc us")
   steal %     the share of this machine's CPU its host took during swarm's two runs (a VM's steal time,
               from /proc/stat): where it is high, the figures are the host's, not swarm's
   robots ran  "compiled" (the C wire codec and law, swarm/proto/_wire.c and swarm/core/_law.c) or
@@ -92,11 +95,13 @@ def run(n: int, duration: float, mode: str, out: Path, speed: float = 1.0) -> tu
 
 
 LOOP_CPU = re.compile(r"loop CPU (\d+) us a tick")
+PROCESS_CPU = re.compile(r"process CPU (\d+) us a tick")
 
 
-def loop_us(log_dir: Path) -> float:
-    """Mean over the robots of their loop thread's CPU per tick, as each robot logs it at exit."""
-    found = [float(m.group(1)) for f in log_dir.glob("robot-*.log") for m in LOOP_CPU.finditer(f.read_text())]
+def loop_us(log_dir: Path, figure: re.Pattern = LOOP_CPU) -> float:
+    """Mean over the robots of their loop thread's CPU per tick (or with PROCESS_CPU, their whole process's), as
+    each robot logs it at exit."""
+    found = [float(m.group(1)) for f in log_dir.glob("robot-*.log") for m in figure.finditer(f.read_text())]
     return sum(found) / len(found) if found else float("nan")
 
 
@@ -116,13 +121,15 @@ def runs_with(log_dir: Path) -> str:
 FLOOR_TICKS = re.compile(r"([\d.]+) ticks/s")
 FLOOR_RT = re.compile(r"round trip median ([\d.]+) ms, p99 ([\d.]+) ms")
 FLOOR_LOOP = re.compile(r"loop thread (\d+) us of CPU")
+FLOOR_PROCESS = re.compile(r"the whole robot process (\d+) us")
 
 
 def floor(n: int, duration: float) -> dict:
     """bench/zenoh_floor.py at N robots: lock-step ticks/s without and with swarm's wait rule (--wait), and the
     real-time round trip median and p99 [ms] and loop us."""
     me = Path(__file__).resolve().parent / "zenoh_floor.py"
-    out = {"ticks": math.nan, "wait_ticks": math.nan, "median": math.nan, "p99": math.nan, "loop": math.nan}
+    out = {"ticks": math.nan, "wait_ticks": math.nan, "median": math.nan, "p99": math.nan, "loop": math.nan,
+           "process": math.nan}
     for mode, extra in (("lockstep", []), ("lockstep", ["--wait"]), ("realtime", [])):
         done = subprocess.run([sys.executable, str(me), "--robots", str(n), "--duration", str(duration), "--mode", mode,
                                *extra], capture_output=True, text=True, timeout=120 + 10 * duration)
@@ -137,6 +144,7 @@ def floor(n: int, duration: float) -> dict:
             m = FLOOR_RT.search(text)
             out["median"], out["p99"] = float(m.group(1)), float(m.group(2))
             out["loop"] = float(FLOOR_LOOP.search(text).group(1))
+            out["process"] = float(FLOOR_PROCESS.search(text).group(1))
     return out
 
 
@@ -157,8 +165,10 @@ def main() -> None:
     out = Path(tempfile.mkdtemp(prefix="swarm-bench-"))
     print(f"{os.cpu_count()} CPUs; runs of {a.duration:g} simulated s of paper-50hz (real time at speed {a.speed:g}); "
           f"logs in {out}")
-    cols = ("launch s", "ticks/s", "rt median ms", "rt p99 ms", "robot CPU %", "RSS mean", "RSS max", "loop us")
-    fcols = ("floor ticks/s", "floor wait t/s", "floor median", "floor p99", "floor loop us") if a.floor else ()
+    cols = ("launch s", "ticks/s", "rt median ms", "rt p99 ms", "robot CPU %", "RSS mean", "RSS max", "loop us",
+            "process us")
+    fcols = ("floor ticks/s", "floor wait t/s", "floor median", "floor p99", "floor loop us", "floor proc us") \
+        if a.floor else ()
     print(f"{'N':>4} {'round':>5} " + " ".join(f"{c:>13}" for c in cols + fcols + ("steal %",)) +
           f" {'converged':>10} {'collisions':>10}  robots ran")
     for n in a.robots:
@@ -172,10 +182,11 @@ def main() -> None:
             stolen = math.nan if stolen is None else stolen
             row = [ls["launch_s"], ls["steps"] / ls["run_wall_s"], rt.get("round_trip_ms_median", float("nan")),
                    rt.get("round_trip_ms_p99", float("nan")), res["cpu_pct"], res["rss_mean"], res["rss_max"],
-                   loop_us(out / f"r{r}" / f"logs-realtime-{n}")]
+                   loop_us(out / f"r{r}" / f"logs-realtime-{n}"),
+                   loop_us(out / f"r{r}" / f"logs-realtime-{n}", PROCESS_CPU)]
             if a.floor:
                 f = floor(n, a.duration)
-                row += [f["ticks"], f["wait_ticks"], f["median"], f["p99"], f["loop"]]
+                row += [f["ticks"], f["wait_ticks"], f["median"], f["p99"], f["loop"], f["process"]]
             rows.append(row)
             row.append(stolen)
             print(f"{n:>4} {r + 1:>5} " + " ".join(f"{v:>13.2f}" for v in row) +

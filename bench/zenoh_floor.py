@@ -86,6 +86,7 @@ def robot(i: int, n: int, endpoint: str, layout: str, wait: bool) -> None:
                                 allowed_destination=bus._z.Locality.SESSION_LOCAL)
 
         signal.signal(signal.SIGTERM, on_term)
+        p0 = time.process_time()
         while not stop:
             got = pose.wait() + pose.drain()
             if not got:
@@ -123,7 +124,8 @@ def robot(i: int, n: int, endpoint: str, layout: str, wait: bool) -> None:
             bus.put(cmd, body, reliable=True)
             loop_cpu += time.thread_time() - c0
         Path(os.environ["FLOOR_OUT"], f"robot-{i}.json").write_text(json.dumps(
-            {"states_per_period": states / max(1, periods), "loop_us": 1e6 * loop_cpu / max(1, periods)}))
+            {"states_per_period": states / max(1, periods), "loop_us": 1e6 * loop_cpu / max(1, periods),
+             "process_us": 1e6 * (time.process_time() - p0) / max(1, periods)}))
         token.close()
         for box in near + [pose]:
             box.close()
@@ -279,6 +281,7 @@ def main() -> None:
         rows = [json.loads(f.read_text()) for f in tmp.glob("robot-*.json")]
         per = [r["states_per_period"] for r in rows]
         loop_us = sum(r["loop_us"] for r in rows) / max(1, len(rows))
+        process_us = sum(r["process_us"] for r in rows) / max(1, len(rows))
         cores = {role: sum(c1[p.pid] - c0[p.pid] for p in ps) / (w1 - w0) for role, ps in procs.items()}
         if a.mode == "lockstep":
             head = f"N = {a.robots}, lock-step{' waiting for states' if a.wait else ''}, {a.transport}, {a.layout}, " \
@@ -291,7 +294,7 @@ def main() -> None:
         per_what = "tick" if a.mode == "lockstep" else "period"
         print(head +
               f"{sum(per) / max(1, len(per)):.1f} states per robot per {per_what}; a robot's loop thread {loop_us:.0f} us "
-              f"of CPU per {per_what} (work included); CPU [cores]: "
+              f"of CPU per {per_what} (work included), the whole robot process {process_us:.0f} us; CPU [cores]: "
               + ", ".join(f"{k} {v:.2f}" for k, v in cores.items()) + f" (robot {100 * cores['robot'] / a.robots:.1f} % each)")
     finally:
         watchdog.cancel()

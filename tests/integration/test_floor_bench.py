@@ -23,6 +23,8 @@ def test_floor_bench_measures_and_cleans_up(mode, figure):
     assert out.returncode == 0, out.stderr
     assert re.search(figure, out.stdout), out.stdout
     assert re.search(r"robot [\d.]+ % each", out.stdout), out.stdout
+    loop, process = map(float, re.search(r"loop thread (\d+) us .* the whole robot process (\d+) us", out.stdout).groups())
+    assert 0 < loop <= process, out.stdout  # the loop thread is part of its process
     if "--wait" in mode:  # 5 robots in formation share cells: each waited for some states every tick
         assert float(re.search(r"([\d.]+) states per robot", out.stdout).group(1)) > 1.0, out.stdout
     left = [p for p in psutil.process_iter(["pid", "cmdline"])
