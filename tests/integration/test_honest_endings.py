@@ -119,7 +119,10 @@ def test_misses_and_a_lost_robot_show_in_the_summary_and_exit_3(tmp_path):
         victim = _child(proc, "robot", 1)
         victim.send_signal(signal.SIGSTOP)  # hung: misses, then its token lapses (1 s lease)
         time.sleep(2.0)  # the fault under test is the length of the hang
-        victim.send_signal(signal.SIGCONT)
+        try:
+            victim.send_signal(signal.SIGCONT)
+        except psutil.NoSuchProcess:  # a fast machine ended the run meanwhile (the hung robot lost, the rest on):
+            pass  # swarm up then SIGKILLed the stopped process after its grace, as it must
         out, err = proc.communicate(timeout=180)
     finally:
         if proc.poll() is None:
