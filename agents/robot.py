@@ -1211,13 +1211,11 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                 if guard is not None:
                     guard.start(lambda: agent.sim_time(clock.time()))
                 p0 = time.process_time()
-                try:
-                    if cfg.lockstep:
-                        _loop_lockstep(agent, stop)
-                    else:
-                        _loop_realtime(agent, stop, clock.time)
-                finally:
-                    agent.process_cpu_s = time.process_time() - p0
+                if cfg.lockstep:
+                    _loop_lockstep(agent, stop)
+                else:
+                    _loop_realtime(agent, stop, clock.time)
+                agent.process_cpu_s = time.process_time() - p0  # read by the log line below, reached only from here
             finally:
                 if guard is not None:
                     guard.close()

@@ -98,9 +98,9 @@ LOOP_CPU = re.compile(r"loop CPU (\d+) us a tick")
 PROCESS_CPU = re.compile(r"process CPU (\d+) us a tick")
 
 
-def loop_us(log_dir: Path, figure: re.Pattern = LOOP_CPU) -> float:
-    """Mean over the robots of their loop thread's CPU per tick (or with PROCESS_CPU, their whole process's), as
-    each robot logs it at exit."""
+def logged_us(log_dir: Path, figure: re.Pattern) -> float:
+    """Mean over the robots of a CPU figure per tick each logs at exit: LOOP_CPU (its loop thread's) or
+    PROCESS_CPU (its whole process's)."""
     found = [float(m.group(1)) for f in log_dir.glob("robot-*.log") for m in figure.finditer(f.read_text())]
     return sum(found) / len(found) if found else float("nan")
 
@@ -182,8 +182,8 @@ def main() -> None:
             stolen = math.nan if stolen is None else stolen
             row = [ls["launch_s"], ls["steps"] / ls["run_wall_s"], rt.get("round_trip_ms_median", float("nan")),
                    rt.get("round_trip_ms_p99", float("nan")), res["cpu_pct"], res["rss_mean"], res["rss_max"],
-                   loop_us(out / f"r{r}" / f"logs-realtime-{n}"),
-                   loop_us(out / f"r{r}" / f"logs-realtime-{n}", PROCESS_CPU)]
+                   logged_us(out / f"r{r}" / f"logs-realtime-{n}", LOOP_CPU),
+                   logged_us(out / f"r{r}" / f"logs-realtime-{n}", PROCESS_CPU)]
             if a.floor:
                 f = floor(n, a.duration)
                 row += [f["ticks"], f["wait_ticks"], f["median"], f["p99"], f["loop"], f["process"]]
