@@ -18,7 +18,7 @@ import threading
 
 from swarm.proto import keys, protocol, window
 from swarm.core import kinematics
-from swarm.core.clock import WALL
+from swarm.core.clock import WALL, anchor as anchor_clock, said_step
 from swarm.proto.protocol import ProtocolError, Ref
 
 log = logging.getLogger("swarm.leader")
@@ -85,6 +85,7 @@ class Leader:
                 self.publish(self.next_seq * self.dt, self.next_seq)
                 self.next_seq += 1
         elif c.epoch > 0 and self.epoch is None:  # the run's epoch, once (a new run is a new leader)
+            anchor_clock(self.clock)  # take up a step of the system clock made before this run
             self.epoch, self.speed = c.epoch, c.speed
 
     def run(self, stop: threading.Event) -> None:
@@ -153,6 +154,8 @@ def run_leader(bus, clock, scn, fleet: str = "default", lockstep: bool | None = 
             finally:
                 lead.close()
                 current.clear()
+            if not mode:
+                said_step(clock, log, "leader", run.run)
             b = lead.bad
             log.info("leader: run %s %s: %d references sent; clock messages refused %d, stale %d, duplicated %d",
                      run.run, "ended" if lead.ended else "stopped", lead.sent, b.count, b.stale, b.duplicates)

@@ -52,7 +52,7 @@ import time
 from swarm.proto import keys, protocol
 from swarm.core import fastlaw, kinematics, law
 from swarm.core import runid
-from swarm.core.clock import WALL
+from swarm.core.clock import WALL, anchor as anchor_clock, said_step
 from swarm.launch.child import settle_heap
 from agents.follow import NoAnswer, RunFollower, check_run, query_until  # noqa: F401  (NoAnswer: for callers)
 from agents.guard import REF_TIMEOUT_S, Guard, arena_of
@@ -1186,6 +1186,7 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
             if cfg.lockstep and make_drive is not None:
                 make_drive(cfg, lambda: None)  # raises DriveRefused: a real drive has no ticks
             if not cfg.lockstep:
+                anchor_clock(clock)  # take up a step of the system clock made before this run
                 if faults:  # real time under faults: what this robot receives goes through the fault model
                     fbus, floor = _fault_bus(bus, faults, cfg, fleet, clock, box)
                     rbus = fbus
@@ -1216,6 +1217,8 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                 else:
                     _loop_realtime(agent, stop, clock.time)
                 agent.process_cpu_s = time.process_time() - p0  # read by the log line below, reached only from here
+                if not cfg.lockstep:
+                    said_step(clock, log, f"robot {robot_id}", run.run)
             finally:
                 if guard is not None:
                     guard.close()

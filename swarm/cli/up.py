@@ -18,6 +18,7 @@ from swarm.cli.common import (EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, Stop
                               record_rate, scenario_args, viz_options, write_json)
 from swarm.cli import console
 from swarm.cli.console import cpu_counters, exit_status, progress_line, steal_pct, summary
+from swarm.core.clock import WALL, anchor as anchor_clock
 from swarm.core.metrics import violations
 from swarm.launch.plan import DEFAULT_LISTEN, RestartPolicy, UpOptions, VizOptions, make_plan
 from swarm.launch.child import die_with_parent
@@ -321,14 +322,15 @@ class FaultActor:
             c = protocol.decode(data, "clock")
         except protocol.ProtocolError:
             return
-        if c.epoch > 0:
+        if c.epoch > 0 and self.epoch is None:
+            anchor_clock(WALL)  # take up a step of the system clock made before this run
             self.epoch = (c.epoch, c.speed)
 
     def now(self, last) -> float | None:
         """Lock-step: the world's tick; real time: the simulated time now (None before the world's clock)."""
         if self.lockstep:
             return None if last is None else last.seq
-        return None if self.epoch is None else (time.time() - self.epoch[0]) * self.epoch[1]
+        return None if self.epoch is None else (WALL.time() - self.epoch[0]) * self.epoch[1]
 
     def act(self, last) -> None:
         if not self.pf:
@@ -357,7 +359,7 @@ class FaultActor:
         if self.lockstep or nxt is None or self.epoch is None:
             return longest
         at = self.epoch[0] + nxt / self.epoch[1]
-        return max(0.0, min(longest, at - time.time()))
+        return max(0.0, min(longest, at - WALL.time()))
 
 
 LOG_PREFIX = "swarm-"  # swarm up's default log folders: <temp dir>/swarm-<fleet>-<pid>

@@ -1,7 +1,7 @@
 """The ROS 2 drive: a swarm agent moves a ROS 2 robot (a TurtleBot3, say) over zenoh (docs/ros2.md).
 
     drive = Ros2Drive(bus, namespace="robot1", flavor="rmw_zenoh", twist="plain", domain=0,
-                      initial_pose=(x0, y0, theta0), now=lambda: agent.sim_time(time.time()))
+                      initial_pose=(x0, y0, theta0), now=lambda: agent.sim_time(clock.time()))
     drive.start()          # rmw_zenoh: find the robot's cmd_vel subscriber and odom publisher (DiscoveryError)
     poses = drive.wait()   # swarm.proto.protocol.Pose in the swarm's frame, t = now() at receipt
     drive.send(cmd)        # geometry_msgs Twist or TwistStamped on cmd_vel (reliable: congestion control BLOCK)

@@ -3,6 +3,7 @@ the watchdog, round trips, bad commands."""
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
@@ -109,3 +110,37 @@ def test_after_a_stall_the_realtime_world_skips_late_slots_instead_of_bursting(w
     assert all(c.seq == math.floor(c.t / period + 1e-9) for c in clocks[1:])
     seqs = [c.seq for c in clocks[1:]]
     assert seqs == sorted(set(seqs)) and max(b - a for a, b in zip(seqs, seqs[1:])) >= 5
+
+
+def test_a_step_of_the_system_clock_mid_run_neither_jumps_nor_ends_the_run(write_scenario, caplog):
+    """The system clock steps 30 s forward a third of the way through (a paused VM resumed, an NTP
+    step): the world's time goes on from the monotonic clock, every period is served, and the run's
+    end says the step happened."""
+    from swarm.core.clock import WallClock
+
+    scn = scenario_file.load(write_scenario(doc()))
+    net = MemoryNet()
+    t_step = time.monotonic() + 0.3 + 0.2  # the world's 0.2 s lead, then a third of the 0.5 s run
+
+    def system() -> float:
+        return time.time() + (30.0 if time.monotonic() > t_step else 0.0)
+
+    world = World(MemoryBus(net), scn, F, lockstep=False, speed=2.0, clock=WallClock(system=system))
+    world.start()
+    drive = MemoryBus(net)
+    poses: list[protocol.Pose] = []
+    drive.subscribe(keys.robot_pose(F, 0), lambda k, b: poses.append(protocol.decode(b, "pose")))
+    started = time.monotonic()
+    try:
+        with caplog.at_level(logging.WARNING, logger="swarm.world"):
+            metrics = world.run(threading.Event())
+    finally:
+        world.close()
+        drive.close()
+    assert time.monotonic() > t_step  # the step happened during the run
+    assert time.monotonic() - started >= 0.45  # the run lasted its 1 s of simulated time at speed 2
+    assert metrics["steps"] == 50 and metrics["failure"] is None
+    ts = [p.t for p in poses]
+    assert max(b - a for a, b in zip(ts, ts[1:])) < 0.2  # no 60 s jump: one pose a period (or a few late)
+    assert ts[-1] == pytest.approx(1.0, abs=0.05)
+    assert any("the system clock stepped by +30." in r.getMessage() for r in caplog.records), caplog.text
