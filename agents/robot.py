@@ -648,6 +648,7 @@ class Agent:
             return
         self.clock_seq = max(self.clock_seq, c.seq)
         if c.epoch > 0 and self.epoch is None:  # real time: the run's epoch, once (a new run is a new agent)
+            anchor_clock(self.clock)  # take up a step of the system clock made before this run
             self.epoch, self.speed = c.epoch, c.speed
 
     def _on_state(self, s: State, key: str = "") -> None:
@@ -1186,7 +1187,6 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
             if cfg.lockstep and make_drive is not None:
                 make_drive(cfg, lambda: None)  # raises DriveRefused: a real drive has no ticks
             if not cfg.lockstep:
-                anchor_clock(clock)  # take up a step of the system clock made before this run
                 if faults:  # real time under faults: what this robot receives goes through the fault model
                     fbus, floor = _fault_bus(bus, faults, cfg, fleet, clock, box)
                     rbus = fbus
