@@ -768,15 +768,19 @@ class Agent:
                 px, py, _ = view.previous(k)
             else:
                 px, py = self.prev_xy if self.prev_xy is not None else (pose.x, pose.y)
-            self.waiting = set()
             dead = self.dead
             reach2 = self._wait_reach * self._wait_reach
-            for j in [j for j, nb in self.table.items() if nb.seq < k - 1 and j not in dead]:
-                del self.table[j]  # never used again (bounded state): a live robot counts only with state_k or state_(k-1)
-            for j, nb in self.table.items():
-                if nb.seq == k - 1 and j not in dead and (px - nb.x) ** 2 + (py - nb.y) ** 2 < reach2 and \
-                        (view is None or view.other_active(j, k)):  # under faults: nobody waits for a stopped robot
-                    self.waiting.add(j)
+            wire = protocol._wire if view is None else None
+            if wire is not None:  # the two loops below, compiled (swarm/proto/_wire.c)
+                self.waiting = wire.wait_for(self.table, dead, k, px, py, reach2)
+            else:
+                self.waiting = set()
+                for j in [j for j, nb in self.table.items() if nb.seq < k - 1 and j not in dead]:
+                    del self.table[j]  # never used again (bounded state): a live robot counts only with state_k or state_(k-1)
+                for j, nb in self.table.items():
+                    if nb.seq == k - 1 and j not in dead and (px - nb.x) * (px - nb.x) + (py - nb.y) * (py - nb.y) < \
+                            reach2 and (view is None or view.other_active(j, k)):  # under faults: nobody waits for a stopped robot
+                        self.waiting.add(j)
             if view is not None and view.event is not None:
                 # it returns at k (restarted or resumed): it knows nobody's state of k - 1, so it waits for
                 # every robot running at k (heard in every cell: _listen_all), but those already here
@@ -825,9 +829,12 @@ class Agent:
         dead_near = []
         mono = None if seq is not None else self.clock.monotonic()
         offer2 = self._offer_r * self._offer_r
-        wire = protocol._wire if seq is None else None
+        wire = protocol._wire
         ids = sorted(table) if wire is None else ()
-        if wire is not None:  # real time: the loop below over ids, compiled (swarm/proto/_wire.c)
+        if wire is not None and seq is not None:  # lock-step: the loop below over ids, compiled (swarm/proto/_wire.c)
+            nx, ny, nr, nR, nk, na, robots, stale, oldest, dead_near = wire.lock_bodies(
+                table, dead, waiting, seq, x, y, r2, law.KIND_ROBOT)
+        elif wire is not None:  # real time: the same, compiled
             nx, ny, nr, nR, nk, na, robots, stale, oldest, dead_near = wire.live_bodies(
                 table, dead, away, unconfirmed, rx, speed, mono, x, y, offer2, r2, STALE_AFTER_S, law.KIND_ROBOT,
                 self._unconfirmed_away)

@@ -1318,6 +1318,160 @@ static PyTypeObject StateSinkType = {
     .tp_new = StateSink_new,
 };
 
+/* lock_bodies(table, dead, waiting, seq, x, y, r2, kind): lock-step, agents.robot.Agent.bodies()'s loop over
+ * its table, robots in ascending id: a dead one goes to the dead list; a live one counts with its state of tick
+ * seq, or, when it was awaited (waiting) and did not come, its last one (stale); closer than r2 (squared) it is a
+ * body, of age 0. The same float operations in the same order as the Python (lock-step parity with swarm sim).
+ * Returns (nx, ny, nr, nR, nk, na, robots, stale, 0.0, dead). */
+static PyObject *wire_lock_bodies(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 8) {
+        PyErr_SetString(PyExc_TypeError, "lock_bodies(table, dead, waiting, seq, x, y, r2, kind)");
+        return NULL;
+    }
+    PyObject *table = args[0], *dead = args[1], *waiting = args[2], *kind = args[7];
+    if (!PyDict_Check(table) || !PyAnySet_Check(dead) || !PyAnySet_Check(waiting) || !PyLong_CheckExact(args[3])) {
+        PyErr_SetString(PyExc_TypeError, "lock_bodies: table a dict; dead, waiting sets; seq an int");
+        return NULL;
+    }
+    long long seq = PyLong_AsLongLong(args[3]);
+    if (seq == -1 && PyErr_Occurred())
+        return NULL;
+    double v[3];
+    for (int i = 0; i < 3; i++) {
+        v[i] = PyFloat_AsDouble(args[4 + i]);
+        if (v[i] == -1.0 && PyErr_Occurred())
+            return NULL;
+    }
+    double x = v[0], y = v[1], r2 = v[2];
+    PyObject *ids = PyDict_Keys(table), *out[6] = {NULL}, *dead_near = PyList_New(0), *result = NULL;
+    if (ids == NULL || dead_near == NULL || PyList_Sort(ids) < 0)
+        goto done;
+    for (int i = 0; i < 6; i++)
+        if ((out[i] = PyList_New(0)) == NULL)
+            goto done;
+    Py_ssize_t robots = 0, stale = 0;
+    for (Py_ssize_t i = 0; i < PyList_GET_SIZE(ids); i++) {
+        PyObject *j = PyList_GET_ITEM(ids, i), *nb = PyDict_GetItemWithError(table, j); /* borrowed */
+        if (nb == NULL) {
+            if (!PyErr_Occurred())
+                PyErr_SetString(PyExc_RuntimeError, "lock_bodies: the table changed under it");
+            goto done;
+        }
+        int c = PySet_Contains(dead, j);
+        if (c < 0)
+            goto done;
+        if (c) {
+            if (PyList_Append(dead_near, nb) < 0)
+                goto done;
+            continue;
+        }
+        long long nseq;
+        int got = attr_ll(nb, s_seq, &nseq);
+        if (got < 0)
+            goto done;
+        if (got == 0) {
+            PyErr_SetString(PyExc_TypeError, "lock_bodies: a state's seq is not an int");
+            goto done;
+        }
+        int is_stale = nseq != seq;
+        if (is_stale) {
+            if ((c = PySet_Contains(waiting, j)) < 0)
+                goto done;
+            if (!c)
+                continue;
+        }
+        double bx, by, br, bR;
+        if (attr_double(nb, s_x, &bx) < 0 || attr_double(nb, s_y, &by) < 0)
+            goto done;
+        double dx = x - bx, dy = y - by;
+        if (dx * dx + dy * dy < r2) {
+            if (attr_double(nb, s_r, &br) < 0 || attr_double(nb, s_R, &bR) < 0 || append_double(out[0], bx) < 0 ||
+                append_double(out[1], by) < 0 || append_double(out[2], br) < 0 || append_double(out[3], bR) < 0 ||
+                PyList_Append(out[4], kind) < 0 || append_double(out[5], 0.0) < 0)
+                goto done;
+            robots += 1;
+            stale += is_stale;
+        }
+    }
+    result = Py_BuildValue("(OOOOOOnndO)", out[0], out[1], out[2], out[3], out[4], out[5], robots, stale, 0.0,
+                           dead_near);
+done:
+    Py_XDECREF(ids);
+    Py_XDECREF(dead_near);
+    for (int i = 0; i < 6; i++)
+        Py_XDECREF(out[i]);
+    return result;
+}
+
+/* wait_for(table, dead, k, px, py, reach2): lock-step, no faults: agents.robot.Agent._start_tick's pass over its
+ * table as tick k starts. A live robot's state older than k - 1 is never used again: deleted from the table. A
+ * live robot whose state of k - 1 put it closer than reach2 (squared) to this robot's previous position is
+ * waited for. Returns the set of those. */
+static PyObject *wire_wait_for(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 6) {
+        PyErr_SetString(PyExc_TypeError, "wait_for(table, dead, k, px, py, reach2)");
+        return NULL;
+    }
+    PyObject *table = args[0], *dead = args[1];
+    if (!PyDict_Check(table) || !PyAnySet_Check(dead) || !PyLong_CheckExact(args[2])) {
+        PyErr_SetString(PyExc_TypeError, "wait_for: table a dict, dead a set, k an int");
+        return NULL;
+    }
+    long long k = PyLong_AsLongLong(args[2]);
+    if (k == -1 && PyErr_Occurred())
+        return NULL;
+    double v[3];
+    for (int i = 0; i < 3; i++) {
+        v[i] = PyFloat_AsDouble(args[3 + i]);
+        if (v[i] == -1.0 && PyErr_Occurred())
+            return NULL;
+    }
+    double px = v[0], py = v[1], reach2 = v[2];
+    PyObject *ids = PyDict_Keys(table), *waiting = PySet_New(NULL), *result = NULL;
+    if (ids == NULL || waiting == NULL)
+        goto done;
+    for (Py_ssize_t i = 0; i < PyList_GET_SIZE(ids); i++) {
+        PyObject *j = PyList_GET_ITEM(ids, i), *nb = PyDict_GetItemWithError(table, j); /* borrowed */
+        if (nb == NULL) {
+            if (!PyErr_Occurred())
+                PyErr_SetString(PyExc_RuntimeError, "wait_for: the table changed under it");
+            goto done;
+        }
+        int c = PySet_Contains(dead, j);
+        if (c < 0)
+            goto done;
+        if (c)
+            continue;
+        long long nseq;
+        int got = attr_ll(nb, s_seq, &nseq);
+        if (got < 0)
+            goto done;
+        if (got == 0) {
+            PyErr_SetString(PyExc_TypeError, "wait_for: a state's seq is not an int");
+            goto done;
+        }
+        if (nseq < k - 1) {
+            if (PyDict_DelItem(table, j) < 0)
+                goto done;
+            continue;
+        }
+        if (nseq != k - 1)
+            continue;
+        double bx, by;
+        if (attr_double(nb, s_x, &bx) < 0 || attr_double(nb, s_y, &by) < 0)
+            goto done;
+        double dx = px - bx, dy = py - by;
+        if (dx * dx + dy * dy < reach2 && PySet_Add(waiting, j) < 0)
+            goto done;
+    }
+    result = waiting;
+    waiting = NULL;
+done:
+    Py_XDECREF(ids);
+    Py_XDECREF(waiting);
+    return result;
+}
+
 static PyMethodDef wire_methods[] = {
     {"pin_thread", wire_pin_thread, METH_NOARGS,
      "pin_thread(): keep this thread's Python thread state (a callback on zenoh's thread: see swarm.net.bus)"},
@@ -1329,6 +1483,10 @@ static PyMethodDef wire_methods[] = {
      "take_states(states, me, ahead, now, mono, windows, table, rx, away, unconfirmed, slow): take a batch of states"},
     {"live_bodies", (PyCFunction)(void (*)(void))wire_live_bodies, METH_FASTCALL,
      "live_bodies(table, dead, away, unconfirmed, rx, speed, mono, x, y, offer2, r2, stale_after, kind, expired)"},
+    {"lock_bodies", (PyCFunction)(void (*)(void))wire_lock_bodies, METH_FASTCALL,
+     "lock_bodies(table, dead, waiting, seq, x, y, r2, kind): lock-step bodies() over the table"},
+    {"wait_for", (PyCFunction)(void (*)(void))wire_wait_for, METH_FASTCALL,
+     "wait_for(table, dead, k, px, py, reach2): lock-step, the robots tick k waits for (older states deleted)"},
     {NULL, NULL, 0, NULL},
 };
 

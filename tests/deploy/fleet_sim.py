@@ -23,6 +23,7 @@ import argparse
 import heapq
 import json
 import math
+import os
 import signal
 import sys
 import threading
@@ -32,7 +33,7 @@ import numpy as np
 
 from swarm.core import inventory, kinematics, scenario_file
 from swarm.core.scenario_file import Overrides
-from swarm.net.bus import ZenohBus, zenoh_config
+from swarm.net.bus import ROUTER_RUNTIME, ZenohBus, zenoh_config
 from world.ros2_fleet import Ros2Fleet
 
 STALE_HZ = 0.4
@@ -61,6 +62,7 @@ def main(argv=None) -> int:
     stop = threading.Event()
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, lambda *_: stop.set())
+    os.environ.setdefault("ZENOH_RUNTIME", ROUTER_RUNTIME)  # as `swarm router`: a lingering link blocks no receiving
     bus = ZenohBus(zenoh_config("router", listen=[a.listen]))
     names = {e.id: e.namespace for e in entries}
     ros = Ros2Fleet(bus, [tuple(map(float, q)) for q in fleet.scenario.poses], flavor, twist, domain,
@@ -68,12 +70,13 @@ def main(argv=None) -> int:
     ros.start()
     try:
         truth = run(ros, fleet, a, stop)
+        if a.truth:  # before closing: a close can take zenoh's 10 s link linger (tests/deploy/test_fleet_processes.py)
+            with open(a.truth, "w") as f:
+                json.dump(truth, f)
+            print(f"fleet_sim: the ground truth is in {a.truth}; closing", file=sys.stderr, flush=True)
     finally:
         ros.close()
         bus.close()
-    if a.truth:
-        with open(a.truth, "w") as f:
-            json.dump(truth, f)
     return 0
 
 

@@ -376,6 +376,89 @@ def test_the_compiled_bodies_are_the_python_ones(seed):
     assert results[0] == results[1]
 
 
+
+@pytest.mark.skipif(protocol._wire is None, reason="the compiled codec is not built here (no C compiler)")
+def test_the_compiled_lockstep_bodies_are_the_python_ones():
+    """Lock-step: bodies() over a table of live robots with this tick's state, awaited ones with an older
+    state (stale), unawaited ones with an older state (left out) and dead ones, near and far, with obstacles:
+    the same bodies in the same order, bit for bit, and the same counts, whether the compiled loop
+    (swarm/proto/_wire.c, lock_bodies) or Python runs; 40 seeded tables."""
+    import random
+
+    k, seen = 50, {"fresh": 0, "stale": 0, "static": 0}
+    for seed in range(40):
+        rng = random.Random(seed)
+        results = []
+        for wire in (protocol._wire, None):
+            rng.seed(seed)
+            agent = robot.Agent(MemoryBus(MemoryNet()), CFG, F)
+            agent.start([protocol.Obstacle(rng.uniform(-2, 2), rng.uniform(-2, 2), 0.3, 1.0) for _ in range(3)])
+            for j in rng.sample(range(16), 12):
+                if j == CFG.id:
+                    continue
+                agent.table[j] = State(id=j, t=1.0, seq=rng.choice([k, k, k - 1]), x=rng.uniform(-3, 3),
+                                       y=rng.uniform(-3, 3), theta=0.0, r=0.3, R=rng.choice([1.0, 1.2]), frozen=False)
+                u = rng.random()
+                if u < 0.15:
+                    agent.dead.add(j)
+                elif u < 0.5:
+                    agent.waiting.add(j)
+            saved, protocol._wire = protocol._wire, wire
+            try:
+                with agent.lock:
+                    got = agent.bodies(rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), k)
+            finally:
+                protocol._wire = saved
+            results.append((got, agent.oldest_state_s))
+            agent.close()
+        (a, _), (b, _) = results
+        assert [x.hex() for x in a[0] + a[1] + a[5]] == [x.hex() for x in b[0] + b[1] + b[5]], seed
+        assert results[0] == results[1], seed
+        robots, stale = a[6], a[7]
+        seen["fresh"] += robots - stale
+        seen["stale"] += stale
+        seen["static"] += len(a[0]) - robots
+    assert min(seen.values()) > 0, seen  # every kind of body was compared
+
+
+@pytest.mark.skipif(protocol._wire is None, reason="the compiled codec is not built here (no C compiler)")
+def test_the_compiled_wait_set_is_the_python_one():
+    """Lock-step, as a tick starts: the robots it waits for (live, with a state of the tick before, near where
+    it was) and the states it forgets (live ones older than that), whether the compiled pass
+    (swarm/proto/_wire.c, wait_for) or Python runs; 40 seeded tables."""
+    import random
+
+    k, seen = 50, {"waited": 0, "forgotten": 0, "kept": 0}
+    for seed in range(40):
+        rng = random.Random(seed)
+        results = []
+        for wire in (protocol._wire, None):
+            rng.seed(seed)
+            agent = robot.Agent(MemoryBus(MemoryNet()), CFG, F)
+            agent.start([])
+            agent.prev_xy = (rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5))
+            for j in rng.sample(range(16), 12):
+                if j == CFG.id:
+                    continue
+                agent.table[j] = State(id=j, t=1.0, seq=rng.choice([k - 3, k - 2, k - 1, k - 1, k]),
+                                       x=rng.uniform(-4, 4), y=rng.uniform(-4, 4), theta=0.0, r=0.3, R=1.0, frozen=False)
+                if rng.random() < 0.15:
+                    agent.dead.add(j)
+            before = set(agent.table)
+            saved, protocol._wire = protocol._wire, wire
+            try:
+                agent._start_tick(protocol.Pose(t=k * CFG.dt, seq=k, x=0.0, y=0.0, theta=0.0))
+            finally:
+                protocol._wire = saved
+            results.append((set(agent.waiting), set(agent.table), before))
+            agent.close()
+        assert results[0] == results[1], seed
+        waiting, table, before = results[0]
+        seen["waited"] += len(waiting)
+        seen["forgotten"] += len(before - table)
+        seen["kept"] += len(table - waiting)
+    assert min(seen.values()) > 0, seen  # every outcome was compared
+
 def _lockstep_run(sink: bool, seed: int) -> tuple:
     """A lock-step agent fed 12 ticks of hostile neighbour traffic (seeded) through its bus: the compiled sink
     (swarm/proto/_wire.c, StateSink) or, with the sink taken away before start(), _on_state_msg. What it ends
