@@ -836,6 +836,91 @@ static int append_double(PyObject *list, double v) {
     return rc;
 }
 
+/* An int attribute as a long long: 1, 0 when it is not an int that fits (the common case does not hold), -1. */
+static int attr_ll(PyObject *o, PyObject *name, long long *out) {
+    PyObject *v = PyObject_GetAttr(o, name);
+    if (v == NULL)
+        return -1;
+    int ok = 0;
+    if (PyLong_CheckExact(v)) {
+        int overflow;
+        *out = PyLong_AsLongLongAndOverflow(v, &overflow);
+        if (*out == -1 && PyErr_Occurred()) {
+            Py_DECREF(v);
+            return -1;
+        }
+        ok = !overflow;
+    }
+    Py_DECREF(v);
+    return ok;
+}
+
+/* The passes over a robot's table (its neighbours' newest states, by id) below share these. */
+
+/* n float arguments into v; -1 with the error set if one is not a number. */
+static int float_args(PyObject *const *args, int n, double *v) {
+    for (int i = 0; i < n; i++) {
+        v[i] = PyFloat_AsDouble(args[i]);
+        if (v[i] == -1.0 && PyErr_Occurred())
+            return -1;
+    }
+    return 0;
+}
+
+/* Robot j's state in the table (*nb, borrowed), and whether j is dead: 1 dead (appended to dead_near if that is
+ * not NULL), 0 live, -1 on an error (who names the pass). */
+static int table_entry(PyObject *table, PyObject *dead, PyObject *dead_near, PyObject *j, PyObject **nb,
+                       const char *who) {
+    *nb = PyDict_GetItemWithError(table, j);
+    if (*nb == NULL) {
+        if (!PyErr_Occurred())
+            PyErr_Format(PyExc_RuntimeError, "%s: the table changed under it", who);
+        return -1;
+    }
+    int c = PySet_Contains(dead, j);
+    if (c > 0 && dead_near != NULL && PyList_Append(dead_near, *nb) < 0)
+        return -1;
+    return c;
+}
+
+/* A state's seq; -1 with the error set if it is not an int that fits. */
+static int state_seq(PyObject *nb, long long *seq, const char *who) {
+    int got = attr_ll(nb, s_seq, seq);
+    if (got == 0)
+        PyErr_Format(PyExc_TypeError, "%s: a state's seq is not an int", who);
+    return got > 0 ? 0 : -1;
+}
+
+/* bodies()'s six lists (nx, ny, nr, nR, nk, na), the dead ones near and the table's ids in ascending order
+ * (new references); -1 with the error set (whatever was made is released by bodies_free). */
+static int bodies_new(PyObject *table, PyObject **ids, PyObject **out, PyObject **dead_near) {
+    *ids = PyDict_Keys(table);
+    *dead_near = PyList_New(0);
+    if (*ids == NULL || *dead_near == NULL || PyList_Sort(*ids) < 0)
+        return -1;
+    for (int i = 0; i < 6; i++)
+        if ((out[i] = PyList_New(0)) == NULL)
+            return -1;
+    return 0;
+}
+
+static void bodies_free(PyObject *ids, PyObject **out, PyObject *dead_near) {
+    Py_XDECREF(ids);
+    Py_XDECREF(dead_near);
+    for (int i = 0; i < 6; i++)
+        Py_XDECREF(out[i]);
+}
+
+/* A robot's body (its state nb at bx, by) appended to bodies()'s lists, with its kind and age. */
+static int append_body(PyObject **out, PyObject *nb, double bx, double by, PyObject *kind, double age) {
+    double br, bR;
+    if (attr_double(nb, s_r, &br) < 0 || attr_double(nb, s_R, &bR) < 0 || append_double(out[0], bx) < 0 ||
+        append_double(out[1], by) < 0 || append_double(out[2], br) < 0 || append_double(out[3], bR) < 0 ||
+        PyList_Append(out[4], kind) < 0 || append_double(out[5], age) < 0)
+        return -1;
+    return 0;
+}
+
 /* live_bodies(table, dead, away, unconfirmed, rx, speed, mono, x, y, offer2, r2, stale_after, kind, expired):
  * real time, agents.robot.Agent.bodies()'s loop over its table, robots in ascending id: a dead one goes to
  * the dead list; one away is left out; one unconfirmed past its deadline becomes away (expired(j) says so);
@@ -851,40 +936,26 @@ static PyObject *wire_live_bodies(PyObject *module, PyObject *const *args, Py_ss
     PyObject *table = args[0], *dead = args[1], *away = args[2], *unconfirmed = args[3], *rx = args[4];
     PyObject *kind = args[12], *expired = args[13];
     double v[7];
-    for (int i = 0; i < 7; i++) {
-        v[i] = PyFloat_AsDouble(args[5 + i]);
-        if (v[i] == -1.0 && PyErr_Occurred())
-            return NULL;
-    }
+    if (float_args(args + 5, 7, v) < 0)
+        return NULL;
     double speed = v[0], mono = v[1], x = v[2], y = v[3], offer2 = v[4], r2 = v[5], stale_after = v[6];
     if (!PyDict_Check(table) || !PyAnySet_Check(dead) || !PySet_Check(away) || !PyDict_Check(unconfirmed) ||
         !PyDict_Check(rx)) {
         PyErr_SetString(PyExc_TypeError, "live_bodies: table, unconfirmed, rx dicts; dead, away sets");
         return NULL;
     }
-    PyObject *ids = PyDict_Keys(table), *out[6] = {NULL}, *dead_near = PyList_New(0), *result = NULL;
-    if (ids == NULL || dead_near == NULL || PyList_Sort(ids) < 0)
+    PyObject *ids = NULL, *out[6] = {NULL}, *dead_near = NULL, *result = NULL;
+    if (bodies_new(table, &ids, out, &dead_near) < 0)
         goto done;
-    for (int i = 0; i < 6; i++)
-        if ((out[i] = PyList_New(0)) == NULL)
-            goto done;
     Py_ssize_t robots = 0, stale = 0;
     double oldest = 0.0;
     for (Py_ssize_t i = 0; i < PyList_GET_SIZE(ids); i++) {
-        PyObject *j = PyList_GET_ITEM(ids, i), *nb = PyDict_GetItemWithError(table, j); /* borrowed */
-        if (nb == NULL) {
-            if (!PyErr_Occurred())
-                PyErr_SetString(PyExc_RuntimeError, "live_bodies: the table changed under it");
-            goto done;
-        }
-        int c = PySet_Contains(dead, j);
+        PyObject *j = PyList_GET_ITEM(ids, i), *nb;
+        int c = table_entry(table, dead, dead_near, j, &nb, "live_bodies");
         if (c < 0)
             goto done;
-        if (c) {
-            if (PyList_Append(dead_near, nb) < 0)
-                goto done;
+        if (c)
             continue;
-        }
         if ((c = PySet_Contains(away, j)) < 0)
             goto done;
         if (c)
@@ -909,7 +980,7 @@ static PyObject *wire_live_bodies(PyObject *module, PyObject *const *args, Py_ss
                 continue;
             }
         }
-        double bx, by, br, bR;
+        double bx, by;
         if (attr_double(nb, s_x, &bx) < 0 || attr_double(nb, s_y, &by) < 0)
             goto done;
         double dx = x - bx, dy = y - by;
@@ -937,9 +1008,7 @@ static PyObject *wire_live_bodies(PyObject *module, PyObject *const *args, Py_ss
         double age = a0 + (mono > m0 ? mono - m0 : 0.0) * speed;
         int is_stale = age > stale_after;
         if (dx * dx + dy * dy < r2) {
-            if (attr_double(nb, s_r, &br) < 0 || attr_double(nb, s_R, &bR) < 0 || append_double(out[0], bx) < 0 ||
-                append_double(out[1], by) < 0 || append_double(out[2], br) < 0 || append_double(out[3], bR) < 0 ||
-                PyList_Append(out[4], kind) < 0 || append_double(out[5], age) < 0)
+            if (append_body(out, nb, bx, by, kind, age) < 0)
                 goto done;
             robots += 1;
             stale += is_stale;
@@ -950,10 +1019,120 @@ static PyObject *wire_live_bodies(PyObject *module, PyObject *const *args, Py_ss
     result = Py_BuildValue("(OOOOOOnndO)", out[0], out[1], out[2], out[3], out[4], out[5], robots, stale, oldest,
                            dead_near);
 done:
+    bodies_free(ids, out, dead_near);
+    return result;
+}
+
+/* lock_bodies(table, dead, waiting, seq, x, y, r2, kind): lock-step, agents.robot.Agent.bodies()'s loop over
+ * its table, robots in ascending id: a dead one goes to the dead list; a live one counts with its state of tick
+ * seq, or, when it was awaited (waiting) and did not come, its last one (stale); closer than r2 (squared) it is a
+ * body, of age 0. The same float operations in the same order as the Python (lock-step parity with swarm sim).
+ * Returns (nx, ny, nr, nR, nk, na, robots, stale, 0.0, dead). */
+static PyObject *wire_lock_bodies(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 8) {
+        PyErr_SetString(PyExc_TypeError, "lock_bodies(table, dead, waiting, seq, x, y, r2, kind)");
+        return NULL;
+    }
+    PyObject *table = args[0], *dead = args[1], *waiting = args[2], *kind = args[7];
+    if (!PyDict_Check(table) || !PyAnySet_Check(dead) || !PyAnySet_Check(waiting) || !PyLong_CheckExact(args[3])) {
+        PyErr_SetString(PyExc_TypeError, "lock_bodies: table a dict; dead, waiting sets; seq an int");
+        return NULL;
+    }
+    long long seq = PyLong_AsLongLong(args[3]);
+    double v[3];
+    if ((seq == -1 && PyErr_Occurred()) || float_args(args + 4, 3, v) < 0)
+        return NULL;
+    double x = v[0], y = v[1], r2 = v[2];
+    PyObject *ids = NULL, *out[6] = {NULL}, *dead_near = NULL, *result = NULL;
+    if (bodies_new(table, &ids, out, &dead_near) < 0)
+        goto done;
+    Py_ssize_t robots = 0, stale = 0;
+    for (Py_ssize_t i = 0; i < PyList_GET_SIZE(ids); i++) {
+        PyObject *j = PyList_GET_ITEM(ids, i), *nb;
+        int c = table_entry(table, dead, dead_near, j, &nb, "lock_bodies");
+        if (c < 0)
+            goto done;
+        if (c)
+            continue;
+        long long nseq;
+        if (state_seq(nb, &nseq, "lock_bodies") < 0)
+            goto done;
+        int is_stale = nseq != seq;
+        if (is_stale) {
+            if ((c = PySet_Contains(waiting, j)) < 0)
+                goto done;
+            if (!c)
+                continue;
+        }
+        double bx, by;
+        if (attr_double(nb, s_x, &bx) < 0 || attr_double(nb, s_y, &by) < 0)
+            goto done;
+        double dx = x - bx, dy = y - by;
+        if (dx * dx + dy * dy < r2) {
+            if (append_body(out, nb, bx, by, kind, 0.0) < 0)
+                goto done;
+            robots += 1;
+            stale += is_stale;
+        }
+    }
+    result = Py_BuildValue("(OOOOOOnndO)", out[0], out[1], out[2], out[3], out[4], out[5], robots, stale, 0.0,
+                           dead_near);
+done:
+    bodies_free(ids, out, dead_near);
+    return result;
+}
+
+/* wait_for(table, dead, k, px, py, reach2): lock-step, no faults: agents.robot.Agent._start_tick's pass over its
+ * table as tick k starts. A live robot's state older than k - 1 is never used again: deleted from the table. A
+ * live robot whose state of k - 1 put it closer than reach2 (squared) to this robot's previous position is
+ * waited for. Returns the set of those. */
+static PyObject *wire_wait_for(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 6) {
+        PyErr_SetString(PyExc_TypeError, "wait_for(table, dead, k, px, py, reach2)");
+        return NULL;
+    }
+    PyObject *table = args[0], *dead = args[1];
+    if (!PyDict_Check(table) || !PyAnySet_Check(dead) || !PyLong_CheckExact(args[2])) {
+        PyErr_SetString(PyExc_TypeError, "wait_for: table a dict, dead a set, k an int");
+        return NULL;
+    }
+    long long k = PyLong_AsLongLong(args[2]);
+    double v[3];
+    if ((k == -1 && PyErr_Occurred()) || float_args(args + 3, 3, v) < 0)
+        return NULL;
+    double px = v[0], py = v[1], reach2 = v[2];
+    PyObject *ids = PyDict_Keys(table), *waiting = PySet_New(NULL), *result = NULL;
+    if (ids == NULL || waiting == NULL)
+        goto done;
+    for (Py_ssize_t i = 0; i < PyList_GET_SIZE(ids); i++) {
+        PyObject *j = PyList_GET_ITEM(ids, i), *nb;
+        int c = table_entry(table, dead, NULL, j, &nb, "wait_for");
+        if (c < 0)
+            goto done;
+        if (c)
+            continue;
+        long long nseq;
+        if (state_seq(nb, &nseq, "wait_for") < 0)
+            goto done;
+        if (nseq < k - 1) {
+            if (PyDict_DelItem(table, j) < 0)
+                goto done;
+            continue;
+        }
+        if (nseq != k - 1)
+            continue;
+        double bx, by;
+        if (attr_double(nb, s_x, &bx) < 0 || attr_double(nb, s_y, &by) < 0)
+            goto done;
+        double dx = px - bx, dy = py - by;
+        if (dx * dx + dy * dy < reach2 && PySet_Add(waiting, j) < 0)
+            goto done;
+    }
+    result = waiting;
+    waiting = NULL;
+done:
     Py_XDECREF(ids);
-    Py_XDECREF(dead_near);
-    for (int i = 0; i < 6; i++)
-        Py_XDECREF(out[i]);
+    Py_XDECREF(waiting);
     return result;
 }
 
@@ -1032,25 +1211,6 @@ static void StateSink_dealloc(StateSink *k) {
     PyObject_GC_UnTrack(k);
     StateSink_clear(k);
     Py_TYPE(k)->tp_free((PyObject *)k);
-}
-
-/* An int attribute as a long long: 1, 0 when it is not an int that fits (the common case does not hold), -1. */
-static int attr_ll(PyObject *o, PyObject *name, long long *out) {
-    PyObject *v = PyObject_GetAttr(o, name);
-    if (v == NULL)
-        return -1;
-    int ok = 0;
-    if (PyLong_CheckExact(v)) {
-        int overflow;
-        *out = PyLong_AsLongLongAndOverflow(v, &overflow);
-        if (*out == -1 && PyErr_Occurred()) {
-            Py_DECREF(v);
-            return -1;
-        }
-        ok = !overflow;
-    }
-    Py_DECREF(v);
-    return ok;
 }
 
 /* Under the agent's lock: 1 if state st (robot j's) was taken in the common case, 0 if it is not that case
@@ -1317,160 +1477,6 @@ static PyTypeObject StateSinkType = {
     .tp_methods = StateSink_methods,
     .tp_new = StateSink_new,
 };
-
-/* lock_bodies(table, dead, waiting, seq, x, y, r2, kind): lock-step, agents.robot.Agent.bodies()'s loop over
- * its table, robots in ascending id: a dead one goes to the dead list; a live one counts with its state of tick
- * seq, or, when it was awaited (waiting) and did not come, its last one (stale); closer than r2 (squared) it is a
- * body, of age 0. The same float operations in the same order as the Python (lock-step parity with swarm sim).
- * Returns (nx, ny, nr, nR, nk, na, robots, stale, 0.0, dead). */
-static PyObject *wire_lock_bodies(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
-    if (nargs != 8) {
-        PyErr_SetString(PyExc_TypeError, "lock_bodies(table, dead, waiting, seq, x, y, r2, kind)");
-        return NULL;
-    }
-    PyObject *table = args[0], *dead = args[1], *waiting = args[2], *kind = args[7];
-    if (!PyDict_Check(table) || !PyAnySet_Check(dead) || !PyAnySet_Check(waiting) || !PyLong_CheckExact(args[3])) {
-        PyErr_SetString(PyExc_TypeError, "lock_bodies: table a dict; dead, waiting sets; seq an int");
-        return NULL;
-    }
-    long long seq = PyLong_AsLongLong(args[3]);
-    if (seq == -1 && PyErr_Occurred())
-        return NULL;
-    double v[3];
-    for (int i = 0; i < 3; i++) {
-        v[i] = PyFloat_AsDouble(args[4 + i]);
-        if (v[i] == -1.0 && PyErr_Occurred())
-            return NULL;
-    }
-    double x = v[0], y = v[1], r2 = v[2];
-    PyObject *ids = PyDict_Keys(table), *out[6] = {NULL}, *dead_near = PyList_New(0), *result = NULL;
-    if (ids == NULL || dead_near == NULL || PyList_Sort(ids) < 0)
-        goto done;
-    for (int i = 0; i < 6; i++)
-        if ((out[i] = PyList_New(0)) == NULL)
-            goto done;
-    Py_ssize_t robots = 0, stale = 0;
-    for (Py_ssize_t i = 0; i < PyList_GET_SIZE(ids); i++) {
-        PyObject *j = PyList_GET_ITEM(ids, i), *nb = PyDict_GetItemWithError(table, j); /* borrowed */
-        if (nb == NULL) {
-            if (!PyErr_Occurred())
-                PyErr_SetString(PyExc_RuntimeError, "lock_bodies: the table changed under it");
-            goto done;
-        }
-        int c = PySet_Contains(dead, j);
-        if (c < 0)
-            goto done;
-        if (c) {
-            if (PyList_Append(dead_near, nb) < 0)
-                goto done;
-            continue;
-        }
-        long long nseq;
-        int got = attr_ll(nb, s_seq, &nseq);
-        if (got < 0)
-            goto done;
-        if (got == 0) {
-            PyErr_SetString(PyExc_TypeError, "lock_bodies: a state's seq is not an int");
-            goto done;
-        }
-        int is_stale = nseq != seq;
-        if (is_stale) {
-            if ((c = PySet_Contains(waiting, j)) < 0)
-                goto done;
-            if (!c)
-                continue;
-        }
-        double bx, by, br, bR;
-        if (attr_double(nb, s_x, &bx) < 0 || attr_double(nb, s_y, &by) < 0)
-            goto done;
-        double dx = x - bx, dy = y - by;
-        if (dx * dx + dy * dy < r2) {
-            if (attr_double(nb, s_r, &br) < 0 || attr_double(nb, s_R, &bR) < 0 || append_double(out[0], bx) < 0 ||
-                append_double(out[1], by) < 0 || append_double(out[2], br) < 0 || append_double(out[3], bR) < 0 ||
-                PyList_Append(out[4], kind) < 0 || append_double(out[5], 0.0) < 0)
-                goto done;
-            robots += 1;
-            stale += is_stale;
-        }
-    }
-    result = Py_BuildValue("(OOOOOOnndO)", out[0], out[1], out[2], out[3], out[4], out[5], robots, stale, 0.0,
-                           dead_near);
-done:
-    Py_XDECREF(ids);
-    Py_XDECREF(dead_near);
-    for (int i = 0; i < 6; i++)
-        Py_XDECREF(out[i]);
-    return result;
-}
-
-/* wait_for(table, dead, k, px, py, reach2): lock-step, no faults: agents.robot.Agent._start_tick's pass over its
- * table as tick k starts. A live robot's state older than k - 1 is never used again: deleted from the table. A
- * live robot whose state of k - 1 put it closer than reach2 (squared) to this robot's previous position is
- * waited for. Returns the set of those. */
-static PyObject *wire_wait_for(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
-    if (nargs != 6) {
-        PyErr_SetString(PyExc_TypeError, "wait_for(table, dead, k, px, py, reach2)");
-        return NULL;
-    }
-    PyObject *table = args[0], *dead = args[1];
-    if (!PyDict_Check(table) || !PyAnySet_Check(dead) || !PyLong_CheckExact(args[2])) {
-        PyErr_SetString(PyExc_TypeError, "wait_for: table a dict, dead a set, k an int");
-        return NULL;
-    }
-    long long k = PyLong_AsLongLong(args[2]);
-    if (k == -1 && PyErr_Occurred())
-        return NULL;
-    double v[3];
-    for (int i = 0; i < 3; i++) {
-        v[i] = PyFloat_AsDouble(args[3 + i]);
-        if (v[i] == -1.0 && PyErr_Occurred())
-            return NULL;
-    }
-    double px = v[0], py = v[1], reach2 = v[2];
-    PyObject *ids = PyDict_Keys(table), *waiting = PySet_New(NULL), *result = NULL;
-    if (ids == NULL || waiting == NULL)
-        goto done;
-    for (Py_ssize_t i = 0; i < PyList_GET_SIZE(ids); i++) {
-        PyObject *j = PyList_GET_ITEM(ids, i), *nb = PyDict_GetItemWithError(table, j); /* borrowed */
-        if (nb == NULL) {
-            if (!PyErr_Occurred())
-                PyErr_SetString(PyExc_RuntimeError, "wait_for: the table changed under it");
-            goto done;
-        }
-        int c = PySet_Contains(dead, j);
-        if (c < 0)
-            goto done;
-        if (c)
-            continue;
-        long long nseq;
-        int got = attr_ll(nb, s_seq, &nseq);
-        if (got < 0)
-            goto done;
-        if (got == 0) {
-            PyErr_SetString(PyExc_TypeError, "wait_for: a state's seq is not an int");
-            goto done;
-        }
-        if (nseq < k - 1) {
-            if (PyDict_DelItem(table, j) < 0)
-                goto done;
-            continue;
-        }
-        if (nseq != k - 1)
-            continue;
-        double bx, by;
-        if (attr_double(nb, s_x, &bx) < 0 || attr_double(nb, s_y, &by) < 0)
-            goto done;
-        double dx = px - bx, dy = py - by;
-        if (dx * dx + dy * dy < reach2 && PySet_Add(waiting, j) < 0)
-            goto done;
-    }
-    result = waiting;
-    waiting = NULL;
-done:
-    Py_XDECREF(ids);
-    Py_XDECREF(waiting);
-    return result;
-}
 
 static PyMethodDef wire_methods[] = {
     {"pin_thread", wire_pin_thread, METH_NOARGS,

@@ -376,6 +376,38 @@ def test_the_compiled_bodies_are_the_python_ones(seed):
     assert results[0] == results[1]
 
 
+def _both_ways(seed: int, fill, act) -> list:
+    """Lock-step: a fresh agent (CFG) whose table fill(agent, rng) sets, then act(agent, rng), once with the
+    compiled wire module and once with the Python, from the same seeded rng; the two results."""
+    import random
+
+    results = []
+    for wire in (protocol._wire, None):
+        rng = random.Random(seed)
+        agent = robot.Agent(MemoryBus(MemoryNet()), CFG, F)
+        fill(agent, rng)
+        saved, protocol._wire = protocol._wire, wire
+        try:
+            results.append(act(agent, rng))
+        finally:
+            protocol._wire = saved
+            agent.close()
+    return results
+
+
+def _random_table(agent, rng, seqs: list[int], spread: float, awaited: float) -> None:
+    """About a dozen neighbours' states with a seq of seqs, within +-spread m; 15 % dead, `awaited` waited for."""
+    for j in rng.sample(range(16), 12):
+        if j == CFG.id:
+            continue
+        agent.table[j] = State(id=j, t=1.0, seq=rng.choice(seqs), x=rng.uniform(-spread, spread),
+                               y=rng.uniform(-spread, spread), theta=0.0, r=0.3, R=rng.choice([1.0, 1.2]), frozen=False)
+        u = rng.random()
+        if u < 0.15:
+            agent.dead.add(j)
+        elif u < 0.15 + awaited:
+            agent.waiting.add(j)
+
 
 @pytest.mark.skipif(protocol._wire is None, reason="the compiled codec is not built here (no C compiler)")
 def test_the_compiled_lockstep_bodies_are_the_python_ones():
@@ -383,37 +415,20 @@ def test_the_compiled_lockstep_bodies_are_the_python_ones():
     state (stale), unawaited ones with an older state (left out) and dead ones, near and far, with obstacles:
     the same bodies in the same order, bit for bit, and the same counts, whether the compiled loop
     (swarm/proto/_wire.c, lock_bodies) or Python runs; 40 seeded tables."""
-    import random
-
     k, seen = 50, {"fresh": 0, "stale": 0, "static": 0}
+
+    def fill(agent, rng) -> None:
+        agent.start([protocol.Obstacle(rng.uniform(-2, 2), rng.uniform(-2, 2), 0.3, 1.0) for _ in range(3)])
+        _random_table(agent, rng, [k, k, k - 1], 3.0, 0.35)
+
+    def act(agent, rng):
+        with agent.lock:
+            return agent.bodies(rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), k), agent.oldest_state_s
+
     for seed in range(40):
-        rng = random.Random(seed)
-        results = []
-        for wire in (protocol._wire, None):
-            rng.seed(seed)
-            agent = robot.Agent(MemoryBus(MemoryNet()), CFG, F)
-            agent.start([protocol.Obstacle(rng.uniform(-2, 2), rng.uniform(-2, 2), 0.3, 1.0) for _ in range(3)])
-            for j in rng.sample(range(16), 12):
-                if j == CFG.id:
-                    continue
-                agent.table[j] = State(id=j, t=1.0, seq=rng.choice([k, k, k - 1]), x=rng.uniform(-3, 3),
-                                       y=rng.uniform(-3, 3), theta=0.0, r=0.3, R=rng.choice([1.0, 1.2]), frozen=False)
-                u = rng.random()
-                if u < 0.15:
-                    agent.dead.add(j)
-                elif u < 0.5:
-                    agent.waiting.add(j)
-            saved, protocol._wire = protocol._wire, wire
-            try:
-                with agent.lock:
-                    got = agent.bodies(rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), k)
-            finally:
-                protocol._wire = saved
-            results.append((got, agent.oldest_state_s))
-            agent.close()
-        (a, _), (b, _) = results
+        (a, oa), (b, ob) = _both_ways(seed, fill, act)
         assert [x.hex() for x in a[0] + a[1] + a[5]] == [x.hex() for x in b[0] + b[1] + b[5]], seed
-        assert results[0] == results[1], seed
+        assert (a, oa) == (b, ob), seed
         robots, stale = a[6], a[7]
         seen["fresh"] += robots - stale
         seen["stale"] += stale
@@ -426,34 +441,22 @@ def test_the_compiled_wait_set_is_the_python_one():
     """Lock-step, as a tick starts: the robots it waits for (live, with a state of the tick before, near where
     it was) and the states it forgets (live ones older than that), whether the compiled pass
     (swarm/proto/_wire.c, wait_for) or Python runs; 40 seeded tables."""
-    import random
-
     k, seen = 50, {"waited": 0, "forgotten": 0, "kept": 0}
+
+    def fill(agent, rng) -> None:
+        agent.start([])
+        agent.prev_xy = (rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5))
+        _random_table(agent, rng, [k - 3, k - 2, k - 1, k - 1, k], 4.0, 0.0)
+
+    def act(agent, rng):
+        before = set(agent.table)
+        agent._start_tick(protocol.Pose(t=k * CFG.dt, seq=k, x=0.0, y=0.0, theta=0.0))
+        return set(agent.waiting), set(agent.table), before
+
     for seed in range(40):
-        rng = random.Random(seed)
-        results = []
-        for wire in (protocol._wire, None):
-            rng.seed(seed)
-            agent = robot.Agent(MemoryBus(MemoryNet()), CFG, F)
-            agent.start([])
-            agent.prev_xy = (rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5))
-            for j in rng.sample(range(16), 12):
-                if j == CFG.id:
-                    continue
-                agent.table[j] = State(id=j, t=1.0, seq=rng.choice([k - 3, k - 2, k - 1, k - 1, k]),
-                                       x=rng.uniform(-4, 4), y=rng.uniform(-4, 4), theta=0.0, r=0.3, R=1.0, frozen=False)
-                if rng.random() < 0.15:
-                    agent.dead.add(j)
-            before = set(agent.table)
-            saved, protocol._wire = protocol._wire, wire
-            try:
-                agent._start_tick(protocol.Pose(t=k * CFG.dt, seq=k, x=0.0, y=0.0, theta=0.0))
-            finally:
-                protocol._wire = saved
-            results.append((set(agent.waiting), set(agent.table), before))
-            agent.close()
-        assert results[0] == results[1], seed
-        waiting, table, before = results[0]
+        first, second = _both_ways(seed, fill, act)
+        assert first == second, seed
+        waiting, table, before = first
         seen["waited"] += len(waiting)
         seen["forgotten"] += len(before - table)
         seen["kept"] += len(table - waiting)
