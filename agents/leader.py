@@ -18,7 +18,7 @@ import threading
 
 from swarm.proto import keys, protocol, window
 from swarm.core import kinematics
-from swarm.core.clock import WALL, anchor as anchor_clock, said_step
+from swarm.core.clock import WALL, said_step
 from swarm.proto.protocol import ProtocolError, Ref
 
 log = logging.getLogger("swarm.leader")
@@ -85,7 +85,7 @@ class Leader:
                 self.publish(self.next_seq * self.dt, self.next_seq)
                 self.next_seq += 1
         elif c.epoch > 0 and self.epoch is None:  # the run's epoch, once (a new run is a new leader)
-            anchor_clock(self.clock)  # take up a step of the system clock made before this run
+            self.clock.anchor()  # take up a step of the system clock made before this run
             self.epoch, self.speed = c.epoch, c.speed
 
     def run(self, stop: threading.Event) -> None:

@@ -52,7 +52,7 @@ import time
 from swarm.proto import keys, protocol
 from swarm.core import fastlaw, kinematics, law
 from swarm.core import runid
-from swarm.core.clock import WALL, anchor as anchor_clock, said_step
+from swarm.core.clock import WALL, said_step
 from swarm.launch.child import settle_heap
 from agents.follow import NoAnswer, RunFollower, check_run, query_until  # noqa: F401  (NoAnswer: for callers)
 from agents.guard import REF_TIMEOUT_S, Guard, arena_of
@@ -648,7 +648,7 @@ class Agent:
             return
         self.clock_seq = max(self.clock_seq, c.seq)
         if c.epoch > 0 and self.epoch is None:  # real time: the run's epoch, once (a new run is a new agent)
-            anchor_clock(self.clock)  # take up a step of the system clock made before this run
+            self.clock.anchor()  # take up a step of the system clock made before this run
             self.epoch, self.speed = c.epoch, c.speed
 
     def _on_state(self, s: State, key: str = "") -> None:

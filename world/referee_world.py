@@ -37,7 +37,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from swarm.core import kinematics, runid
-from swarm.core.clock import WALL, anchor as anchor_clock, said_step
+from swarm.core.clock import WALL, said_step
 from swarm.core.inventory import Fleet
 from swarm.launch.child import settle_heap
 from swarm.proto import keys, protocol, window
@@ -297,7 +297,7 @@ class RefereeWorld:
         stop = stop or threading.Event()
         started = time.perf_counter() if started is None else started
         run_started = time.perf_counter()
-        anchor_clock(self.clock)  # take up a step of the system clock made before this run
+        self.clock.anchor()  # take up a step of the system clock made before this run
         interrupted = self._run(stop)
         said_step(self.clock, log, "referee", self.run_id)
         self._report(force=True)

@@ -35,7 +35,7 @@ from swarm.proto import keys, protocol, window
 from swarm.core import faultgen as fg
 from swarm.core import faults as fl
 from swarm.core import kinematics, runid
-from swarm.core.clock import WALL, anchor as anchor_clock, said_step
+from swarm.core.clock import WALL, said_step
 from swarm.launch.child import settle_heap
 from swarm.proto.protocol import Clock, Obstacle, Obstacles, Pose, ProtocolError, RobotSnap, Run, Snapshot
 from swarm.core.geometry import pairs_within
@@ -489,7 +489,7 @@ class World:
             if self.lockstep:
                 interrupted = self._run_lockstep(stop)
             else:
-                anchor_clock(self.clock)  # take up a step of the system clock made before this run
+                self.clock.anchor()  # take up a step of the system clock made before this run
                 interrupted = self._run_realtime(stop)
                 said_step(self.clock, log, "world", self.run_id)
         finally:

@@ -18,7 +18,7 @@ from swarm.cli.common import (EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, Stop
                               record_rate, scenario_args, viz_options, write_json)
 from swarm.cli import console
 from swarm.cli.console import cpu_counters, exit_status, progress_line, steal_pct, summary
-from swarm.core.clock import WALL, anchor as anchor_clock
+from swarm.core.clock import WALL
 from swarm.core.metrics import violations
 from swarm.launch.plan import DEFAULT_LISTEN, RestartPolicy, UpOptions, VizOptions, make_plan
 from swarm.launch.child import die_with_parent
@@ -323,7 +323,7 @@ class FaultActor:
         except protocol.ProtocolError:
             return
         if c.epoch > 0 and self.epoch is None:
-            anchor_clock(WALL)  # take up a step of the system clock made before this run
+            WALL.anchor()  # take up a step of the system clock made before this run
             self.epoch = (c.epoch, c.speed)
 
     def now(self, last) -> float | None:

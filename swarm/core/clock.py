@@ -94,18 +94,12 @@ class FakeClock:
 
 def said_step(clock, log, who: str, run: str) -> float:
     """At a run's end: log a warning if the system clock stepped during it (see the module's docstring);
-    returns the step [s]. A clock without step_s (a test's own) has none."""
-    step = clock.step_s() if hasattr(clock, "step_s") else 0.0
+    returns the step [s]."""
+    step = clock.step_s()
     if abs(step) > STEP_WARN_S:
         log.warning("%s, run %s: the system clock stepped by %+.3f s during the run (an NTP step, or a virtual "
                     "machine paused and resumed); the run kept its time from the monotonic clock", who, run, step)
     return step
-
-
-def anchor(clock) -> None:
-    """At a run's start: take up a step of the system clock made since the last run."""
-    if hasattr(clock, "anchor"):
-        clock.anchor()
 
 
 WALL = WallClock()
