@@ -316,6 +316,8 @@ class Agent:
 
     def _move_cells(self, x: float, y: float) -> None:
         """Subscribe to the 3x3 cells around (x, y), keeping the previous block one more tick."""
+        if len(self._key_ids) != self._hinted_n:
+            self._hint_keys()
         cell = keys.cell_of(x, y, self.side)
         if cell == self._cell and self._settled:
             return  # the common case: same cell as last tick, old block already released
@@ -329,6 +331,16 @@ class Agent:
         self._settled = cell == self._cell
         self._cell = cell
         self._block_prev = now
+
+    _hinted_n = 0  # how many of _key_ids (insertion-ordered; only added to, or cleared) went to bus.hint
+
+    def _hint_keys(self) -> None:
+        """Loop thread: the cell keys heard since the last call, hinted to the bus (ZenohBus.hint: zenoh
+        resolves each one's route once, not for every state); _move_cells calls it when _key_ids grew."""
+        ids = list(self._key_ids)  # one C call under the GIL: safe against the compiled sink adding to it
+        for key in ids[self._hinted_n if len(ids) >= self._hinted_n else 0:]:
+            self.bus.hint(key)
+        self._hinted_n = len(ids)
 
     def _subscribe_cell(self, key: str):
         """Lock-step: a cell's states, through the compiled sink where there is one (no faults, a bus that takes

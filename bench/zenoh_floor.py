@@ -71,6 +71,9 @@ def robot(i: int, n: int, endpoint: str, layout: str, wait: bool) -> None:
         pose = bus.inbox(f"{PREFIX}/robot/{i}/pose", depth=8)
         near = [bus.inbox(f"{PREFIX}/cell/{c[0]}/{c[1]}/*", depth=64) for c in near_cells]
         mine, cmd = f"{PREFIX}/cell/{cx}/{cy}/{i}", f"{PREFIX}/robot/{i}/cmd"
+        for j, c in enumerate(cells):  # the keys it will hear, hinted to zenoh as a swarm robot does (ZenohBus.hint)
+            if j != i and c in near_cells:
+                bus.hint(f"{PREFIX}/cell/{c[0]}/{c[1]}/{j}")
         token = bus.token(f"{PREFIX}/alive/{i}")
         work = float(os.environ.get("FLOOR_WORK_US", "0")) * 1e-6
         states = periods = 0
@@ -135,6 +138,8 @@ def world(n: int, endpoint: str, duration: float, rate: float, lockstep: bool) -
     period = 1.0 / rate
     with ZenohBus(zenoh_config("client", connect=[endpoint])) as bus:
         cmds = bus.inbox(f"{PREFIX}/robot/*/cmd", depth=4 * n)
+        for i in range(n):  # as swarm's world does (ZenohBus.hint)
+            bus.hint(f"{PREFIX}/robot/{i}/cmd")
         alive: set[str] = set()
         bus.watch_alive(f"{PREFIX}/alive/*", lambda key, up: alive.add(key) if up else alive.discard(key))
         deadline = time.monotonic() + 60

@@ -197,6 +197,9 @@ class World:
             if self.rtf is not None:  # each robot's fault counters, with its statuses
                 self._faults_inbox = self.bus.inbox(keys.robot_any(f, "faults"), depth=8 * self.n + 64)
                 self._handles.append(self._faults_inbox)
+        if self.ros2 is None:  # every robot's command and status keys: zenoh resolves each one's route once
+            for key in [*self._cmd_ids, *self._status_ids]:  # (ZenohBus.hint), not for every message
+                self.bus.hint(key)
         self._handles.append(self.bus.watch_alive(keys.alive_any(f, "robot"), lambda k, up: ev(("alive", k, up))))
         self._handles.append(self.bus.watch_alive(keys.alive_any(f, "leader"), lambda k, up: ev(("leader", k, up))))
         if self.lockstep:  # the start barrier: every robot's state_0 (unsubscribed once passed)

@@ -52,6 +52,7 @@ class Bus(Protocol):
     def put(self, key: str, payload: bytes, reliable: bool = False, loopback: bool = True,
             attachment: bytes | None = None) -> None: ...
     def wanted(self, key: str) -> bool: ...
+    def hint(self, key: str) -> None: ...  # a concrete key this process will receive often (ZenohBus.hint)
     def subscribe(self, key_expr: str, fn: Handler) -> Closable: ...
     def subscribe_raw(self, key_expr: str, fn: RawHandler) -> Closable: ...
     def subscribe_sink(self, key_expr: str, sink) -> Closable: ...  # optional: a bus without it gets fn callbacks
@@ -194,6 +195,9 @@ class MemoryBus:
         """Whether some subscriber would receive a put on `key` (a publisher may skip costly work if not)."""
         with self.net.lock:
             return any(matches(expr, key) for expr, _fn, _owner in self.net.subs)
+
+    def hint(self, key: str) -> None:
+        """Nothing to resolve in memory (ZenohBus.hint)."""
 
     def _keep(self, lst: list, item) -> _Handle:
         with self.net.lock:
@@ -352,6 +356,9 @@ ROUTER_RUNTIME = "(rx:(worker_threads:16))"
 PUBLISHERS = 64  # declared publishers a ZenohBus keeps (a robot uses 3 or 4: cmd, status, its cell)
 
 
+KEY_HINTS = 1024  # keys a ZenohBus keeps declared for hint() (a robot of a 37-robot run uses a few hundred)
+
+
 class ZenohBus:
     """A Bus over one zenoh session. Close it (or use `with`): an open session with callback
     subscribers hangs the interpreter at exit. Never fork after creating one."""
@@ -367,6 +374,7 @@ class ZenohBus:
         self._closed = False
         self._pubs: OrderedDict[tuple[str, bool, bool], object] = OrderedDict()
         self._pub_lock = threading.Lock()
+        self._hints: dict[str, object] = {}
         self.errors = _errors()  # exceptions of this bus's callbacks, counted (see guarded)
 
     def __enter__(self) -> "ZenohBus":
@@ -405,6 +413,22 @@ class ZenohBus:
             if len(self._pubs) > PUBLISHERS:
                 self._pubs.popitem(last=False)[1].undeclare()
             return pub
+
+    def hint(self, key: str) -> None:
+        """A concrete key this process will receive on many times, through a wildcard subscription (a
+        neighbour's cell key, a robot's command key): declared to zenoh (declare_keyexpr), so that its
+        session resolves the key's route once and keeps it. Without it, zenoh matches every sample on a key
+        it does not know against all of its subscriptions again (Resource::get_matches): about 4 % of the
+        whole machine's CPU in a 37-robot real-time run (docs/runtime.md). At most KEY_HINTS are kept: past
+        that they are all undeclared and it starts over (keys of robots long gone, or a stranger's)."""
+        with self._pub_lock:
+            if key in self._hints or self._closed:
+                return
+            if len(self._hints) >= KEY_HINTS:
+                for ke in self._hints.values():
+                    self.session.undeclare(ke)
+                self._hints.clear()
+            self._hints[key] = self.session.declare_keyexpr(key)
 
     def _keep(self, h):
         self._handles.append(h)
@@ -496,6 +520,7 @@ class ZenohBus:
         self._closed = True
         with self._pub_lock:
             pubs, self._pubs = list(self._pubs.values()), OrderedDict()
+            self._hints = {}  # the session's close lets its declared keys go
         for h in [_Undeclare(p) for p in pubs] + self._handles[::-1]:
             try:
                 h.close()

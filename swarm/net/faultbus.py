@@ -222,6 +222,9 @@ class FaultBus:
     def wanted(self, key: str) -> bool:
         return self.inner.wanted(key)
 
+    def hint(self, key: str) -> None:
+        self.inner.hint(key)
+
     def token(self, key: str) -> Closable:
         return self.inner.token(key)
 

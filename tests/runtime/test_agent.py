@@ -157,6 +157,36 @@ def test_subscriptions_follow_the_cell_and_keep_the_old_block_one_tick():
     assert w.agent.subscribed_cells == robot.block(1, 0)
 
 
+class HintBus(MemoryBus):
+    def __init__(self, net):
+        super().__init__(net)
+        self.hinted: list[str] = []
+
+    def hint(self, key):
+        self.hinted.append(key)
+
+
+def test_the_cell_keys_a_robot_hears_are_hinted_to_its_bus_once_each():
+    """ZenohBus.hint: zenoh resolves a hinted key's route once. Every neighbour's cell key the agent
+    heard goes to its bus at its next tick, once; a key it never heard does not."""
+    w = Wire()
+    w.agent.close()
+    bus = HintBus(w.net)
+    w.agent = robot.Agent(bus, CFG, F, wait_timeout=60.0)
+    w.agent.start([])
+    ref = (0.0, 0.0, 0.0, 0.5, 0.0)
+    nbs = [(7, (1.1, -0.3, 0.0)), (1, (-0.8, 0.2, 1.0))]
+    w.tick(0, (0.1, 0.1, 0.0), ref, nbs)
+    assert bus.hinted == []  # heard during tick 0: hinted when the next tick starts
+    w.tick(1, (0.1, 0.1, 0.0), ref, nbs)
+    heard = {keys.cell(F, *keys.cell_of(x, y, CFG.sense), j) for j, (x, y, _) in nbs}
+    assert sorted(bus.hinted) == sorted(heard)
+    w.tick(2, (0.1, 0.1, 0.0), ref, [(7, (1.6, -0.3, 0.0))] + nbs[1:])  # robot 7 moved into the next cell
+    w.tick(3, (0.1, 0.1, 0.0), ref, nbs[1:])
+    assert sorted(bus.hinted) == sorted(heard | {keys.cell(F, 1, -1, 7)}) and len(bus.hinted) == 3
+    w.agent.close()
+
+
 def test_bad_messages_are_dropped_counted_and_never_reach_the_law():
     w = Wire()
     ref = (0.0, 0.0, 0.0, 0.5, 0.0)

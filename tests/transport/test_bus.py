@@ -320,3 +320,34 @@ def test_zenoh_bus_through_a_router():
             ev.wait_until(lambda: alive.get("swarm/t/alive/robot/1") is False, 10, "the token to go")
     finally:
         router.close()
+
+
+@pytest.mark.timeout(60)
+def test_hinted_keys_still_deliver_and_the_hints_stay_bounded(monkeypatch):
+    """ZenohBus.hint declares a key this session receives through a wildcard subscription (its route is
+    then resolved once). Samples on hinted keys, on keys hinted before the bound made it start over, and on
+    keys never hinted all arrive, in order; the session never holds more than KEY_HINTS declarations."""
+    monkeypatch.setattr(busmod, "KEY_HINTS", 4)
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    router = busmod.ZenohBus(busmod.zenoh_config("router", listen=[endpoint]))
+    try:
+        with busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint])) as a, \
+                busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint])) as b:
+            box = b.inbox("swarm/t/cell/2/3/*", depth=64)
+            _prime(box, lambda: a.put("swarm/t/cell/2/3/0", b"ping", reliable=True), "the cell inbox")
+            for j in range(10):
+                b.hint(f"swarm/t/cell/2/3/{j}")
+                b.hint(f"swarm/t/cell/2/3/{j}")  # again: nothing more
+                assert len(b._hints) <= 4
+            assert sorted(b._hints) == [f"swarm/t/cell/2/3/{j}" for j in (8, 9)]  # started over at the 9th
+            sent = [(f"swarm/t/cell/2/3/{j}", bytes([j, i])) for i in range(3) for j in range(12)]
+            for key, p in sent:
+                a.put(key, p, reliable=True)
+            got: list = []
+            while len(got) < len(sent):  # bounded by the test's timeout
+                got += [m for m in box.wait() + box.drain() if m[1] != b"ping"]
+            assert got == sent
+            box.close()
+        assert b._hints == {}  # closing the session let them go with it
+    finally:
+        router.close()
