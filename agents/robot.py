@@ -59,6 +59,7 @@ from agents.guard import REF_TIMEOUT_S, Guard, arena_of
 from swarm.proto import window
 from swarm.proto.protocol import Cmd, Config, Limits, ProtocolError, State, Status
 from swarm.core.wake import Wake
+from swarm.net.bus import drainer
 
 log = logging.getLogger("swarm.robot")
 
@@ -269,6 +270,7 @@ class Agent:
         for c in list(self._cells):
             self._cells.pop(c).close()
             self._cells[c] = self._subscribe_cell(keys.cell_any(f, *c))
+        self._drain_cells = None
         if self._all_sub is not None:
             self._listen_all(False)
             self._listen_all(True)
@@ -328,10 +330,12 @@ class Agent:
             self._cells[c] = self._subscribe_cell(key) if self.cfg.lockstep else self.bus.inbox(key)
         for c in self._cells.keys() - want:
             self._cells.pop(c).close()
+        self._drain_cells = None  # real time: remade for the new set of inboxes
         self._settled = cell == self._cell
         self._cell = cell
         self._block_prev = now
 
+    _drain_cells = None  # real time: drains every cell inbox in one call (swarm.net.bus.drainer)
     _hinted_n = 0  # how many of _key_ids (insertion-ordered; only added to, or cleared) went to bus.hint
 
     def _hint_keys(self) -> None:
@@ -569,13 +573,12 @@ class Agent:
                 bad.append((key, e))
         dec, ids = self._dec_state, self._key_ids
         wire = protocol._wire
-        for box in self._cells.values():
-            items = box.drain()
-            if not items:  # most of the 9 cells, most periods
-                continue
-            if wire is not None:  # the loop below, compiled (swarm/proto/_wire.c)
-                wire.decode_states(items, dec, ids, keys.cell_robot, states, bad, ProtocolError, KEY_IDS_MAX)
-                continue
+        if self._drain_cells is None:  # every cell inbox in one call (swarm.net.bus.drainer), remade when they change
+            self._drain_cells = drainer(list(self._cells.values()))
+        items = self._drain_cells()
+        if items and wire is not None:  # the loop below, compiled (swarm/proto/_wire.c)
+            wire.decode_states(items, dec, ids, keys.cell_robot, states, bad, ProtocolError, KEY_IDS_MAX)
+        elif items:
             for key, data in items:
                 j = ids.get(key)
                 if j is None:

@@ -609,6 +609,18 @@ class _ZenohInbox:
         self.sub.undeclare()
 
 
+def drainer(boxes: list) -> Callable[[], list[tuple[str, bytes]]]:
+    """One function that drains every inbox of `boxes` in turn, their items in that order: where all are
+    zenoh inboxes and the codec is compiled, one C call for them all (swarm/proto/_wire.c), not one Python
+    call and one C call an inbox (a real-time robot drains its 9 cells every period)."""
+    wire = _protocol._wire
+    if wire is not None and boxes and all(type(b) is _ZenohInbox for b in boxes):
+        recvs, wake = tuple(b.sub.try_recv for b in boxes), _ZenohInbox.WAKE
+        return lambda: wire.drain(recvs, wake)
+    boxes = list(boxes)
+    return lambda: [item for b in boxes for item in b.drain()]
+
+
 class _Undeclare:
     def __init__(self, entity) -> None:
         self.entity = entity

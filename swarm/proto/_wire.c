@@ -559,6 +559,29 @@ static PyObject *sample_item(PyObject *s, PyObject *wake) {
     return t;
 }
 
+static int drain_into(PyObject *out, PyObject *recv, PyObject *wake) {
+    for (;;) {
+        PyObject *s = PyObject_CallNoArgs(recv);
+        if (s == NULL)
+            return -1;
+        if (s == Py_None) {
+            Py_DECREF(s);
+            return 0;
+        }
+        PyObject *item = sample_item(s, wake);
+        Py_DECREF(s);
+        if (item == NULL)
+            return -1;
+        if (item != Py_None && PyList_Append(out, item) < 0) {
+            Py_DECREF(item);
+            return -1;
+        }
+        Py_DECREF(item);
+    }
+}
+
+/* drain(recv, wake): the (key, payload) of every sample recv() gives until None, wake-ups left out; recv
+ * may be a tuple of such callables (several inboxes drained in one call, in the tuple's order). */
 static PyObject *wire_drain(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
     if (nargs != 2) {
         PyErr_SetString(PyExc_TypeError, "drain(try_recv, wake) takes 2 arguments");
@@ -568,24 +591,13 @@ static PyObject *wire_drain(PyObject *module, PyObject *const *args, Py_ssize_t 
     PyObject *out = PyList_New(0);
     if (out == NULL)
         return NULL;
-    for (;;) {
-        PyObject *s = PyObject_CallNoArgs(recv);
-        if (s == NULL)
-            goto fail;
-        if (s == Py_None) {
-            Py_DECREF(s);
-            return out;
-        }
-        PyObject *item = sample_item(s, wake);
-        Py_DECREF(s);
-        if (item == NULL)
-            goto fail;
-        if (item != Py_None && PyList_Append(out, item) < 0) {
-            Py_DECREF(item);
-            goto fail;
-        }
-        Py_DECREF(item);
-    }
+    if (PyTuple_Check(recv)) {
+        for (Py_ssize_t i = 0; i < PyTuple_GET_SIZE(recv); i++)
+            if (drain_into(out, PyTuple_GET_ITEM(recv, i), wake) < 0)
+                goto fail;
+    } else if (drain_into(out, recv, wake) < 0)
+        goto fail;
+    return out;
 fail:
     Py_DECREF(out);
     return NULL;
@@ -1482,7 +1494,8 @@ static PyMethodDef wire_methods[] = {
     {"pin_thread", wire_pin_thread, METH_NOARGS,
      "pin_thread(): keep this thread's Python thread state (a callback on zenoh's thread: see swarm.net.bus)"},
     {"drain", (PyCFunction)(void (*)(void))wire_drain, METH_FASTCALL,
-     "drain(try_recv, wake): the (key, payload) of every sample try_recv() gives until None, wake-ups left out"},
+     "drain(try_recv, wake): the (key, payload) of every sample try_recv() gives until None, wake-ups left out "
+     "(try_recv: a callable, or a tuple of them drained in turn)"},
     {"decode_states", (PyCFunction)(void (*)(void))wire_decode_states, METH_FASTCALL,
      "decode_states(items, dec, ids, parse, states, bad, error, limit): decode a batch of cell states"},
     {"take_states", (PyCFunction)(void (*)(void))wire_take_states, METH_FASTCALL,
