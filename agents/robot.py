@@ -397,8 +397,11 @@ class Agent:
                 self.bad.reject(key, e)
             return
         with self.lock:
+            waited = s.id in self.waiting
             self._on_state(s, key)
-            due = self._due()
+            # only the state that took the last awaited robot off can make the tick due (the compiled sink's
+            # rule): anything else _due() reads woke the loop when it came (a pose, the reference, a token)
+            due = waited and not self.waiting and self._due()
         if due:
             self.wake.set()
 

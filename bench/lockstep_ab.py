@@ -4,7 +4,9 @@
 
 Checks the other commit out in a temporary git worktree and builds its C modules in place there (the
 venv's install of this tree is left alone), then runs `swarm up --mode lockstep --no-viz` of each tree
-in turn, `--pairs` times, so that both see the same hours of the machine. For each run it prints the
+in turn, `--pairs` times (this tree first in even pairs, the other first in odd ones: the VM's speed drifts
+within minutes, and a tree that always ran second would gain or lose by it), so that both see the same
+hours of the machine. For each run it prints the
 ticks per wall second (the world's steps / run_wall_s) and the mean over robots of the loop and process
 CPU a tick that each robot logs at exit ("loop CPU N us a tick, process CPU M us a tick"); then the
 medians of each tree and in how many pairs this tree's loop was the cheaper. `--mode realtime` runs at
@@ -68,7 +70,8 @@ def main(argv=None) -> int:
                            capture_output=True)
             got: dict[str, list[dict]] = {"this tree": [], a.old: []}
             for k in range(a.pairs):
-                for name, tree in (("this tree", ROOT), (a.old, old)):
+                order = (("this tree", ROOT), (a.old, old))
+                for name, tree in order if k % 2 == 0 else order[::-1]:  # ABBA: neither always runs second
                     r = run(tree, Path(tmp) / f"{k}-{len(got[name])}-{name.replace('/', '_')}", a.robots, a.duration, a.mode)
                     got[name].append(r)
                     print(f"pair {k + 1} {name:>12}: " + "  ".join(f"{key} {v:.1f}" for key, v in r.items()), flush=True)

@@ -1155,8 +1155,9 @@ done:
  * no faults). Called with a zenoh sample (ZenohBus.subscribe_sink) or as take(key, payload) (MemoryBus). A
  * state whose cell key's id is known (ids), that dec decodes, of another robot, not ahead of the robot's next
  * tick, and that its sender's window takes in the common case, is taken under the agent's lock: counted, put in
- * its table, and no longer waited for if it is of the tick under way; the loop is woken (agent.wake) when
- * agent._due() says so, which can only change once nobody is waited for. Any other message goes, untouched, to
+ * its table, and no longer waited for if it is of the tick under way; the loop is woken (agent.wake) when that
+ * took the last awaited robot off and agent._due() says so (nothing else a state changes is read by _due()). Any
+ * other message goes, untouched, to
  * slow(key, payload) (the Python, which takes, refuses or counts it); an error of either goes to
  * report(key, error). Nothing raises into the bus. */
 typedef struct {
@@ -1311,7 +1312,8 @@ static int sink_take(StateSink *k, PyObject *st, int *due) {
     PyObject *waiting = PyObject_GetAttr(a, s_waiting);
     if (waiting == NULL)
         goto done;
-    if (!PySet_Check(waiting) || (q == started && PySet_Discard(waiting, j) < 0)) {
+    int removed = PySet_Check(waiting) && q == started ? PySet_Discard(waiting, j) : 0;
+    if (!PySet_Check(waiting) || removed < 0) {
         if (!PyErr_Occurred())
             PyErr_SetString(PyExc_TypeError, "the agent's waiting is not a set");
         Py_DECREF(waiting);
@@ -1320,7 +1322,10 @@ static int sink_take(StateSink *k, PyObject *st, int *due) {
     Py_ssize_t left = PySet_GET_SIZE(waiting);
     Py_DECREF(waiting);
     rc = 1;
-    if (left == 0) { /* while someone is waited for, _due() is only true for a new pose, which woke the loop itself */
+    /* Only the state that took the last robot off `waiting` can make the tick due: while someone is waited for,
+     * _due() is only true for a new pose, which woke the loop itself; and a state that took nobody off changed
+     * nothing _due() reads (a pose, the reference, the clock, the robots lost woke the loop when they came). */
+    if (removed == 1 && left == 0) {
         PyObject *d = PyObject_CallMethodNoArgs(a, s_due);
         if (d == NULL || (*due = PyObject_IsTrue(d)) < 0)
             rc = -1;
