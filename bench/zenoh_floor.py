@@ -40,7 +40,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from swarm.net.bus import ZENOH_RUNTIME, ZenohBus, _ZenohInbox, zenoh_config  # noqa: E402
+from swarm.net.bus import ZENOH_RUNTIME, ZenohBus, _ZenohInbox, drainer, zenoh_config  # noqa: E402
 
 PREFIX = "floor"
 POSE = struct.Struct("<dI")  # time sent (CLOCK_MONOTONIC, shared by the machine's processes), robot id
@@ -75,6 +75,7 @@ def robot(i: int, n: int, endpoint: str, layout: str, wait: bool) -> None:
             if j != i and c in near_cells:
                 bus.hint(f"{PREFIX}/cell/{c[0]}/{c[1]}/{j}")
         token = bus.token(f"{PREFIX}/alive/{i}")
+        drain_near = drainer(near)
         work = float(os.environ.get("FLOOR_WORK_US", "0")) * 1e-6
         states = periods = 0
         loop_cpu = 0.0
@@ -115,8 +116,7 @@ def robot(i: int, n: int, endpoint: str, layout: str, wait: bool) -> None:
                             states += 1
                     c0 = time.thread_time()
             else:
-                for box in near:
-                    states += len(box.drain())
+                states += len(drain_near())  # its 9 cells in one call, as a swarm robot drains them
             periods += 1
             if work:
                 end = time.thread_time() + work
