@@ -355,8 +355,8 @@ def test_hinted_keys_still_deliver_and_the_hints_stay_bounded(monkeypatch):
 
 @pytest.mark.timeout(60)
 def test_a_drainer_drains_every_inbox_in_turn_in_one_call():
-    """bus.drainer(boxes): every inbox's items, inbox after inbox, each in its own order; wake-ups left out.
-    Over zenoh inboxes it is one compiled call (where _wire is built), over others their drain()s."""
+    """bus.drainer(boxes): every inbox's items, inbox after inbox, each in its own order. Over zenoh inboxes it
+    is one compiled call (where _wire is built), over others their drain()s."""
     net = busmod.MemoryNet()
     m, feed = busmod.MemoryBus(net), busmod.MemoryBus(net)
     boxes = [m.inbox("swarm/t/cell/0/0/*"), m.inbox("swarm/t/cell/1/0/*")]
@@ -371,18 +371,24 @@ def test_a_drainer_drains_every_inbox_in_turn_in_one_call():
         with busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint])) as a, \
                 busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint])) as b:
             boxes = [b.inbox(f"swarm/t/cell/{c}/0/*", depth=16) for c in range(3)]
-            for c, box in enumerate(boxes):
-                _prime(box, lambda c=c: a.put(f"swarm/t/cell/{c}/0/9", b"ping", reliable=True), f"cell {c}")
-            drain = busmod.drainer(boxes)
-            assert drain() == []
             done = b.inbox("swarm/t/robot/1/pose", depth=4)
             _prime(done, lambda: a.put("swarm/t/robot/1/pose", b"ping", reliable=True), "the pose inbox")
+            for c, box in enumerate(boxes):
+                _prime(box, lambda c=c: a.put(f"swarm/t/cell/{c}/0/9", b"ping", reliable=True), f"cell {c}")
+
+            def settle() -> None:  # everything a sent before this is in b's inboxes (one link, in order)
+                a.put("swarm/t/robot/1/pose", b"done", reliable=True)
+                while [p for _, p in done.wait() + done.drain()][-1:] != [b"done"]:  # bounded by the test's timeout
+                    pass
+
+            drain = busmod.drainer(boxes)
+            settle()
+            drain()  # the pings still under way when each inbox was primed
+            assert drain() == []
             sent = [(f"swarm/t/cell/{c}/0/{j}", bytes([c, j])) for j in range(3) for c in (2, 0, 1)]
             for key, p in sent:
                 a.put(key, p, reliable=True)
-            a.put("swarm/t/robot/1/pose", b"done", reliable=True)  # one link in order: all of sent is in
-            while done.wait() != [("swarm/t/robot/1/pose", b"done")]:  # bounded by the test's timeout
-                pass
+            settle()
             assert drain() == sorted(sent, key=lambda m: m[1][0])  # box by box, each in the order sent
             assert drain() == []
             done.close()
