@@ -67,6 +67,7 @@ WAIT_TIMEOUT_S = 1.0  # lock-step: wall seconds to wait for a tick's inputs befo
 STATUS_PERIOD_S = 0.1  # simulated seconds between status messages
 STALE_AFTER_S = 0.5  # real time: a neighbour state older than this (simulated s) counts as stale (status)
 KEY_IDS_MAX = 4096  # cell keys whose robot id a robot keeps parsed (more: it starts over)
+HINTS_PER_TICK = 64  # new cell keys a robot hints to its bus a tick, at most (Agent._hint_keys)
 CONFIRM_AFTER_S = 1.0  # real time: a robot whose token came back and sent no state for this long (wall s) is away
 HORIZON_CAP_S = 0.5  # real time: the governor's horizon is at most HOLD_PERIODS control periods plus this
 HOLD_PERIODS = 2  # real time: a command acts its period and, when the next is missing, one more (then brakes)
@@ -340,11 +341,15 @@ class Agent:
 
     def _hint_keys(self) -> None:
         """Loop thread: the cell keys heard since the last call, hinted to the bus (ZenohBus.hint: zenoh
-        resolves each one's route once, not for every state); _move_cells calls it when _key_ids grew."""
+        resolves each one's route once, not for every state), at most HINTS_PER_TICK a call (a stranger's
+        flood of new keys costs a declaration each: never more than that a tick); _move_cells calls it at
+        every tick while _key_ids holds keys not hinted yet."""
         ids = list(self._key_ids)  # one C call under the GIL: safe against the compiled sink adding to it
-        for key in ids[self._hinted_n if len(ids) >= self._hinted_n else 0:]:
+        start = self._hinted_n if len(ids) >= self._hinted_n else 0  # it was cleared (KEY_IDS_MAX): from the top
+        new = ids[start:start + HINTS_PER_TICK]
+        for key in new:
             self.bus.hint(key)
-        self._hinted_n = len(ids)
+        self._hinted_n = start + len(new)
 
     def _subscribe_cell(self, key: str):
         """Lock-step: a cell's states, through the compiled sink where there is one (no faults, a bus that takes

@@ -184,6 +184,16 @@ def test_the_cell_keys_a_robot_hears_are_hinted_to_its_bus_once_each():
     w.tick(2, (0.1, 0.1, 0.0), ref, [(7, (1.6, -0.3, 0.0))] + nbs[1:])  # robot 7 moved into the next cell
     w.tick(3, (0.1, 0.1, 0.0), ref, nbs[1:])
     assert sorted(bus.hinted) == sorted(heard | {keys.cell(F, 1, -1, 7)}) and len(bus.hinted) == 3
+    # a stranger's flood of new keys in its cells (each a robot id in each cell): hinted HINTS_PER_TICK a tick
+    # at most, in the order they came
+    flood = [keys.cell(F, cx, cy, j) for j in (0, 2, 4, 5, 6, 8, 9, 10, 11, 12) for cx in (-1, 0, 1) for cy in (-1, 0, 1)]
+    flood = [key for key in flood if key not in bus.hinted][:robot.HINTS_PER_TICK + 10]
+    for key in flood:
+        w.probe.put(key, b"\xc1")  # garbage: refused and counted, but its key was parsed
+    for k, total in ((4, 3 + robot.HINTS_PER_TICK), (5, 3 + len(flood)), (6, 3 + len(flood))):
+        w.tick(k, (0.1, 0.1, 0.0), ref, nbs[1:])
+        assert len(bus.hinted) == total
+    assert bus.hinted[3:] == flood
     w.agent.close()
 
 
