@@ -271,7 +271,6 @@ class Agent:
         for c in list(self._cells):
             self._cells.pop(c).close()
             self._cells[c] = self._subscribe_cell(keys.cell_any(f, *c))
-        self._drain_cells = None
         if self._all_sub is not None:
             self._listen_all(False)
             self._listen_all(True)

@@ -354,8 +354,6 @@ ROUTER_RUNTIME = "(rx:(worker_threads:16))"
 
 
 PUBLISHERS = 64  # declared publishers a ZenohBus keeps (a robot uses 3 or 4: cmd, status, its cell)
-
-
 KEY_HINTS = 1024  # keys a ZenohBus keeps declared for hint() (a robot of a 37-robot run uses a few hundred)
 
 
