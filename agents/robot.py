@@ -61,6 +61,8 @@ from swarm.proto.protocol import Cmd, Config, Limits, ProtocolError, State, Stat
 from swarm.core.wake import Wake
 from swarm.net.bus import drainer
 
+M_FROZEN, KIND_ROBOT = law.M_FROZEN, law.KIND_ROBOT
+
 log = logging.getLogger("swarm.robot")
 
 WAIT_TIMEOUT_S = 1.0  # lock-step: wall seconds to wait for a tick's inputs before going on without them
@@ -139,6 +141,7 @@ class Agent:
         self.side = cfg.sense
         self._wait_reach = keys.lockstep_wait_reach(cfg.reach, cfg.sense)
         self._cmd_key, self._status_key = keys.robot_cmd(fleet, self.id), keys.robot_status(fleet, self.id)
+        self._ref_key = keys.leader_ref(fleet)
         self._faults_key = keys.robot_faults(fleet, self.id)
         self.lock = threading.Lock()
         self.wake = Wake()
@@ -160,6 +163,7 @@ class Agent:
         self._vb = cfg.v_max if cfg.v_max > 0 else law.MAX_SPEED  # the speed bounds a command is held within
         self._wb = cfg.w_max if cfg.w_max > 0 else law.MAX_TURN
         self._dec_state, self._dec_ref = protocol.decoder("state", self.limits), protocol.decoder("ref", self.limits)
+        self._enc_state, self._r, self._R = protocol.encoder("state"), cfg.r, cfg.R
         self._key_ids: dict[str, int] = {}  # cell key -> the robot id at its end (parsed once)
         # lock-step, no faults: neighbour states taken in C on the bus's thread (swarm/proto/_wire.c, StateSink;
         # anything but the common case goes to _on_state_msg)
@@ -216,6 +220,7 @@ class Agent:
         self.away: set[int] = set()  # live robots whose last state was out of range: not used until a newer one
         self.unconfirmed: dict[int, float] = {}  # j -> monotonic deadline: its token came back, no state since
         self._offer_r = cfg.reach + (cfg.sense - cfg.reach) / 3.0  # reach + L: what this robot surely hears
+        self._offer2 = self._offer_r * self._offer_r
         self.max_age = 0.0  # the oldest neighbour state a command used [s]
         self.reports = 0  # faultstats sent
         self.last_pose_at: float | None = None  # monotonic time the newest pose was taken
@@ -234,7 +239,7 @@ class Agent:
             self._inputs = [self.bus.subscribe(key, fn) for key, fn in self._lockstep_inputs()]
         else:  # the loop waits on its drive's poses and drains the other inboxes (see _loop_realtime)
             self.drive.start()
-            self._ref_inbox = self.bus.inbox(keys.leader_ref(f))
+            self._ref_inbox = self.bus.inbox(self._ref_key)
             self._handles.append(self._ref_inbox)
         self._handles.append(self.bus.subscribe(keys.estop(f), self._on_estop_msg))
         if self.view is not None:
@@ -335,7 +340,8 @@ class Agent:
         self._cell = cell
         self._block_prev = now
 
-    _drain_cells = None  # real time: drains every cell inbox in one call (swarm.net.bus.drainer)
+    _drain_cells = None  # real time: drains the reference's and every cell's inbox in one call (swarm.net.bus.drainer)
+    _batch = (None, math.inf, 0.0)  # real time, under the lock: _on_states's (now, ahead, mono) for _take_one
     _hinted_n = 0  # how many of _key_ids (insertion-ordered; only added to, or cleared) went to bus.hint
 
     def _hint_keys(self) -> None:
@@ -558,31 +564,37 @@ class Agent:
 
     def take_poses(self, poses: list[protocol.Pose]) -> None:
         """Real time (loop thread): the poses the drive gave (decoded); each in the window is taken."""
+        if not poses:
+            return
         key = getattr(self.drive, "pose_key", "pose")
         for pose in poses:
             with self.lock:
                 self._on_pose(pose, key)
-        if poses:
-            self.pose_taken(self.clock.monotonic())
-            if self.guard is not None:
-                self.guard.pose(poses[-1].x, poses[-1].y)
+        self.pose_taken(self.clock.monotonic())
+        if self.guard is not None:
+            self.guard.pose(poses[-1].x, poses[-1].y)
 
     def _take_inboxes(self) -> None:
         """Real time (loop thread): decode the references and neighbour states waiting in the inboxes,
         in one batch under one lock (no per-message wake-up: the loop is already running)."""
         self.take_poses(self.drive.drain())  # one that came since the loop woke (the newest wins)
         bad, refs, states = [], [], []
-        dec = self._dec_ref
-        for key, data in self._ref_inbox.drain():
-            try:
-                refs.append((dec(data), key))
-            except ProtocolError as e:
-                bad.append((key, e))
+        if self._drain_cells is None:  # the reference's inbox and every cell's in one call (swarm.net.bus.drainer),
+            self._drain_cells = drainer([self._ref_inbox, *self._cells.values()])  # remade when the cells change
+        items = self._drain_cells()
+        if items and items[0][0] == self._ref_key:  # the reference's come first (its inbox's key is exact)
+            n = 1
+            while n < len(items) and items[n][0] == self._ref_key:
+                n += 1
+            dec = self._dec_ref
+            for key, data in items[:n]:
+                try:
+                    refs.append((dec(data), key))
+                except ProtocolError as e:
+                    bad.append((key, e))
+            items = items[n:]
         dec, ids = self._dec_state, self._key_ids
         wire = protocol._wire
-        if self._drain_cells is None:  # every cell inbox in one call (swarm.net.bus.drainer), remade when they change
-            self._drain_cells = drainer(list(self._cells.values()))
-        items = self._drain_cells()
         if items and wire is not None:  # the loop below, compiled (swarm/proto/_wire.c)
             wire.decode_states(items, dec, ids, keys.cell_robot, states, bad, ProtocolError, KEY_IDS_MAX)
         elif items:
@@ -611,35 +623,35 @@ class Agent:
     def _on_states(self, states: list[tuple[State, str]]) -> None:
         """Real time (under the lock): _on_state for a batch of (state, key), with one reading of the clocks."""
         now = self.sim_time(self.clock.time())
-        ahead = math.inf if now is None else now + self._spans[0]
-        mono = self.clock.monotonic()
-
-        def take(s: State, key: str) -> None:
-            j, t = s.id, s.t
-            if j == self.id or t > ahead:
-                self._on_state(s, key)  # refused, and counted, the long way
-                return
-            w = self.w_state.get(j)
-            if w is None:
-                w = self.w_state[j] = window.Window(math.inf, 2**62)  # forward only (see _on_state)
-            v = w.check(t, s.seq)
-            if v != window.OK and not self.bad.verdict(key, v, f"robot {j}'s t or seq"):
-                return
-            self.states_received += 1
-            self.table[j] = s
-            self.rx[j] = (0.0 if now is None or now <= t else now - t, mono)
-            self.away.discard(j)
-            if self.unconfirmed:
-                self.unconfirmed.pop(j, None)
-
+        self._batch = (now, math.inf if now is None else now + self._spans[0], self.clock.monotonic())
         wire = protocol._wire
-        if wire is not None:  # the common case of take() compiled; every other state goes to take() in its turn
-            n = wire.take_states(states, self.id, ahead, now, mono, self.w_state, self.table, self.rx, self.away,
-                                 self.unconfirmed, take)  # take() counts its own: add after the call
+        if wire is not None:  # the common case of _take_one compiled; every other state goes to it in its turn
+            n = wire.take_states(states, self.id, self._batch[1], now, self._batch[2], self.w_state, self.table,
+                                 self.rx, self.away, self.unconfirmed, self._take_one)  # it counts its own: add after
             self.states_received += n
             return
         for s, key in states:
-            take(s, key)
+            self._take_one(s, key)
+
+    def _take_one(self, s: State, key: str) -> None:
+        """Real time (under the lock, within _on_states): one state of the batch, at its clocks (_batch)."""
+        now, ahead, mono = self._batch
+        j, t = s.id, s.t
+        if j == self.id or t > ahead:
+            self._on_state(s, key)  # refused, and counted, the long way
+            return
+        w = self.w_state.get(j)
+        if w is None:
+            w = self.w_state[j] = window.Window(math.inf, 2**62)  # forward only (see _on_state)
+        v = w.check(t, s.seq)
+        if v != window.OK and not self.bad.verdict(key, v, f"robot {j}'s t or seq"):
+            return
+        self.states_received += 1
+        self.table[j] = s
+        self.rx[j] = (0.0 if now is None or now <= t else now - t, mono)
+        self.away.discard(j)
+        if self.unconfirmed:
+            self.unconfirmed.pop(j, None)
 
     def _due(self) -> bool:
         if self.pose is None:
@@ -822,9 +834,9 @@ class Agent:
         key = self._state_keys.get(c)
         if key is None:
             key = self._state_keys[c] = keys.cell(self.fleet, c[0], c[1], self.id)
-        frozen = self.mem[law.M_FROZEN] != 0.0
-        s = protocol.encode(State(id=self.id, t=pose.t, seq=seq, x=pose.x, y=pose.y, theta=pose.theta,
-                                  r=self.cfg.r, R=self.cfg.R, frozen=frozen))
+        # the fields in State's order, encoded without building one (protocol.encoder)
+        s = self._enc_state(self.id, pose.t, seq, pose.x, pose.y, pose.theta, self._r, self._R,
+                            self.mem[M_FROZEN] != 0.0)
         self.bus.put(key, s, loopback=False)  # its own state is of no use to this robot's cell inboxes
 
     def bodies(self, x: float, y: float, seq: int | None, t: float | None = None):
@@ -843,6 +855,19 @@ class Agent:
         and for obstacles; real time: a live robot's state's age now, a dead one's age when its token
         went) and the numbers of robots and stale robots used."""
         r2 = self.side * self.side
+        wire = protocol._wire
+        if wire is not None:  # the loop below over the table, compiled (swarm/proto/_wire.c)
+            if seq is not None:
+                nx, ny, nr, nR, nk, na, robots, stale, oldest, dead_near = wire.lock_bodies(
+                    self.table, self.dead, self.waiting, seq, x, y, r2, KIND_ROBOT)
+            else:
+                nx, ny, nr, nR, nk, na, robots, stale, oldest, dead_near = wire.live_bodies(
+                    self.table, self.dead, self.away, self.unconfirmed, self.rx, self.speed, self.clock.monotonic(),
+                    x, y, self._offer2, r2, STALE_AFTER_S, KIND_ROBOT, self._unconfirmed_away)
+            if dead_near or self.obstacles:
+                self._static_bodies(x, y, seq, r2, nx, ny, nr, nR, nk, na, dead_near)
+            self.oldest_state_s = oldest
+            return nx, ny, nr, nR, nk, na, robots, stale
         nx, ny, nr, nR, nk, na = [], [], [], [], [], []
         robots = stale = 0
         oldest = 0.0
@@ -850,17 +875,8 @@ class Agent:
         unconfirmed = self.unconfirmed
         dead_near = []
         mono = None if seq is not None else self.clock.monotonic()
-        offer2 = self._offer_r * self._offer_r
-        wire = protocol._wire
-        ids = sorted(table) if wire is None else ()
-        if wire is not None and seq is not None:  # lock-step: the loop below over ids, compiled (swarm/proto/_wire.c)
-            nx, ny, nr, nR, nk, na, robots, stale, oldest, dead_near = wire.lock_bodies(
-                table, dead, waiting, seq, x, y, r2, law.KIND_ROBOT)
-        elif wire is not None:  # real time: the same, compiled
-            nx, ny, nr, nR, nk, na, robots, stale, oldest, dead_near = wire.live_bodies(
-                table, dead, away, unconfirmed, rx, speed, mono, x, y, offer2, r2, STALE_AFTER_S, law.KIND_ROBOT,
-                self._unconfirmed_away)
-        for j in ids:
+        offer2 = self._offer2
+        for j in sorted(table):
             nb = table[j]
             if j in dead:
                 dead_near.append(nb)
@@ -894,6 +910,13 @@ class Agent:
                 robots += 1
                 stale += is_stale
                 oldest = max(oldest, age)
+        self._static_bodies(x, y, seq, r2, nx, ny, nr, nR, nk, na, dead_near)
+        self.oldest_state_s = oldest
+        return nx, ny, nr, nR, nk, na, robots, stale
+
+    def _static_bodies(self, x: float, y: float, seq: int | None, r2: float, nx: list, ny: list, nr: list, nR: list,
+                       nk: list, na: list, dead_near: list) -> None:
+        """bodies(), its static part: the obstacles near, by index, then the dead robots near, by id, appended."""
         for ox, oy, orr, oR in self._obstacles_near(keys.cell_of(x, y, self.side)):
             dx = x - ox
             dy = y - oy
@@ -906,8 +929,6 @@ class Agent:
             if dx * dx + dy * dy < r2:
                 nx.append(nb.x), ny.append(nb.y), nr.append(nb.r), nR.append(nb.R), nk.append(law.KIND_OBSTACLE)
                 na.append(0.0 if seq is not None else self.dead_age.get(nb.id, 0.0))
-        self.oldest_state_s = oldest
-        return nx, ny, nr, nR, nk, na, robots, stale
 
     def _unconfirmed_away(self, j: int) -> None:
         log.info("robot %d: robot %d sent no state in %g s since its token came back: taken as away",
@@ -1084,6 +1105,7 @@ class Agent:
         if pose is None or ref is None:
             return False
         last = self.last_cmd
+        moved = True  # the pose it computes from is not the one it was given
         if late:
             if self._rt_belief is None or last is None:
                 return False
@@ -1098,6 +1120,8 @@ class Agent:
                 # older than what it last published (a late pose after a step without one): brought to
                 # that time by its own last command, so its state and command never go back in time
                 pose_t, x, y, th = self._advanced(pose_t, x, y, th, last, self._rt_t)
+            else:
+                moved = False
         self._move_cells(x, y)
         self.seq += 1
         # the reference advanced exactly along the leader's arc to now (its v, w are constant between messages)
@@ -1115,12 +1139,15 @@ class Agent:
             # the law clips its speed bound's rounding; the governor's scaling can add one more ulp: a command one
             # ulp beyond the bound would be refused, and the world would hold the previous one (seen once near an
             # obstacle, at 100 rad/s). A NaN stays a NaN (the codec refuses it)
-            v, w = law.clip(v, self._vb), law.clip(w, self._wb)
+            vb, wb = self._vb, self._wb
+            if not -vb <= v <= vb:
+                v = law.clip(v, vb)
+            if not -wb <= w <= wb:
+                w = law.clip(w, wb)
         # state and command go out back to back, so zenoh sends them in one write (one wake-up of its
         # thread instead of two); the command is stamped with its pose's time: a drive (or the world)
         # sees how old its input is
-        used = pose if (pose_t, x, y, th) == (pose.t, pose.x, pose.y, pose.theta) else \
-            protocol.Pose(t=pose_t, seq=pose.seq, x=x, y=y, theta=th)
+        used = protocol.Pose(t=pose_t, seq=pose.seq, x=x, y=y, theta=th) if moved else pose
         self._publish_state(used, self.seq)
         self._publish(pose_t, self.seq, v, w, r, used)
         self._rt_t = pose_t

@@ -33,6 +33,7 @@ class SimDrive:
         self._lock = threading.Lock()
         self._t = 0.0  # the time of the last command's pose
         self._box = None
+        self._enc = protocol.encoder("cmd")
 
     def start(self) -> None:
         self._box = self.bus.inbox(self.pose_key, depth=POSE_DEPTH)
@@ -58,7 +59,7 @@ class SimDrive:
         return out
 
     def _put(self, t: float, v: float, w: float) -> None:
-        self.bus.put(self.cmd_key, protocol.encode(Cmd(t=t, seq=self.sent, v=v, w=w)), reliable=True)
+        self.bus.put(self.cmd_key, self._enc(t, self.sent, v, w), reliable=True)  # a Cmd's fields, in order
         self.sent += 1
         self._t = t
 

@@ -351,7 +351,7 @@ static PyTypeObject DecoderType = {
 typedef struct {
     PyObject_HEAD
     vectorcallfunc vectorcall;
-    PyObject *fallback;
+    PyObject *fallback, *cls;
     int nf;
     unsigned char prefix[80];
     Py_ssize_t prefix_len;
@@ -364,10 +364,10 @@ typedef struct {
 static PyObject *Encoder_vectorcall(PyObject *callable, PyObject *const *args, size_t nargsf, PyObject *kwnames);
 
 static PyObject *Encoder_new(PyTypeObject *tp, PyObject *args, PyObject *kw) {
-    /* Encoder(kind, version, fields, fallback) */
-    PyObject *kind, *fields, *fallback;
+    /* Encoder(kind, version, fields, fallback, cls=None): cls builds a message of the fields given one by one */
+    PyObject *kind, *fields, *fallback, *cls = Py_None;
     long version;
-    if (!PyArg_ParseTuple(args, "UlOO", &kind, &version, &fields, &fallback))
+    if (!PyArg_ParseTuple(args, "UlOO|O", &kind, &version, &fields, &fallback, &cls))
         return NULL;
     Encoder *e = (Encoder *)tp->tp_alloc(tp, 0);
     if (e == NULL)
@@ -375,6 +375,8 @@ static PyObject *Encoder_new(PyTypeObject *tp, PyObject *args, PyObject *kw) {
     e->vectorcall = Encoder_vectorcall;
     Py_INCREF(fallback);
     e->fallback = fallback;
+    Py_INCREF(cls);
+    e->cls = cls;
     if (fields_of(fields, &e->nf, e->key, e->keylen, e->type, e->name) < 0 ||
         make_prefix(e->prefix, sizeof e->prefix, &e->prefix_len, e->nf, version, kind) < 0) {
         Py_DECREF(e);
@@ -385,6 +387,7 @@ static PyObject *Encoder_new(PyTypeObject *tp, PyObject *args, PyObject *kw) {
 
 static void Encoder_dealloc(Encoder *e) {
     Py_XDECREF(e->fallback);
+    Py_XDECREF(e->cls);
     for (int i = 0; i < e->nf; i++)
         Py_XDECREF(e->name[i]);
     Py_TYPE(e)->tp_free((PyObject *)e);
@@ -451,17 +454,36 @@ static unsigned char *put_int(unsigned char *p, PyObject *o) {
     return put_be(p, (uint64_t)v, 8);
 }
 
+/* The fallback's answer for a message, or for its fields given one by one (built with cls first). */
+static PyObject *encode_slow(Encoder *e, PyObject *const *args, size_t nargsf, PyObject *kwnames) {
+    if (kwnames != NULL || PyVectorcall_NARGS(nargsf) == 1 || e->cls == Py_None)
+        return PyObject_Vectorcall(e->fallback, args, nargsf, kwnames);
+    PyObject *m = PyObject_Vectorcall(e->cls, args, nargsf, NULL);
+    if (m == NULL)
+        return NULL;
+    PyObject *b = PyObject_CallOneArg(e->fallback, m);
+    Py_DECREF(m);
+    return b;
+}
+
+/* enc(msg): the message's fields, by name; enc(f0, f1, ...): the fields themselves, in the kind's order (no
+ * message built: a robot's own state and command, every period). The same bytes either way. */
 static PyObject *Encoder_vectorcall(PyObject *callable, PyObject *const *args, size_t nargsf, PyObject *kwnames) {
     Encoder *e = (Encoder *)callable;
-    if (kwnames != NULL || PyVectorcall_NARGS(nargsf) != 1)
-        return PyObject_Vectorcall(e->fallback, args, nargsf, kwnames);
+    Py_ssize_t nargs = PyVectorcall_NARGS(nargsf);
+    int by_position = nargs == e->nf && nargs > 1 && e->cls != Py_None;
+    if (kwnames != NULL || (nargs != 1 && !by_position))
+        return encode_slow(e, args, nargsf, kwnames);
     unsigned char buf[80 + MAX_FIELDS * (MAX_KEY + 1 + 9)];
     unsigned char *p = buf;
     memcpy(p, e->prefix, (size_t)e->prefix_len);
     p += e->prefix_len;
     for (int i = 0; i < e->nf; i++) {
-        PyObject *o = PyObject_GetAttr(args[0], e->name[i]);
-        if (o == NULL)
+        PyObject *o;
+        if (by_position) {
+            o = args[i];
+            Py_INCREF(o);
+        } else if ((o = PyObject_GetAttr(args[0], e->name[i])) == NULL)
             return NULL;
         memcpy(p, e->key[i], (size_t)e->keylen[i]);
         p += e->keylen[i];
@@ -480,7 +502,7 @@ static PyObject *Encoder_vectorcall(PyObject *callable, PyObject *const *args, s
         }
         Py_DECREF(o);
         if (p == NULL)
-            return PyObject_Vectorcall(e->fallback, args, nargsf, kwnames);
+            return encode_slow(e, args, nargsf, kwnames);
     }
     return PyBytes_FromStringAndSize((const char *)buf, p - buf);
 }
@@ -493,7 +515,7 @@ static PyTypeObject EncoderType = {
     .tp_vectorcall_offset = offsetof(Encoder, vectorcall),
     .tp_call = PyVectorcall_Call,
     .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_VECTORCALL,
-    .tp_doc = "Encoder(kind, version, fields, fallback): msgpack bytes of a flat message, compiled",
+    .tp_doc = "Encoder(kind, version, fields, fallback, cls=None): msgpack bytes of a flat message, compiled",
     .tp_new = Encoder_new,
 };
 

@@ -521,7 +521,21 @@ def _compile_encode(kind: str):
     order = _wire_order(kind)
     if _wire is None or any(t not in ("n", "i", "id", "b") for _, t, _ in order):
         return ns["enc"]
-    return _wire.Encoder(kind, VERSION, order, ns["enc"])
+    return _wire.Encoder(kind, VERSION, order, ns["enc"], KINDS[kind])
+
+
+def encoder(kind: str):
+    """f(*fields) -> bytes: encode(cls(*fields)) for a flat kind, its fields given in the dataclass's order,
+    without building the message where the compiled codec is (a robot's own state and command, every period)."""
+    if kind not in _SPEC:
+        raise ValueError(f"{kind!r} is not a flat message kind")
+    cls = KINDS[kind]
+    fast = _FAST_ENCODE.get(cls)
+    if fast is None:  # generated once, as encode() would
+        fast = _FAST_ENCODE[cls] = _compile_encode(kind)
+    if _wire is not None and isinstance(fast, _wire.Encoder):
+        return fast
+    return lambda *fields: fast(cls(*fields))
 
 
 def _wire_order(kind: str) -> list[tuple[str, str, str]]:
