@@ -164,6 +164,7 @@ class Agent:
         self._wb = cfg.w_max if cfg.w_max > 0 else law.MAX_TURN
         self._dec_state, self._dec_ref = protocol.decoder("state", self.limits), protocol.decoder("ref", self.limits)
         self._enc_state, self._r, self._R = protocol.encoder("state"), cfg.r, cfg.R
+        self._hot_dec = {"state": self._dec_state, "ref": self._dec_ref, "pose": protocol.decoder("pose", self.limits)}
         self._key_ids: dict[str, int] = {}  # cell key -> the robot id at its end (parsed once)
         # lock-step, no faults: neighbour states taken in C on the bus's thread (swarm/proto/_wire.c, StateSink;
         # anything but the common case goes to _on_state_msg)
@@ -551,7 +552,8 @@ class Agent:
         try:
             if kind == "state" and key_id is None:
                 raise ProtocolError(f"not a cell key: {key!r}")
-            msg = protocol.decode(data, kind, key_id, self.limits)
+            dec = self._hot_dec.get(kind)  # the kinds of every tick: their generated decoders, at once
+            msg = dec(data, key_id) if dec is not None else protocol.decode(data, kind, key_id, self.limits)
         except ProtocolError as e:
             with self.lock:
                 self.bad.reject(key, e)
@@ -1030,8 +1032,9 @@ class Agent:
             self.prev_xy = (pose.x, pose.y)
             for old in [s for s in self.refs if s <= k]:
                 del self.refs[old]
-            for old in [s for s in self.static_by_seq if s < k]:
-                del self.static_by_seq[old]
+            if self.static_by_seq:  # under faults only
+                for old in [s for s in self.static_by_seq if s < k]:
+                    del self.static_by_seq[old]
             if self.view is not None:
                 if self._idle != k:
                     v, w, r = self._command_under_faults(k, ref)

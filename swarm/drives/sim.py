@@ -40,8 +40,7 @@ class SimDrive:
 
     def wait(self) -> list[Pose]:
         """Block until a pose came (or wake()): the poses that came, decoded (bad ones counted)."""
-        items = self._box.wait()
-        return self._poses(items + self._box.drain())
+        return self._poses(self._box.wait())  # a pose that comes later: the agent's drain() takes it
 
     def drain(self) -> list[Pose]:
         return self._poses(self._box.drain())
@@ -51,9 +50,10 @@ class SimDrive:
 
     def _poses(self, items: list[tuple[str, bytes]]) -> list[Pose]:
         out = []
+        dec = protocol.decoder("pose", self.limits)  # generated once per limits (protocol.decode's own)
         for key, data in items:
             try:
-                out.append(protocol.decode(data, "pose", None, self.limits))
+                out.append(dec(data))
             except ProtocolError as e:
                 self.bad.reject(key, e)
         return out

@@ -8,7 +8,7 @@
     sub = bus.subscribe_raw(key_expr, fn)       # fn(key, payload, attachment: bytes | None), same thread
     sub = bus.subscribe_sink(key_expr, sink)    # a compiled sink (swarm.proto._wire.StateSink), same thread
     box = bus.inbox(key_expr, depth=64)         # kept until box.drain() -> [(key, payload), ...] (newest depth)
-    box.wait()                                  # block until something came (or box.wake()); drain() has the rest
+    box.wait()                                  # block until something came (or box.wake()): what is here then
     tok = bus.token(key)                        # a liveliness token; tok.close() withdraws it
     sub = bus.watch_alive(key_expr, fn)         # fn(key: str, alive: bool); current tokens first
     sub = bus.serve(key_expr, fn)               # a queryable: fn(key: str) -> bytes, or None: no reply
@@ -43,7 +43,7 @@ class Closable(Protocol):
 
 class Inbox(Protocol):
     def drain(self) -> list[tuple[str, bytes]]: ...
-    def wait(self) -> list[tuple[str, bytes]]: ...  # blocks until a message or wake(); may return [] (drain() gets the rest)
+    def wait(self) -> list[tuple[str, bytes]]: ...  # blocks until a message or wake(): what is here then ([] if woken)
     def wake(self) -> None: ...  # from another thread: a blocked wait() returns
     def close(self) -> None: ...
 
@@ -594,8 +594,12 @@ class _ZenohInbox:
         return out
 
     def wait(self) -> list[tuple[str, bytes]]:
+        """Block until a sample (or wake()): it, and those behind it already here, in one call where compiled."""
+        wire = _protocol._wire
+        if wire is not None:
+            return wire.drain(self.sub.try_recv, self.WAKE, self.sub.recv)
         first = self._item(self.sub.recv())
-        return [] if first is None else [first]  # the rest, if any, is for drain()
+        return ([] if first is None else [first]) + self.drain()
 
     def wake(self) -> None:
         if "*" in self.key_expr:

@@ -602,17 +602,31 @@ static int drain_into(PyObject *out, PyObject *recv, PyObject *wake) {
     }
 }
 
-/* drain(recv, wake): the (key, payload) of every sample recv() gives until None, wake-ups left out; recv
- * may be a tuple of such callables (several inboxes drained in one call, in the tuple's order). */
+/* drain(recv, wake[, first]): the (key, payload) of every sample recv() gives until None, wake-ups left out; recv
+ * may be a tuple of such callables (several inboxes drained in one call, in the tuple's order). first: a
+ * blocking receive called once before (the inbox's wait(): its sample, unless a wake-up, comes first). */
 static PyObject *wire_drain(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
-    if (nargs != 2) {
-        PyErr_SetString(PyExc_TypeError, "drain(try_recv, wake) takes 2 arguments");
+    if (nargs != 2 && nargs != 3) {
+        PyErr_SetString(PyExc_TypeError, "drain(try_recv, wake[, recv]) takes 2 or 3 arguments");
         return NULL;
     }
     PyObject *recv = args[0], *wake = args[1];
     PyObject *out = PyList_New(0);
     if (out == NULL)
         return NULL;
+    if (nargs == 3) {
+        PyObject *s = PyObject_CallNoArgs(args[2]);
+        if (s == NULL)
+            goto fail;
+        PyObject *item = sample_item(s, wake);
+        Py_DECREF(s);
+        if (item == NULL)
+            goto fail;
+        int rc = item == Py_None ? 0 : PyList_Append(out, item);
+        Py_DECREF(item);
+        if (rc < 0)
+            goto fail;
+    }
     if (PyTuple_Check(recv)) {
         for (Py_ssize_t i = 0; i < PyTuple_GET_SIZE(recv); i++)
             if (drain_into(out, PyTuple_GET_ITEM(recv, i), wake) < 0)

@@ -391,6 +391,12 @@ def test_a_drainer_drains_every_inbox_in_turn_in_one_call():
             settle()
             assert drain() == sorted(sent, key=lambda m: m[1][0])  # box by box, each in the order sent
             assert drain() == []
+            for p in (b"a", b"b", b"c"):
+                a.put("swarm/t/cell/0/0/4", p, reliable=True)
+            settle()
+            # an inbox's wait(): the sample it woke for and those already behind it, in order, in one call
+            assert boxes[0].wait() == [("swarm/t/cell/0/0/4", p) for p in (b"a", b"b", b"c")]
+            assert drain() == []
             done.close()
     finally:
         router.close()
