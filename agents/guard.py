@@ -1,7 +1,8 @@
 """The robot-side watchdog: the reasons a robot must stand still now, checked on the robot itself.
 
     guard = Guard(drive, clock, pose_timeout_s=0.5, ref_timeout_s=2.5, arena=arena_of(cfg))
-    guard.start()                 # a thread: halts the drive when poses stop coming (the loop is blocked then)
+    guard.start(now, rate)        # a thread: halts the drive when poses stop coming (the loop is blocked then),
+                                  # checking at events and when a timeout may run out (next_check)
     guard.pose(x, y)              # the agent took a pose (x, y [m]: the arena check's)
     reason = guard.reason(t)      # the control loop asks before every command; None: go on
     guard.estop(engaged, why)     # the emergency stop (latched until released)
@@ -29,11 +30,13 @@ import logging
 import threading
 
 from swarm.core.clock import WALL
+from swarm.launch.child import name_thread
 
 log = logging.getLogger("swarm.guard")
 
 POSE_TIMEOUT_S = 0.5
 REF_TIMEOUT_S = 2.5
+MAX_IDLE_S = 1.0  # the longest the guard's thread sleeps without an event (a timeout is known to be farther)
 
 
 def arena_of(cfg) -> tuple[float, float, float, float] | None:
@@ -64,6 +67,7 @@ class Guard:
         self.stopped: str | None = None  # the emergency stop's reason while engaged
         self.halts = 0  # times the guard itself halted the drive
         self._stop = threading.Event()
+        self._wake = threading.Event()  # set by stop and by every event that may be a reason: the thread checks now
         self._thread: threading.Thread | None = None
 
     # ------------------------------------------------------------------ what the agent tells it
@@ -76,6 +80,8 @@ class Guard:
             if self.arena is not None:
                 xmin, xmax, ymin, ymax = self.arena
                 inside = xmin <= self.xy[0] <= xmax and ymin <= self.xy[1] <= ymax  # NaN is outside
+                if not inside and self.left_at is None:
+                    self._wake.set()  # a new reason: the thread checks now
                 self.left_at = None if inside else (self.left_at or self.xy)
 
     def ref(self, t: float) -> None:
@@ -84,10 +90,12 @@ class Guard:
     def leader(self, alive: bool) -> None:
         self.leader_alive = alive
         self.leader_seen = self.leader_seen or alive
+        self._wake.set()
 
     def world(self, alive: bool) -> None:
         self.world_alive = alive
         self.world_seen = self.world_seen or alive
+        self._wake.set()
 
     def estop(self, engaged: bool, why: str) -> None:
         if engaged and self.stopped is None:
@@ -95,6 +103,7 @@ class Guard:
         elif not engaged and self.stopped is not None:
             log.warning("emergency stop released%s", f": {why}" if why else "")
         self.stopped = (why or "engaged") if engaged else None
+        self._wake.set()
 
     # ------------------------------------------------------------------ the verdict
 
@@ -130,21 +139,42 @@ class Guard:
 
     # ------------------------------------------------------------------ the thread
 
-    def start(self, now=lambda: None) -> None:
-        """Check every period_s on a thread of its own (the control loop blocks while no pose comes);
-        now(): the swarm's simulated time, or None while unknown."""
+    def start(self, now=lambda: None, rate=lambda: 1.0) -> None:
+        """Check on a thread of its own (the control loop blocks while no pose comes): at once when an event
+        may be a reason (the emergency stop, a token, leaving the arena), and when a timeout may have run out
+        (next_check): not every period_s while poses and references keep coming, as the control loop checks
+        before every command anyway. now(): the swarm's simulated time, or None while unknown; rate(): simulated
+        seconds a wall second (the swarm's speed)."""
 
         def run() -> None:
-            while not self._stop.wait(self.period_s):
+            name_thread("guard")
+            while not self._stop.is_set():
+                self._wake.clear()  # before the check: an event during it ends the wait below at once
+                wait = self.period_s
                 try:
-                    self.check(now())
+                    t = now()
+                    if self.check(t) is None:
+                        wait = self.next_check(t, rate())
                 except Exception as e:  # the bus is closing: the loop's way out halts the drive anyway
                     log.debug("guard: %s", e)
+                self._wake.wait(wait)
 
         self._thread = threading.Thread(target=run, name="guard", daemon=True)
         self._thread.start()
 
+    def next_check(self, t: float | None, rate: float = 1.0) -> float:
+        """Wall seconds until a timeout may run out, given no reason now: the pose's (on the monotonic clock)
+        or the reference's (t: simulated time now, rate: simulated seconds a wall second); at least period_s
+        and at most MAX_IDLE_S."""
+        left = MAX_IDLE_S
+        if self.last_pose is not None:
+            left = min(left, self.last_pose + self.pose_timeout_s - self.clock.monotonic())
+        if t is not None and self.ref_t is not None:
+            left = min(left, (self.ref_t + self.ref_timeout_s - t) / max(rate, 1e-9))
+        return max(self.period_s, left + 1e-3)  # just past the deadline: the reason is strictly beyond it
+
     def close(self) -> None:
         self._stop.set()
+        self._wake.set()
         if self._thread is not None:
             self._thread.join(1.0)

@@ -53,7 +53,7 @@ from swarm.proto import keys, protocol
 from swarm.core import fastlaw, kinematics, law
 from swarm.core import runid
 from swarm.core.clock import WALL, said_step
-from swarm.launch.child import settle_heap
+from swarm.launch.child import name_thread, settle_heap
 from agents.follow import NoAnswer, RunFollower, check_run, query_until  # noqa: F401  (NoAnswer: for callers)
 from agents.guard import REF_TIMEOUT_S, Guard, arena_of
 from swarm.proto import window
@@ -1269,7 +1269,7 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                 agent.start(obstacles)
                 settle_heap()
                 if guard is not None:
-                    guard.start(lambda: agent.sim_time(clock.time()))
+                    guard.start(lambda: agent.sim_time(clock.time()), lambda: agent.speed)
                 p0 = time.process_time()
                 if cfg.lockstep:
                     _loop_lockstep(agent, stop)
@@ -1374,6 +1374,7 @@ def _loop_realtime(agent: Agent, stop: threading.Event, wall) -> None:
 
 def _watch(stop: threading.Event, done: threading.Event, box, agent: Agent) -> None:
     """The real-time loop's helper: wake it (box.wake()) on stop, and when a step without a pose is due."""
+    name_thread("waker")
     woke_for = None
     while not done.is_set():
         due = agent.late_due()

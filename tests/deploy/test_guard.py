@@ -113,3 +113,70 @@ def test_arena_of_a_configuration_and_bad_arenas(write_scenario, base_doc):
     assert arena_of(runid.robot_config(scn, 0, False)) is None
     with pytest.raises(ValueError, match="xmin < xmax"):
         Guard(Drive(), FakeClock(), arena=(1.0, 0.0, 0.0, 1.0))
+
+
+def _halted_within(drive: Drive, seconds: float) -> bool:
+    done = threading.Event()
+    for _ in range(int(seconds / 0.01)):
+        if drive.halts:
+            return True
+        done.wait(0.01)
+    return bool(drive.halts)
+
+
+def test_the_thread_halts_when_poses_stop_and_sleeps_while_they_come():
+    """While poses come the thread checks about once a pose timeout, not every period_s (the control loop
+    checks before every command); once they stop it halts the drive just past the timeout."""
+    drive = Drive()
+    g = Guard(drive, pose_timeout_s=0.3, period_s=0.01)
+    checks = []
+    check = g.check
+    g.check = lambda t: checks.append(t) or check(t)
+    g.pose(0.0, 0.0)
+    g.start(lambda: None)
+    try:
+        stop = threading.Event()
+        for _ in range(30):  # 0.6 s of poses every 20 ms
+            g.pose(0.0, 0.0)
+            stop.wait(0.02)
+        assert not drive.halts
+        assert 1 <= len(checks) <= 6  # every period_s (10 ms) would be about 60
+        assert _halted_within(drive, 5.0)
+        assert drive.halts == ["no pose for more than 0.3 s"]
+    finally:
+        g.close()
+
+
+@pytest.mark.parametrize("event", ["estop", "leader", "world"])
+def test_an_event_wakes_the_thread_at_once(event):
+    """The emergency stop, or a lost token, halts the drive at once, though nothing can time out for long."""
+    drive = Drive()
+    g = Guard(drive, period_s=30.0)  # without the event, its next look would be 30 s away
+    g.leader(True), g.world(True)
+    g.start(lambda: None)
+    try:
+        stop = threading.Event()
+        stop.wait(0.05)  # the thread is asleep
+        assert not drive.halts
+        {"estop": lambda: g.estop(True, "test"), "leader": lambda: g.leader(False),
+         "world": lambda: g.world(False)}[event]()
+        assert _halted_within(drive, 5.0)
+        assert drive.halts == [{"estop": "emergency stop (test)", "leader": "the leader is lost",
+                                "world": "the world is lost"}[event]]
+    finally:
+        g.close()
+
+
+def test_next_check_is_the_nearer_timeout_within_its_bounds():
+    clock = FakeClock()
+    g = Guard(Drive(), clock, pose_timeout_s=0.5, ref_timeout_s=2.5, period_s=0.05)
+    assert g.next_check(None) == pytest.approx(1.0 + 1e-3)  # nothing known: MAX_IDLE_S
+    g.pose(0.0, 0.0)
+    clock.advance(0.2)
+    assert g.next_check(None) == pytest.approx(0.3 + 1e-3)
+    g.ref(10.0)
+    assert g.next_check(12.4, rate=1.0) == pytest.approx(0.1 + 1e-3)
+    assert g.next_check(12.4, rate=0.5) == pytest.approx(0.2 + 1e-3)  # half speed: twice the wall time
+    clock.advance(0.3)
+    assert g.next_check(None) == 0.05  # past it: at least period_s
+    assert g.next_check(float("nan")) == 0.05
