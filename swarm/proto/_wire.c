@@ -581,25 +581,29 @@ static PyObject *sample_item(PyObject *s, PyObject *wake) {
     return t;
 }
 
-static int drain_into(PyObject *out, PyObject *recv, PyObject *wake) {
-    for (;;) {
-        PyObject *s = PyObject_CallNoArgs(recv);
-        if (s == NULL)
-            return -1;
-        if (s == Py_None) {
-            Py_DECREF(s);
-            return 0;
-        }
-        PyObject *item = sample_item(s, wake);
+/* recv()'s sample appended to out as (key, payload), a wake-up left out: 1; recv() gave None: 0; -1 on error. */
+static int take_one(PyObject *out, PyObject *recv, PyObject *wake) {
+    PyObject *s = PyObject_CallNoArgs(recv);
+    if (s == NULL)
+        return -1;
+    if (s == Py_None) {
         Py_DECREF(s);
-        if (item == NULL)
-            return -1;
-        if (item != Py_None && PyList_Append(out, item) < 0) {
-            Py_DECREF(item);
-            return -1;
-        }
-        Py_DECREF(item);
+        return 0;
     }
+    PyObject *item = sample_item(s, wake);
+    Py_DECREF(s);
+    if (item == NULL)
+        return -1;
+    int rc = item == Py_None ? 0 : PyList_Append(out, item);
+    Py_DECREF(item);
+    return rc < 0 ? -1 : 1;
+}
+
+static int drain_into(PyObject *out, PyObject *recv, PyObject *wake) {
+    int rc;
+    while ((rc = take_one(out, recv, wake)) > 0)
+        ;
+    return rc;
 }
 
 /* drain(recv, wake[, first]): the (key, payload) of every sample recv() gives until None, wake-ups left out; recv
@@ -614,19 +618,8 @@ static PyObject *wire_drain(PyObject *module, PyObject *const *args, Py_ssize_t 
     PyObject *out = PyList_New(0);
     if (out == NULL)
         return NULL;
-    if (nargs == 3) {
-        PyObject *s = PyObject_CallNoArgs(args[2]);
-        if (s == NULL)
-            goto fail;
-        PyObject *item = sample_item(s, wake);
-        Py_DECREF(s);
-        if (item == NULL)
-            goto fail;
-        int rc = item == Py_None ? 0 : PyList_Append(out, item);
-        Py_DECREF(item);
-        if (rc < 0)
-            goto fail;
-    }
+    if (nargs == 3 && take_one(out, args[2], wake) < 0)
+        goto fail;
     if (PyTuple_Check(recv)) {
         for (Py_ssize_t i = 0; i < PyTuple_GET_SIZE(recv); i++)
             if (drain_into(out, PyTuple_GET_ITEM(recv, i), wake) < 0)
