@@ -139,7 +139,7 @@ def test_compiled_encoder_writes_what_msgpack_writes(kind, data):
 
 
 @pytest.mark.parametrize("kind", FLAT)
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(data=st.data())
 def test_an_encoder_given_the_fields_writes_what_encode_writes_of_the_message(kind, data):
     """protocol.encoder(kind)(*fields): a robot's own state and command, encoded without building the message.
