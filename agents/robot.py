@@ -61,8 +61,6 @@ from swarm.proto.protocol import Cmd, Config, Limits, ProtocolError, State, Stat
 from swarm.core.wake import Wake
 from swarm.net.bus import drainer
 
-M_FROZEN, KIND_ROBOT = law.M_FROZEN, law.KIND_ROBOT
-
 log = logging.getLogger("swarm.robot")
 
 WAIT_TIMEOUT_S = 1.0  # lock-step: wall seconds to wait for a tick's inputs before going on without them
@@ -625,11 +623,13 @@ class Agent:
     def _on_states(self, states: list[tuple[State, str]]) -> None:
         """Real time (under the lock): _on_state for a batch of (state, key), with one reading of the clocks."""
         now = self.sim_time(self.clock.time())
-        self._batch = (now, math.inf if now is None else now + self._spans[0], self.clock.monotonic())
+        ahead = math.inf if now is None else now + self._spans[0]
+        mono = self.clock.monotonic()
+        self._batch = (now, ahead, mono)
         wire = protocol._wire
         if wire is not None:  # the common case of _take_one compiled; every other state goes to it in its turn
-            n = wire.take_states(states, self.id, self._batch[1], now, self._batch[2], self.w_state, self.table,
-                                 self.rx, self.away, self.unconfirmed, self._take_one)  # it counts its own: add after
+            n = wire.take_states(states, self.id, ahead, now, mono, self.w_state, self.table, self.rx, self.away,
+                                 self.unconfirmed, self._take_one)  # it counts its own: add after the call
             self.states_received += n
             return
         for s, key in states:
@@ -838,7 +838,7 @@ class Agent:
             key = self._state_keys[c] = keys.cell(self.fleet, c[0], c[1], self.id)
         # the fields in State's order, encoded without building one (protocol.encoder)
         s = self._enc_state(self.id, pose.t, seq, pose.x, pose.y, pose.theta, self._r, self._R,
-                            self.mem[M_FROZEN] != 0.0)
+                            self.mem[law.M_FROZEN] != 0.0)
         self.bus.put(key, s, loopback=False)  # its own state is of no use to this robot's cell inboxes
 
     def bodies(self, x: float, y: float, seq: int | None, t: float | None = None):
@@ -861,11 +861,11 @@ class Agent:
         if wire is not None:  # the loop below over the table, compiled (swarm/proto/_wire.c)
             if seq is not None:
                 nx, ny, nr, nR, nk, na, robots, stale, oldest, dead_near = wire.lock_bodies(
-                    self.table, self.dead, self.waiting, seq, x, y, r2, KIND_ROBOT)
+                    self.table, self.dead, self.waiting, seq, x, y, r2, law.KIND_ROBOT)
             else:
                 nx, ny, nr, nR, nk, na, robots, stale, oldest, dead_near = wire.live_bodies(
                     self.table, self.dead, self.away, self.unconfirmed, self.rx, self.speed, self.clock.monotonic(),
-                    x, y, self._offer2, r2, STALE_AFTER_S, KIND_ROBOT, self._unconfirmed_away)
+                    x, y, self._offer2, r2, STALE_AFTER_S, law.KIND_ROBOT, self._unconfirmed_away)
             if dead_near or self.obstacles:
                 self._static_bodies(x, y, seq, r2, nx, ny, nr, nR, nk, na, dead_near)
             self.oldest_state_s = oldest
@@ -1142,11 +1142,7 @@ class Agent:
             # the law clips its speed bound's rounding; the governor's scaling can add one more ulp: a command one
             # ulp beyond the bound would be refused, and the world would hold the previous one (seen once near an
             # obstacle, at 100 rad/s). A NaN stays a NaN (the codec refuses it)
-            vb, wb = self._vb, self._wb
-            if not -vb <= v <= vb:
-                v = law.clip(v, vb)
-            if not -wb <= w <= wb:
-                w = law.clip(w, wb)
+            v, w = law.clip(v, self._vb), law.clip(w, self._wb)
         # state and command go out back to back, so zenoh sends them in one write (one wake-up of its
         # thread instead of two); the command is stamped with its pose's time: a drive (or the world)
         # sees how old its input is
