@@ -928,6 +928,8 @@ class World:
             left = epoch + (t + fine) / self.speed - self.clock.time()  # the next fine step (every event is on the grid)
             if left > 0:
                 self.clock.wait(stop, left)
+            else:
+                fine_k += 1  # its time has come (the floor above can round to just below it: no spin on that)
         for i in range(n):
             advance(i, self.t)
         return True
