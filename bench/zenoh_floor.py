@@ -2,6 +2,7 @@
 
     python bench/zenoh_floor.py [--robots 37] [--duration 20] [--mode realtime|lockstep] [--rate 50]
                                 [--work-us 0] [--transport tcp|unix] [--layout formation|start] [--wait]
+                                [--callbacks]
 
 It starts what `swarm up` starts (a router, a world, N robot processes, each a zenoh client of the
 router with swarm's session settings and runtime) and moves the same messages. Real time: the world
@@ -13,7 +14,10 @@ pose of a tick at once and waits for every command before the next tick (its rob
 neighbour, so this bounds swarm's rate from above). `--wait` adds swarm's wait rule to lock-step: a
 robot sends its state on its pose, then takes its command only once the state of that tick of every
 robot in its 3x3 cells is in (it blocks on a cell's inbox that still lacks one): the floor of swarm's
-two-phase tick, which no code in a robot can beat (docs/runtime.md). Robots do nothing else, or spin `--work-us` of CPU
+two-phase tick, which no code in a robot can beat (docs/runtime.md). `--callbacks` (with `--wait`) takes
+the pose and the cells' states in Python callbacks on zenoh's threads that wake the loop (a condition
+variable), as a swarm robot's lock-step did up to session 22, instead of blocking in zenoh on inboxes:
+the cost of that hand-over alone. Robots do nothing else, or spin `--work-us` of CPU
 a period to stand in for decoding, the law and encoding. So the figures are what zenoh and 40 processes
 cost on this machine: the floor under `python bench/up_speed.py` (docs/runtime.md compares them).
 
@@ -62,7 +66,9 @@ def cells_of(n: int, layout: str) -> list[tuple[int, int]]:
     return [keys.cell_of(float(x), float(y), sc.cell_side) for x, y in points]
 
 
-def robot(i: int, n: int, endpoint: str, layout: str, wait: bool) -> None:
+def robot(i: int, n: int, endpoint: str, layout: str, wait: bool, callbacks: bool = False) -> None:
+    if callbacks:
+        return robot_callbacks(i, n, endpoint, layout)
     cells = cells_of(n, layout)
     cx, cy = cells[i]
     near_cells = [(cx + a, cy + b) for a in (-1, 0, 1) for b in (-1, 0, 1)]
@@ -132,6 +138,82 @@ def robot(i: int, n: int, endpoint: str, layout: str, wait: bool) -> None:
         token.close()
         for box in near + [pose]:
             box.close()
+
+
+def robot_callbacks(i: int, n: int, endpoint: str, layout: str) -> None:
+    """--wait --callbacks: robot() with its pose and its cells' states taken in Python callbacks."""
+    cells = cells_of(n, layout)
+    cx, cy = cells[i]
+    near_cells = [(cx + a, cy + b) for a in (-1, 0, 1) for b in (-1, 0, 1)]
+    expect = sum(1 for j in range(n) if j != i and cells[j] in near_cells)
+    cond = threading.Condition()
+    poses: list[bytes] = []
+    states: list[bytes] = []
+    with ZenohBus(zenoh_config("client", connect=[endpoint])) as bus:
+        def on_pose(_key: str, data: bytes) -> None:
+            with cond:
+                poses.append(data)
+                cond.notify()
+
+        def on_state(_key: str, data: bytes) -> None:
+            with cond:
+                states.append(data)
+                cond.notify()
+
+        subs = [bus.subscribe(f"{PREFIX}/robot/{i}/pose", on_pose)]
+        subs += [bus.subscribe(f"{PREFIX}/cell/{c[0]}/{c[1]}/*", on_state) for c in near_cells]
+        mine, cmd = f"{PREFIX}/cell/{cx}/{cy}/{i}", f"{PREFIX}/robot/{i}/cmd"
+        for j, c in enumerate(cells):
+            if j != i and c in near_cells:
+                bus.hint(f"{PREFIX}/cell/{c[0]}/{c[1]}/{j}")
+        token = bus.token(f"{PREFIX}/alive/{i}")
+        taken = periods = 0
+        loop_cpu = 0.0
+        stop = threading.Event()
+
+        def on_term(*_):
+            stop.set()
+            with cond:
+                cond.notify()
+
+        signal.signal(signal.SIGTERM, on_term)
+        p0 = time.process_time()
+        early: list[bytes] = []  # states of the next tick that came before its pose
+        while not stop.is_set():
+            with cond:
+                cond.wait_for(lambda: poses or stop.is_set(), 0.2)
+                if not poses:
+                    continue
+                body = poses[-1]
+                poses.clear()
+            c0 = time.thread_time()
+            bus.put(mine, body + PAD, loopback=False)
+            stamp, have = body[:POSE.size], 0
+            pending, early = early, []
+            while not stop.is_set():
+                for data in pending:
+                    if data[:POSE.size] == stamp:
+                        have += 1
+                        taken += 1
+                    else:
+                        early.append(data)
+                if have >= expect:
+                    break
+                loop_cpu += time.thread_time() - c0
+                with cond:
+                    cond.wait_for(lambda: states or stop.is_set(), 0.2)
+                    pending = states[:]
+                    states.clear()
+                c0 = time.thread_time()
+            periods += 1
+            bus.put(cmd, body, reliable=True)
+            loop_cpu += time.thread_time() - c0
+        Path(os.environ["FLOOR_OUT"], f"robot-{i}.json").write_text(json.dumps(
+            {"states_per_period": taken / max(1, periods), "loop_us": 1e6 * loop_cpu / max(1, periods),
+             "process_us": 1e6 * (time.process_time() - p0) / max(1, periods)}))
+        token.close()
+        for h in subs:
+            h.close()
 
 
 def world(n: int, endpoint: str, duration: float, rate: float, lockstep: bool) -> None:
@@ -220,6 +302,8 @@ def main() -> None:
     ap.add_argument("--wait", action="store_true",
                     help="lock-step: each robot sends its state, then waits for this tick's state of every robot in "
                          "its 3x3 cells before its command (swarm's wait rule; without it the floor waits for no one)")
+    ap.add_argument("--callbacks", action="store_true",
+                    help="with --wait: the pose and the states in Python callbacks that wake the loop, not inboxes")
     ap.add_argument("--role", choices=("router", "world", "robot"), help=argparse.SUPPRESS)
     ap.add_argument("--id", type=int, default=0, help=argparse.SUPPRESS)
     ap.add_argument("--endpoint", help=argparse.SUPPRESS)
@@ -228,12 +312,14 @@ def main() -> None:
         ap.error("--robots, --duration and --rate must be positive, --work-us not negative")
     if a.wait and a.mode != "lockstep":
         ap.error("--wait is a lock-step rule: give --mode lockstep")
+    if a.callbacks and not a.wait:
+        ap.error("--callbacks goes with --wait")
     if a.role == "router":
         return router(a.endpoint)
     if a.role == "world":
         return world(a.robots, a.endpoint, a.duration, a.rate, a.mode == "lockstep")
     if a.role == "robot":
-        return robot(a.id, a.robots, a.endpoint, a.layout, a.wait)
+        return robot(a.id, a.robots, a.endpoint, a.layout, a.wait, a.callbacks)
 
     tmp = Path(tempfile.mkdtemp(prefix="floor-"))
     if a.transport == "tcp":
@@ -244,7 +330,8 @@ def main() -> None:
         endpoint = f"unixsock-stream/{tmp / 'router.sock'}"
     env = dict(os.environ, FLOOR_WORK_US=str(a.work_us), FLOOR_OUT=str(tmp), PYTHONPATH=str(ROOT))
     me = [sys.executable, __file__, "--robots", str(a.robots), "--duration", str(a.duration), "--rate", str(a.rate),
-          "--endpoint", endpoint, "--layout", a.layout, "--mode", a.mode] + (["--wait"] if a.wait else [])
+          "--endpoint", endpoint, "--layout", a.layout, "--mode", a.mode] + (["--wait"] if a.wait else []) \
+        + (["--callbacks"] if a.callbacks else [])
     procs: dict[str, list[subprocess.Popen]] = {"router": [], "world": [], "robot": []}
 
     def start(role: str, *extra: str, **kw) -> subprocess.Popen:
@@ -289,7 +376,7 @@ def main() -> None:
         process_us = sum(r["process_us"] for r in rows) / max(1, len(rows))
         cores = {role: sum(c1[p.pid] - c0[p.pid] for p in ps) / (w1 - w0) for role, ps in procs.items()}
         if a.mode == "lockstep":
-            head = f"N = {a.robots}, lock-step{' waiting for states' if a.wait else ''}, {a.transport}, {a.layout}, " \
+            head = f"N = {a.robots}, lock-step{' waiting for states' if a.wait else ''}{' in callbacks' if a.callbacks else ''}, {a.transport}, {a.layout}, " \
                    f"work {a.work_us:g} us/tick, {a.duration:g} s: " \
                    f"{res['ticks_per_s']:.1f} ticks/s; "
         else:

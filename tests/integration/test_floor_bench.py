@@ -15,7 +15,9 @@ BENCH = Path(__file__).resolve().parents[2] / "bench" / "zenoh_floor.py"
 
 @pytest.mark.parametrize("mode, figure", [("realtime", r"round trip median [\d.]+ ms, p99 [\d.]+ ms"),
                                           ("lockstep", r"[\d.]+ ticks/s"),
-                                          ("lockstep --wait", r"lock-step waiting for states, .* [\d.]+ ticks/s")])
+                                          ("lockstep --wait", r"lock-step waiting for states, .* [\d.]+ ticks/s"),
+                                          ("lockstep --wait --callbacks",
+                                           r"lock-step waiting for states in callbacks, .* [\d.]+ ticks/s")])
 def test_floor_bench_measures_and_cleans_up(mode, figure):
     before = {p.pid for p in psutil.process_iter()}
     out = subprocess.run([sys.executable, str(BENCH), "--robots", "5", "--duration", "1", "--mode", *mode.split()],
