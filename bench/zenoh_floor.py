@@ -16,7 +16,7 @@ robot sends its state on its pose, then takes its command only once the state of
 robot in its 3x3 cells is in (it blocks on a cell's inbox that still lacks one): the floor of swarm's
 two-phase tick, which no code in a robot can beat (docs/runtime.md). `--callbacks` (with `--wait`) takes
 the pose and the cells' states in Python callbacks on zenoh's threads that wake the loop (a condition
-variable), as a swarm robot's lock-step did up to session 22, instead of blocking in zenoh on inboxes:
+variable), as a swarm robot's lock-step does, instead of blocking in zenoh on inboxes:
 the cost of that hand-over alone. Robots do nothing else, or spin `--work-us` of CPU
 a period to stand in for decoding, the law and encoding. So the figures are what zenoh and 40 processes
 cost on this machine: the floor under `python bench/up_speed.py` (docs/runtime.md compares them).
