@@ -273,7 +273,7 @@ def test_a_namespace_of_robots_cut_off_for_2_s_is_stopped_by_the_watchdog_and_re
     swarm.net.bus), they took 10-20 s in 9 runs of 12. And the swarm converges: in about one run of fifteen a
     cut robot kept, as live neighbours, the old states of robots that drove out of its cells while it stood
     halted, and its governor held it still for the rest of the run; a robot whose token came back and that
-    sends no state within a second is now taken as away (agents.robot.CONFIRM_AFTER_S; docs/faults.md,
+    sends no state within 3 s is now taken as away (agents.robot.CONFIRM_AFTER_S; docs/faults.md,
     Cutting a network). The test prints which robots did that."""
     import dataclasses
 
