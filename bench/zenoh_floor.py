@@ -66,6 +66,13 @@ def cells_of(n: int, layout: str) -> list[tuple[int, int]]:
     return [keys.cell_of(float(x), float(y), sc.cell_side) for x, y in points]
 
 
+def write_figures(i: int, states: int, periods: int, loop_cpu: float, p0: float) -> None:
+    """Robot i's figures for the parent (FLOOR_OUT): states taken and CPU [us] a period (p0: process_time at start)."""
+    Path(os.environ["FLOOR_OUT"], f"robot-{i}.json").write_text(json.dumps(
+        {"states_per_period": states / max(1, periods), "loop_us": 1e6 * loop_cpu / max(1, periods),
+         "process_us": 1e6 * (time.process_time() - p0) / max(1, periods)}))
+
+
 def robot(i: int, n: int, endpoint: str, layout: str, wait: bool, callbacks: bool = False) -> None:
     if callbacks:
         return robot_callbacks(i, n, endpoint, layout)
@@ -132,9 +139,7 @@ def robot(i: int, n: int, endpoint: str, layout: str, wait: bool, callbacks: boo
                 bus.put(mine, body + PAD, loopback=False)
             bus.put(cmd, body, reliable=True)
             loop_cpu += time.thread_time() - c0
-        Path(os.environ["FLOOR_OUT"], f"robot-{i}.json").write_text(json.dumps(
-            {"states_per_period": states / max(1, periods), "loop_us": 1e6 * loop_cpu / max(1, periods),
-             "process_us": 1e6 * (time.process_time() - p0) / max(1, periods)}))
+        write_figures(i, states, periods, loop_cpu, p0)
         token.close()
         for box in near + [pose]:
             box.close()
@@ -208,9 +213,7 @@ def robot_callbacks(i: int, n: int, endpoint: str, layout: str) -> None:
             periods += 1
             bus.put(cmd, body, reliable=True)
             loop_cpu += time.thread_time() - c0
-        Path(os.environ["FLOOR_OUT"], f"robot-{i}.json").write_text(json.dumps(
-            {"states_per_period": taken / max(1, periods), "loop_us": 1e6 * loop_cpu / max(1, periods),
-             "process_us": 1e6 * (time.process_time() - p0) / max(1, periods)}))
+        write_figures(i, taken, periods, loop_cpu, p0)
         token.close()
         for h in subs:
             h.close()
