@@ -65,19 +65,61 @@ def test_lockstep_flags_a_robot_that_outran_its_own_subscriptions(write_scenario
     assert metrics["lockstep_overruns"] >= 1
 
 
-def replayed_overruns(scn) -> int:
+def replayed_overruns(scn, q: np.ndarray | None = None, shortcut: bool = True) -> int:
     """The world's wait-rule check run over swarm sim's trajectory of `scn` (what the world sees when
-    the distributed run does not diverge): deterministic, no threads."""
+    the distributed run does not diverge), or over the poses q[k] given: deterministic, no threads.
+    shortcut False: the pairs are looked at every step, even when no robot moved more than L."""
     from swarm.net.bus import MemoryBus, MemoryNet
     from world.world import World
 
-    q = Simulation(scn, record_period=scn.dt).run().recording.q
+    if q is None:
+        q = Simulation(scn, record_period=scn.dt).run().recording.q
     world = World(MemoryBus(MemoryNet()), scn, "replay", lockstep=True)
     world.alive[:] = True
     for k in range(1, len(q)):
         world.q = [list(row) for row in q[k]]
+        if not shortcut:
+            world._short_step = False
         world._check_wait_rule(k * scn.dt, q[k - 1][:, :2].copy())
     return world.overruns
+
+
+def random_walk(scn, steps: int, seed: int, long_every: int = 0) -> np.ndarray:
+    """Poses of scn.n robots packed around a corner of four cells, each step of length at most L (a
+    quarter exactly L) in a random direction; with long_every, every long_every-th step of one robot
+    is 3 L long instead."""
+    from swarm.proto import keys
+
+    L = keys.lockstep_step_bound(scn.reach, scn.cell_side)
+    rng = np.random.default_rng(seed)
+    q = np.zeros((steps + 1, scn.n, 3))
+    q[0, :, :2] = scn.cell_side + rng.uniform(-1.2, 1.2, (scn.n, 2)) * scn.reach
+    for k in range(1, steps + 1):
+        a = rng.uniform(0.0, 2 * math.pi, scn.n)
+        length = np.where(rng.random(scn.n) < 0.25, L, rng.uniform(0.0, L, scn.n))
+        if long_every and k % long_every == 0:
+            length[rng.integers(scn.n)] = 3 * L
+        q[k, :, 0] = q[k - 1, :, 0] + length * np.cos(a)
+        q[k, :, 1] = q[k - 1, :, 1] + length * np.sin(a)
+    return q
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_no_pair_is_flagged_while_every_step_is_at_most_l(seed):
+    """The premise of the check's shortcut (World._check_wait_rule looks at the pairs only after a step
+    longer than L): with every step at most L, the full check flags nothing, whatever the cells."""
+    scn = scenario_file.load("paper-50hz", Overrides(robots=12))
+    assert replayed_overruns(scn, random_walk(scn, 300, seed), shortcut=False) == 0
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_checks_shortcut_counts_what_the_full_check_counts(seed):
+    """Where robots do step further than L, the check with its shortcut counts exactly what it counts
+    looking at every step."""
+    scn = scenario_file.load("paper-50hz", Overrides(robots=12))
+    q = random_walk(scn, 300, seed, long_every=7)
+    full = replayed_overruns(scn, q, shortcut=False)
+    assert full > 0 and replayed_overruns(scn, q) == full
 
 
 def test_the_wait_rule_check_follows_the_cells_an_agent_really_holds(write_scenario):
@@ -89,7 +131,8 @@ def test_the_wait_rule_check_follows_the_cells_an_agent_really_holds(write_scena
            "leader": {"start": [0.0, 0.0, 0.0], "segments": [{"duration": 10.0, "v": 0.0, "w": 0.0}]},
            "formation": {"offsets": [[8.0, 0.75], [-50.0, 0.75]]},
            "robots": {"poses": [[1.44, 0.75, 0.0], [0.8, 0.75, math.pi]]}}
-    assert replayed_overruns(scenario_file.load(write_scenario(doc))) >= 1
+    scn = scenario_file.load(write_scenario(doc))
+    assert replayed_overruns(scn) >= 1 and replayed_overruns(scn) == replayed_overruns(scn, shortcut=False)
     assert replayed_overruns(scenario_file.load("paper-50hz", Overrides(robots=19, duration=60.0))) == 0
 
 
