@@ -815,7 +815,7 @@ class World:
         cm1, cm2 = self._cells_hist  # cells at k-2 and k-3
         self._cells_hist = (c0, cm1)
         q = np.array(self.q)[:, :2]
-        d = q - before  # every robot's step (one that is not live does not move)
+        d = q - before  # every robot's step, live or not (one more robot can only make the check look)
         short, was_short = float((d * d).sum(axis=1).max(initial=0.0)) <= self.step_bound ** 2, self._short_step
         self._short_step = short
         if live.size < 2 or wf is None and short and was_short:
