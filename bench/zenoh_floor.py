@@ -66,6 +66,20 @@ def cells_of(n: int, layout: str) -> list[tuple[int, int]]:
     return [keys.cell_of(float(x), float(y), sc.cell_side) for x, y in points]
 
 
+def neighbourhood(i: int, n: int, layout: str) -> tuple[list, tuple[int, int], list[tuple[int, int]]]:
+    """Robot i's view of the layout: every robot's cell, its own, and the 3x3 block around it."""
+    cells = cells_of(n, layout)
+    cx, cy = cells[i]
+    return cells, (cx, cy), [(cx + a, cy + b) for a in (-1, 0, 1) for b in (-1, 0, 1)]
+
+
+def hint_neighbours(bus, i: int, cells: list, near_cells: list) -> None:
+    """The keys robot i will hear, hinted to zenoh as a swarm robot does (ZenohBus.hint)."""
+    for j, c in enumerate(cells):
+        if j != i and c in near_cells:
+            bus.hint(f"{PREFIX}/cell/{c[0]}/{c[1]}/{j}")
+
+
 def write_figures(i: int, states: int, periods: int, loop_cpu: float, p0: float) -> None:
     """Robot i's figures for the parent (FLOOR_OUT): states taken and CPU [us] a period (p0: process_time at start)."""
     Path(os.environ["FLOOR_OUT"], f"robot-{i}.json").write_text(json.dumps(
@@ -76,17 +90,13 @@ def write_figures(i: int, states: int, periods: int, loop_cpu: float, p0: float)
 def robot(i: int, n: int, endpoint: str, layout: str, wait: bool, callbacks: bool = False) -> None:
     if callbacks:
         return robot_callbacks(i, n, endpoint, layout)
-    cells = cells_of(n, layout)
-    cx, cy = cells[i]
-    near_cells = [(cx + a, cy + b) for a in (-1, 0, 1) for b in (-1, 0, 1)]
+    cells, (cx, cy), near_cells = neighbourhood(i, n, layout)
     others = [sum(1 for j in range(n) if j != i and cells[j] == c) for c in near_cells]  # robots in each cell
     with ZenohBus(zenoh_config("client", connect=[endpoint])) as bus:
         pose = bus.inbox(f"{PREFIX}/robot/{i}/pose", depth=8)
         near = [bus.inbox(f"{PREFIX}/cell/{c[0]}/{c[1]}/*", depth=64) for c in near_cells]
         mine, cmd = f"{PREFIX}/cell/{cx}/{cy}/{i}", f"{PREFIX}/robot/{i}/cmd"
-        for j, c in enumerate(cells):  # the keys it will hear, hinted to zenoh as a swarm robot does (ZenohBus.hint)
-            if j != i and c in near_cells:
-                bus.hint(f"{PREFIX}/cell/{c[0]}/{c[1]}/{j}")
+        hint_neighbours(bus, i, cells, near_cells)
         token = bus.token(f"{PREFIX}/alive/{i}")
         drain_near = drainer(near)
         work = float(os.environ.get("FLOOR_WORK_US", "0")) * 1e-6
@@ -147,9 +157,7 @@ def robot(i: int, n: int, endpoint: str, layout: str, wait: bool, callbacks: boo
 
 def robot_callbacks(i: int, n: int, endpoint: str, layout: str) -> None:
     """--wait --callbacks: robot() with its pose and its cells' states taken in Python callbacks."""
-    cells = cells_of(n, layout)
-    cx, cy = cells[i]
-    near_cells = [(cx + a, cy + b) for a in (-1, 0, 1) for b in (-1, 0, 1)]
+    cells, (cx, cy), near_cells = neighbourhood(i, n, layout)
     expect = sum(1 for j in range(n) if j != i and cells[j] in near_cells)
     cond = threading.Condition()
     poses: list[bytes] = []
@@ -168,9 +176,7 @@ def robot_callbacks(i: int, n: int, endpoint: str, layout: str) -> None:
         subs = [bus.subscribe(f"{PREFIX}/robot/{i}/pose", on_pose)]
         subs += [bus.subscribe(f"{PREFIX}/cell/{c[0]}/{c[1]}/*", on_state) for c in near_cells]
         mine, cmd = f"{PREFIX}/cell/{cx}/{cy}/{i}", f"{PREFIX}/robot/{i}/cmd"
-        for j, c in enumerate(cells):
-            if j != i and c in near_cells:
-                bus.hint(f"{PREFIX}/cell/{c[0]}/{c[1]}/{j}")
+        hint_neighbours(bus, i, cells, near_cells)
         token = bus.token(f"{PREFIX}/alive/{i}")
         taken = periods = 0
         loop_cpu = 0.0
