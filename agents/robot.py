@@ -58,7 +58,7 @@ from agents.follow import NoAnswer, RunFollower, check_run, query_until  # noqa:
 from agents.guard import REF_TIMEOUT_S, Guard, arena_of
 from swarm.proto import window
 from swarm.proto.protocol import Cmd, Config, Limits, ProtocolError, State, Status
-from swarm.core.wake import Wake
+from swarm.core.wake import Runner, Wake
 from swarm.net.bus import drainer
 
 log = logging.getLogger("swarm.robot")
@@ -67,6 +67,7 @@ WAIT_TIMEOUT_S = 1.0  # lock-step: wall seconds to wait for a tick's inputs befo
 STATUS_PERIOD_S = 0.1  # simulated seconds between status messages
 STALE_AFTER_S = 0.5  # real time: a neighbour state older than this (simulated s) counts as stale (status)
 KEY_IDS_MAX = 4096  # cell keys whose robot id a robot keeps parsed (more: it starts over)
+CLOSE_WAIT_S = 5.0  # lock-step inline: how long close() waits for a tick under way on a bus thread
 HINTS_PER_TICK = 64  # new cell keys a robot hints to its bus a tick, at most (Agent._hint_keys)
 CONFIRM_AFTER_S = 3.0  # real time: a robot whose token came back and sent no state for this long (wall s) is away
 # (1 s until session 22: under load a cut robot standing next to one outside the cut was once taken as away before
@@ -103,8 +104,12 @@ class Agent:
     """
 
     def __init__(self, bus, cfg: Config, fleet: str = "default", wait_timeout: float = WAIT_TIMEOUT_S,
-                 clock=WALL, drive=None, guard=None, faults=None, horizon_floor: float = 0.0, counters=None):
-        """Real time: horizon_floor [s] is the governor's least horizon (swarm.core.faultsim.horizon under
+                 clock=WALL, drive=None, guard=None, faults=None, horizon_floor: float = 0.0, counters=None,
+                 inline: bool = False):
+        """Lock-step without faults: inline runs each tick on the bus thread whose message made it due (its
+        pose, the last state it waited for) instead of waking the loop thread for it (`kick`, a
+        swarm.core.wake.Runner; only on a bus whose callbacks never run inside this process's own put: zenoh's).
+        Real time: horizon_floor [s] is the governor's least horizon (swarm.core.faultsim.horizon under
         faults: a command may be held and braked); counters, when given, is an object with `dropped` and
         `delayed` lists by class (a swarm.net.faultbus.FaultBus): reported to the world with every status."""
         self.bus, self.cfg, self.fleet = bus, cfg, fleet
@@ -144,7 +149,10 @@ class Agent:
         self._ref_key = keys.leader_ref(fleet)
         self._faults_key = keys.robot_faults(fleet, self.id)
         self.lock = threading.Lock()
-        self.wake = Wake()
+        self.wake = Wake()  # the loop thread's
+        self.kick = self.wake  # what a callback sets when the loop has work (or, inline, runs that work: __init__)
+        self._closing: dict[object, object] = {}  # inline: subscriptions the loop thread is to close (_release)
+        self._closing_lock = threading.Lock()
         self.table: dict[int, State] = {}  # the last state of every robot heard (alive: not in self.dead)
         self.dead: set[int] = set()
         self.obstacles: list[tuple[float, float, float, float]] = []
@@ -166,6 +174,8 @@ class Agent:
         self._enc_state, self._r, self._R = protocol.encoder("state"), cfg.r, cfg.R
         self._hot_dec = {"state": self._dec_state, "ref": self._dec_ref, "pose": protocol.decoder("pose", self.limits)}
         self._key_ids: dict[str, int] = {}  # cell key -> the robot id at its end (parsed once)
+        if inline and cfg.lockstep and self.view is None:
+            self.kick = Runner(self._ticks, self.wake)
         # lock-step, no faults: neighbour states taken in C on the bus's thread (swarm/proto/_wire.c, StateSink;
         # anything but the common case goes to _on_state_msg)
         wire = protocol._wire
@@ -306,7 +316,11 @@ class Agent:
 
     def close(self) -> None:
         """Release everything; a drive is halted and closed (on every way out: the end of a run, Ctrl-C,
-        SIGTERM, an exception)."""
+        SIGTERM, an exception). Inline, no tick runs on a bus thread from here on (after one under way)."""
+        if isinstance(self.kick, Runner) and not self.kick.stop(CLOSE_WAIT_S):
+            log.warning("robot %d: a tick on the bus's thread still runs after %g s; closing all the same",
+                        self.id, CLOSE_WAIT_S)
+        self.close_released()
         if self.drive is not None:
             try:
                 self.drive.close()
@@ -332,10 +346,13 @@ class Agent:
         now = block(*cell)
         want = now | self._block_prev
         for c in want - self._cells.keys():
-            key = keys.cell_any(self.fleet, *c)
-            self._cells[c] = self._subscribe_cell(key) if self.cfg.lockstep else self.bus.inbox(key)
+            h = self._reclaim(c)
+            if h is None:
+                key = keys.cell_any(self.fleet, *c)
+                h = self._subscribe_cell(key) if self.cfg.lockstep else self.bus.inbox(key)
+            self._cells[c] = h
         for c in self._cells.keys() - want:
-            self._cells.pop(c).close()
+            self._release(c, self._cells.pop(c))
         self._drain_cells = None  # real time: remade for the new set of inboxes
         self._settled = cell == self._cell
         self._cell = cell
@@ -375,10 +392,36 @@ class Agent:
         return self.p[law.P_DT]
 
     def drop_clock(self) -> None:
-        """Unsubscribe from the clock once it has given what this robot needs (loop thread only)."""
+        """Unsubscribe from the clock once it has given what this robot needs."""
         if self._clock_sub is not None:
-            self._clock_sub.close()
+            self._release("clock", self._clock_sub)
             self._clock_sub = None
+
+    def _release(self, what, handle) -> None:
+        """Close a subscription that a tick no longer needs: at once on the loop thread; inline, by the loop
+        thread, which this wakes. zenoh's undeclare waits for the subscription's callbacks under way, and the
+        tick may run in one of them (docs/runtime.md): closed there, it would wait for itself."""
+        if self.kick is self.wake:
+            handle.close()
+            return
+        with self._closing_lock:
+            self._closing[what] = handle
+        self.wake.set()
+
+    def _reclaim(self, what):
+        """A subscription _release is to close that a tick wants again (a cell re-entered): taken back, or None."""
+        if not self._closing:
+            return None
+        with self._closing_lock:
+            return self._closing.pop(what, None)
+
+    def close_released(self) -> None:
+        """Loop thread: close the subscriptions _release handed over."""
+        while self._closing:
+            with self._closing_lock:
+                what = next(iter(self._closing))
+                handle = self._closing.pop(what)
+            handle.close()
 
     @property
     def subscribed_cells(self) -> set[tuple[int, int]]:
@@ -414,7 +457,7 @@ class Agent:
             # rule): anything else _due() reads woke the loop when it came (a pose, the reference, a token)
             due = waited and not self.waiting and self._due()
         if due:
-            self.wake.set()
+            self.kick.set()
 
     def _on_pose_msg(self, key: str, data: bytes) -> None:
         self._receive(key, data, "pose", None, self._on_pose)
@@ -481,7 +524,7 @@ class Agent:
                 self.waiting.discard(s.id)
             due = self._due()
         if due:
-            self.wake.set()
+            self.kick.set()
 
     def _on_estop_msg(self, key: str, data: bytes) -> None:
         self._receive(key, data, "estop", None, self._on_estop)
@@ -544,7 +587,7 @@ class Agent:
                     self.leader_ups += 1
             due = self._due()
         if due:
-            self.wake.set()
+            self.kick.set()
 
     def _receive(self, key: str, data: bytes, kind: str, key_id: int | None, apply) -> None:
         if self.ended:
@@ -562,7 +605,7 @@ class Agent:
             apply(msg, key)
             due = self._due()
         if due:
-            self.wake.set()
+            self.kick.set()
 
     def take_poses(self, poses: list[protocol.Pose]) -> None:
         """Real time (loop thread): the poses the drive gave (decoded); each in the window is taken."""
@@ -990,6 +1033,11 @@ class Agent:
         self.reports += 1
         self.bus.put(self._faults_key, protocol.encode(c), reliable=True)
 
+    def _ticks(self) -> None:
+        """Inline (Runner): every tick that is due now (tick_lockstep until it has nothing to do)."""
+        while self.tick_lockstep():
+            pass
+
     def tick_lockstep(self) -> bool:
         """Loop thread: start a new tick if its pose came, and compute it once its inputs are complete
         (or overdue). True if a command (or a skip) was issued."""
@@ -1255,7 +1303,8 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                     drive = SimDrive(rbus, fleet, robot_id)
                 guard = Guard(drive, clock, pose_timeout_s=pose_timeout, ref_timeout_s=ref_timeout, arena=arena_of(cfg))
             agent = Agent(rbus, cfg, fleet, wait_timeout=wait_timeout, clock=clock, drive=drive, guard=guard,
-                          faults=faults if cfg.lockstep else None, horizon_floor=floor, counters=fbus)
+                          faults=faults if cfg.lockstep else None, horizon_floor=floor, counters=fbus,
+                          inline=getattr(rbus, "threaded_callbacks", False))
             box.append(agent)
             current[:] = [agent]
             if runs.latest is not None and runs.latest.run != run.run:
@@ -1324,14 +1373,29 @@ def _run_faults(run):
 
 
 def _loop_lockstep(agent: Agent, stop: threading.Event) -> None:
+    """Lock-step: the ticks as they become due. Inline (agent.kick a Runner), the bus's threads run them and
+    this thread wakes only to close what they released, and for a tick overdue (its deadline); a tick run
+    on another thread while this one looks (next_wakeup() then says 0) is waited for in short naps."""
     cpu = time.thread_time
-    while not stop.is_set() and not agent.ended:
-        agent.wake.wait(min(0.2, agent.next_wakeup()))
-        c0 = cpu()
-        agent.wake.clear()
-        while agent.tick_lockstep():  # a tick done; the next pose may already be here
-            pass
-        agent.loop_cpu_s += cpu() - c0
+    runner = agent.kick if isinstance(agent.kick, Runner) else None
+    least = 0.0 if runner is None else 0.002
+    try:
+        while not stop.is_set() and not agent.ended:
+            agent.wake.wait(min(0.2, max(least, agent.next_wakeup())))
+            c0 = cpu()
+            agent.wake.clear()
+            if runner is None:
+                while agent.tick_lockstep():  # a tick done; the next pose may already be here
+                    pass
+            else:
+                agent.close_released()
+                runner.set()  # a tick overdue (or one due that no bus thread runs now)
+                if runner.error is not None:
+                    raise runner.error
+            agent.loop_cpu_s += cpu() - c0
+    finally:
+        if runner is not None:
+            agent.loop_cpu_s += runner.cpu_s  # the ticks' CPU, wherever they ran
 
 
 def _loop_realtime(agent: Agent, stop: threading.Event, wall) -> None:

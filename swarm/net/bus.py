@@ -361,6 +361,11 @@ class ZenohBus:
     """A Bus over one zenoh session. Close it (or use `with`): an open session with callback
     subscribers hangs the interpreter at exit. Never fork after creating one."""
 
+    # another session's messages come to callbacks on zenoh's threads (a put's own subscribers in this
+    # session are called inside the put: a robot hears nothing it sends, its states go out remote-only), so
+    # a lock-step robot may run its tick in one (agents.robot.Agent, inline)
+    threaded_callbacks = True
+
     def __init__(self, conf, direct: bool = True) -> None:
         import zenoh
 

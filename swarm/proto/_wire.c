@@ -1184,8 +1184,8 @@ done:
  * no faults). Called with a zenoh sample (ZenohBus.subscribe_sink) or as take(key, payload) (MemoryBus). A
  * state whose cell key's id is known (ids), that dec decodes, of another robot, not ahead of the robot's next
  * tick, and that its sender's window takes in the common case, is taken under the agent's lock: counted, put in
- * its table, and no longer waited for if it is of the tick under way; the loop is woken (agent.wake) when that
- * took the last awaited robot off and agent._due() says so (nothing else a state changes is read by _due()). Any
+ * its table, and no longer waited for if it is of the tick under way; agent.kick is set (the loop woken, or the
+ * tick run on this thread: agents.robot) when that took the last awaited robot off and agent._due() says so (nothing else a state changes is read by _due()). Any
  * other message goes, untouched, to
  * slow(key, payload) (the Python, which takes, refuses or counts it); an error of either goes to
  * report(key, error). Nothing raises into the bus. */
@@ -1576,7 +1576,7 @@ PyMODINIT_FUNC PyInit__wire(void) {
         (s_states_received = PyUnicode_InternFromString("states_received")) == NULL ||
         (s_waiting = PyUnicode_InternFromString("waiting")) == NULL ||
         (s_due = PyUnicode_InternFromString("_due")) == NULL || (s_set = PyUnicode_InternFromString("set")) == NULL ||
-        (s_lock = PyUnicode_InternFromString("lock")) == NULL || (s_wake = PyUnicode_InternFromString("wake")) == NULL)
+        (s_lock = PyUnicode_InternFromString("lock")) == NULL || (s_wake = PyUnicode_InternFromString("kick")) == NULL)
         return NULL;
     PyObject *m = PyModule_Create(&wire_module);
     if (m == NULL)
