@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections import deque
 import threading
 import time
 
@@ -92,10 +93,12 @@ class Agent:
     """One robot's controller on a bus; it subscribes and publishes on its own (start(), then a loop).
 
     Thread model: bus callbacks (the _on_*_msg methods) run on the bus's receiving thread: they
-    validate the message, update what the agent knows under `lock`, and set `wake` when the loop
-    thread has something to do (a new tick, or a tick whose inputs are complete). The loop thread
-    does every bus call (publish, move subscriptions, drain inboxes): callbacks never call the bus.
-    One wake-up a tick or two instead of one per message: on 2 cores that is most of the agent's CPU.
+    validate the message, update what the agent knows under `lock`, and set `kick` when there is
+    something to do (a new tick, or a tick whose inputs are complete). By default `kick` is `wake`, the
+    loop thread's, and the loop thread does every bus call (publish, move subscriptions, drain inboxes).
+    Inline (lock-step without faults, on zenoh: run_robot), `kick` is a Runner that computes the tick on
+    the callback's own thread at once: no loop thread woken twice a tick (docs/runtime.md); the loop thread
+    then only closes the subscriptions a tick let go (_release) and computes a tick that is overdue.
     Lock-step takes everything through callbacks (its wait rule needs each state as it arrives); its
     neighbour states through a compiled sink where it was built (swarm.proto._wire.StateSink: the same
     rules as _on_state_msg, which gets anything but their common case). Real time uses callbacks only
@@ -174,8 +177,9 @@ class Agent:
         self._enc_state, self._r, self._R = protocol.encoder("state"), cfg.r, cfg.R
         self._hot_dec = {"state": self._dec_state, "ref": self._dec_ref, "pose": protocol.decoder("pose", self.limits)}
         self._key_ids: dict[str, int] = {}  # cell key -> the robot id at its end (parsed once)
-        if inline and cfg.lockstep and self.view is None:
-            self.kick = Runner(self._ticks, self.wake)
+        if inline and self.view is None and counters is None and (cfg.lockstep or getattr(drive, "takes_callback", False)):
+            self.kick = Runner(self._ticks if cfg.lockstep else self._step_inline, self.wake)
+        self._rt_poses: deque = deque()  # real time inline: poses the drive's callback handed over, not taken yet
         # lock-step, no faults: neighbour states taken in C on the bus's thread (swarm/proto/_wire.c, StateSink;
         # anything but the common case goes to _on_state_msg)
         wire = protocol._wire
@@ -248,6 +252,10 @@ class Agent:
         self.set_obstacles(obstacles or [])
         if self.cfg.lockstep:
             self._inputs = [self.bus.subscribe(key, fn) for key, fn in self._lockstep_inputs()]
+        elif isinstance(self.kick, Runner):  # its drive's poses to a callback that runs the step (_step_inline)
+            self.drive.start(self._on_drive_poses)
+            self._ref_inbox = self.bus.inbox(self._ref_key)
+            self._handles.append(self._ref_inbox)
         else:  # the loop waits on its drive's poses and drains the other inboxes (see _loop_realtime)
             self.drive.start()
             self._ref_inbox = self.bus.inbox(self._ref_key)
@@ -1033,6 +1041,35 @@ class Agent:
         self.reports += 1
         self.bus.put(self._faults_key, protocol.encode(c), reliable=True)
 
+    def _on_drive_poses(self, poses) -> None:
+        """Real time inline (the drive's callback, on the bus's thread): poses, then the step they make due."""
+        self._rt_poses.extend(poses)
+        self.kick.set()
+
+    def _step_inline(self) -> None:
+        """Real time inline (Runner): the poses handed over, then the step (step_realtime)."""
+        q = self._rt_poses
+        got = []
+        while q:
+            got.append(q.popleft())
+        self.step_realtime(got)
+
+    def step_realtime(self, poses) -> None:
+        """Real time: take the poses that came, then a command if a new pose came (or a step without one is
+        due: late_due()), at the swarm's clock now."""
+        self.take_poses(poses)
+        with self.lock:
+            epoch, speed, fresh = self.epoch, self.speed, self._due()
+        if epoch is None:
+            return
+        self.drop_clock()  # the epoch is all a real-time robot needs of the clock (one message a period less)
+        if fresh:
+            self.tick_realtime((self.clock.time() - epoch) * speed)
+        else:
+            due = self.late_due()
+            if due is not None and self.clock.monotonic() >= due:
+                self.tick_realtime((self.clock.time() - epoch) * speed, late=True)
+
     def _ticks(self) -> None:
         """Inline (Runner): every tick that is due now (tick_lockstep until it has nothing to do)."""
         while self.tick_lockstep():
@@ -1321,7 +1358,7 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                 if cfg.lockstep:
                     _loop_lockstep(agent, stop)
                 else:
-                    _loop_realtime(agent, stop, clock.time)
+                    _loop_realtime(agent, stop)
                 agent.process_cpu_s = time.process_time() - p0  # read by the log line below, reached only from here
                 if not cfg.lockstep:
                     said_step(clock, log, f"robot {robot_id}", run.run)
@@ -1398,7 +1435,7 @@ def _loop_lockstep(agent: Agent, stop: threading.Event) -> None:
             agent.loop_cpu_s += runner.cpu_s  # the ticks' CPU, wherever they ran
 
 
-def _loop_realtime(agent: Agent, stop: threading.Event, wall) -> None:
+def _loop_realtime(agent: Agent, stop: threading.Event) -> None:
     """Real time: a command for every new pose (the pose stream sets the control rate: the world's
     control period now, localization's rate on a real robot), at the agent's own clock's time.
     No new pose, no command, and the drive's watchdog stops the robot; but with a periodic drive (the
@@ -1406,32 +1443,34 @@ def _loop_realtime(agent: Agent, stop: threading.Event, wall) -> None:
     as lost, and the step goes on from the last pose advanced by its own command (Agent.late_due).
     The loop blocks on its drive's pose inbox: zenoh's receiving thread runs no Python and hands the
     pose straight to this thread (no callback, no GIL hand-over, no event). A helper thread wakes it on
-    stop, and when a step without a pose is due."""
+    stop, and when a step without a pose is due. Inline (agent.kick a Runner: the simulated drive on
+    zenoh, no faults), the drive's pose callback runs the step on zenoh's thread and the helper runs a step
+    without a pose; this thread only closes what the steps let go, and returns on stop."""
     done = threading.Event()
-    waker = threading.Thread(target=_watch, args=(stop, done, agent.drive, agent), daemon=True,
-                             name=f"robot-{agent.id}-waker")
+    runner = agent.kick if isinstance(agent.kick, Runner) else None
+    waker = threading.Thread(target=_watch, args=(stop, done, agent.drive if runner is None else _Kick(agent), agent),
+                             daemon=True, name=f"robot-{agent.id}-waker")
     waker.start()
     cpu = time.thread_time
-    mono = agent.clock.monotonic
     try:
         while not stop.is_set() and not agent.ended:
-            got = agent.drive.wait()
-            c0 = cpu()
-            agent.take_poses(got)
-            with agent.lock:
-                epoch, speed, fresh = agent.epoch, agent.speed, agent._due()
-            if epoch is not None:
-                agent.drop_clock()  # the epoch is all a real-time robot needs of the clock (one message a period less)
-                if fresh:
-                    agent.tick_realtime((wall() - epoch) * speed)
-                else:
-                    due = agent.late_due()
-                    if due is not None and mono() >= due:
-                        agent.tick_realtime((wall() - epoch) * speed, late=True)
+            if runner is None:
+                got = agent.drive.wait()
+                c0 = cpu()
+                agent.step_realtime(got)
+            else:  # the steps run on the drive's callback (and the waker's thread): wake for stop and closing
+                agent.wake.wait(0.2)
+                c0 = cpu()
+                agent.wake.clear()
+                agent.close_released()
+                if runner.error is not None:
+                    raise runner.error
             agent.loop_cpu_s += cpu() - c0
     finally:
         done.set()
         waker.join(1.0)
+        if runner is not None:
+            agent.loop_cpu_s += runner.cpu_s  # the steps' CPU, wherever they ran
 
 
 def _watch(stop: threading.Event, done: threading.Event, box, agent: Agent) -> None:
@@ -1452,6 +1491,17 @@ def _watch(stop: threading.Event, done: threading.Event, box, agent: Agent) -> N
         if due is not None and due != woke_for and agent.late_due() == due and agent.clock.monotonic() >= due:
             woke_for = due
             _wake(box)
+
+
+class _Kick:
+    """Real time inline: what the waker wakes: the step (a step without a pose may be due) and the loop (stop)."""
+
+    def __init__(self, agent: Agent) -> None:
+        self.agent = agent
+
+    def wake(self) -> None:
+        self.agent.kick.set()
+        self.agent.wake.set()
 
 
 def _wake(box) -> None:

@@ -22,6 +22,7 @@ POSE_DEPTH = 8  # poses kept until the agent takes them (the newest: older ones 
 class SimDrive:
     name = "sim"
     periodic = True  # the world puts each robot's pose once a control period: a pose that does not come was lost
+    takes_callback = True  # start(on_poses): poses handed to a callback on the bus's thread instead of an inbox
 
     def __init__(self, bus, fleet: str, robot_id: int, limits: Limits | None = None) -> None:
         self.bus, self.fleet, self.id, self.limits = bus, fleet, robot_id, limits
@@ -35,8 +36,24 @@ class SimDrive:
         self._box = None
         self._enc = protocol.encoder("cmd")
 
-    def start(self) -> None:
-        self._box = self.bus.inbox(self.pose_key, depth=POSE_DEPTH)
+    def start(self, on_poses=None) -> None:
+        """Subscribe to this robot's poses: into an inbox that wait() and drain() take from, or, with
+        on_poses, to a callback on the bus's thread that hands on_poses each pose decoded (a bad one counted;
+        wait() and drain() then have nothing to give)."""
+        if on_poses is None:
+            self._box = self.bus.inbox(self.pose_key, depth=POSE_DEPTH)
+            return
+        dec = protocol.decoder("pose", self.limits)
+
+        def on_pose(key: str, data: bytes) -> None:
+            try:
+                pose = dec(data)
+            except ProtocolError as e:
+                self.bad.reject(key, e)
+                return
+            on_poses((pose,))
+
+        self._box = _Subscribed(self.bus.subscribe(self.pose_key, on_pose))
 
     def wait(self) -> list[Pose]:
         """Block until a pose came (or wake()): the poses that came, decoded (bad ones counted)."""
@@ -85,3 +102,25 @@ class SimDrive:
             log.debug("robot %d: no last halt: %s", self.id, e)
         self._box.close()
         self._box = None
+
+
+class _Subscribed:
+    """SimDrive's poses through a callback: an inbox with nothing in it (the callback has them)."""
+
+    def __init__(self, handle) -> None:
+        self.handle = handle
+        self._woken = threading.Event()
+
+    def wait(self) -> list:
+        self._woken.wait()
+        self._woken.clear()
+        return []
+
+    def drain(self) -> list:
+        return []
+
+    def wake(self) -> None:
+        self._woken.set()
+
+    def close(self) -> None:
+        self.handle.close()

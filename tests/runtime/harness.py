@@ -34,7 +34,7 @@ def run_swarm(scn, lockstep: bool = True, fleet: str = "t", trace: bool = True, 
 
         def loop(a=a):
             try:
-                robot._loop_lockstep(a, stop) if lockstep else robot._loop_realtime(a, stop, __import__("time").time)
+                robot._loop_lockstep(a, stop) if lockstep else robot._loop_realtime(a, stop)
             finally:
                 a.close()
 

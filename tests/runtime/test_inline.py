@@ -228,3 +228,63 @@ def test_a_stopped_runner_runs_nothing():
     assert ran == [1] and r.stop(1.0)
     r.set()
     assert ran == [1]
+
+
+def _realtime_run(inline: bool, seed: int, periods: int = 30) -> tuple[list, robot.Agent, ThreadedBus]:
+    """A real-time robot on a fake clock, its simulated drive's poses a period apart (it crosses cells), with
+    its neighbours' states before each pose; after the last pose the clock moves on 1.5 periods, so the
+    waker makes a step without a pose. Inline, the steps run on the bus's thread and the waker's; else on
+    the loop thread, which blocks on the drive's inbox. Each command is awaited before the clock moves on."""
+    from swarm.core.clock import FakeClock
+    from swarm.drives.sim import SimDrive
+
+    cfg = protocol.Config(**{**CFG.__dict__, "lockstep": False})
+    net = MemoryNet()
+    bus = ThreadedBus(net)
+    clock = FakeClock()
+    agent = robot.Agent(bus, cfg, F, clock=clock, drive=SimDrive(bus, F, cfg.id), inline=inline)
+    assert isinstance(agent.kick, Runner) == inline
+    agent.start([])
+    probe = MemoryBus(net)
+    cmds: queue.Queue = queue.Queue()
+    probe.subscribe(keys.robot_cmd(F, cfg.id), lambda k, b: cmds.put(protocol.decode(b, "cmd")))
+    probe.put(keys.world_clock(F), protocol.encode(Clock(t=0.0, seq=0, epoch=clock.epoch, speed=1.0)))
+    stop = threading.Event()
+    loop = threading.Thread(target=robot._loop_realtime, args=(agent, stop), name="loop", daemon=True)
+    loop.start()
+    got = []
+    for k, (pose, ref, nbs) in enumerate(_inputs(seed, periods)):
+        t = k * cfg.dt
+        clock.elapsed = t
+        probe.put(keys.leader_ref(F), protocol.encode(Ref(t=t, seq=k, x=ref[0], y=ref[1], theta=ref[2], v=ref[3],
+                                                          w=ref[4])))
+        for j, (x, y, th) in nbs:
+            probe.put(*_state_msg(j, k, x, y, th))
+        probe.put(keys.robot_pose(F, cfg.id), protocol.encode(Pose(t=t, seq=k, x=pose[0], y=pose[1], theta=pose[2])))
+        c = cmds.get(timeout=DEADLINE_S)
+        got.append((c.t, c.v, c.w))
+    clock.elapsed = (periods - 1 + robot.POSE_LATE_PERIODS) * cfg.dt  # no pose this time: a step without one
+    c = cmds.get(timeout=DEADLINE_S)
+    got.append((c.t, c.v, c.w))
+    stop.set()
+    loop.join(DEADLINE_S)
+    assert not loop.is_alive() and bus.errors_seen == []
+    return got, agent, bus
+
+
+@pytest.mark.timeout(120)
+def test_an_inline_real_time_robot_steps_as_its_loop_does():
+    """Real time: the simulated drive's pose callback runs the step (and the waker a step without a pose): the
+    same commands as the loop thread's, bit for bit, a step without a pose included; the cell inboxes it let
+    go are closed by the loop thread."""
+    want, a0, b0 = _realtime_run(False, 1)
+    got, a1, b1 = _realtime_run(True, 1)
+    try:
+        assert got == want and len(got) == 31 and any(v != 0.0 for _, v, _ in got)
+        assert a1.reckoned == a0.reckoned == 1 and a1.kick.error is None and a1.kick.cpu_s > 0.0
+        assert a1.ticks == a0.ticks == 31 and a1.bad.count == 0
+        assert b1.closed_on and set(b1.closed_on) == {"loop"} and a1._closing == {}
+    finally:
+        for a, b in ((a0, b0), (a1, b1)):
+            a.close()
+            b.stop()
