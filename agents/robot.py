@@ -179,6 +179,10 @@ class Agent:
         self._key_ids: dict[str, int] = {}  # cell key -> the robot id at its end (parsed once)
         if inline and self.view is None and counters is None and (cfg.lockstep or getattr(drive, "takes_callback", False)):
             self.kick = Runner(self._ticks if cfg.lockstep else self._step_inline, self.wake)
+        # real time: the step without a pose's deadline, for the waker to wait on without the GIL (_watch)
+        wire = protocol._wire
+        self.late_timer = wire.Deadline() if wire is not None and not cfg.lockstep and \
+            getattr(clock, "machine_monotonic", False) else None
         self._rt_poses: deque = deque()  # real time inline: poses the drive's callback handed over, not taken yet
         # lock-step, no faults: neighbour states taken in C on the bus's thread (swarm/proto/_wire.c, StateSink;
         # anything but the common case goes to _on_state_msg)
@@ -1203,6 +1207,8 @@ class Agent:
             pose_t, x, y, th = self._advanced(bt, bx, by, bth, last, t)
             self.reckoned += 1
             self._late_next += self._period_wall()
+            if self.late_timer is not None:
+                self.late_timer.arm(self._late_next)
         else:
             self._rt_seq = pose.seq
             pose_t, x, y, th = pose.t, pose.x, pose.y, pose.theta
@@ -1254,6 +1260,8 @@ class Agent:
         """Real time (loop thread): a new pose was taken at monotonic time mono: the next one is due a period on."""
         self.last_pose_at = mono
         self._late_next = mono + POSE_LATE_PERIODS * self._period_wall()
+        if self.late_timer is not None:
+            self.late_timer.arm(self._late_next)
 
     _late_next = math.inf  # real time: when a step without a pose is due (monotonic), if none comes before
     periodic = False  # real time: its drive's poses come once a control period (a missing one is lost)
@@ -1477,6 +1485,7 @@ def _watch(stop: threading.Event, done: threading.Event, box, agent: Agent) -> N
     """The real-time loop's helper: wake it (box.wake()) on stop, and when a step without a pose is due."""
     name_thread("waker")
     woke_for = None
+    timer = agent.late_timer
     while not done.is_set():
         due = agent.late_due()
         if due is None:
@@ -1485,7 +1494,17 @@ def _watch(stop: threading.Event, done: threading.Event, box, agent: Agent) -> N
             left = min(0.2, agent._period_wall() / 2)
         else:
             left = min(0.2, max(0.0, due - agent.clock.monotonic()))
-        if stop.wait(left) or agent.ended:
+        if timer is not None:
+            # the agent arms the timer with each new due (every pose moves it a period on): the wake-ups that
+            # find it moved stay in C, without the GIL; stop is seen within 0.2 s
+            if due is None or due == woke_for:
+                time.sleep(left)
+            else:
+                timer.wait(0.2)
+            if stop.is_set() or agent.ended:
+                _wake(box)
+                return
+        elif stop.wait(left) or agent.ended:
             _wake(box)
             return
         if due is not None and due != woke_for and agent.late_due() == due and agent.clock.monotonic() >= due:

@@ -36,6 +36,7 @@ class WallClock:
 
     def __init__(self, system: Callable[[], float] = time.time, mono: Callable[[], float] = time.monotonic) -> None:
         self._system, self._mono = system, mono
+        self.machine_monotonic = mono is time.monotonic  # monotonic() is CLOCK_MONOTONIC (a C timer may wait on it)
         self._anchor = (system(), mono())  # one tuple, replaced whole: a reader on another thread never sees half
 
     def time(self) -> float:

@@ -16,6 +16,10 @@
 #include <limits.h>
 #include <stdint.h>
 #include <string.h>
+#include <math.h>
+#include <errno.h>
+#include <pthread.h>
+#include <time.h>
 
 #define MAX_FIELDS 32
 #define MAX_CONDS 64
@@ -1524,6 +1528,146 @@ static PyTypeObject StateSinkType = {
     .tp_new = StateSink_new,
 };
 
+/* ------------------------------------------------------------------------------------- a real-time waker's timer */
+
+/* Deadline(): when a real-time robot's step without a pose is due (agents.robot._watch). Each pose moves that
+ * instant a period on, so the waker wakes about once a period only to find it moved. Waiting here, the wake-up
+ * that finds the deadline moved costs no GIL and no Python: wait() returns to Python only once the deadline
+ * passed (True), or after cap seconds or stop() (False). arm(t) sets the deadline (CLOCK_MONOTONIC seconds, as
+ * time.monotonic()); an earlier one wakes the waiter, a later one is seen when the old one comes. */
+typedef struct {
+    PyObject_HEAD
+    pthread_mutex_t mu;
+    pthread_cond_t cv;
+    double due;
+    int stopped;
+} Deadline;
+
+static double mono_now(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static PyObject *Deadline_new(PyTypeObject *type, PyObject *args, PyObject *kwds) {
+    if (PyTuple_GET_SIZE(args) != 0 || (kwds != NULL && PyDict_GET_SIZE(kwds) != 0)) {
+        PyErr_SetString(PyExc_TypeError, "Deadline() takes no arguments");
+        return NULL;
+    }
+    Deadline *d = (Deadline *)type->tp_alloc(type, 0);
+    if (d == NULL)
+        return NULL;
+    pthread_condattr_t attr;
+    if (pthread_condattr_init(&attr) != 0 || pthread_condattr_setclock(&attr, CLOCK_MONOTONIC) != 0 ||
+        pthread_cond_init(&d->cv, &attr) != 0 || pthread_mutex_init(&d->mu, NULL) != 0) {
+        Py_TYPE(d)->tp_free((PyObject *)d);
+        PyErr_SetString(PyExc_OSError, "Deadline: cannot make its lock");
+        return NULL;
+    }
+    pthread_condattr_destroy(&attr);
+    d->due = INFINITY;
+    d->stopped = 0;
+    return (PyObject *)d;
+}
+
+static void Deadline_dealloc(Deadline *d) {
+    pthread_cond_destroy(&d->cv);
+    pthread_mutex_destroy(&d->mu);
+    Py_TYPE(d)->tp_free((PyObject *)d);
+}
+
+static PyObject *Deadline_arm(Deadline *d, PyObject *arg) {
+    double t = PyFloat_AsDouble(arg);
+    if (t == -1.0 && PyErr_Occurred())
+        return NULL;
+    if (isnan(t)) {
+        PyErr_SetString(PyExc_ValueError, "Deadline.arm: NaN");
+        return NULL;
+    }
+    pthread_mutex_lock(&d->mu);
+    int earlier = t < d->due;
+    d->due = t;
+    if (earlier)
+        pthread_cond_signal(&d->cv);
+    pthread_mutex_unlock(&d->mu);
+    Py_RETURN_NONE;
+}
+
+static PyObject *Deadline_stop(Deadline *d, PyObject *Py_UNUSED(ignored)) {
+    pthread_mutex_lock(&d->mu);
+    d->stopped = 1;
+    pthread_cond_broadcast(&d->cv);
+    pthread_mutex_unlock(&d->mu);
+    Py_RETURN_NONE;
+}
+
+static PyObject *Deadline_wait(Deadline *d, PyObject *arg) {
+    double cap = PyFloat_AsDouble(arg);
+    if (cap == -1.0 && PyErr_Occurred())
+        return NULL;
+    if (!(cap >= 0.0))
+        cap = 0.0;
+    int late = 0;
+    Py_BEGIN_ALLOW_THREADS
+    pthread_mutex_lock(&d->mu);
+    double end = mono_now() + cap;
+    for (;;) {
+        if (d->stopped)
+            break;
+        double now = mono_now();
+        if (d->due <= now) {
+            late = 1;
+            break;
+        }
+        if (now >= end)
+            break;
+        double until = d->due < end ? d->due : end;
+        struct timespec ts;
+        ts.tv_sec = (time_t)until;
+        ts.tv_nsec = (long)((until - (double)ts.tv_sec) * 1e9);
+        if (ts.tv_nsec >= 1000000000L) {
+            ts.tv_sec += 1;
+            ts.tv_nsec -= 1000000000L;
+        }
+        pthread_cond_timedwait(&d->cv, &d->mu, &ts); /* a timeout or a signal: look again */
+    }
+    pthread_mutex_unlock(&d->mu);
+    Py_END_ALLOW_THREADS
+    return PyBool_FromLong(late);
+}
+
+static PyObject *Deadline_get_due(Deadline *d, void *Py_UNUSED(closure)) {
+    pthread_mutex_lock(&d->mu);
+    double t = d->due;
+    pthread_mutex_unlock(&d->mu);
+    return PyFloat_FromDouble(t);
+}
+
+static PyMethodDef Deadline_methods[] = {
+    {"arm", (PyCFunction)Deadline_arm, METH_O, "arm(t): the deadline is t (monotonic seconds)"},
+    {"wait", (PyCFunction)Deadline_wait, METH_O,
+     "wait(cap): True once the deadline passed; False after cap seconds or stop() (the GIL released meanwhile)"},
+    {"stop", (PyCFunction)Deadline_stop, METH_NOARGS, "stop(): every wait() returns False from now on"},
+    {NULL, NULL, 0, NULL},
+};
+
+static PyGetSetDef Deadline_getset[] = {
+    {"due", (getter)Deadline_get_due, NULL, "the deadline (monotonic seconds; inf: none)", NULL},
+    {NULL, NULL, NULL, NULL, NULL},
+};
+
+static PyTypeObject DeadlineType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "swarm.proto._wire.Deadline",
+    .tp_basicsize = sizeof(Deadline),
+    .tp_dealloc = (destructor)Deadline_dealloc,
+    .tp_flags = Py_TPFLAGS_DEFAULT,
+    .tp_doc = "Deadline(): a real-time waker's timer, waited on without the GIL (arm, wait, stop)",
+    .tp_methods = Deadline_methods,
+    .tp_getset = Deadline_getset,
+    .tp_new = Deadline_new,
+};
+
 static PyMethodDef wire_methods[] = {
     {"pin_thread", wire_pin_thread, METH_NOARGS,
      "pin_thread(): keep this thread's Python thread state (a callback on zenoh's thread: see swarm.net.bus)"},
@@ -1548,7 +1692,8 @@ static struct PyModuleDef wire_module = {
 };
 
 PyMODINIT_FUNC PyInit__wire(void) {
-    if (PyType_Ready(&DecoderType) < 0 || PyType_Ready(&EncoderType) < 0 || PyType_Ready(&StateSinkType) < 0)
+    if (PyType_Ready(&DecoderType) < 0 || PyType_Ready(&EncoderType) < 0 || PyType_Ready(&StateSinkType) < 0 ||
+        PyType_Ready(&DeadlineType) < 0)
         return NULL;
     if (empty_tuple == NULL && (empty_tuple = PyTuple_New(0)) == NULL)
         return NULL;
@@ -1584,7 +1729,9 @@ PyMODINIT_FUNC PyInit__wire(void) {
     Py_INCREF(&DecoderType);
     Py_INCREF(&EncoderType);
     Py_INCREF(&StateSinkType);
+    Py_INCREF(&DeadlineType);
     if (PyModule_AddObject(m, "Decoder", (PyObject *)&DecoderType) < 0 ||
+        PyModule_AddObject(m, "Deadline", (PyObject *)&DeadlineType) < 0 ||
         PyModule_AddObject(m, "StateSink", (PyObject *)&StateSinkType) < 0 ||
         PyModule_AddObject(m, "Encoder", (PyObject *)&EncoderType) < 0 ||
         PyModule_AddIntConstant(m, "RANGE", C_RANGE) < 0 || PyModule_AddIntConstant(m, "LT", C_LT) < 0 ||

@@ -81,3 +81,46 @@ def test_no_set_is_lost_under_contention():
     for t in threads:
         t.join(10.0)
     assert state["seen"] == 2 * rounds and lost == 0
+
+
+wire = pytest.importorskip("swarm.proto._wire", reason="the compiled codec is not built here (no C compiler)")
+
+
+@pytest.mark.timeout(30)
+def test_a_deadline_waits_for_the_newest_armed_time_without_the_gil():
+    """swarm.proto._wire.Deadline (a real-time robot's waker waits on it): wait(cap) returns True once the
+    armed time passed, False after cap or stop(); a later arm while waiting is waited for, an earlier one
+    ends the wait at once; another thread runs Python meanwhile (the GIL is released)."""
+    d = wire.Deadline()
+    assert d.due == float("inf")
+    t0 = time.monotonic()
+    assert d.wait(0.05) is False and 0.04 <= time.monotonic() - t0 < 5.0  # no deadline: the cap
+    d.arm(time.monotonic() - 1.0)
+    assert d.wait(5.0) is True  # already past
+    d.arm(time.monotonic() + 0.05)
+    pushed = threading.Event()
+    counted = [0]
+
+    def push_later():  # while the main thread waits: Python runs (no GIL held), then the deadline moves on
+        while counted[0] < 1000:
+            counted[0] += 1
+        d.arm(time.monotonic() + 0.2)
+        pushed.set()
+
+    t0 = time.monotonic()
+    threading.Thread(target=push_later, daemon=True).start()
+    assert d.wait(5.0) is True
+    assert pushed.is_set() and counted[0] == 1000 and time.monotonic() - t0 >= 0.2 and time.monotonic() >= d.due
+    d.arm(time.monotonic() + 60.0)
+    threading.Timer(0.05, lambda: d.arm(time.monotonic())).start()  # an earlier time wakes the waiter
+    t0 = time.monotonic()
+    assert d.wait(20.0) is True and time.monotonic() - t0 < 10.0
+    d.arm(time.monotonic() + 60.0)
+    threading.Timer(0.05, d.stop).start()
+    t0 = time.monotonic()
+    assert d.wait(20.0) is False and time.monotonic() - t0 < 10.0
+    assert d.wait(20.0) is False  # stopped for good
+    with pytest.raises(ValueError, match="NaN"):
+        d.arm(float("nan"))
+    with pytest.raises(TypeError):
+        d.arm("soon")
