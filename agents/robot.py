@@ -46,9 +46,9 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import deque
 import threading
 import time
+from collections import deque
 
 from swarm.proto import keys, protocol
 from swarm.core import fastlaw, kinematics, law
@@ -96,9 +96,10 @@ class Agent:
     validate the message, update what the agent knows under `lock`, and set `kick` when there is
     something to do (a new tick, or a tick whose inputs are complete). By default `kick` is `wake`, the
     loop thread's, and the loop thread does every bus call (publish, move subscriptions, drain inboxes).
-    Inline (lock-step without faults, on zenoh: run_robot), `kick` is a Runner that computes the tick on
-    the callback's own thread at once: no loop thread woken twice a tick (docs/runtime.md); the loop thread
-    then only closes the subscriptions a tick let go (_release) and computes a tick that is overdue.
+    Inline (no faults, on zenoh: run_robot), `kick` is a Runner that computes the tick on the callback's
+    own thread at once (lock-step; in real time the simulated drive's pose callback runs the step): no
+    loop thread woken for it (docs/runtime.md); the loop thread then only closes the subscriptions a tick
+    let go (_release) and computes a lock-step tick that is overdue.
     Lock-step takes everything through callbacks (its wait rule needs each state as it arrives); its
     neighbour states through a compiled sink where it was built (swarm.proto._wire.StateSink: the same
     rules as _on_state_msg, which gets anything but their common case). Real time uses callbacks only
@@ -109,9 +110,10 @@ class Agent:
     def __init__(self, bus, cfg: Config, fleet: str = "default", wait_timeout: float = WAIT_TIMEOUT_S,
                  clock=WALL, drive=None, guard=None, faults=None, horizon_floor: float = 0.0, counters=None,
                  inline: bool = False):
-        """Lock-step without faults: inline runs each tick on the bus thread whose message made it due (its
-        pose, the last state it waited for) instead of waking the loop thread for it (`kick`, a
-        swarm.core.wake.Runner; only on a bus whose callbacks never run inside this process's own put: zenoh's).
+        """inline (zenoh's bus, no faults): a lock-step tick runs on the bus thread whose message made it due
+        (its pose, the last state it waited for), and a real-time step on the thread of its simulated drive's
+        pose, instead of waking the loop thread for it (`kick`, a swarm.core.wake.Runner; only on a bus that
+        calls another session's messages on threads of its own: zenoh's).
         Real time: horizon_floor [s] is the governor's least horizon (swarm.core.faultsim.horizon under
         faults: a command may be held and braked); counters, when given, is an object with `dropped` and
         `delayed` lists by class (a swarm.net.faultbus.FaultBus): reported to the world with every status."""
@@ -186,7 +188,6 @@ class Agent:
         self._rt_poses: deque = deque()  # real time inline: poses the drive's callback handed over, not taken yet
         # lock-step, no faults: neighbour states taken in C on the bus's thread (swarm/proto/_wire.c, StateSink;
         # anything but the common case goes to _on_state_msg)
-        wire = protocol._wire
         self._state_sink = wire.StateSink(self, self._dec_state, self._key_ids, self._on_state_msg, self._sink_error) \
             if wire is not None and cfg.lockstep and self.view is None and hasattr(bus, "subscribe_sink") else None
         if self.drive is not None and getattr(self.drive, "limits", False) is None:
@@ -620,7 +621,7 @@ class Agent:
             self.kick.set()
 
     def take_poses(self, poses: list[protocol.Pose]) -> None:
-        """Real time (loop thread): the poses the drive gave (decoded); each in the window is taken."""
+        """Real time (the step's thread): the poses the drive gave (decoded); each in the window is taken."""
         if not poses:
             return
         key = getattr(self.drive, "pose_key", "pose")
@@ -1257,7 +1258,8 @@ class Agent:
         return self.cfg.dt / max(1e-9, self.speed)
 
     def pose_taken(self, mono: float) -> None:
-        """Real time (loop thread): a new pose was taken at monotonic time mono: the next one is due a period on."""
+        """Real time (the step's thread): a new pose was taken at monotonic time mono: the next one is due a period
+        on (late_timer armed with it)."""
         self.last_pose_at = mono
         self._late_next = mono + POSE_LATE_PERIODS * self._period_wall()
         if self.late_timer is not None:
@@ -1476,6 +1478,8 @@ def _loop_realtime(agent: Agent, stop: threading.Event) -> None:
             agent.loop_cpu_s += cpu() - c0
     finally:
         done.set()
+        if agent.late_timer is not None:
+            agent.late_timer.stop()  # the waker's wait returns now
         waker.join(1.0)
         if runner is not None:
             agent.loop_cpu_s += runner.cpu_s  # the steps' CPU, wherever they ran
