@@ -48,6 +48,8 @@ typedef struct {
     int keylen[MAX_FIELDS];
     char type[MAX_FIELDS];
     PyObject *name[MAX_FIELDS]; /* the Python attribute of each field, in the dataclass's order of the wire */
+    PyObject *slot[MAX_FIELDS]; /* a class with __slots__ (no __dict__): each field's member descriptor */
+    int slotted;
     Cond cond[MAX_CONDS];
 } Decoder;
 
@@ -195,6 +197,22 @@ static PyObject *Decoder_new(PyTypeObject *tp, PyObject *args, PyObject *kw) {
         }
     }
     d->nc = (int)nc;
+    if (!PyType_Check(cls)) {
+        PyErr_SetString(PyExc_TypeError, "cls is not a class");
+        goto fail;
+    }
+    d->slotted = ((PyTypeObject *)cls)->tp_dictoffset == 0;
+    for (int i = 0; d->slotted && i < d->nf; i++) { /* each field's member descriptor (its slot) */
+        PyObject *desc = PyObject_GetAttr(cls, d->name[i]);
+        if (desc == NULL)
+            goto fail;
+        if (!Py_IS_TYPE(desc, &PyMemberDescr_Type)) {
+            Py_DECREF(desc);
+            PyErr_SetString(PyExc_TypeError, "a field of a class without __dict__ is not a slot");
+            goto fail;
+        }
+        d->slot[i] = desc;
+    }
     return (PyObject *)d;
 fail:
     Py_DECREF(d);
@@ -204,8 +222,10 @@ fail:
 static void Decoder_dealloc(Decoder *d) {
     Py_XDECREF(d->cls);
     Py_XDECREF(d->fallback);
-    for (int i = 0; i < d->nf; i++)
+    for (int i = 0; i < d->nf; i++) {
         Py_XDECREF(d->name[i]);
+        Py_XDECREF(d->slot[i]);
+    }
     Py_TYPE(d)->tp_free((PyObject *)d);
 }
 
@@ -307,6 +327,31 @@ static PyObject *Decoder_vectorcall(PyObject *callable, PyObject *const *args, s
     if (!PyBytes_CheckExact(payload) || PyBytes_GET_SIZE(payload) > d->maxlen ||
         !parse(d, (const unsigned char *)PyBytes_AS_STRING(payload), PyBytes_GET_SIZE(payload), num, uint, key_id))
         return PyObject_Vectorcall(d->fallback, args, nargsf, kwnames);
+    if (d->slotted) { /* object.__new__(cls), then each slot (a frozen dataclass refuses setattr) */
+        PyObject *m = PyBaseObject_Type.tp_new((PyTypeObject *)d->cls, empty_tuple, NULL);
+        if (m == NULL)
+            return NULL;
+        for (int i = 0; i < d->nf; i++) {
+            PyObject *v;
+            if (d->type[i] == T_FLOAT)
+                v = PyFloat_FromDouble(num[i]);
+            else if (d->type[i] == T_INT)
+                v = PyLong_FromUnsignedLongLong(uint[i]);
+            else
+                v = Py_NewRef(uint[i] ? Py_True : Py_False);
+            if (v == NULL) {
+                Py_DECREF(m);
+                return NULL;
+            }
+            int rc = Py_TYPE(d->slot[i])->tp_descr_set(d->slot[i], m, v); /* the slot's, not the frozen class's */
+            Py_DECREF(v);
+            if (rc < 0) {
+                Py_DECREF(m);
+                return NULL;
+            }
+        }
+        return m;
+    }
     PyObject *dict = PyDict_New();
     if (dict == NULL)
         return NULL;
@@ -348,6 +393,72 @@ static PyTypeObject DecoderType = {
     .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_VECTORCALL,
     .tp_doc = "Decoder(kind, version, fields, conds, idfield, maxlen, cls, fallback): a kind's canonical layout, compiled",
     .tp_new = Decoder_new,
+};
+
+/* Filler(cls, names)(obj, v0, v1, ...): obj's slots named by names set to v0, v1, ... in turn, through their
+ * descriptors (a frozen class's __setattr__ refuses): the __init__ of a message class with __slots__
+ * (swarm.proto.protocol._fast_init), one call instead of a descriptor's __set__ per field. */
+typedef struct {
+    PyObject_HEAD
+    vectorcallfunc vectorcall;
+    int n;
+    PyObject *slot[MAX_FIELDS];
+} Filler;
+
+static PyObject *Filler_vectorcall(PyObject *callable, PyObject *const *args, size_t nargsf, PyObject *kwnames) {
+    Filler *f = (Filler *)callable;
+    if (kwnames != NULL || PyVectorcall_NARGS(nargsf) != (Py_ssize_t)f->n + 1) {
+        PyErr_Format(PyExc_TypeError, "Filler takes the object and its %d fields, by position", f->n);
+        return NULL;
+    }
+    for (int i = 0; i < f->n; i++)
+        if (Py_TYPE(f->slot[i])->tp_descr_set(f->slot[i], args[0], args[i + 1]) < 0)
+            return NULL;
+    Py_RETURN_NONE;
+}
+
+static PyObject *Filler_new(PyTypeObject *tp, PyObject *args, PyObject *kw) {
+    PyObject *cls, *names;
+    if (!PyArg_ParseTuple(args, "O!O!", &PyType_Type, &cls, &PyTuple_Type, &names))
+        return NULL;
+    if (PyTuple_GET_SIZE(names) > MAX_FIELDS) {
+        PyErr_SetString(PyExc_ValueError, "too many fields for a Filler");
+        return NULL;
+    }
+    Filler *f = (Filler *)tp->tp_alloc(tp, 0);
+    if (f == NULL)
+        return NULL;
+    f->vectorcall = Filler_vectorcall;
+    for (Py_ssize_t i = 0; i < PyTuple_GET_SIZE(names); i++) {
+        PyObject *desc = PyObject_GetAttr(cls, PyTuple_GET_ITEM(names, i));
+        if (desc == NULL || !Py_IS_TYPE(desc, &PyMemberDescr_Type)) {
+            Py_XDECREF(desc);
+            if (!PyErr_Occurred())
+                PyErr_SetString(PyExc_TypeError, "a field of the class is not a slot");
+            Py_DECREF(f);
+            return NULL;
+        }
+        f->slot[f->n++] = desc;
+    }
+    return (PyObject *)f;
+}
+
+static void Filler_dealloc(Filler *f) {
+    for (int i = 0; i < f->n; i++)
+        Py_XDECREF(f->slot[i]);
+    Py_TYPE(f)->tp_free((PyObject *)f);
+}
+
+static PyTypeObject FillerType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "swarm.proto._wire.Filler",
+    .tp_basicsize = sizeof(Filler),
+    .tp_dealloc = (destructor)Filler_dealloc,
+    .tp_vectorcall_offset = offsetof(Filler, vectorcall),
+    .tp_call = PyVectorcall_Call,
+    .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_VECTORCALL,
+    .tp_doc = "Filler(cls, names)(obj, *values): obj's slots set in turn (a slotted message's __init__)",
+    .tp_new = Filler_new,
 };
 
 /* ------------------------------------------------------------------------------------------- encoding */
@@ -731,9 +842,11 @@ static PyObject *wire_decode_states(PyObject *module, PyObject *const *args, Py_
 
 static PyObject *s_id, *s_t, *s_seq, *s_seq_span, *s_t_span, *s_cand, *s_run;
 
-/* 1: robot j's state (t, seq) is in its window's common case (swarm.proto.window.Window.check's first test),
- * and the window took it; 0: it is not (nothing changed: the full check decides); -1: an error. */
-static int window_take(PyObject *w, double t, PyObject *seq) {
+/* 1: robot j's state (tt, a float, and seq) is in its window's common case (swarm.proto.window.Window.check's
+ * first test), and the window took it (its t the same object, as the Python's); 0: it is not (nothing changed:
+ * the full check decides); -1: an error. */
+static int window_take(PyObject *w, PyObject *tt, PyObject *seq) {
+    double t = PyFloat_AS_DOUBLE(tt);
     PyObject *t0 = PyObject_GetAttr(w, s_t);
     if (t0 == NULL)
         return -1;
@@ -760,12 +873,11 @@ static int window_take(PyObject *w, double t, PyObject *seq) {
     }
     if (!(a < q && q <= a + b && t0v <= t && t <= t0v + PyFloat_AS_DOUBLE(tspan)))
         goto done;
-    PyObject *tf = PyFloat_FromDouble(t), *zero = PyLong_FromLong(0);
+    PyObject *zero = PyLong_FromLong(0);
     ok = -1;
-    if (tf != NULL && zero != NULL && PyObject_SetAttr(w, s_t, tf) == 0 && PyObject_SetAttr(w, s_seq, seq) == 0 &&
+    if (zero != NULL && PyObject_SetAttr(w, s_t, tt) == 0 && PyObject_SetAttr(w, s_seq, seq) == 0 &&
         PyObject_SetAttr(w, s_cand, Py_None) == 0 && PyObject_SetAttr(w, s_run, zero) == 0)
         ok = 1;
-    Py_XDECREF(tf);
     Py_XDECREF(zero);
 done:
     Py_XDECREF(seq0);
@@ -820,7 +932,7 @@ static PyObject *wire_take_states(PyObject *module, PyObject *const *args, Py_ss
                 goto fail;
             if (w != NULL) {
                 Py_INCREF(w);
-                fast = window_take(w, PyFloat_AS_DOUBLE(tt), seq);
+                fast = window_take(w, tt, seq);
                 Py_DECREF(w);
                 if (fast < 0)
                     goto fail;
@@ -956,12 +1068,18 @@ static void bodies_free(PyObject *ids, PyObject **out, PyObject *dead_near) {
         Py_XDECREF(out[i]);
 }
 
-/* A robot's body (its state nb at bx, by) appended to bodies()'s lists, with its kind and age. */
-static int append_body(PyObject **out, PyObject *nb, double bx, double by, PyObject *kind, double age) {
-    double br, bR;
-    if (attr_double(nb, s_r, &br) < 0 || attr_double(nb, s_R, &bR) < 0 || append_double(out[0], bx) < 0 ||
-        append_double(out[1], by) < 0 || append_double(out[2], br) < 0 || append_double(out[3], bR) < 0 ||
-        PyList_Append(out[4], kind) < 0 || append_double(out[5], age) < 0)
+/* A robot's body (its state nb) appended to bodies()'s lists, with its kind and age: its x, y, r and R objects
+ * themselves, as the Python appends them (no float made for them). */
+static int append_body(PyObject **out, PyObject *nb, PyObject *kind, double age) {
+    PyObject *const names[4] = {s_x, s_y, s_r, s_R};
+    for (int i = 0; i < 4; i++) {
+        PyObject *v = PyObject_GetAttr(nb, names[i]);
+        int rc = v == NULL ? -1 : PyList_Append(out[i], v);
+        Py_XDECREF(v);
+        if (rc < 0)
+            return -1;
+    }
+    if (PyList_Append(out[4], kind) < 0 || append_double(out[5], age) < 0)
         return -1;
     return 0;
 }
@@ -1053,7 +1171,7 @@ static PyObject *wire_live_bodies(PyObject *module, PyObject *const *args, Py_ss
         double age = a0 + (mono > m0 ? mono - m0 : 0.0) * speed;
         int is_stale = age > stale_after;
         if (dx * dx + dy * dy < r2) {
-            if (append_body(out, nb, bx, by, kind, age) < 0)
+            if (append_body(out, nb, kind, age) < 0)
                 goto done;
             robots += 1;
             stale += is_stale;
@@ -1114,7 +1232,7 @@ static PyObject *wire_lock_bodies(PyObject *module, PyObject *const *args, Py_ss
             goto done;
         double dx = x - bx, dy = y - by;
         if (dx * dx + dy * dy < r2) {
-            if (append_body(out, nb, bx, by, kind, 0.0) < 0)
+            if (append_body(out, nb, kind, 0.0) < 0)
                 goto done;
             robots += 1;
             stale += is_stale;
@@ -1321,7 +1439,7 @@ static int sink_take(StateSink *k, PyObject *st, int *due) {
         goto done;
     }
     Py_INCREF(w);
-    rc = window_take(w, PyFloat_AS_DOUBLE(tt), seq);
+    rc = window_take(w, tt, seq);
     if (rc != 1)
         goto done;
     /* taken: from here on every step must happen (an error is reported, not undone) */
@@ -1693,7 +1811,7 @@ static struct PyModuleDef wire_module = {
 
 PyMODINIT_FUNC PyInit__wire(void) {
     if (PyType_Ready(&DecoderType) < 0 || PyType_Ready(&EncoderType) < 0 || PyType_Ready(&StateSinkType) < 0 ||
-        PyType_Ready(&DeadlineType) < 0)
+        PyType_Ready(&DeadlineType) < 0 || PyType_Ready(&FillerType) < 0)
         return NULL;
     if (empty_tuple == NULL && (empty_tuple = PyTuple_New(0)) == NULL)
         return NULL;
@@ -1730,7 +1848,9 @@ PyMODINIT_FUNC PyInit__wire(void) {
     Py_INCREF(&EncoderType);
     Py_INCREF(&StateSinkType);
     Py_INCREF(&DeadlineType);
+    Py_INCREF(&FillerType);
     if (PyModule_AddObject(m, "Decoder", (PyObject *)&DecoderType) < 0 ||
+        PyModule_AddObject(m, "Filler", (PyObject *)&FillerType) < 0 ||
         PyModule_AddObject(m, "Deadline", (PyObject *)&DeadlineType) < 0 ||
         PyModule_AddObject(m, "StateSink", (PyObject *)&StateSinkType) < 0 ||
         PyModule_AddObject(m, "Encoder", (PyObject *)&EncoderType) < 0 ||

@@ -170,3 +170,52 @@ def test_compiled_encoder_takes_float_subclasses_as_msgpack_does():
     assert p._compile_encode("cmd")(msg) == _python_encoder("cmd")(msg)
     assert p.decode(p.encode(msg)) == p.Cmd(t=1.5, seq=2, v=-0.25, w=0.0)
 
+
+
+def _slotted(name: str):
+    """A fresh frozen dataclass with slots and a default, as protocol declares the messages of every period."""
+    return dataclasses.make_dataclass(name, [("t", float), ("seq", int), ("x", float, 0.5)], frozen=True, slots=True)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_a_slotted_message_is_built_as_its_dataclass_builds_it(compiled):
+    """protocol._fast_init on a class with __slots__ (one compiled Filler call, or a descriptor's __set__ per
+    field without the compiled codec): the same fields, defaults, equality, hash and errors as the dataclass's own
+    __init__, and still frozen."""
+    plain, fast = _slotted("M"), _slotted("M")
+    wire, p._wire = p._wire, (p._wire if compiled else None)
+    try:
+        p._fast_init(fast)
+    finally:
+        p._wire = wire
+    assert ("_fill" in fast.__init__.__globals__) == compiled
+    for args, kw in (((1.0, 7), {}), ((1.0,), {"seq": 2, "x": -3.0}), ((), {"t": 0.0, "seq": 0})):
+        a, b = plain(*args, **kw), fast(*args, **kw)
+        assert repr(a) == repr(b) and hash(a) == hash(b) and dataclasses.astuple(a) == dataclasses.astuple(b)
+        assert not hasattr(b, "__dict__")
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            b.t = 2.0
+    for bad in (lambda c: c(1.0), lambda c: c(1.0, 2, 3.0, 4), lambda c: c(1.0, 2, y=1.0)):
+        with pytest.raises(TypeError) as want:
+            bad(plain)
+        with pytest.raises(TypeError) as got:
+            bad(fast)
+        assert str(got.value).split("(")[-1] == str(want.value).split("(")[-1]
+
+
+def test_the_messages_of_every_period_keep_their_fields_in_slots():
+    """A robot builds or decodes these every control period (a state per neighbour): slots, not a __dict__, keep
+    each small (the decoder fills them through their descriptors), and the decoder's message equals the built one."""
+    s = p.State(id=3, t=1.0, seq=5, x=1.0, y=2.0, theta=0.1, r=0.3, R=1.2, frozen=False)
+    for m in (s, p.Pose(t=1.0, seq=5, x=1.0, y=2.0, theta=0.1), p.Ref(1.0, 5, 1.0, 2.0, 0.1, 0.5, 0.01),
+              p.Cmd(1.0, 5, 0.3, -0.2), p.Status(1.0, 0.1, 0.2, 0.3, False, 4, 0, 0)):
+        kind = p._KIND_OF[type(m)]
+        got = p.decode(p.encode(m), kind)
+        assert got == m and type(got) is type(m) and not hasattr(got, "__dict__")
+    assert p._compile_hot("state", None)(p.encode(s), 3) == s
+    with pytest.raises(TypeError, match="2 fields"):
+        p._wire.Filler(p.Cmd, ("t", "seq"))(p.Cmd(1.0, 5, 0.3, -0.2), 1.0)
+    with pytest.raises(TypeError, match="not a slot"):
+        p._wire.Filler(type("Plain", (), {"x": 1.0}), ("x",))
+    with pytest.raises(AttributeError):
+        p._wire.Filler(p.Cmd, ("nope",))
