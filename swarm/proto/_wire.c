@@ -144,6 +144,18 @@ static int fields_of(PyObject *fields, int *nf, unsigned char key[][MAX_KEY + 1]
 
 /* ------------------------------------------------------------------------------------------- decoding */
 
+/* The member descriptor (the slot) of attribute name of cls: a new reference, or NULL with the error set (a
+ * TypeError when it is not a slot). A slotted message's fields are set through these (Decoder, Filler). */
+static PyObject *slot_of(PyObject *cls, PyObject *name) {
+    PyObject *desc = PyObject_GetAttr(cls, name);
+    if (desc != NULL && !Py_IS_TYPE(desc, &PyMemberDescr_Type)) {
+        Py_DECREF(desc);
+        PyErr_SetString(PyExc_TypeError, "a field of the class is not a slot");
+        return NULL;
+    }
+    return desc;
+}
+
 static PyObject *Decoder_vectorcall(PyObject *callable, PyObject *const *args, size_t nargsf, PyObject *kwnames);
 
 static PyObject *Decoder_new(PyTypeObject *tp, PyObject *args, PyObject *kw) {
@@ -202,17 +214,9 @@ static PyObject *Decoder_new(PyTypeObject *tp, PyObject *args, PyObject *kw) {
         goto fail;
     }
     d->slotted = ((PyTypeObject *)cls)->tp_dictoffset == 0;
-    for (int i = 0; d->slotted && i < d->nf; i++) { /* each field's member descriptor (its slot) */
-        PyObject *desc = PyObject_GetAttr(cls, d->name[i]);
-        if (desc == NULL)
+    for (int i = 0; d->slotted && i < d->nf; i++) /* each field's member descriptor (its slot) */
+        if ((d->slot[i] = slot_of(cls, d->name[i])) == NULL)
             goto fail;
-        if (!Py_IS_TYPE(desc, &PyMemberDescr_Type)) {
-            Py_DECREF(desc);
-            PyErr_SetString(PyExc_TypeError, "a field of a class without __dict__ is not a slot");
-            goto fail;
-        }
-        d->slot[i] = desc;
-    }
     return (PyObject *)d;
 fail:
     Py_DECREF(d);
@@ -430,11 +434,8 @@ static PyObject *Filler_new(PyTypeObject *tp, PyObject *args, PyObject *kw) {
         return NULL;
     f->vectorcall = Filler_vectorcall;
     for (Py_ssize_t i = 0; i < PyTuple_GET_SIZE(names); i++) {
-        PyObject *desc = PyObject_GetAttr(cls, PyTuple_GET_ITEM(names, i));
-        if (desc == NULL || !Py_IS_TYPE(desc, &PyMemberDescr_Type)) {
-            Py_XDECREF(desc);
-            if (!PyErr_Occurred())
-                PyErr_SetString(PyExc_TypeError, "a field of the class is not a slot");
+        PyObject *desc = slot_of(cls, PyTuple_GET_ITEM(names, i));
+        if (desc == NULL) {
             Py_DECREF(f);
             return NULL;
         }
