@@ -128,6 +128,7 @@ class Agent:
 
             drive = SimDrive(bus, fleet, cfg.id)
         self.drive = drive
+        self._pose_key = getattr(drive, "pose_key", "pose")  # where a bad pose is said to come from
         self.guard = guard
         self.periodic = bool(getattr(drive, "periodic", False))  # its poses come once a control period
         self.p = [0.0] * law.P_SIZE
@@ -259,6 +260,7 @@ class Agent:
             self._inputs = [self.bus.subscribe(key, fn) for key, fn in self._lockstep_inputs()]
         elif isinstance(self.kick, Runner):  # its drive's poses to a callback that runs the step (_step_inline)
             self.drive.start(self._on_drive_poses)
+            self._poses_by_callback = True
             self._ref_inbox = self.bus.inbox(self._ref_key)
             self._handles.append(self._ref_inbox)
         else:  # the loop waits on its drive's poses and drains the other inboxes (see _loop_realtime)
@@ -371,6 +373,7 @@ class Agent:
         self._cell = cell
         self._block_prev = now
 
+    _poses_by_callback = False  # real time inline: the drive's callback hands over every pose (drive.drain() has none)
     _drain_cells = None  # real time: drains the reference's and every cell's inbox in one call (swarm.net.bus.drainer)
     _batch = (None, math.inf, 0.0)  # real time, under the lock: _on_states's (now, ahead, mono) for _take_one
     _hinted_n = 0  # how many of _key_ids (insertion-ordered; only added to, or cleared) went to bus.hint
@@ -624,7 +627,7 @@ class Agent:
         """Real time (the step's thread): the poses the drive gave (decoded); each in the window is taken."""
         if not poses:
             return
-        key = getattr(self.drive, "pose_key", "pose")
+        key = self._pose_key
         for pose in poses:
             with self.lock:
                 self._on_pose(pose, key)
@@ -635,7 +638,8 @@ class Agent:
     def _take_inboxes(self) -> None:
         """Real time (loop thread): decode the references and neighbour states waiting in the inboxes,
         in one batch under one lock (no per-message wake-up: the loop is already running)."""
-        self.take_poses(self.drive.drain())  # one that came since the loop woke (the newest wins)
+        if not self._poses_by_callback:  # inline, the drive's callback hands every pose to the step: none here
+            self.take_poses(self.drive.drain())  # one that came since the loop woke (the newest wins)
         bad, refs, states = [], [], []
         if self._drain_cells is None:  # the reference's inbox and every cell's in one call (swarm.net.bus.drainer),
             self._drain_cells = drainer([self._ref_inbox, *self._cells.values()])  # remade when the cells change
