@@ -288,6 +288,29 @@ def write_json(path: Path, obj: dict) -> None:
     tmp.replace(path)
 
 
+def clear_metrics(metrics_path: Path, log_dir: Path) -> None:
+    """Before a run of swarm up: no earlier run's metrics at --metrics or in the log directory (what is read
+    back at the end must be this run's)."""
+    for path in dict.fromkeys((metrics_path, (log_dir / "metrics.json").absolute())):
+        try:
+            path.unlink(missing_ok=True)
+        except OSError as e:
+            raise BadInput(f"--metrics {path}: cannot replace it: {e.strerror or e}") from None
+
+
+def write_metrics(metrics_path: Path, log_dir: Path, metrics: dict) -> None:
+    """After a run of swarm up: the metrics at metrics_path, and a copy in the log directory when --metrics
+    put them elsewhere (docs/metrics.md). A copy that cannot be written is said on stderr; the run stands."""
+    write_json(metrics_path, metrics)
+    copy = (log_dir / "metrics.json").absolute()
+    if copy != metrics_path:
+        try:
+            write_json(copy, metrics)
+        except OSError as e:
+            print(f"swarm up: could not write the log directory's copy of the metrics, {copy}: {e.strerror or e}",
+                  file=sys.stderr)
+
+
 def record_rate(args) -> float:
     """--record-hz (default swarm.view.record.DEFAULT_RECORD_HZ), refused without --record rather than ignored."""
     if args.record_hz is not None and args.record is None:

@@ -357,7 +357,7 @@ def _add_run_flags(p: argparse.ArgumentParser, up: bool = False) -> None:
         g.add_argument("--lost-timeout", type=_positive_float, default=10.0, metavar="S",
                        help="how long the leader, or every robot at once, may be away before the run ends with a "
                             "failure (lock-step holds its tick meanwhile; default 10)")
-        g.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (its keys: docs/design.md, Metrics); swarm up always writes it to the log directory too")
+        g.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (its keys: docs/metrics.md); swarm up always writes it to the log directory too")
         g.add_argument("--trace", type=Path, metavar="PATH.npz",
                        help="write every robot's pose at every sample (numpy .npz: q[k, i] = x, y, theta; t[k] its simulated "
                             "time, which in real time may skip periods the world fell behind on)")

@@ -14,8 +14,8 @@ import time
 from pathlib import Path
 
 from swarm.cli.common import (EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent, check_endpoint,
-                              check_listen_free, check_out_dir, check_viz_port, fleet_of, load_scenario, open_bus,
-                              record_rate, scenario_args, viz_options, write_json)
+                              check_listen_free, check_out_dir, check_viz_port, clear_metrics, fleet_of, load_scenario,
+                              open_bus, record_rate, scenario_args, viz_options, write_metrics)
 from swarm.cli import console
 from swarm.cli.console import cpu_counters, exit_status, progress_line, steal_pct, summary
 from swarm.core.clock import WALL
@@ -159,10 +159,7 @@ def cmd_up(args, started: float) -> int:
         check_listen_free(opts.listen or plan.endpoint)
     log_dir.mkdir(exist_ok=True)
     removed = prune_logs(Path(tempfile.gettempdir()), fleet, keep=KEEP_LOGS, current=log_dir) if args.log_dir is None else 0
-    try:  # whatever is read back at the end must be this run's: never an earlier run's file
-        metrics_path.unlink(missing_ok=True)
-    except OSError as e:
-        raise BadInput(f"--metrics {metrics_path}: cannot replace it: {e.strerror or e}") from None
+    clear_metrics(metrics_path, log_dir)  # whatever is read back at the end must be this run's
     compile_project()
     status = console.StatusLine(enabled=not args.quiet, log_every=2.0)
     say = (lambda text: None) if args.quiet else (lambda text: status.note(text))
@@ -281,7 +278,7 @@ def cmd_up(args, started: float) -> int:
     metrics["robot_restarts"] = sup.restarted
     metrics["leader_restarts"] = sup.leader_restarted
     metrics["host_steal_pct"] = steal_pct(cpu0, cpu_counters())
-    write_json(metrics_path, metrics)
+    write_metrics(metrics_path, log_dir, metrics)
     record_note = _close_recorder(recorder, metrics, args.record)
     if not args.quiet and ran:
         print(summary(metrics, scn.name))

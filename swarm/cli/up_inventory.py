@@ -24,8 +24,9 @@ from pathlib import Path
 
 from swarm.cli import console, preflight
 from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent,
-                              check_endpoint, check_listen_free, check_out_dir, check_viz_port, load_scenario,
-                              open_bus, record_rate, scenario_args, setup_logging, viz_options, write_json)
+                              check_endpoint, check_listen_free, check_out_dir, check_viz_port, clear_metrics,
+                              load_scenario, open_bus, record_rate, scenario_args, setup_logging, viz_options,
+                              write_json, write_metrics)
 from swarm.cli.console import exit_status, progress_line, summary
 from swarm.core import inventory
 from swarm.core.clock import WALL
@@ -322,10 +323,7 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
     if plan.router is not None:
         check_listen_free(opts.listen or plan.endpoint)
     log_dir.mkdir(parents=True, exist_ok=True)
-    try:  # whatever is read back at the end must be this run's
-        metrics_path.unlink(missing_ok=True)
-    except OSError as e:
-        raise BadInput(f"--metrics {metrics_path}: cannot replace it: {e.strerror or e}") from None
+    clear_metrics(metrics_path, log_dir)  # whatever is read back at the end must be this run's
     compile_project()
     status = console.StatusLine(enabled=not args.quiet, log_every=2.0)
     say = (lambda text: None) if args.quiet else status.note
@@ -431,7 +429,7 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
     metrics["preflight"] = checked
     metrics["launch_s"] = launched_s
     metrics["processes"] = len(plan.processes)
-    write_json(metrics_path, metrics)
+    write_metrics(metrics_path, log_dir, metrics)
     note = _close_recorder(recorder, metrics, args.record)
     if not args.quiet:
         print(summary(metrics, scn.name))

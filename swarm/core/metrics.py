@@ -49,6 +49,8 @@ def record(scn, *, duration_s: float, converged_at_s: float | None, position_err
         "cmd_misses": 0,
         "bad_messages": 0,
         "interrupted": bool(interrupted),
+        # the contract's last key, where the run has one (swarm up, swarm world; not swarm sim): in its place
+        **({"failure": extra.pop("failure")} if "failure" in extra else {}),
         "scenario": scn.name,
         "mode": mode,
         "governor": scn.control.governor,

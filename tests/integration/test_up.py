@@ -41,6 +41,15 @@ def test_up_lockstep_equals_sim_step_for_step(tmp_path):
     assert {k: m[k] for k in METRIC_KEYS} == {k: sim.metrics[k] for k in METRIC_KEYS}
     assert m["mode"] == "lockstep" and m["cmd_misses"] == 0 and m["bad_messages"] == 0
     assert m["interrupted"] is False and m["processes"] == 10 and m["launch_s"] > 0
+    # the contract's keys first, in docs/metrics.md's order (failure last of them), then the extra keys
+    contract = ["robots", "obstacles", "duration_s", "dt", "seed", "converged_at_s", "final_position_error_max_m",
+                "final_orientation_error_max_rad", "min_robot_distance_m", "min_obstacle_distance_m", "collisions",
+                "last_freeze_end_s", "wall_s", "messages_dropped", "cmd_misses", "bad_messages", "interrupted",
+                "failure"]
+    assert list(m)[:len(contract)] == contract
+    # --metrics elsewhere: the log directory keeps the same metrics too
+    assert metrics.parent != tmp_path / "logs"
+    assert json.loads((tmp_path / "logs" / "metrics.json").read_text()) == m
 
 
 def test_robots_without_the_compiled_parts_say_so_and_give_the_same_run(tmp_path):
