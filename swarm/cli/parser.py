@@ -151,14 +151,32 @@ def _probability(text: str) -> float:
     return value
 
 
+class _Once(argparse.Action):
+    """A flag that may be given once: a second one would silently replace the first (a fault the user asked for
+    would not happen), so it is refused."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if getattr(namespace, self.dest, None) is not None:
+            parser.error(f"{option_string} given twice (the second would replace the first): give it once")
+        setattr(namespace, self.dest, values)
+
+
+class _Joined(argparse.Action):
+    """A comma-list flag that may be repeated: `--kill 2@5 --kill 3@6` is `--kill 2@5,3@6`."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        before = getattr(namespace, self.dest, None)
+        setattr(namespace, self.dest, values if before is None else f"{before},{values}")
+
+
 def _add_fault_flags(g) -> None:
     """Faults (docs/faults.md): a table of their own, and the two shorthands."""
-    g.add_argument("--faults", metavar="FILE",
+    g.add_argument("--faults", metavar="FILE", action=_Once,
                    help="a TOML file holding a [faults] table: it replaces the scenario's (docs/faults.md)")
-    g.add_argument("--drop", type=_probability, metavar="P",
+    g.add_argument("--drop", type=_probability, metavar="P", action=_Once,
                    help="lose every message (state, pose, cmd, ref) with probability P: one drop rule of class all")
-    g.add_argument("--kill", metavar="ID@T,...",
-                   help="kill robot ID's process at T s (for example 2@15,5@15): one kill rule a robot")
+    g.add_argument("--kill", metavar="ID@T,...", action=_Joined,
+                   help="kill robot ID's process at T s (for example 2@15,5@15; repeatable): one kill rule a robot")
 
 
 def _add_optional_scenario_flags(p: argparse.ArgumentParser, otherwise: str) -> None:
@@ -608,7 +626,7 @@ def _add_campaign_parser(sub) -> None:
     g.add_argument("--seeds", type=_seed_list, metavar="A-B",
                    help="the seeds: A-B (both included), A, or a comma list of those (e.g. 0-9); required "
                         "unless --from")
-    g.add_argument("--drop", type=_drop_list, metavar="P1,P2,...",
+    g.add_argument("--drop", type=_drop_list, metavar="P1,P2,...", action=_Once,
                    help="drop probabilities: each adds one drop rule of class all (every message) to the faults; "
                         "0: no rule (default: 0 only)")
     g = c.add_argument_group("every run (a flag beats the scenario file, which beats the built-in default)")
@@ -617,10 +635,11 @@ def _add_campaign_parser(sub) -> None:
     g.add_argument("--dt", type=_positive_float, metavar="DT", help="control period [s]")
     g.add_argument("--governor", action=argparse.BooleanOptionalAction, default=None,
                    help="the discrete-time safety governor (default: the scenario's control.governor)")
-    g.add_argument("--faults", metavar="FILE",
+    g.add_argument("--faults", metavar="FILE", action=_Once,
                    help="a TOML file holding a [faults] table: it replaces the scenario's in every run; the --drop "
                         "rule is added to it")
-    g.add_argument("--kill", metavar="ID@T,...", help="kill robot ID's process at T s in every run (e.g. 2@15,5@15)")
+    g.add_argument("--kill", metavar="ID@T,...", action=_Joined,
+                   help="kill robot ID's process at T s in every run (e.g. 2@15,5@15; repeatable)")
     g = c.add_argument_group("output")
     g.add_argument("-o", "--out", type=Path, metavar="DIR",
                    help="the directory to write (made if missing; its files of a campaign are replaced); required "

@@ -331,6 +331,25 @@ def test_merged_adds_shorthand_rules_after_the_files():
     assert info.value.key == "--drop"
 
 
+@pytest.mark.parametrize("command", ["sim", "up", "campaign"])
+def test_a_repeated_fault_flag_is_joined_or_refused_never_silently_replaced(command, capsys):
+    """`--kill 2@5 --kill 3@6` asks for two kills: both are kept; a second --drop or --faults would replace
+    the first, so it is refused with the flag named."""
+    from swarm.cli.parser import build_parser
+
+    p = build_parser()
+    args = p.parse_args([command, "--kill", "2@5", "--kill", "3@6,4@7"])
+    assert args.kill == "2@5,3@6,4@7"
+    assert F.kill_shorthand(args.kill, 7, 20.0)  # a list the shorthand takes
+    drop = "0.3" if command != "campaign" else "0.1,0.3"
+    assert p.parse_args([command, "--drop", drop]).drop is not None
+    for flag, a, b in (("--drop", drop, "0"), ("--faults", "a.toml", "b.toml")):
+        with pytest.raises(SystemExit) as info:
+            p.parse_args([command, flag, a, flag, b])
+        assert info.value.code == 2
+        assert f"{flag} given twice" in capsys.readouterr().err
+
+
 # --------------------------------------------------------------------------- canonical text
 
 
