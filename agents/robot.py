@@ -244,6 +244,8 @@ class Agent:
         self._offer2 = self._offer_r * self._offer_r
         self.max_age = 0.0  # the oldest neighbour state a command used [s]
         self.reports = 0  # faultstats sent
+        self._report_lock = threading.Lock()
+        self._reported_at = -math.inf  # monotonic time of the last faultstats sent
         self.last_pose_at: float | None = None  # monotonic time the newest pose was taken
         self.reckoned = 0  # commands computed from a pose advanced by its own command (a pose was late)
         self._rt_t = -math.inf  # the time of the last state and command it published
@@ -1042,13 +1044,29 @@ class Agent:
                 self._report(t)
 
     def _report(self, t: float) -> None:
-        """Real time under faults: this process's fault counters so far (its bus's), with every status; seq
-        counts the reports of this process from 0 (the world keeps the newest of each process)."""
-        d, y = self.counters.dropped, self.counters.delayed  # by class: state 0, pose 1, cmd 2, ref 3
-        c = protocol.FaultStats(t, self.reports, d[0], d[1], d[3], y[0], y[1], y[3], round(self.max_age, 9),
-                                frozen=self.mem[law.M_FROZEN] != 0.0)
-        self.reports += 1
-        self.bus.put(self._faults_key, protocol.encode(c), reliable=True)
+        """Real time under faults: this process's fault counters so far (its bus's), with every status, and
+        from the waker while the robot makes no step (report_idle); seq counts the reports of this process
+        from 0 (the world keeps the newest of each process)."""
+        with self._report_lock:  # the step's thread and the waker's: one seq each, in order
+            d, y = self.counters.dropped, self.counters.delayed  # by class: state 0, pose 1, cmd 2, ref 3
+            c = protocol.FaultStats(t, self.reports, d[0], d[1], d[3], y[0], y[1], y[3], round(self.max_age, 9),
+                                    frozen=self.mem[law.M_FROZEN] != 0.0)
+            self.reports += 1
+            self._reported_at = self.clock.monotonic()
+            self.bus.put(self._faults_key, protocol.encode(c), reliable=True)
+
+    def report_idle(self) -> None:
+        """Real time under faults (the waker's thread): the fault counters, when no status took them for two
+        status periods: a robot that makes no step (every pose dropped, say) still says what it lost, so the
+        run's metrics count it (docs/faults.md)."""
+        if self.counters is None or self.epoch is None or self.ended:
+            return
+        mono = self.clock.monotonic()
+        if mono - self._reported_at < 2 * STATUS_PERIOD_S / max(1e-9, self.speed):
+            return
+        t = self.sim_time(self.clock.time())
+        if t is not None:
+            self._report(t)
 
     def _on_drive_poses(self, poses) -> None:
         """Real time inline (the drive's callback, on the bus's thread): poses, then the step they make due."""
@@ -1495,6 +1513,10 @@ def _watch(stop: threading.Event, done: threading.Event, box, agent: Agent) -> N
     woke_for = None
     timer = agent.late_timer
     while not done.is_set():
+        try:
+            agent.report_idle()
+        except Exception as e:  # the session is closing: the run is over anyway
+            log.debug("robot %d: no idle fault report: %s", agent.id, e)
         due = agent.late_due()
         if due is None:
             left = 0.2

@@ -64,3 +64,20 @@ def test_realtime_drop_and_a_real_kill_survivors_see_it_within_a_second_and_conv
     for cls in ("state", "pose", "cmd", "ref"):
         assert f["dropped"][cls] > 0, cls
     assert m["messages_dropped"] == sum(f["dropped"].values())
+
+
+def test_realtime_robots_that_lose_every_pose_still_report_what_they_lost(tmp_path):
+    """--drop 1 in real time: no robot ever makes a step (every pose is lost), so no status carries its
+    fault counters; the waker reports them anyway, and the metrics count the poses lost (they said 0)."""
+    duration = 4
+    cmd, metrics = up(tmp_path, "--mode", "realtime", "--robots", "3", "--duration", str(duration), "--drop", "1",
+                      "--quiet")
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    m = json.loads(metrics.read_text())
+    assert out.returncode == 0, (out.stderr, m.get("failure"))
+    dropped = m["faults"]["dropped"]
+    # every robot loses the world's 50 poses a second: most of 3 x 4 x 50, less the last reports' lag
+    assert dropped["pose"] >= 0.5 * 3 * duration * 50, dropped
+    assert m["messages_dropped"] == sum(dropped.values()) > 0
+    for i in range(3):  # nothing moved: not one step, so not one command
+        assert re.search(rf"robot {i}, run \S+: 0 ticks", (tmp_path / "logs" / f"robot-{i}.log").read_text())
