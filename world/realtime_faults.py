@@ -3,6 +3,7 @@
     rtf = RealtimeFaults(scn, fault_bus)       # the world's own FaultBus: the commands it lost or delayed
     rtf.take(i, faultstats, token_gen)         # robot i's report (with each of its statuses); False: refused
     rtf.away(i, t)                             # robot i's process is dead or hung at t by the schedule
+    rtf.returned(i, t, within)                 # robot i's process came back by the schedule near t
     rtf.metrics(t_end, cmd_held, watchdog_stops)   # messages_dropped and the faults object of the metrics
 
 Each robot's fault bus counts what it lost or delayed of its poses, references and neighbours' states
@@ -47,6 +48,13 @@ class RealtimeFaults:
     def away(self, i: int, t: float) -> bool:
         """Robot i's process is dead or hung at simulated time t by the schedule (its token may go then)."""
         return fl.process_state(self.faults, i, t) != "alive"
+
+    def returned(self, i: int, t: float, within: float) -> bool:
+        """Robot i's process came back (a restart, or the end of a hang) by the schedule at most `within`
+        seconds before t [s] (or a little after: the schedule's clock and a robot's differ by a period or so)."""
+        ends = [k.end for k in self.faults.kills if k.robot == i and k.restart is not None]
+        ends += [h.end for h in self.faults.hangs if h.robot == i]
+        return any(t - within <= end <= t + within for end in ends)
 
     def totals(self) -> tuple[list[int], list[int]]:
         """(dropped, delayed) by class (faultgen.CLS_* order): the world's commands and every robot's reports."""

@@ -308,7 +308,8 @@ class World:
                 self._take_cmd(i, protocol.decode(data, "cmd", None, self.limits))
             elif tag == "status":
                 s = protocol.decode(data, "status", None, self.limits)
-                if self.bad.verdict(key, self.w_status[i].check(s.t, int(round(s.t / self.scn.dt))), "the status's t"):
+                if self.bad.verdict(key, self._after_return(i, self.w_status[i], s.t, int(round(s.t / self.scn.dt))),
+                                    "the status's t"):
                     self.robot_bad[i] = s.bad
             elif tag == "state":
                 if protocol.decode(data, "state", i, self.limits).seq == 0:
@@ -363,6 +364,16 @@ class World:
         if up:
             self.w_cmd[i].reset()
             self.w_status[i].reset()
+
+    def _after_return(self, i: int, w: window.Window, t: float, seq: int) -> str:
+        """w.check(t, seq) for robot i's message; but in real time under faults, a jump right after robot i's
+        scheduled hang or kill ended is the schedule's gap, not a bad message: the window starts again there.
+        (Its returning token resets the window too, but its first messages can come before the token does.)"""
+        v = w.check(t, seq)
+        if v == window.JUMP and self.rtf is not None and self.rtf.returned(i, self._now_rt(), self._spans[0]):
+            w.reset()
+            v = w.check(t, seq)
+        return v
 
     def _now_rt(self) -> float:
         """Real time: the simulated time now by the wall clock (the loop's self.t lags it by a fine step)."""
@@ -957,7 +968,8 @@ class World:
                 self.bad.reject(key, e)
                 continue
             with self.lock:
-                fresh = self.bad.verdict(key, self.w_cmd[i].check(c.t, c.seq), f"robot {i}'s command t or seq")
+                fresh = self.bad.verdict(key, self._after_return(i, self.w_cmd[i], c.t, c.seq),
+                                         f"robot {i}'s command t or seq")
             if not fresh:
                 continue
             advance(i, t)

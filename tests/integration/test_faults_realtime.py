@@ -81,3 +81,21 @@ def test_realtime_robots_that_lose_every_pose_still_report_what_they_lost(tmp_pa
     assert m["messages_dropped"] == sum(dropped.values()) > 0
     for i in range(3):  # nothing moved: not one step, so not one command
         assert re.search(rf"robot {i}, run \S+: 0 ticks", (tmp_path / "logs" / f"robot-{i}.log").read_text())
+
+
+def test_a_robot_back_from_a_scheduled_hang_is_no_bad_message(tmp_path):
+    """A hang longer than the world's window on a robot's commands (2 s): the resumed robot's first commands
+    can reach the world before its new liveliness token does, and jumped the window: counted as bad
+    messages (2 in every such run). The schedule explains the gap, so the window starts again there.
+    (--allow-violations: what is checked here is the count of bad messages, not the run's safety.)"""
+    faults = tmp_path / "hang.toml"
+    faults.write_text("[faults]\n[[faults.hang]]\nrobot = 3\nat = 2.0\nduration = 3.0\n")
+    cmd, metrics = up(tmp_path, "--mode", "realtime", "--robots", "7", "--duration", "8", "--speed", "2",
+                      "--faults", str(faults), "--quiet", "--allow-violations")
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=150)
+    m = json.loads(metrics.read_text())
+    assert out.returncode == 0, (out.stderr, m.get("failure"))
+    assert m["faults"]["hung"] == 1 and m["robots_lost"] == 0
+    world = (tmp_path / "logs" / "world.log").read_text()
+    assert "robot 3's token is gone at t = " in world  # the hang outlasted the lease: its session went
+    assert m["bad_messages"] == 0, [line for line in world.splitlines() if "bad message" in line]
