@@ -197,6 +197,7 @@ class Agent:
         self.w_pose = window.Window(*self._spans)  # the world (or localization)
         self.w_clock = window.Window(*self._spans)  # the world
         self.w_ref = window.Window(*self._spans)  # the leader
+        self.w_bodies = window.Window(*self._spans)  # the world (real time under faults)
         self.w_state: dict[int, window.Window] = {}  # robot j
         self.ended = False  # the run this agent serves is over (a new run began): ignore everything
         self.belief: protocol.Pose | None = None  # lock-step under faults: its pose as it knows it at the tick
@@ -270,6 +271,8 @@ class Agent:
             self._ref_inbox = self.bus.inbox(self._ref_key)
             self._handles.append(self._ref_inbox)
         self._handles.append(self.bus.subscribe(keys.estop(f), self._on_estop_msg))
+        if not self.cfg.lockstep and self.counters is not None:  # real time under faults: the still robots
+            self._handles.append(self.bus.subscribe(keys.world_bodies(f), self._on_bodies_msg))
         if self.view is not None:
             if self.view.returns():
                 self._listen_all(True)  # this may be the process of a restart: its first tick may be a return
@@ -375,6 +378,8 @@ class Agent:
         self._cell = cell
         self._block_prev = now
 
+    rt_static: list = []  # real time under faults: (x, y, r, R) of the robots standing still (_on_bodies)
+    rt_static_t = 0.0  # the simulated time of that list
     _poses_by_callback = False  # real time inline: the drive's callback hands over every pose (drive.drain() has none)
     _drain_cells = None  # real time: drains the reference's and every cell's inbox in one call (swarm.net.bus.drainer)
     _batch = (None, math.inf, 0.0)  # real time, under the lock: _on_states's (now, ahead, mono) for _take_one
@@ -492,7 +497,14 @@ class Agent:
     def _on_bodies(self, b: protocol.Bodies, key: str = "") -> None:
         """Lock-step under faults: the static bodies of tick b.seq (dead or stopped robots), every tick,
         and the robots returning at b.seq: their first pose is their state of that tick (taken as if it
-        came from them: nobody waits for a robot that was away at b.seq - 1)."""
+        came from them: nobody waits for a robot that was away at b.seq - 1). Real time under faults: the
+        robots standing still (dead, hung, stopped by the watchdog) where they are, each period: static
+        bodies for bodies() until the next message (World._publish_bodies_rt)."""
+        if not self.cfg.lockstep:
+            if self.bad.verdict(key, self.w_bodies.check(b.t, b.seq), "the bodies' t or seq"):
+                self.rt_static = [(s.x, s.y, s.r, s.R) for s in b.bodies if s.id != self.id and s.id < self.cfg.robots]
+                self.rt_static_t = b.t
+            return
         if b.seq <= self.k_done or b.seq > self._next_tick():
             return  # an old tick's, or one too far ahead (the world publishes a tick's bodies just before its poses)
         self.static_by_seq[b.seq] = {s.id: (s.x, s.y, s.r, s.R) for s in b.bodies if s.id < self.cfg.robots}
@@ -930,7 +942,7 @@ class Agent:
                 nx, ny, nr, nR, nk, na, robots, stale, oldest, dead_near = wire.live_bodies(
                     self.table, self.dead, self.away, self.unconfirmed, self.rx, self.speed, self.clock.monotonic(),
                     x, y, self._offer2, r2, STALE_AFTER_S, law.KIND_ROBOT, self._unconfirmed_away)
-            if dead_near or self.obstacles:
+            if dead_near or self.obstacles or self.rt_static:
                 self._static_bodies(x, y, seq, r2, nx, ny, nr, nR, nk, na, dead_near)
             self.oldest_state_s = oldest
             return nx, ny, nr, nR, nk, na, robots, stale
@@ -995,6 +1007,15 @@ class Agent:
             if dx * dx + dy * dy < r2:
                 nx.append(nb.x), ny.append(nb.y), nr.append(nb.r), nR.append(nb.R), nk.append(law.KIND_OBSTACLE)
                 na.append(0.0 if seq is not None else self.dead_age.get(nb.id, 0.0))
+        if self.rt_static and seq is None:  # real time under faults: the robots standing still, from the world
+            now = self.sim_time(self.clock.time())
+            age = 0.0 if now is None else max(0.0, now - self.rt_static_t)
+            for sx, sy, sr, sR in self.rt_static:
+                dx = x - sx
+                dy = y - sy
+                if dx * dx + dy * dy < r2:
+                    nx.append(sx), ny.append(sy), nr.append(sr), nR.append(sR), nk.append(law.KIND_OBSTACLE)
+                    na.append(age)
 
     def _unconfirmed_away(self, j: int) -> None:
         log.info("robot %d: robot %d sent no state in %g s since its token came back: taken as away",

@@ -929,6 +929,8 @@ class World:
                 self._tell_events(t, seq, lambda te: te <= t + 1e-9)
                 self._publish_clock_rt(epoch)
                 self._publish_snapshot(t, seq)
+                if self.rtf is not None:
+                    self._publish_bodies_rt(t, seq)
                 self._sample(t)
                 self._report()
                 t_pub = (seq + 1) * period
@@ -1007,6 +1009,25 @@ class World:
             if cmd[i] != (v * f, w * f):
                 advance(i, t)
                 cmd[i] = (v * f, w * f)
+
+    def _publish_bodies_rt(self, t: float, seq: int) -> None:
+        """Real time under faults, each period: the robots that stand still for the schedule's or the
+        watchdog's reason (dead or hung by the schedule, their token gone, or stopped by the watchdog after
+        commanding), where they are now, as lock-step's bodies message gives them every tick. A robot that
+        never heard such a robot's last state (it was outside its cells then) knows it only from here; without
+        it, a hung robot was invisible to it, and it drove into it. Sent while there are any, and once more
+        empty after (robots drop what they had)."""
+        if not self._running:
+            return
+        q, cmd_time = self.q, self.cmd_time
+        static = tuple(protocol.Body(i, float(q[i][0]), float(q[i][1]), self.scn.r, self.scn.R) for i in range(self.n)
+                       if self.rtf.away(i, t) or not self.alive[i] or (self.stopped[i] and cmd_time[i] > -math.inf))
+        if static or self._bodies_sent:
+            self.bus.put(keys.world_bodies(self.fleet), protocol.encode(protocol.Bodies(t=t, seq=seq, bodies=static)),
+                         reliable=True)
+        self._bodies_sent = bool(static)
+
+    _bodies_sent = False  # real time: the last bodies message listed some
 
     def _take_faultstats(self) -> None:
         """Real time under faults: the robots' fault counters that came (world.realtime_faults)."""

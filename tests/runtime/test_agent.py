@@ -629,3 +629,35 @@ def test_the_lockstep_sink_reads_zenoh_samples_and_counts_its_own_errors():
     assert not w.agent.lock.locked()  # released on the way out of the error
     with pytest.raises(TypeError):
         sink()
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_a_real_time_robot_takes_the_still_robots_the_world_lists_as_bodies(compiled):
+    """Real time under faults: robot 5, hung where this robot never heard it (not in its table), is a static
+    body from the world's bodies message (compiled bodies or Python alike); a message older than the last one
+    is refused by its window and changes nothing; an empty one takes it away."""
+    from swarm.core.clock import FakeClock
+    from swarm.proto.protocol import Bodies, Body
+
+    if compiled and protocol._wire is None:
+        pytest.skip("the compiled codec is not built here (no C compiler)")
+    cfg = Config(**{**CFG.__dict__, "lockstep": False})
+    agent = robot.Agent(MemoryBus(MemoryNet()), cfg, F, clock=FakeClock())
+    agent.start([])
+    saved, protocol._wire = protocol._wire, (protocol._wire if compiled else None)
+    try:
+        key = keys.world_bodies(F)
+        with agent.lock:
+            assert agent.bodies(0.0, 0.0, None, 1.0)[0] == []
+            agent._on_bodies(Bodies(t=1.0, seq=50, bodies=(Body(5, 0.8, 0.1, 0.3, 1.2), Body(cfg.id, 0.0, 0.0, 0.3, 1.2),
+                                                            Body(6, 40.0, 0.0, 0.3, 1.2))), key)
+            nx, ny, nr, nR, nk, na, robots, stale = agent.bodies(0.0, 0.0, None, 1.0)
+            # robot 5 as a static body; not itself; not robot 6, out of this robot's cells
+            assert (nx, ny, nr, nR, nk) == ([0.8], [0.1], [0.3], [1.2], [law.KIND_OBSTACLE]) and robots == 0
+            agent._on_bodies(Bodies(t=0.98, seq=49, bodies=()), key)  # older: refused, nothing changes
+            assert agent.bodies(0.0, 0.0, None, 1.0)[0] == [0.8] and agent.bad.stale == 1
+            agent._on_bodies(Bodies(t=1.02, seq=51, bodies=()), key)  # none still any more
+            assert agent.bodies(0.0, 0.0, None, 1.0)[0] == []
+    finally:
+        protocol._wire = saved
+        agent.close()

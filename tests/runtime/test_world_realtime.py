@@ -144,3 +144,46 @@ def test_a_step_of_the_system_clock_mid_run_neither_jumps_nor_ends_the_run(write
     assert max(b - a for a, b in zip(ts, ts[1:])) < 1.0  # no 60 s jump: a pose a period (but slots made late: skipped)
     assert ts[-1] == pytest.approx(1.0, abs=0.05)
     assert any("the system clock stepped by +30." in r.getMessage() for r in caplog.records), caplog.text
+
+
+def test_under_faults_the_real_time_world_says_where_the_still_robots_are(write_scenario):
+    """Real time under faults, each period: a bodies message lists the robots standing still (here robot 1,
+    hung by the schedule from 1 to 3 s) where the world has them, and not a robot that runs (robot 0
+    answers every pose); once none is still, one empty message, then none. A robot that never heard the
+    hung robot's last state knows it only from this (without it, it drove into it: a collision)."""
+    d = doc()
+    d["run"]["duration"] = 4.0
+    d["leader"]["segments"][0]["duration"] = 4.0
+    d["faults"] = {"hang": [{"robot": 1, "at": 1.0, "duration": 2.0}]}
+    scn = scenario_file.load(write_scenario(d))
+    net = MemoryNet()
+    world = World(MemoryBus(net), scn, F, lockstep=False, speed=4.0)
+    world.start()
+    drive = MemoryBus(net)
+    tokens = [drive.token(keys.alive(F, "robot", i)) for i in range(3)]  # every robot there: the run starts at once
+    got: list[protocol.Bodies] = []
+
+    def on_pose(key: str, data: bytes) -> None:  # robots 0 and 2 answer every pose; robot 1 is hung (silent)
+        p = protocol.decode(data, "pose")
+        i = keys.parse(key).id
+        drive.put(keys.robot_cmd(F, i), protocol.encode(Cmd(t=p.t, seq=p.seq, v=0.0, w=0.0)), reliable=True)
+
+    for i in (0, 2):
+        drive.subscribe(keys.robot_pose(F, i), on_pose)
+    drive.subscribe(keys.world_bodies(F), lambda key, data: got.append(protocol.decode(data, "bodies")))
+    try:
+        world.run(threading.Event())
+    finally:
+        for tok in tokens:
+            tok.close()
+        world.close()
+        drive.close()
+    listed = [b for b in got if b.bodies]
+    assert listed, "no bodies message listed the hung robot"
+    assert all([s.id for s in b.bodies] == [1] for b in listed)  # only the still robot, never a running one
+    assert 1.0 - 1e-9 <= listed[0].t <= 1.0 + 0.02 + 1e-9 and listed[-1].t < 3.0 + 0.02 + 1e-9
+    x1, y1, _ = scn.poses[1]  # it never moved: where the world has it
+    assert all((b.bodies[0].x, b.bodies[0].y, b.bodies[0].r) == (x1, y1, scn.r) for b in listed)
+    after = [b for b in got if b.t > listed[-1].t]
+    assert after and not after[0].bodies and len(after) == 1  # one empty message, then none
+    assert [b.seq for b in got] == sorted({b.seq for b in got})  # one a period, in order
