@@ -8,3 +8,32 @@ class ScenarioError(ValueError):
     def __init__(self, where: str, key: str, reason: str):
         self.where, self.key, self.reason = where, key, reason
         super().__init__(f"{where}: {key}: {reason}" if key else f"{where}: {reason}")
+
+
+def read_text_file(path: str, what: str = "file") -> str:
+    """The UTF-8 text of the regular file at `path`, or a ScenarioError that says why not: missing, a
+    directory, not a regular file (a FIFO or a device would block or never end), unreadable, not UTF-8."""
+    import os
+    import stat
+
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise ScenarioError(path, "", "no such file") from None
+    except OSError as e:
+        raise ScenarioError(path, "", f"cannot read: {e.strerror or e}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise ScenarioError(path, "", f"is a directory; give a {what} in it")
+    if not stat.S_ISREG(st.st_mode):
+        raise ScenarioError(path, "", "is not a regular file (a FIFO, a device or a socket); give a file")
+    try:
+        with open(path, "rb") as f:
+            raw = f.read()
+    except OSError as e:
+        raise ScenarioError(path, "", f"cannot read: {e.strerror or e}") from None
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        line = raw[:e.start].count(b"\n") + 1
+        raise ScenarioError(path, "", f"not UTF-8 text (byte {e.start}, line {line}): a TOML file is UTF-8") from None
+

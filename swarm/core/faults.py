@@ -29,13 +29,12 @@ import tomllib
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from itertools import pairwise
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from swarm.core import faultgen as fg
-from swarm.core.errors import ScenarioError
+from swarm.core.errors import ScenarioError, read_text_file
 
 CLASSES = {"state": fg.CLS_STATE, "pose": fg.CLS_POSE, "cmd": fg.CLS_CMD, "ref": fg.CLS_REF, "all": fg.CLS_ALL}
 WORLD = fg.WORLD
@@ -495,15 +494,11 @@ def parse_faults(table: Any, where: str, robots: int, duration: float, default_s
 
 def load_faults_file(path: str, robots: int, duration: float, default_seed: int) -> Faults:
     """The Faults of a --faults FILE: a TOML file holding only a [faults] table."""
-    p = Path(path)
-    if not p.is_file():
-        raise ScenarioError(path, "", "no such file")
+    text = read_text_file(path, "faults file (TOML)")
     try:
-        doc = tomllib.loads(p.read_bytes().decode("utf-8"))
+        doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ScenarioError(path, "", f"not valid TOML: {e}") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise ScenarioError(path, "", f"cannot read: {e}") from None
     for k in doc:
         if k != "faults":
             raise ScenarioError(path, k, "a --faults file holds only a [faults] table")

@@ -739,6 +739,8 @@ def read_spec(source: str, progress: Progress = silent) -> Spec:
     if path.is_dir():
         raise ScenarioError(source, "", "is a directory; give a scenario file (TOML) in it, or a built-in "
                                         f"({', '.join(BUILTINS)})")
+    if path.exists() and not path.is_file():
+        raise ScenarioError(source, "", "is not a regular file (a FIFO, a device or a socket); give a file")
     if not path.is_file():
         hint = "" if source.endswith(".toml") else f" (built-ins: {', '.join(BUILTINS)})"
         raise ScenarioError(source, "", f"no such file{hint}")
@@ -751,8 +753,11 @@ def read_spec(source: str, progress: Progress = silent) -> Spec:
         progress(f"reading {source} ({len(raw) / 1e6:.1f} MB)", 1, 1)
     except tomllib.TOMLDecodeError as e:
         raise ScenarioError(source, "", f"not valid TOML: {e}") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise ScenarioError(source, "", f"cannot read: {e}") from None
+    except UnicodeDecodeError as e:
+        line = raw[:e.start].count(b"\n") + 1
+        raise ScenarioError(source, "", f"not UTF-8 text (byte {e.start}, line {line}): a TOML file is UTF-8") from None
+    except OSError as e:
+        raise ScenarioError(source, "", f"cannot read: {e.strerror or e}") from None
     return parse(doc, source, path.stem)
 
 

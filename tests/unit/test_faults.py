@@ -4,6 +4,8 @@ plain bit for bit)."""
 
 from __future__ import annotations
 
+import os
+
 import math
 import tomllib
 
@@ -278,8 +280,15 @@ def test_a_faults_file_holds_only_a_faults_table(tmp_path):
     with pytest.raises(ScenarioError, match="no such file"):
         F.load_faults_file(str(tmp_path / "none.toml"), N, DURATION, 0)
     path.write_bytes(b"[faults]\nseed = 1 # \xff\n")
-    with pytest.raises(ScenarioError, match="cannot read"):
+    with pytest.raises(ScenarioError, match=r"not UTF-8 text \(byte 20, line 2\)"):
         F.load_faults_file(str(path), N, DURATION, 0)
+    # a directory and a FIFO exist but are no file (a FIFO would block the read): said so, not "no such file"
+    with pytest.raises(ScenarioError, match="is a directory"):
+        F.load_faults_file(str(tmp_path), N, DURATION, 0)
+    fifo = tmp_path / "fifo.toml"
+    os.mkfifo(fifo)
+    with pytest.raises(ScenarioError, match="is not a regular file"):
+        F.load_faults_file(str(fifo), N, DURATION, 0)
 
 
 # --------------------------------------------------------------------------- shorthands

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import math
 
 import numpy as np
@@ -301,7 +303,10 @@ def test_invalid_toml_is_refused(write_scenario):
 def test_unreadable_file_is_refused(tmp_path):
     path = tmp_path / "latin1.toml"
     path.write_bytes(b"[run]\nduration = 1.0 # \xe9t\xe9\n")
-    check_refusal(refused(str(path)), str(path), "", "cannot read")
+    check_refusal(refused(str(path)), str(path), "", "not UTF-8 text (byte 23, line 2)")
+    fifo = tmp_path / "fifo.toml"
+    os.mkfifo(fifo)  # exists, but no file: reading it would block
+    check_refusal(refused(str(fifo)), str(fifo), "", "is not a regular file")
 
 
 def test_toml_nan_and_inf_literals_are_refused(write_scenario):
