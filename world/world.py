@@ -453,7 +453,11 @@ class World:
     def _not_dead(self) -> int:
         wf = self.wf
         if wf is None:
-            return int(self.alive.sum())
+            if self.rtf is None:
+                return int(self.alive.sum())
+            # real time under faults: a hung robot's token lapses after the lease, but its process is not dead
+            now, faults = self._now_rt(), self.scn.faults
+            return sum(1 for i in range(self.n) if self.alive[i] or fl.process_state(faults, i, now) == "hung")
         return sum(1 for i in range(self.n) if not wf.dead(i, self.k))
 
     def progress(self) -> protocol.Progress:

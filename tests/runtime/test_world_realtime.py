@@ -148,9 +148,10 @@ def test_a_step_of_the_system_clock_mid_run_neither_jumps_nor_ends_the_run(write
 
 def test_under_faults_the_real_time_world_says_where_the_still_robots_are(write_scenario):
     """Real time under faults, each period: a bodies message lists the robots standing still (here robot 1,
-    hung by the schedule from 1 to 3 s) where the world has them, and not a robot that runs (robot 0
-    answers every pose); once none is still, one empty message, then none. A robot that never heard the
-    hung robot's last state knows it only from this (without it, it drove into it: a collision)."""
+    hung by the schedule from 1 to 3 s, whose token then lapses and never comes back) where the world has
+    them, and not the robots that run. A robot that never heard the hung robot's last state knows it only
+    from this (without it, it drove into it: a collision). The progress counts the hung robot as alive
+    while it is hung (the status line said "dead 1" as well as "hung 1")."""
     d = doc()
     d["run"]["duration"] = 4.0
     d["leader"]["segments"][0]["duration"] = 4.0
@@ -163,27 +164,69 @@ def test_under_faults_the_real_time_world_says_where_the_still_robots_are(write_
     tokens = [drive.token(keys.alive(F, "robot", i)) for i in range(3)]  # every robot there: the run starts at once
     got: list[protocol.Bodies] = []
 
+    progress: list[protocol.Progress] = []
+
     def on_pose(key: str, data: bytes) -> None:  # robots 0 and 2 answer every pose; robot 1 is hung (silent)
         p = protocol.decode(data, "pose")
         i = keys.parse(key).id
         drive.put(keys.robot_cmd(F, i), protocol.encode(Cmd(t=p.t, seq=p.seq, v=0.0, w=0.0)), reliable=True)
+        if p.t >= 1.5 and tokens[1] is not None:  # the hung robot's lease lapses: its token goes
+            tokens[1].close()
+            tokens[1] = None
 
     for i in (0, 2):
         drive.subscribe(keys.robot_pose(F, i), on_pose)
     drive.subscribe(keys.world_bodies(F), lambda key, data: got.append(protocol.decode(data, "bodies")))
+    drive.subscribe(keys.world_progress(F), lambda key, data: progress.append(protocol.decode(data, "progress")))
     try:
         world.run(threading.Event())
     finally:
         for tok in tokens:
-            tok.close()
+            if tok is not None:
+                tok.close()
         world.close()
         drive.close()
+    # the status line's count: a hung robot whose token lapsed is hung, not dead; once its hang is over and
+    # its token has not come back, it is gone
+    during = [p.alive for p in progress if 1.6 <= p.t < 2.9]
+    assert during and set(during) == {3}, [(p.t, p.alive) for p in progress]
+    assert [p.alive for p in progress if p.t > 3.1][-1] == 2
     listed = [b for b in got if b.bodies]
     assert listed, "no bodies message listed the hung robot"
     assert all([s.id for s in b.bodies] == [1] for b in listed)  # only the still robot, never a running one
-    assert 1.0 - 1e-9 <= listed[0].t <= 1.0 + 0.02 + 1e-9 and listed[-1].t < 3.0 + 0.02 + 1e-9
+    # from its hang on, and after it (its token never came back: a robot gone) to the end
+    assert 1.0 - 1e-9 <= listed[0].t <= 1.0 + 0.02 + 1e-9 and listed[-1].t == pytest.approx(4.0)
+    assert got == listed  # none before the hang: robot 1 never commanded, and the others run
     x1, y1, _ = scn.poses[1]  # it never moved: where the world has it
     assert all((b.bodies[0].x, b.bodies[0].y, b.bodies[0].r) == (x1, y1, scn.r) for b in listed)
-    after = [b for b in got if b.t > listed[-1].t]
-    assert after and not after[0].bodies and len(after) == 1  # one empty message, then none
     assert [b.seq for b in got] == sorted({b.seq for b in got})  # one a period, in order
+
+
+def test_the_real_time_bodies_message_lists_the_still_robots_then_clears_once(write_scenario):
+    """World._publish_bodies_rt: nothing before the run or while every robot runs; a watchdog-stopped robot
+    that had commanded is listed (one that never commanded is not: it has not started); once none is still,
+    one empty message, then none."""
+    d = doc()
+    d["faults"] = {"drop": [{"class": "state", "p": 0.1}]}
+    scn = scenario_file.load(write_scenario(d))
+    net = MemoryNet()
+    world = World(MemoryBus(net), scn, F, lockstep=False)
+    probe = MemoryBus(net)
+    got: list[protocol.Bodies] = []
+    probe.subscribe(keys.world_bodies(F), lambda key, data: got.append(protocol.decode(data, "bodies")))
+    try:
+        world.alive[:] = True
+        world.stopped[:] = [False, False, True]  # robot 2 never commanded (its command time is -inf)
+        world._publish_bodies_rt(0.0, 0)  # before the run: nothing
+        world._running = True
+        world._publish_bodies_rt(0.02, 1)  # every robot runs: nothing
+        world.stopped[0], world.cmd_time[0] = True, 12.5  # robot 0 stopped by the watchdog after commanding
+        world._publish_bodies_rt(0.04, 2)
+        world._publish_bodies_rt(0.06, 3)
+        world.stopped[0] = False  # it commands again
+        world._publish_bodies_rt(0.08, 4)
+        world._publish_bodies_rt(0.10, 5)
+    finally:
+        probe.close()
+        world.close()
+    assert [(b.seq, [s.id for s in b.bodies]) for b in got] == [(2, [0]), (3, [0]), (4, [])]
