@@ -142,7 +142,7 @@ class Supervisor:
             return f"{name} killed (SIGKILL, pid {c.pid})"
         if action == "start":
             new = self.start(c.spec)
-            return f"{name} restarted (a new process, pid {new.pid})"
+            return f"{name}'s new process started (pid {new.pid}; it rejoins at its scheduled restart)"
         sig = {"stop": signal.SIGSTOP, "cont": signal.SIGCONT}[action]
         self.signal(name, sig)
         return f"{name} {'stopped (SIGSTOP' if action == 'stop' else 'resumed (SIGCONT'}, pid {c.pid})"

@@ -76,5 +76,5 @@ def test_faulty_lockstep_up_equals_faulty_sim_bit_for_bit(tmp_path):
     # no command missed, nothing refused
     assert m["robot_restarts"] == 0 and m["robots_lost"] == 0 and m["cmd_misses"] == 0 and m["bad_messages"] == 0
     done = (tmp_path / "logs" / "faults.log").read_text()
-    assert "robot 5 killed (SIGKILL" in done and "robot 5 restarted (a new process" in done
+    assert "robot 5 killed (SIGKILL" in done and "robot 5's new process started (pid" in done
     assert "robot 3 stopped (SIGSTOP" in done and "robot 3 resumed (SIGCONT" in done
