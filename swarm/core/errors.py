@@ -34,6 +34,11 @@ def read_text_file(path: str, what: str = "file") -> str:
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError as e:
-        line = raw[:e.start].count(b"\n") + 1
-        raise ScenarioError(path, "", f"not UTF-8 text (byte {e.start}, line {line}): a TOML file is UTF-8") from None
+        raise not_utf8(path, raw, e) from None
+
+
+def not_utf8(path: str, raw: bytes, e: UnicodeDecodeError) -> ScenarioError:
+    """The refusal of a file whose bytes `raw` are not UTF-8 (e: the decoder's error): where the first bad byte is."""
+    line = raw[:e.start].count(b"\n") + 1
+    return ScenarioError(path, "", f"not UTF-8 text (byte {e.start}, line {line}): a TOML file is UTF-8")
 

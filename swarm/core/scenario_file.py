@@ -35,6 +35,7 @@ from typing import Any, Callable, TextIO
 import numpy as np
 
 from swarm.core import generators, kinematics, law
+from swarm.core.errors import not_utf8
 from swarm.core.geometry import Counter, Grid, closest_pair
 from swarm.core.scenario import THRESHOLDS, Control, Leader, Scenario, ScenarioError, Segment
 
@@ -754,8 +755,7 @@ def read_spec(source: str, progress: Progress = silent) -> Spec:
     except tomllib.TOMLDecodeError as e:
         raise ScenarioError(source, "", f"not valid TOML: {e}") from None
     except UnicodeDecodeError as e:
-        line = raw[:e.start].count(b"\n") + 1
-        raise ScenarioError(source, "", f"not UTF-8 text (byte {e.start}, line {line}): a TOML file is UTF-8") from None
+        raise not_utf8(source, raw, e) from None
     except OSError as e:
         raise ScenarioError(source, "", f"cannot read: {e.strerror or e}") from None
     return parse(doc, source, path.stem)
