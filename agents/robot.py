@@ -66,6 +66,7 @@ log = logging.getLogger("swarm.robot")
 
 WAIT_TIMEOUT_S = 1.0  # lock-step: wall seconds to wait for a tick's inputs before going on without them
 STATUS_PERIOD_S = 0.1  # simulated seconds between status messages
+RT_BODIES_TTL_S = 1.0  # real time under faults: a list of still robots older than this [simulated s] is dropped
 STALE_AFTER_S = 0.5  # real time: a neighbour state older than this (simulated s) counts as stale (status)
 KEY_IDS_MAX = 4096  # cell keys whose robot id a robot keeps parsed (more: it starts over)
 CLOSE_WAIT_S = 5.0  # lock-step inline: how long close() waits for a tick under way on a bus thread
@@ -602,6 +603,7 @@ class Agent:
                 if up:
                     self.w_pose.reset()
                     self.w_clock.reset()
+                    self.w_bodies.reset()  # real time: this robot was away (hung past its lease): the list moved on
                     self._world_ups += 1
                     if self.view is not None and self._world_ups > 1:
                         # the world's token again: this robot's session came back (it was stopped past its lease):
@@ -1010,6 +1012,8 @@ class Agent:
         if self.rt_static and seq is None:  # real time under faults: the robots standing still, from the world
             now = self.sim_time(self.clock.time())
             age = 0.0 if now is None else max(0.0, now - self.rt_static_t)
+            if age > RT_BODIES_TTL_S:  # the world sends it every period: a list this old says nothing any more
+                self.rt_static = []
             for sx, sy, sr, sR in self.rt_static:
                 dx = x - sx
                 dy = y - sy

@@ -1019,19 +1019,17 @@ class World:
         watchdog's reason (dead or hung by the schedule, their token gone, or stopped by the watchdog after
         commanding), where they are now, as lock-step's bodies message gives them every tick. A robot that
         never heard such a robot's last state (it was outside its cells then) knows it only from here; without
-        it, a hung robot was invisible to it, and it drove into it. Sent while there are any, and once more
-        empty after (robots drop what they had)."""
+        it, a hung robot was invisible to it, and it drove into it. Sent every period of the run, empty when
+        none stands still."""
         if not self._running:
             return
         q, cmd_time = self.q, self.cmd_time
         static = tuple(protocol.Body(i, float(q[i][0]), float(q[i][1]), self.scn.r, self.scn.R) for i in range(self.n)
                        if self.rtf.away(i, t) or not self.alive[i] or (self.stopped[i] and cmd_time[i] > -math.inf))
-        if static or self._bodies_sent:
-            self.bus.put(keys.world_bodies(self.fleet), protocol.encode(protocol.Bodies(t=t, seq=seq, bodies=static)),
-                         reliable=True)
-        self._bodies_sent = bool(static)
-
-    _bodies_sent = False  # real time: the last bodies message listed some
+        # every period, empty or not: a gap of more than t_span would jump the robots' windows on it, and
+        # they would refuse the first messages of the next listing, the very ones that matter
+        self.bus.put(keys.world_bodies(self.fleet), protocol.encode(protocol.Bodies(t=t, seq=seq, bodies=static)),
+                     reliable=True)
 
     def _take_faultstats(self) -> None:
         """Real time under faults: the robots' fault counters that came (world.realtime_faults)."""

@@ -301,6 +301,9 @@ def clear_metrics(metrics_path: Path, log_dir: Path) -> None:
 def write_metrics(metrics_path: Path, log_dir: Path, metrics: dict) -> None:
     """After a run of swarm up: the metrics at metrics_path, and a copy in the log directory when --metrics
     put them elsewhere (docs/metrics.md). A copy that cannot be written is said on stderr; the run stands."""
+    from swarm.core.metrics import in_contract_order
+
+    metrics = in_contract_order(metrics)
     write_json(metrics_path, metrics)
     copy = (log_dir / "metrics.json").absolute()
     if copy != metrics_path:

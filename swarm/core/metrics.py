@@ -58,6 +58,20 @@ def record(scn, *, duration_s: float, converged_at_s: float | None, position_err
     }
 
 
+def in_contract_order(m: dict) -> dict:
+    """m with `failure` right after `interrupted`, the contract's last two keys (docs/metrics.md), wherever it was
+    added (swarm up adds it to metrics it had to rebuild from the world's last progress)."""
+    if "failure" not in m or "interrupted" not in m:
+        return m
+    out = {}
+    for k, v in m.items():
+        if k != "failure":
+            out[k] = v
+        if k == "interrupted":
+            out["failure"] = m["failure"]
+    return out
+
+
 def violations(m: dict) -> list[str]:
     """The checks a finished run failed (exit code 3 unless --allow-violations): collisions, command
     misses no fault scheduled, lock-step overruns, robots lost that no fault scheduled. [] if none."""

@@ -96,6 +96,8 @@ def test_a_failed_launch_reports_its_own_empty_metrics_not_an_earlier_runs(tmp_p
     m = json.loads(metrics.read_text())
     assert m["converged_at_s"] is None and m["collisions"] == 0 and m["launch_s"] is None
     assert "12.34" not in out.stdout
+    keys_ = list(m)  # rebuilt by swarm up (no world wrote them): failure still in the contract's place
+    assert m["failure"] and keys_.index("failure") == keys_.index("interrupted") + 1
 
 
 def test_a_killed_robot_is_restarted_and_the_run_completes(tmp_path):

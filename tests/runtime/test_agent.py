@@ -658,6 +658,12 @@ def test_a_real_time_robot_takes_the_still_robots_the_world_lists_as_bodies(comp
             assert agent.bodies(0.0, 0.0, None, 1.0)[0] == [0.8] and agent.bad.stale == 1
             agent._on_bodies(Bodies(t=1.02, seq=51, bodies=()), key)  # none still any more
             assert agent.bodies(0.0, 0.0, None, 1.0)[0] == []
+            # a list that stopped coming (the world sends one every period) is dropped past its time to live
+            agent._on_bodies(Bodies(t=1.04, seq=52, bodies=(Body(5, 0.8, 0.1, 0.3, 1.2),)), key)
+            agent.epoch, agent.speed = agent.clock.time() - 1.04, 1.0  # now: t = 1.04 on the swarm's clock
+            assert agent.bodies(0.0, 0.0, None, 1.04)[0] == [0.8]
+            agent.clock.advance(robot.RT_BODIES_TTL_S + 0.1)
+            assert agent.bodies(0.0, 0.0, None, 2.2)[0] == [] and agent.rt_static == []
     finally:
         protocol._wire = saved
         agent.close()
