@@ -462,8 +462,9 @@ def _add_runtime_parsers(sub) -> None:
                            description="Run robot ID's controller. It takes its slice of the scenario from "
                                        "--scenario FILE (the same file on every machine) or, without it, from "
                                        "the world's configuration queryable.")
-    robot.add_argument("--id", type=robot_id, required=True, metavar="I|auto",
-                       help="the robot's id (0-based), or auto: the lowest free one, claimed from the world")
+    robot.add_argument("--id", type=robot_id, default=argparse.SUPPRESS, metavar="I|auto",
+                       help="the robot's id (0-based), or auto: the lowest free one, claimed from the world; "
+                            "required, but with --secure FOLDER it defaults to the id of the folder's certificate")
     _add_optional_scenario_flags(robot, "the world's configuration is used")
     _add_run_flags(robot)
     _add_net_flags(robot)

@@ -13,6 +13,8 @@ log = logging.getLogger("swarm")
 
 
 def cmd_robot(args, started: float) -> int:
+    if not hasattr(args, "id"):  # no --id: a robot's identity folder names it (docs/security.md)
+        args.id = _id_of_secure_folder(args)
     if args.inventory is not None or args.id is None or args.claim_key is not None:
         from swarm.cli.up_inventory import cmd_robot_fleet
 
@@ -80,3 +82,20 @@ def _ros2_drive(args):
         return make
 
     return factory
+
+
+def _id_of_secure_folder(args) -> int:
+    """--id left out: the id in the certificate of --secure FOLDER (one robot's folder, copied to its machine);
+    anything else is refused as argparse would refuse a missing --id."""
+    if getattr(args, "secure", None) is None:
+        raise BadInput("--id is required (or --secure FOLDER: the id is then its certificate's)")
+    from swarm.net.secure import SecureError, robot_id_of
+
+    try:
+        rid = robot_id_of(args.secure)
+    except (SecureError, OSError, ValueError) as e:
+        raise BadInput(f"--secure {args.secure}: no robot certificate to take the id from ({e}); give --id") from None
+    if rid is None:
+        raise BadInput(f"--secure {args.secure}: not a robot's folder; give --id")
+    return rid
+

@@ -314,6 +314,8 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
         print(plan.describe())
         print(f"fleet '{name}' (inventory {fleet.inventory.where}):\n{inventory.describe(fleet)}")
         print(static.text() if not args.no_preflight else "pre-flight: skipped (--no-preflight)")
+        if not args.no_preflight and not static.ok:  # the run would stop here: so does the dry run (exit 1)
+            raise Failure("pre-flight failed (the dry run's checks of the inventory and the scenario)")
         return EXIT_OK
     if not args.no_preflight and not static.ok:
         print(static.text())

@@ -38,7 +38,8 @@ def test_dry_run_prints_the_plan_the_fleet_and_the_static_preflight(tmp_path):
     out = subprocess.run([*ENTRY, "up", "--inventory", str(inv), "--scenario", "turtlebot3", "--dry-run",
                           "--initial-pose", "2:1.0,-4.0,0.0"], capture_output=True, text=True, timeout=60, cwd=ROOT,
                          env=ENV)
-    assert out.returncode == 0, out.stderr
+    # the plan and every check are printed; the failed pre-flight is the exit code too, as it is without --dry-run
+    assert out.returncode == 1 and "pre-flight failed" in out.stderr, out.stderr
     text = out.stdout
     assert "--connect tcp/192.168.1.20:7447" in text and "world --referee-only" in text
     assert "robot 2: ros2 rmw_zenoh /robot2 domain 0 twist plain via tcp/192.168.1.20:7447; start (1, -4, 0) from " \

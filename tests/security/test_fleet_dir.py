@@ -218,3 +218,25 @@ def test_the_command_line(tmp_path, capsys):
     assert "restart the router" in capsys.readouterr().out
     assert main(["secure", "init", str(tmp_path / "none"), "--robots", "2", "--update"]) == 2
     assert main(["secure", "init", str(tmp_path / "g"), "--robots", "2", "--fleet", "a b"]) == 2
+
+
+def test_a_robot_given_only_its_folder_takes_its_id_from_the_certificate(fleet_dir, tmp_path, capsys):
+    """docs/security.md: on a robot's machine, `swarm robot --secure robot-3/ --connect tls/...` with no --id:
+    the id is the certificate's (it was refused: --id required). Without --secure, --id is still required;
+    a folder that holds no robot's certificate is refused by name."""
+    from swarm.cli.parser import build_parser
+    from swarm.cli.robot import _id_of_secure_folder
+    from swarm.cli.common import BadInput
+
+    one = tmp_path / "robot-1"
+    shutil.copytree(fleet_dir / roles.common_name("robot", 1), one)
+    p = build_parser()
+    args = p.parse_args(["robot", "--secure", str(one), "--connect", "tls/127.0.0.1:7447"])
+    assert not hasattr(args, "id") and _id_of_secure_folder(args) == 1
+    assert p.parse_args(["robot", "--id", "auto"]).id is None  # auto stays auto
+    with pytest.raises(BadInput, match="--id is required"):
+        _id_of_secure_folder(p.parse_args(["robot", "--connect", "tcp/127.0.0.1:7447"]))
+    with pytest.raises(BadInput, match="no robot certificate"):
+        _id_of_secure_folder(p.parse_args(["robot", "--secure", str(fleet_dir)]))  # a fleet directory: which robot?
+    with pytest.raises(BadInput, match="not a robot's folder"):
+        _id_of_secure_folder(p.parse_args(["robot", "--secure", str(fleet_dir / "router")]))
