@@ -148,14 +148,17 @@ class Ros2Fleet:
         ox, oy, oth = ros2.se2_compose(self._from_world[i], (x, y, theta))
         stamp = ros2.seconds_to_ns(max(0.0, t))  # the header carries the simulated time (a robot's use_sim_time)
         payload = ros2.encode_odometry(Odometry(stamp_ns=stamp, x=ox, y=oy, yaw=oth, v=v, w=w))
+        # reliable=False: congestion control DROP, as rmw_zenoh puts a keep-last publisher's samples (BLOCK only
+        # for keep-all reliable ones): a subscriber that stopped reading (a router that left with its link not
+        # yet closed) never stalls the fleet's loop (docs/ros2.md)
         if self.flavor == "bridge":
-            self.bus.put(self.odom_keys[i], payload, reliable=True)
+            self.bus.put(self.odom_keys[i], payload, reliable=False)
             return
         with self._lock:
             self._odom_seq[i] += 1
             seq = self._odom_seq[i]
         att = ros2.encode_attachment(seq, self.wall_ns(), self._gids[i])
-        self.bus.put(self.odom_keys[i], payload, reliable=True, attachment=att)
+        self.bus.put(self.odom_keys[i], payload, reliable=False, attachment=att)
 
     def close(self) -> None:
         for h in reversed(self._handles):

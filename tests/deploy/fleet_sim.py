@@ -23,6 +23,7 @@ import argparse
 import heapq
 import json
 import math
+import faulthandler
 import os
 import signal
 import sys
@@ -62,6 +63,7 @@ def main(argv=None) -> int:
     stop = threading.Event()
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, lambda *_: stop.set())
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # a test that waited too long asks where each thread is
     os.environ.setdefault("ZENOH_RUNTIME", ROUTER_RUNTIME)  # as `swarm router`: a lingering link blocks no receiving
     bus = ZenohBus(zenoh_config("router", listen=[a.listen]))
     names = {e.id: e.namespace for e in entries}

@@ -8,11 +8,13 @@ good fleet; `swarm up --inventory` refuses to move a fleet that fails its pre-fl
 from __future__ import annotations
 
 import json
+import os
+import signal
 import subprocess
 
 import pytest
 
-from tests.deploy.helpers import ENTRY, ENV, FLEET_SIM, ROOT, Procs, inventory_text, small_turtlebot3
+from tests.deploy.helpers import ENTRY, ENV, FLEET_SIM, ROOT, Procs, inventory_text, small_turtlebot3, wait_until
 from tests.integration.helpers import free_port
 
 pytestmark = pytest.mark.integration
@@ -44,7 +46,17 @@ def _truth(fleet) -> dict:
     # well beyond zenoh's 10 s SO_LINGER: closing a link to a peer that left with data unsent blocks that long
     # (eclipse-zenoh/zenoh#1101), and the fleet's router may still hold some to the swarm's router that just left
     # (a CI machine under load once took more than 20 s; the truth is written before the close)
-    assert fleet.procs.stop("fleet", timeout_s=45.0) == 0, fleet.procs.logs("fleet")
+    p = fleet.procs.procs["fleet"]
+    os.killpg(p.pid, signal.SIGTERM)
+    try:
+        p.wait(45.0)
+    except subprocess.TimeoutExpired:  # where it is stuck: every thread's stack (fleet_sim's SIGUSR1), then kill it
+        os.killpg(p.pid, signal.SIGUSR1)
+        try:
+            wait_until(lambda: "most recent call first" in fleet.procs.log("fleet"), 5.0, "fleet_sim's stack dump")
+        except AssertionError:
+            pass  # the assertion below shows the log with or without it
+    assert fleet.procs.stop("fleet", timeout_s=1.0) == 0, fleet.procs.logs("fleet", tail=20000)
     return json.loads((fleet.tmp / "truth.json").read_text())
 
 
