@@ -113,12 +113,16 @@ class RunFollower:
         self._sub.close()
 
 
-def check_run(run: Run, mine: str | None, robot_id: int | None = None) -> None:
+def check_run(run: Run, mine: str | None, robot_id: int | None = None, mode: str | None = None) -> None:
     """Refuse (RunRefused) a run this process must not take part in: a robot id outside the run's
-    scenario, or (mine: this process's own scenario as canonical TOML) a run of another scenario."""
+    scenario, a run of another mode than `mode` ("lockstep" or "realtime"; None: any), or (mine: this
+    process's own scenario as canonical TOML) a run of another scenario."""
     if robot_id is not None and robot_id >= run.robots:
         raise RunRefused(f"robot {robot_id} is not in run {run.run}: its scenario has {run.robots} robots "
                          f"(ids 0..{run.robots - 1})")
+    if mode is not None and run.lockstep != (mode == "lockstep"):
+        raise RunRefused(f"run {run.run} is {'lock-step' if run.lockstep else 'real time'} and this robot was started "
+                         f"with --mode {mode}; give the world's mode, or leave --mode out")
     if mine is None:
         return
     import hashlib

@@ -1344,7 +1344,7 @@ def fetch_obstacles(bus, fleet: str, timeout_s: float, stop: threading.Event | N
 def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading.Event | None = None,
               scenario=None, start_timeout: float = 60.0, wait_timeout: float = WAIT_TIMEOUT_S,
               once: bool = False, make_drive=None, ref_timeout: float = REF_TIMEOUT_S,
-              pose_timeout: float = WATCHDOG_S) -> list[Agent]:
+              pose_timeout: float = WATCHDOG_S, mode: str | None = None) -> list[Agent]:
     """Serve runs as robot `robot_id` on `bus` until `stop` is set: for every run the world announces,
     a fresh agent (tick state, windows, controller) with this robot's slice of the run's scenario:
     from `scenario` (this process's own; a run of another scenario is refused: RunRefused) or from
@@ -1353,7 +1353,8 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
     once: serve one run only. Real time: make_drive(cfg, now) builds the drive (swarm.drives; default
     the simulated world's keys; now() is the swarm's clock) and a guard (agents.guard) halts it when
     its pose is older than pose_timeout, the reference is extrapolated longer than ref_timeout, the
-    leader is lost or the emergency stop is engaged."""
+    leader is lost or the emergency stop is engaged. mode ("lockstep" or "realtime", swarm robot --mode): a
+    run of the other mode is refused (RunRefused); None takes the world's."""
     stop = stop or threading.Event()
     current: list[Agent] = []
 
@@ -1369,7 +1370,7 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
         while not stop.is_set():
             if mine is not None and not run.scenario:
                 run = runs.complete(run, start_timeout, stop)  # to name the first difference, if any
-            check_run(run, mine, robot_id)
+            check_run(run, mine, robot_id, mode)
             faults = None
             if scenario is not None:
                 cfg = runid.robot_config(scenario, robot_id, run.lockstep, run.run, run.digest)

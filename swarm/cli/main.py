@@ -40,6 +40,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter() - (_process_age_s() if argv is None else 0.0)
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # for swarm.cli.parser.given_flags, on demand
     if args.command is None:
         parser.print_help()
         return EXIT_BAD_INPUT

@@ -22,6 +22,7 @@ import argparse
 import math
 import socket
 from pathlib import Path
+from typing import Sequence
 
 from swarm.launch.plan import VIZ_HOST
 
@@ -192,6 +193,24 @@ def _add_optional_scenario_flags(p: argparse.ArgumentParser, otherwise: str) -> 
     _add_fault_flags(g)
 
 
+def given_flags(argv: Sequence[str]) -> frozenset[str]:
+    """The dests of the options argv gives explicitly, whatever their value (`--mode lockstep` too): the
+    same parser with every default suppressed, so only what argv sets ends up in its namespace. For flags
+    that a command ignores in some use and must refuse rather than drop (swarm up --inventory --mode)."""
+    parser = build_parser()
+    todo, commands = [parser], set()
+    while todo:
+        p = todo.pop()
+        p._defaults.clear()  # set_defaults(func=...): not an option
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                todo.extend(action.choices.values())
+                commands.add(action.dest)
+            elif action.dest != "help":
+                action.default = argparse.SUPPRESS
+    return frozenset(vars(parser.parse_args(argv))) - commands
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="swarm",
@@ -358,9 +377,14 @@ def _add_net_flags(p: argparse.ArgumentParser, listen: bool = False, connect_hel
 
 def _add_run_flags(p: argparse.ArgumentParser, up: bool = False) -> None:
     g = p.add_argument_group("run")
-    g.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
-                   help="lockstep: the world owns the clock, deterministic, equal to swarm sim (default); "
-                        "realtime: every process on its own clock")
+    if p.prog.endswith(" robot"):  # a robot takes the mode of the world's run
+        g.add_argument("--mode", choices=("lockstep", "realtime"), default=None,
+                       help="the run's mode is the world's (swarm world --mode); given, this robot refuses a run of "
+                            "the other mode (exit 2)")
+    else:
+        g.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
+                       help="lockstep: the world owns the clock, deterministic, equal to swarm sim (default); "
+                            "realtime: every process on its own clock")
     g.add_argument("--rate", type=_positive_float, metavar="HZ",
                    help="control rate (sets dt = 1/HZ; the built-in paper-50hz runs at 50 Hz)")
     if up or p.prog.endswith("world"):

@@ -32,6 +32,9 @@ def cmd_robot(args, started: float) -> int:
         for flag, given in (("--namespace", args.namespace), ("--initial-pose", args.initial_pose)):
             if given is not None:
                 raise BadInput(f"{flag} needs --drive ros2")
+    elif args.mode == "lockstep":
+        raise BadInput("--drive ros2 with --mode lockstep: a ROS 2 robot runs in real time only (odometry carries no "
+                       "tick); give --mode realtime, or leave --mode out")
     make_drive = _ros2_drive(args) if args.drive == "ros2" else None
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, lean=True, role="robot", robot_id=args.id)
@@ -39,7 +42,7 @@ def cmd_robot(args, started: float) -> int:
         try:
             agents = robot.run_robot(bus, WALL, args.id, fleet, stop, scenario=scn, start_timeout=args.start_timeout,
                                      make_drive=None if make_drive is None else make_drive(bus),
-                                     ref_timeout=args.ref_timeout)
+                                     ref_timeout=args.ref_timeout, mode=args.mode)
         except NoAnswer as e:
             if stop.is_set():
                 return EXIT_INTERRUPTED

@@ -107,6 +107,9 @@ def cmd_robot_fleet(args, started: float) -> int:
     if scn is not None and not auto and args.id >= scn.n:
         raise BadInput(f"--id {args.id}: the scenario has {scn.n} robots (ids 0..{scn.n - 1})")
     factory = _row_drive(entry) if entry is not None else (_flag_drive(args) if args.drive == "ros2" else None)
+    if factory is not None and args.mode == "lockstep":
+        raise BadInput("a ROS 2 drive with --mode lockstep: a ROS 2 robot runs in real time only (odometry carries no "
+                       "tick); give --mode realtime, or leave --mode out")
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, lean=True, role="robot", robot_id=args.id)
         rid = args.id
@@ -117,7 +120,8 @@ def cmd_robot_fleet(args, started: float) -> int:
                 if scn is not None and rid >= scn.n:
                     raise BadInput(f"the world gave id {rid}, but this robot's scenario has {scn.n} robots")
             agents = robot.run_robot(bus, WALL, rid, fleet, stop, scenario=scn, start_timeout=args.start_timeout,
-                                     make_drive=None if factory is None else factory(bus), ref_timeout=args.ref_timeout)
+                                     make_drive=None if factory is None else factory(bus), ref_timeout=args.ref_timeout,
+                                     mode=args.mode)
         except (NoAnswer, claims.NoClaimAnswer) as e:
             if stop.is_set():
                 return EXIT_INTERRUPTED
@@ -266,10 +270,39 @@ class _ViewerUrl:
         return None
 
 
+# `swarm up` flags that mean nothing with --inventory, and why: given, they are refused, not dropped
+IGNORED_WITH_INVENTORY = {
+    "drive": "each robot's drive comes from its inventory row (drive)",
+    "ros_flavor": "each robot's ROS 2 flavor comes from its inventory row (flavor)",
+    "twist": "each robot's cmd_vel type comes from its inventory row (twist)",
+    "domain": "each robot's ROS domain comes from its inventory row (domain)",
+    "restarts": "a real fleet's processes are never restarted (a robot whose agent died stands still)",
+    "restart_window": "a real fleet's processes are never restarted (a robot whose agent died stands still)",
+    "tick_timeout": "real robots run in real time; a tick's timeout is lock-step's",
+}
+
+
+def refuse_fleet_flags(args) -> None:
+    """BadInput for a flag given with --inventory that would be dropped (IGNORED_WITH_INVENTORY), and for
+    --mode lockstep: real robots keep real time. `--mode realtime` says what happens anyway."""
+    if not hasattr(args, "argv"):  # called in-process without swarm.cli.main: nothing to tell given from default
+        return
+    from swarm.cli.parser import given_flags
+
+    given = given_flags(args.argv)
+    for dest, why in IGNORED_WITH_INVENTORY.items():
+        if dest in given:
+            raise BadInput(f"--{dest.replace('_', '-')} with --inventory: {why} (docs/deploy.md)")
+    if "mode" in given and args.mode != "realtime":
+        raise BadInput("--mode lockstep with --inventory: real robots keep real time, they cannot wait for a tick "
+                       "(leave --mode out, or give --mode realtime)")
+
+
 def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
     """`swarm up --inventory F`: the pre-flight, then the router (connected to every robot's endpoint),
     the referee, the leader and one agent a robot, with the viewer and the recorder as in simulation.
     module: what the children run (`python -m module`)."""
+    refuse_fleet_flags(args)
     fleet = preflight.fleet_of_args(args)
     scn = fleet.scenario
     from swarm.core.scenario_file import advisories

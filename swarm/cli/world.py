@@ -21,6 +21,17 @@ def cmd_world(args, started: float) -> int:
         return cmd_world_referee(args, started)
     from world.world import NotReady, WorldOptions, run_world
 
+    for flag, value in (("--initial-pose", args.initial_pose), ("--no-preflight", args.no_preflight or None)):
+        if value is not None:
+            raise BadInput(f"{flag} needs --inventory (real robots; a simulated world starts its robots where the "
+                           "scenario says)")
+    if args.ros2_sim is None and hasattr(args, "argv"):
+        from swarm.cli.parser import given_flags
+
+        given = given_flags(args.argv)
+        for dest in ("twist", "domain"):
+            if dest in given:
+                raise BadInput(f"--{dest} needs --ros2-sim (it sets the simulated ROS 2 robots' {dest})")
     die_with_parent()
     setup_logging()
     scn = load_scenario(args, quiet=True)

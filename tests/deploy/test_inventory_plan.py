@@ -49,3 +49,43 @@ def test_dry_run_prints_the_plan_the_fleet_and_the_static_preflight(tmp_path):
     bad = subprocess.run([*ENTRY, "up", "--inventory", str(inv), "--scenario", "turtlebot3", "--robots", "5",
                           "--dry-run"], capture_output=True, text=True, timeout=60, cwd=ROOT, env=ENV)
     assert bad.returncode == 2 and "robot[5].id: robot 5 is not in scenario 'turtlebot3' (5 robots" in bad.stderr
+
+
+def test_flags_that_mean_nothing_with_a_real_fleet_are_refused_not_dropped(tmp_path, capsys):
+    """--drive, --ros-flavor, --twist, --domain, --restarts, --restart-window, --tick-timeout and --mode lockstep
+    were accepted with --inventory and silently ignored; a given flag is refused, its value whatever it is
+    (--twist plain is the default, and still not what the inventory's rows are told)."""
+    from swarm.cli.main import main
+
+    inv = tmp_path / "fleet.toml"
+    inv.write_text(inventory_text(7, "tcp/192.168.1.20:7447"))
+    base = ["up", "--inventory", str(inv), "--scenario", "turtlebot3", "--dry-run"]
+    for extra, said in [(["--drive", "sim"], "--drive with --inventory: each robot's drive comes from its inventory"),
+                        (["--ros-flavor", "bridge"], "--ros-flavor with --inventory"),
+                        (["--twist", "plain"], "--twist with --inventory"), (["--domain", "3"], "--domain with"),
+                        (["--restarts", "2"], "--restarts with --inventory: a real fleet's processes are never"),
+                        (["--restart-window", "9"], "--restart-window with"),
+                        (["--tick-timeout", "2"], "--tick-timeout with"),
+                        (["--mode", "lockstep"], "--mode lockstep with --inventory: real robots keep real time")]:
+        assert main(base + extra) == 2, extra
+        assert said in capsys.readouterr().err, extra
+    assert main(base + ["--mode", "realtime"]) == 0  # what happens anyway: said, not refused
+    capsys.readouterr()
+    # the simulated world and a robot: flags of another use
+    for argv, said in [(["world", "--initial-pose", "1:0,0,0"], "--initial-pose needs --inventory"),
+                       (["world", "--no-preflight"], "--no-preflight needs --inventory"),
+                       (["world", "--twist", "stamped"], "--twist needs --ros2-sim"),
+                       (["world", "--domain", "1"], "--domain needs --ros2-sim"),
+                       (["robot", "--id", "1", "--drive", "ros2", "--mode", "lockstep"],
+                        "--drive ros2 with --mode lockstep: a ROS 2 robot runs in real time only")]:
+        assert main(argv) == 2, argv
+        assert said in capsys.readouterr().err, argv
+
+
+def test_given_flags_are_the_explicit_ones_whatever_their_value():
+    from swarm.cli.parser import given_flags
+
+    assert given_flags(["up", "--mode", "lockstep", "--robots", "3"]) == {"mode", "robots"}
+    assert given_flags(["up"]) == frozenset()
+    assert given_flags(["robot", "--id", "2", "--drive", "sim", "--kill", "1@2", "--kill", "2@3"]) >= {"id", "drive",
+                                                                                                        "kill"}

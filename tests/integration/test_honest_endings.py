@@ -82,6 +82,10 @@ def test_a_robot_of_another_scenario_refuses_the_run_and_names_the_difference(tm
     procs.start("outside", "robot", "--id", "7", *net)
     assert procs.wait("outside", 60) == 2
     assert "robot 7 is not in run" in procs.log("outside") and "ids 0..2" in procs.log("outside")
+    # --mode given and not the world's: refused, not silently followed
+    procs.start("realtime", "robot", "--id", "1", "--mode", "realtime", *net)
+    assert procs.wait("realtime", 60) == 2
+    assert "is lock-step and this robot was started with --mode realtime" in procs.log("realtime")
     # a stranger's token: the world names it
     from swarm.net.bus import ZenohBus, zenoh_config
     from swarm.proto import keys
