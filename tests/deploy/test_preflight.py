@@ -159,3 +159,19 @@ def test_unreadable_odometry():
         stop.set()
         th.join(2.0)
     assert len(report.problems) == 3 and "odometry on robot0/odom is unreadable" in str(report.problems[0])
+
+
+def test_no_router_reached_still_prints_the_checks_that_need_no_robot(tmp_path, capsys):
+    """`swarm preflight --connect` to a router that is not there printed only the connection error: the
+    static checks (a segment too fast for robot 3) were lost with it."""
+    from swarm.cli.main import main
+    from tests.deploy.helpers import inventory_text
+    from tests.integration.helpers import free_port
+
+    inv = tmp_path / "fleet.toml"
+    inv.write_text(inventory_text(7, None, r3={"v_max": 0.15}))
+    rc = main(["preflight", "--inventory", str(inv), "--scenario", "turtlebot3", "--connect",
+               f"tcp/127.0.0.1:{free_port()}"])
+    out = capsys.readouterr()
+    assert rc == 1 and "cannot open a zenoh client session" in out.err, out
+    assert "robot 3: leader.segments[0] moves at |v| = 0.15 m/s" in out.out and "pre-flight FAILED: 1 problem" in out.out
