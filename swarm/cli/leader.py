@@ -21,7 +21,7 @@ def cmd_leader(args, started: float) -> int:
     scn = load_scenario(args, quiet=True)
     fleet = fleet_of(args)
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
-        bus = open_bus(args, stop=stop, lean=True, role="leader")
+        bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, lean=True, role="leader")
         log.info("leader: connected (fleet %s), waiting for a run", fleet)
         try:
             try:

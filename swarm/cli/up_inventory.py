@@ -205,7 +205,7 @@ def cmd_world_referee(args, started: float) -> int:
     opts = RefereeOptions(speed=args.speed, watchdog=args.watchdog, lost_timeout=args.lost_timeout,
                           start_timeout=args.start_timeout, trace=args.trace is not None)
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
-        bus = open_bus(args, stop=stop, role="world")
+        bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, role="world")
         try:
             if not args.no_preflight:
                 try:

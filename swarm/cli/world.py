@@ -53,7 +53,7 @@ def cmd_world(args, started: float) -> int:
                         ros2=(args.ros2_sim, args.twist, args.domain) if args.ros2_sim else None, trace=args.trace is not None,
                         process_faults=args.process_faults)
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
-        bus = open_bus(args, stop=stop, role="world")
+        bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, role="world")
         log.info("world: connected (fleet %s)", fleet)
         from world.claims import ClaimServer
 

@@ -224,3 +224,11 @@ def test_a_killed_leader_is_restarted_and_lockstep_goes_on(tmp_path):
     assert proc.returncode == 0, err
     m = json.loads(metrics.read_text())
     assert m["leader_restarts"] == 1 and m["robot_restarts"] == 0 and m["cmd_misses"] == 0 and m["duration_s"] == 10.0 and m["failure"] is None
+
+
+@pytest.mark.parametrize("role", ["world", "leader"])
+def test_start_timeout_bounds_the_wait_for_the_router(role):
+    """`swarm world --start-timeout 1` waited zenoh's 10 s for a router that was not there (and the leader too)."""
+    out = subprocess.run([sys.executable, "-m", "swarm.cli", role, "--connect", f"tcp/127.0.0.1:{free_port()}",
+                          "--start-timeout", "1"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1 and "cannot open a zenoh client session" in out.stderr and "within 1 s" in out.stderr
