@@ -131,7 +131,7 @@ def _add_viz_flags(p: argparse.ArgumentParser, switch: str | None) -> None:
 def _add_scenario_flags(p: argparse.ArgumentParser, default: str) -> None:
     g = p.add_argument_group("scenario (a flag beats the file, which beats the built-in default)")
     g.add_argument("--scenario", default=default, metavar="NAME|FILE",
-                   help=f"built-in name (paper, paper-50hz) or a TOML file (default: {default})")
+                   help=f"built-in name (paper, paper-50hz, turtlebot3) or a TOML file (default: {default})")
     g.add_argument("--robots", type=_count, metavar="N",
                    help="number of robots (resizes built-in and generated scenarios)")
     g.add_argument("--seed", type=_seed, metavar="S", help="random seed for starts and slot assignment")
@@ -647,7 +647,7 @@ def _add_campaign_parser(sub) -> None:
                "swarm campaign --up 4 --from out/")
     g = c.add_argument_group("the grid")
     g.add_argument("--scenario", metavar="NAME|FILE",
-                   help="built-in name (paper, paper-50hz, ...) or a TOML file (default: paper-50hz)")
+                   help="built-in name (paper, paper-50hz, turtlebot3) or a TOML file (default: paper-50hz)")
     g.add_argument("--seeds", type=_seed_list, metavar="A-B",
                    help="the seeds: A-B (both included), A, or a comma list of those (e.g. 0-9); required "
                         "unless --from")

@@ -89,3 +89,11 @@ def test_given_flags_are_the_explicit_ones_whatever_their_value():
     assert given_flags(["up"]) == frozenset()
     assert given_flags(["robot", "--id", "2", "--drive", "sim", "--kill", "1@2", "--kill", "2@3"]) >= {"id", "drive",
                                                                                                         "kill"}
+
+
+def test_help_names_every_built_in_scenario():
+    from swarm.cli.parser import build_parser
+    from swarm.core.scenario_file import BUILTINS
+
+    text = build_parser()._subparsers._group_actions[0].choices["up"].format_help()
+    assert f"built-in name ({', '.join(BUILTINS)})" in " ".join(text.split())
