@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import re
 import sys
 import time
 from typing import Sequence
@@ -34,13 +35,27 @@ def _process_age_s() -> float:
         return 0.0
 
 
+def _dash_values(argv: Sequence[str]) -> list[str]:
+    """`--kill -1@3` and `--initial-pose -1.5,2,0` as `--kill=-1@3`: argparse takes a value that starts with
+    a dash and is not a plain number for an option, and says "expected one argument" instead of what is
+    wrong with the value. No option of swarm's starts with a dash and a digit, so such a token is a value."""
+    out = list(argv)
+    i = 0
+    while i < len(out) - 1:
+        if out[i].startswith("--") and "=" not in out[i] and len(out[i]) > 2 and re.match(r"-[\d.]", out[i + 1]):
+            out[i:i + 2] = [f"{out[i]}={out[i + 1]}"]
+        i += 1
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     # wall_s runs from the command's start (docs/metrics.md): the interpreter's start and the
     # imports count too when this is the command (argv None); a caller in-process counts from here
     started = time.perf_counter() - (_process_age_s() if argv is None else 0.0)
     parser = build_parser()
+    argv = _dash_values(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
-    args.argv = list(sys.argv[1:] if argv is None else argv)  # for swarm.cli.parser.given_flags, on demand
+    args.argv = argv  # for swarm.cli.parser.given_flags, on demand
     if args.command is None:
         parser.print_help()
         return EXIT_BAD_INPUT
