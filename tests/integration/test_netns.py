@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -45,11 +47,29 @@ def _netns_unavailable() -> str | None:
     return None
 
 
+def _clear_stale() -> None:
+    """Remove what an earlier run of these tests left when it was killed mid-test (its namespaces, named as
+    below, with whatever still runs in them, and the host's end of its watch link on 10.231.3.2): a
+    namespace of its own on the same addresses would take this run's packets."""
+    listed = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True, timeout=30).stdout
+    for ns in re.findall(r"^(sw[0-9a-f]{5}[hab])\b", listed, re.M):
+        for pid in _ns_pids(ns):
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        subprocess.run(["ip", "netns", "del", ns], capture_output=True, timeout=30)
+    links = subprocess.run(["ip", "-o", "link", "show"], capture_output=True, text=True, timeout=30).stdout
+    for name in re.findall(r"^\d+: (o[0-9a-f]{5})@", links, re.M):
+        subprocess.run(["ip", "link", "del", name], capture_output=True, timeout=30)
+
+
 @pytest.fixture
 def namespaces():
     why = _netns_unavailable()
     if why:
         pytest.skip(why)
+    _clear_stale()
     tag = uuid.uuid4().hex[:5]
     hub, a, b = f"sw{tag}h", f"sw{tag}a", f"sw{tag}b"
     made = []
@@ -173,6 +193,7 @@ def cut_namespaces():
     tool = _firewall()
     if tool is None:
         pytest.skip("needs nft (nftables) or iptables to cut a namespace off")
+    _clear_stale()
     tag = uuid.uuid4().hex[:5]
     hub, a, b = f"sw{tag}h", f"sw{tag}a", f"sw{tag}b"
     made, obs = [], f"o{tag}"
@@ -356,7 +377,6 @@ def test_a_namespace_of_robots_cut_off_for_2_s_is_stopped_by_the_watchdog_and_re
 
     # the watchdog stopped every cut robot within its 0.5 s (and a control period or two) of the cut, and
     # they stood still from then to the end of the cut; the others were never stopped
-    period = 0.02
     for i in cut:
         first = next((t for t, stopped, _v in during if stopped[i]), None)
         assert first is not None, f"robot {i} was never stopped during the cut"
