@@ -42,7 +42,10 @@ def query_until(bus, key: str, kind: str, key_id, timeout_s: float, stop, what: 
             try:
                 msg = protocol.decode(payload, kind, key_id)
             except ProtocolError as e:
-                last_error = f"bad reply on {rkey}: {e}"
+                error = f"bad reply on {rkey}: {e}"
+                if error != last_error:  # said once, not at every retry: a world's bad reply is no network hiccup
+                    log.warning("%s while asking for %s (asking again until %g s have passed)", error, what, timeout_s)
+                last_error = error
                 continue
             if accept is None or accept(msg):
                 return msg

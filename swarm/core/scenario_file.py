@@ -44,9 +44,15 @@ BUILTINS = ("paper", "paper-50hz", "turtlebot3")
 # What a scenario may hold: beyond these a run cannot go (memory, time, float resolution), so a
 # scenario is refused before anything is built.
 MAX_ROBOTS = 100_000
-MAX_OBSTACLES = 1_000_000
+MAX_OBSTACLES = 100_000  # the most a world can send its robots (the obstacles message, swarm.proto.protocol)
 MAX_STEPS = 100_000_000
 MAX_COORD = 1e6  # m: every |coordinate| and every radius or distance of the file (1e-10 m resolution there)
+# what the swarm's messages carry (swarm.proto.protocol: MAX_ANGLE, MAX_SPEED, MAX_TURN, tests hold them equal):
+# a scenario beyond them would run in swarm sim and not in swarm up
+MAX_ANGLE = 1e6  # rad: |theta| of a start, and the leader's heading over the run (it is not wrapped)
+MAX_SPEED = 100.0  # m/s: |v| of a segment, control.v_max
+MAX_TURN = 100.0  # rad/s: |w| of a segment, control.w_max
+WIRE = "what the swarm's messages carry"
 
 Progress = Callable[[str, int, int], None]  # progress(stage, done, total)
 
@@ -157,8 +163,8 @@ class _Reader:
         return value
 
     def number(self, value: Any, key: str, *, gt: float | None = None, ge: float | None = None,
-               bound: float | None = None) -> float:
-        """A finite number; gt / ge: lower limits; bound: |x| <= bound."""
+               bound: float | None = None, why: str = "") -> float:
+        """A finite number; gt / ge: lower limits; bound: |x| <= bound (why: the bound's reason, for the message)."""
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.fail(key, f"must be a number, got {_kind(value)}")
         try:
@@ -168,7 +174,7 @@ class _Reader:
         if not math.isfinite(x):
             raise self.fail(key, f"must be finite, got {value}")
         if bound is not None and abs(x) > bound:
-            raise self.fail(key, f"must be at most {bound:g} in size, got {value}")
+            raise self.fail(key, f"must be at most {bound:g} in size{f' ({why})' if why else ''}, got {value}")
         if gt is not None and not x > gt:
             raise self.fail(key, f"must be > {gt:g}, got {value}")
         if ge is not None and not x >= ge:
@@ -208,12 +214,13 @@ class _Reader:
         return out
 
 
-def _within(rd: _Reader, values: np.ndarray, key: str) -> None:
-    """Refuse the first entry of a (K, C) array whose size exceeds MAX_COORD, naming key[k][c]."""
-    bad = np.abs(values) > MAX_COORD
+def _within(rd: _Reader, values: np.ndarray, key: str, bound: float = MAX_COORD, unit: str = "m in size",
+            first: int = 0) -> None:
+    """Refuse the first entry of a (K, C) array whose size exceeds bound, naming key[k][first + c]."""
+    bad = np.abs(values) > bound
     if bad.any():
         k, c = map(int, np.argwhere(bad)[0])
-        raise rd.fail(f"{key}[{k}][{c}]", f"must be at most {MAX_COORD:g} m in size, got {values[k, c]:g}")
+        raise rd.fail(f"{key}[{k}][{first + c}]", f"must be at most {bound:g} {unit}, got {values[k, c]:g}")
 
 
 def _kind(value: Any) -> str:
@@ -252,8 +259,8 @@ def parse(doc: dict, where: str, name: str, builtin: str | None = None) -> Spec:
         vt=rd.number(ctl.get("vt", defaults.vt), "control.vt", ge=0),
         threshold=rd.choice(ctl.get("threshold", defaults.threshold), "control.threshold", tuple(THRESHOLDS)),
         governor=rd.boolean(ctl.get("governor", defaults.governor), "control.governor"),
-        v_max=rd.number(ctl["v_max"], "control.v_max", gt=0) if "v_max" in ctl else None,
-        w_max=rd.number(ctl["w_max"], "control.w_max", gt=0) if "w_max" in ctl else None,
+        v_max=rd.number(ctl["v_max"], "control.v_max", gt=0, bound=MAX_SPEED, why=WIRE) if "v_max" in ctl else None,
+        w_max=rd.number(ctl["w_max"], "control.w_max", gt=0, bound=MAX_TURN, why=WIRE) if "w_max" in ctl else None,
     )
 
     bodies = rd.table(doc.get("bodies", {}), "bodies", ("r", "R"))
@@ -263,8 +270,8 @@ def parse(doc: dict, where: str, name: str, builtin: str | None = None) -> Spec:
         raise rd.fail("bodies.R", f"must be larger than bodies.r = {r:g}, got {R:g}")
 
     bounds = None
-    if "arena" in doc:
-        arena = rd.table(doc["arena"], "arena", ("bounds",), ("bounds",))
+    arena = rd.table(doc.get("arena", {}), "arena", ("bounds",))
+    if "bounds" in arena:  # an [arena] table without bounds: no arena, as without the table
         box = rd.vector(arena["bounds"], "arena.bounds", 4, "xmin, xmax, ymin, ymax", bound=MAX_COORD)
         if not (box[0] < box[1] and box[2] < box[3]):
             raise rd.fail("arena.bounds", f"must have xmin < xmax and ymin < ymax, got {box}")
@@ -274,6 +281,7 @@ def parse(doc: dict, where: str, name: str, builtin: str | None = None) -> Spec:
     start = rd.vector(ld["start"], "leader.start", 3, "x, y, theta")
     for c in range(2):
         rd.number(start[c], f"leader.start[{c}]", bound=MAX_COORD)
+    rd.number(start[2], "leader.start[2]", bound=MAX_ANGLE, why=WIRE)
     if not isinstance(ld["segments"], list) or not ld["segments"]:
         raise rd.fail("leader.segments", f"must be a non-empty list of {{duration, v, w}}, got {_show(ld['segments'])}")
     segments = []
@@ -281,7 +289,8 @@ def parse(doc: dict, where: str, name: str, builtin: str | None = None) -> Spec:
         key = f"leader.segments[{i}]"
         rd.table(seg, key, ("duration", "v", "w"), ("duration", "v", "w"))
         segments.append(Segment(rd.number(seg["duration"], f"{key}.duration", gt=0),
-                                rd.number(seg["v"], f"{key}.v"), rd.number(seg["w"], f"{key}.w")))
+                                rd.number(seg["v"], f"{key}.v", bound=MAX_SPEED, why=WIRE),
+                                rd.number(seg["w"], f"{key}.w", bound=MAX_TURN, why=WIRE)))
     leader = Leader(tuple(start), tuple(segments))
 
     fm = rd.table(doc["formation"], "formation", ("offsets", "hex", "assignment"))
@@ -302,6 +311,7 @@ def parse(doc: dict, where: str, name: str, builtin: str | None = None) -> Spec:
         raise rd.fail("robots", "give exactly one of 'poses' (a list of [x, y, theta]) or 'random' (a generator)")
     if "poses" in rb:
         poses = rd.vectors(rb["poses"], "robots.poses", 3, "x, y, theta", MAX_ROBOTS, 2)
+        _within(rd, poses[:, 2:], "robots.poses", MAX_ANGLE, f"rad in size ({WIRE})", first=2)
     else:
         key = "robots.random"
         rnd = rd.table(rb["random"], key, ("count", "region", "min_separation", "obstacle_clearance"),
@@ -463,6 +473,19 @@ def _check_steps(spec: Spec, ov: Overrides, duration: float, dt: float) -> None:
                             f"steps; a run has at most {MAX_STEPS:.0e} steps: shorten the run or lengthen dt")
 
 
+def _leader_heading(scn: Scenario, where: str) -> None:
+    """The leader's heading (not wrapped) within MAX_ANGLE for the whole run: its references carry it."""
+    theta, t = float(scn.leader.start[2]), 0.0
+    segments = scn.leader.segments
+    for k, seg in enumerate(segments):
+        span = max(0.0, scn.duration - t) if k == len(segments) - 1 else min(seg.duration, max(0.0, scn.duration - t))
+        theta += seg.w * span
+        t += span
+        if abs(theta) > MAX_ANGLE:
+            raise ScenarioError(where, f"leader.segments[{k}].w", f"the leader's heading reaches {theta:.4g} rad by "
+                                f"t = {t:g} s; it must stay within {MAX_ANGLE:g} rad in size ({WIRE})")
+
+
 def check(scn: Scenario, where: str, offsets_key: str = "formation.offsets", poses_key: str = "robots.poses",
           progress: Progress = silent, counter: Counter | None = None) -> None:
     """The scenario as a whole: sizes, the arena, Assumption 1, the start separations and the law's
@@ -475,6 +498,7 @@ def check(scn: Scenario, where: str, offsets_key: str = "formation.offsets", pos
             i, c = map(int, np.argwhere(bad)[0])
             raise ScenarioError(where, key, f"robot {i}'s {what} has {'xy'[c]} = {values[i, c]:g} m; every coordinate "
                                 f"must be at most {MAX_COORD:g} m in size")
+    _leader_heading(scn, where)
     if scn.bounds is not None:
         xmin, xmax, ymin, ymax = scn.bounds
         x, y = scn.poses[:, 0], scn.poses[:, 1]

@@ -207,9 +207,22 @@ REFUSALS = [
     ("negative w_max", _set(("control", "w_max"), -1.0), "control.w_max", "> 0"),
     ("string v_max", _set(("control", "v_max"), "fast"), "control.v_max", "must be a number"),
     ("inf w_max", _set(("control", "w_max"), INF), "control.w_max", "finite"),
+    # beyond what the swarm's messages carry: it would run in swarm sim and not in swarm up
+    ("v_max beyond the wire", _set(("control", "v_max"), 150.0), "control.v_max", "at most 100 in size",
+     "what the swarm's messages carry"),
+    ("w_max beyond the wire", _set(("control", "w_max"), 500.0), "control.w_max", "at most 100 in size"),
+    ("segment v beyond the wire", _set(("leader", "segments", 0, "v"), -120.0), "leader.segments[0].v",
+     "at most 100 in size"),
+    ("segment w beyond the wire", _set(("leader", "segments", 0, "w"), 101.0), "leader.segments[0].w",
+     "at most 100 in size"),
+    ("leader heading beyond the wire", _set(("leader", "start", 2), 2e6), "leader.start[2]", "at most 1e+06 in size"),
+    ("start heading beyond the wire", _set(("robots", "poses", 1, 2), -3e6), "robots.poses[1][2]",
+     "at most 1e+06 rad in size"),
+    ("leader heading that winds past the wire", _set(("leader",), {"start": [0.0, 0.0, 999_999.0], "segments": [
+        {"duration": 10.0, "v": 0.5, "w": 1.0}]}), "leader.segments[0].w",
+     "the leader's heading reaches 1e+06 rad by t = 20 s", "within 1e+06 rad"),
     ("unknown arena key", _set(("arena",), {"bounds": [0.0, 1.0, 0.0, 1.0], "walls": True}), "arena.walls",
      "unknown key"),
-    ("arena without bounds", _set(("arena",), {}), "arena.bounds", "missing"),
     ("arena bounds of 3", _set(("arena",), {"bounds": [0.0, 1.0, 0.0]}), "arena.bounds", "list of 4"),
     ("arena bounds reversed", _set(("arena",), {"bounds": [10.0, -10.0, -10.0, 10.0]}), "arena.bounds",
      "xmin < xmax"),
@@ -250,8 +263,8 @@ def test_bad_scenario_file_is_refused_naming_file_key_and_reason(name, edit, key
     edit(base_doc)
     path = write_scenario(base_doc)
     check_refusal(refused(path), path, key, *fragments)
-    # read_spec alone refuses what does not need the generators to run
-    if not key.startswith(("robots", "formation.offsets", "formation.hex")):
+    # read_spec alone refuses what does not need the generators to run (nor the run's length, which flags may set)
+    if not key.startswith(("robots", "formation.offsets", "formation.hex")) and "winds" not in name:
         with pytest.raises(ScenarioError):
             sf.read_spec(path)
 
@@ -720,6 +733,9 @@ def test_arena_bounds_are_carried_and_written_back(base_doc, write_scenario):
     assert sf.load(write_scenario(sf.to_toml(scn), "again.toml")).bounds == scn.bounds
     del base_doc["arena"]
     assert sf.load(write_scenario(base_doc, "open.toml")).bounds is None
+    base_doc["arena"] = {}  # arena.bounds is optional: an [arena] table without it is no arena
+    assert sf.load(write_scenario(base_doc, "empty.toml")).bounds is None
+    del base_doc["arena"]
     # a start on the border is inside
     base_doc["arena"] = {"bounds": [-9.0, 0.0, -2.0, 1.0]}
     sf.load(write_scenario(base_doc, "border.toml"))
@@ -838,3 +854,13 @@ def test_the_prescan_skips_strings_and_comments(tmp_path, base_doc):
     assert path.stat().st_size > sf.PRESCAN_BYTES
     scn = sf.load(str(path), progress=sf.silent)
     assert scn.n == n
+
+
+def test_the_scenario_limits_are_the_wires():
+    """A scenario the swarm's messages cannot carry is refused at load, not found out by a robot that never
+    starts (a heading, a speed or an obstacle count that swarm sim ran and swarm up did not)."""
+    from swarm.proto import protocol
+
+    assert sf.MAX_ANGLE == protocol.MAX_ANGLE and sf.MAX_SPEED == protocol.MAX_SPEED
+    assert sf.MAX_TURN == protocol.MAX_TURN and sf.MAX_COORD == protocol.MAX_COORD
+    assert sf.MAX_OBSTACLES == sf.MAX_ROBOTS == protocol.MAX_ROBOTS  # the obstacles message's list limit
