@@ -6,7 +6,7 @@
     bodies = wf.bodies(k, q)                   # the Bodies message of tick k (static bodies, returning robots)
     cmds = wf.apply(k, raw)                    # the command each robot moves with over tick k
     wf.take_stats(i, msg)                      # a robot's own fault counters (a FaultStats message)
-    wf.metrics()                               # the fault keys of the metrics contract
+    wf.metrics(alive, t_end)                   # the fault keys of the metrics contract
 
 Mirrors step 6 of swarm.core.faultkernel (the simulator's fault loop) with the same decisions
 (swarm.core.faults.Link): robot i's command of tick s arrives at s + delay unless lost; the newest
@@ -178,7 +178,7 @@ class WorldFaults:
                     delayed[c] += int(row[b])
         return dropped, delayed
 
-    def metrics(self, alive_at_end: int) -> dict:
+    def metrics(self, alive_at_end: int, t_end: float) -> dict:
         dropped, delayed = self.totals()
         return {
             "messages_dropped": sum(dropped),
@@ -189,7 +189,7 @@ class WorldFaults:
                 "killed": self.killed,
                 "restarted": self.restarted,
                 "hung": self.hung,
-                "partitions": len(self.faults.partitions),
+                "partitions": fl.partitions_begun(self.faults, t_end),
                 "cmd_held": self.cmd_held,
                 "watchdog_stops": self.watchdog_stops,
                 "max_state_age_s": round(self.max_age, 9),

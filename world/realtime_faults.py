@@ -80,7 +80,7 @@ class RealtimeFaults:
                 "killed": sum(1 for k in f.kills if k.at <= t_end + eps),
                 "restarted": sum(1 for k in f.kills if k.restart is not None and k.end <= t_end + eps),
                 "hung": sum(1 for h in f.hangs if h.at <= t_end + eps),
-                "partitions": len(f.partitions),
+                "partitions": fl.partitions_begun(f, t_end),
                 "cmd_held": cmd_held,
                 "watchdog_stops": watchdog_stops,
                 "max_state_age_s": round(self.max_age, 9),

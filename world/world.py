@@ -526,7 +526,7 @@ class World:
                      scenario_digest=self.digest, stale_messages=self.bad.stale, **self._latency(),
                      **({} if self.lockstep else {"samples_missed": self.samples_missed}))
         if self.wf is not None:  # messages_dropped, faults {...}, robots_alive_at_end by the schedule
-            extra.update(self.wf.metrics(self._not_dead()))
+            extra.update(self.wf.metrics(self._not_dead(), self.t))
         elif self.rtf is not None:  # real time: counted as it happened (docs/faults.md)
             extra.update(self.rtf.metrics(self.t, self.cmd_held, self.watchdog_stops))
         return self.referee.metrics(time.perf_counter() - started, interrupted,

@@ -138,7 +138,7 @@ def _fault_fields(sim) -> str:
         return ""
     from swarm.core import faultgen as fg
 
-    return console.fault_fields(f.metrics()["messages_dropped"], int((f.proc == fg.PROC_DEAD).sum()),
+    return console.fault_fields(f.metrics(0.0)["messages_dropped"], int((f.proc == fg.PROC_DEAD).sum()),
                                 int((f.proc == fg.PROC_HUNG).sum()))
 
 

@@ -71,8 +71,8 @@ def _window(start: float, end: float) -> tuple[float, float]:
     start = _time(start, "start")
     if isinstance(end, bool) or not isinstance(end, (int, float)) or math.isnan(end) or end == -math.inf:
         raise FaultError("end", f"must be a number of seconds, got {end!r}")
-    if not end > start:
-        raise FaultError("end", f"must be after start = {start:g} s (a window [start, end) holds some time), got {end:g}")
+    if not end >= start:  # end == start: an empty window, accepted (advisories() says it never acts)
+        raise FaultError("end", f"must not be before start = {start:g} s (a window [start, end)), got {end:g}")
     return start, float(end)
 
 
@@ -86,20 +86,22 @@ def _ids(value: tuple[int, ...] | None, field: str) -> tuple[int, ...] | None:
     for k, i in enumerate(ids):
         if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or i < 0:
             raise FaultError(f"{field}[{k}]", f"must be a robot id (an integer >= 0), got {i!r}")
-        if int(i) in seen:
-            raise FaultError(f"{field}[{k}]", f"lists robot {i} twice")
-        seen.add(int(i))
+        seen.add(int(i))  # a robot listed twice is listed once
     return tuple(sorted(seen))
 
 
 def _class_ends(cls: str, senders, receivers) -> None:
     if not isinstance(cls, str) or cls not in CLASSES:
         raise FaultError("class", f"must be one of {', '.join(repr(c) for c in CLASSES)}, got {cls!r}")
+
+
+def _matches_nothing(cls: str, senders, receivers) -> str | None:
+    """Why a rule's links are none (a pose or ref has no robot sender, a cmd no robot receiver), or None."""
     if senders is not None and cls in ("pose", "ref"):
-        raise FaultError("from", f"a {cls} is sent by the {'world' if cls == 'pose' else 'leader'}, never by a robot: "
-                         "this rule would match nothing (leave 'from' out)")
+        return f"a {cls} is sent by the {'world' if cls == 'pose' else 'leader'}, never by a robot, and it names 'from'"
     if receivers is not None and cls == "cmd":
-        raise FaultError("to", "a cmd goes to the world, never to a robot: this rule would match nothing (leave 'to' out)")
+        return "a cmd goes to the world, never to a robot, and it names 'to'"
+    return None
 
 
 @dataclass(frozen=True)
@@ -115,6 +117,7 @@ class DropRule:
     receivers: tuple[int, ...] | None = None
     start: float = 0.0
     end: float = math.inf
+    burst_given: float | None = field(default=None, compare=False, repr=False)  # a burst too short for p, raised
 
     def __post_init__(self) -> None:
         for name in ("p", "burst"):
@@ -126,10 +129,10 @@ class DropRule:
         if not self.burst >= 1.0:
             raise FaultError("burst", f"must be >= 1 (a mean number of messages; 1: independent losses), got {self.burst:g}")
         if self.burst > 1.0 and 0.0 < self.p < 1.0 and self.p > self.burst / (self.burst + 1.0):
-            raise FaultError("burst", f"bursts of mean length {self.burst:g} lose at most burst / (burst + 1) = "
-                             f"{self.burst / (self.burst + 1.0):.4g} of the messages (a delivered message separates two "
-                             f"bursts), not p = {self.p:g}: give burst >= p / (1 - p) = {self.p / (1.0 - self.p):.4g}, "
-                             "or burst = 1 (independent losses)")
+            # bursts of mean length b lose at most b / (b + 1) of the messages (a delivered message separates two
+            # bursts): p is kept, and the bursts are the shortest that lose it (advisories() says so)
+            object.__setattr__(self, "burst_given", float(self.burst))
+            object.__setattr__(self, "burst", self.p / (1.0 - self.p))
         senders, receivers = _ids(self.senders, "from"), _ids(self.receivers, "to")
         _class_ends(self.cls, senders, receivers)
         start, end = _window(self.start, self.end)
@@ -366,13 +369,10 @@ class _Reader:
         return x
 
     def time(self, value: Any, key: str, duration: float) -> float:
-        """A time in the run: >= 0 and before its end (a fault that would never happen is refused)."""
+        """A time >= 0 (at or after the run's end too: the fault never happens, advisories() says so)."""
         t = self.number(value, key)
         if t < 0:
             raise self.fail(key, f"must be >= 0 s (times count from the start of the run), got {t:g}")
-        if t >= duration:
-            raise self.fail(key, f"must be before the end of the run (duration = {duration:g} s), got {t:g}: "
-                            "the fault would never happen")
         return t
 
     def integer(self, value: Any, key: str) -> int:
@@ -450,11 +450,7 @@ def _partition(rd: _Reader, rule: Any, key: str, robots: int, duration: float) -
         got = "an empty list" if groups == [] else _kind(groups)
         raise rd.fail(f"{key}.groups", f"must be a non-empty list of lists of robot ids, got {got}")
     groups = tuple(rd.robots(g, f"{key}.groups[{k}]", robots) for k, g in enumerate(groups))
-    part = _build(rd, key, Partition, groups=groups, **_span(rd, rule, key, duration))
-    if len(part.groups) + (sum(len(g) for g in part.groups) < robots) < 2:
-        raise rd.fail(f"{key}.groups", f"one group of all {robots} robots separates nothing (the robots in no "
-                      "group form one more group)")
-    return part
+    return _build(rd, key, Partition, groups=groups, **_span(rd, rule, key, duration))
 
 
 def _kill(rd: _Reader, rule: Any, key: str, robots: int, duration: float) -> Kill:
@@ -559,24 +555,55 @@ def merged(faults: Faults, drops: Iterable[DropRule] = (), kills: Iterable[Kill]
         raise ScenarioError("command line", flag, f"with the faults given: {e.reason}") from None
 
 
-def advisories(faults: Faults, duration: float) -> list[str]:
-    """Valid but odd choices, to warn about: rules that never act, restarts and resumes after the end."""
+def advisories(faults: Faults, duration: float, robots: int | None = None) -> list[str]:
+    """Valid but odd choices, to warn about: rules that never act (no link, an empty window, a time at or
+    after the end, one group of every robot), a burst raised to what p needs, restarts and resumes after
+    the end."""
     out = []
     for i, d in enumerate(faults.drops):
         if d.p == 0.0:
             out.append(f"faults.drop[{i}] has p = 0: it never loses a message")
+        if d.burst_given is not None:
+            out.append(f"faults.drop[{i}] has burst = {d.burst_given:g}, shorter than p = {d.p:g} allows (bursts of mean "
+                       f"length b lose at most b / (b + 1) of the messages): its bursts are p / (1 - p) = "
+                       f"{d.burst:.4g} messages long on average, so that it loses p of them")
     for i, d in enumerate(faults.delays):
         if d.ticks == 0 and d.jitter == 0:
             out.append(f"faults.delay[{i}] has ticks = 0 and jitter = 0: it never delays a message")
+    for name, rules in (("drop", faults.drops), ("delay", faults.delays), ("partition", faults.partitions)):
+        for i, r in enumerate(rules):
+            why = None if name == "partition" else _matches_nothing(r.cls, r.senders, r.receivers)
+            if why is not None:
+                out.append(f"faults.{name}[{i}] matches no message: {why}")
+            elif r.start >= duration:
+                out.append(f"faults.{name}[{i}] starts at {r.start:g} s, not before the end of the run ({duration:g} s): "
+                           "it never acts")
+            elif r.end <= r.start:
+                out.append(f"faults.{name}[{i}] has an empty window (start = end = {r.start:g} s): it never acts")
+    for i, pt in enumerate(faults.partitions):
+        if robots is not None and len(pt.groups) + (sum(len(g) for g in pt.groups) < robots) < 2:
+            out.append(f"faults.partition[{i}] puts all {robots} robots in one group (the robots in no group form one "
+                       "more group): it separates nothing")
+    for name, events in (("kill", faults.kills), ("hang", faults.hangs)):
+        for i, e in enumerate(events):
+            if e.at >= duration:
+                out.append(f"faults.{name}[{i}] is at {e.at:g} s, not before the end of the run ({duration:g} s): it "
+                           "never happens")
     for i, k in enumerate(faults.kills):
-        if k.restart is not None and k.end >= duration:
+        if k.restart is not None and k.at < duration <= k.end:
             out.append(f"faults.kill[{i}] restarts robot {k.robot} at {k.end:g} s, not before the end of the run "
                        f"({duration:g} s): it stays dead")
     for i, h in enumerate(faults.hangs):
-        if h.end >= duration:
+        if h.at < duration <= h.end:
             out.append(f"faults.hang[{i}] resumes robot {h.robot} at {h.end:g} s, not before the end of the run "
                        f"({duration:g} s): it stays stopped")
     return out
+
+
+def partitions_begun(faults: Faults, t_end: float) -> int:
+    """The metrics' faults.partitions: partition windows that began by t_end [s] (the run's last step) and
+    hold some time; one that starts after the end, or an empty one, never happened."""
+    return sum(1 for p in faults.partitions if p.start - 1e-9 <= t_end and p.end > p.start)
 
 
 # --------------------------------------------------------------------------- canonical text

@@ -2,7 +2,7 @@
 
     state = FaultState(scn, dt)        # the arrays of swarm.core.faultkernel.run_fault_steps
     state.arguments()                   # its fault-specific arguments, in order
-    state.metrics()                     # messages_dropped, faults {...}, robots_alive_at_end
+    state.metrics(t_end)                # messages_dropped, faults {...}, robots_alive_at_end
 
 swarm.core.sim.Simulation holds one when its scenario has faults and calls the fault kernel with it.
 """
@@ -98,8 +98,8 @@ class FaultState:
                 self.pbase, self.cmdh, self.lastc, self.kr, self.tk, self.tx, self.ty, self.wcmd, self.wnew,
                 self.wsrc, self.wlast, self.stopped, self.alive_end, BRAKE_S)
 
-    def metrics(self) -> dict:
-        """The fault keys of the metrics contract."""
+    def metrics(self, t_end: float) -> dict:
+        """The fault keys of the metrics contract; t_end [s]: the time of the run's last step."""
         fk, a = self.fk, self.facc
         dropped = {c: int(a[fk.F_DROPPED + i]) for i, c in enumerate(CLASSES)}
         return {
@@ -111,7 +111,7 @@ class FaultState:
                 "killed": int(a[fk.F_KILLED]),
                 "restarted": int(a[fk.F_RESTARTED]),
                 "hung": int(a[fk.F_HUNG]),
-                "partitions": len(self.faults.partitions),
+                "partitions": fl.partitions_begun(self.faults, t_end),
                 "cmd_held": int(a[fk.F_CMD_HELD]),
                 "watchdog_stops": int(a[fk.F_WATCHDOG]),
                 "max_state_age_s": round(float(self.fmax[0]), 9),

@@ -49,8 +49,8 @@ def record(scn, *, duration_s: float, converged_at_s: float | None, position_err
         "cmd_misses": 0,
         "bad_messages": 0,
         "interrupted": bool(interrupted),
-        # the contract's last key, where the run has one (swarm up, swarm world; not swarm sim): in its place
-        **({"failure": extra.pop("failure")} if "failure" in extra else {}),
+        # the contract's last key: null but where a swarm up or world run ended early without a signal
+        "failure": extra.pop("failure", None),
         "scenario": scn.name,
         "mode": mode,
         "governor": scn.control.governor,

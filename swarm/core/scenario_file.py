@@ -671,7 +671,7 @@ def advisories(scn: Scenario, counter: Counter | None = None) -> list[str]:
     if scn.faults:
         from swarm.core.faults import advisories as fault_advisories
 
-        out += fault_advisories(scn.faults, scn.duration)
+        out += fault_advisories(scn.faults, scn.duration, scn.n)
     return out
 
 

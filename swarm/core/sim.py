@@ -208,7 +208,7 @@ class Simulation:
             last_freeze_end_s=None if last_frozen < 0 else _step_time(last_frozen, scn.dt), wall_s=wall_s,
             interrupted=interrupted, mode="sim", freeze_intervals=int(self.iacc[k.I_FREEZE_INTERVALS]),
             governed_robot_steps=int(self.iacc[k.I_GOVERNED]), steps=max(last, 0),
-            **(self.faults.metrics() if self.faults is not None else {}))
+            **(self.faults.metrics(_step_time(max(last, 0), scn.dt)) if self.faults is not None else {}))
 
 
 def _step_time(k: int, dt: float) -> float:
