@@ -1132,10 +1132,16 @@ class Agent:
         (or overdue). True if a command (or a skip) was issued."""
         if self._announce:
             self._announce = False
-            if self.view is not None and self.k_done >= 0:
+            if self.view is not None:
+                # a process stopped before its first tick (hung at tick 0, or at the tick it was restarted for)
+                # says so with tick 0 and its counters, all zero then (the world takes that as its word only)
+                done = max(self.k_done, 0)
+                # its next tick is its return: it hears every cell for it (stopped before it ran tick 0, it never
+                # reached the idle tick that subscribes it)
+                self._listen_all(self.view.returns_next(max(self.k_done, self._idle)))
                 self._resubscribe()
                 self.bus.put(self._faults_key, protocol.encode(protocol.FaultStats(
-                    self.k_done * self.cfg.dt, self.k_done, *self.view.counters(),
+                    done * self.cfg.dt, done, *self.view.counters(),
                     frozen=self.mem[law.M_FROZEN] != 0.0)), reliable=True)
         with self.lock:
             pose = self.pose

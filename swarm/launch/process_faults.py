@@ -35,17 +35,22 @@ class ProcessFaults:
         self.lockstep, self.min_stop_s = lockstep, min_stop_s
         self.stopped_at: dict[int, float] = {}  # robot -> monotonic time of its SIGSTOP
         todo: list[tuple[float, int, int, str]] = []  # (when: tick or simulated s, order, robot, action)
+        # at one time, a restart or a resume before a kill or a hang (docs/faults.md): a robot hung at the time of
+        # its restart is its new process, stopped (it was the old one's pid, already gone); lock-step starts the
+        # new process right after the kill, at the kill's tick
+        first, then = (0, 1) if not lockstep else (0, 0)
         for t, robot, kind in (fl.events(faults) if faults else []):
             k = fl.first_tick(t, dt)
             if kind == "kill":
-                todo.append((k if lockstep else t, 0, robot, "kill"))
+                todo.append((k if lockstep else t, then, robot, "kill"))
             elif kind == "restart":
                 # lock-step: at once after the kill (the world waits for it); real time: at its time
-                todo.append((self._kill_tick(faults, robot, t, dt) if lockstep else t, 1, robot, "start"))
+                todo.append((self._kill_tick(faults, robot, t, dt) if lockstep else t, 1 if lockstep else first, robot,
+                             "start"))
             elif kind == "hang":
-                todo.append((k if lockstep else t, 0, robot, "stop"))
+                todo.append((k if lockstep else t, then, robot, "stop"))
             else:
-                todo.append((max(0, k - 1) if lockstep else t, 2, robot, "cont"))
+                todo.append((max(0, k - 1) if lockstep else t, 2 if lockstep else first, robot, "cont"))
         self.todo = sorted(todo)
 
     @staticmethod

@@ -78,3 +78,20 @@ def test_faulty_lockstep_up_equals_faulty_sim_bit_for_bit(tmp_path):
     done = (tmp_path / "logs" / "faults.log").read_text()
     assert "robot 5 killed (SIGKILL" in done and "robot 5's new process started (pid" in done
     assert "robot 3 stopped (SIGSTOP" in done and "robot 3 resumed (SIGCONT" in done
+
+
+def test_a_robot_hung_at_tick_0_is_waited_for_and_the_run_equals_sim(tmp_path):
+    """A hang at t = 0 (from a contract audit): the world went on at tick 1 without the robot (its SIGCONT
+    came at tick 196), counted it lost and missed its commands (exit 3); with a 3 s hang, `robot 0 did not
+    come back` (exit 1). The world now waits for it before tick 0 begins, and the robot, stopped before its
+    first tick, says it is back all the same."""
+    faults = tmp_path / "faults.toml"
+    faults.write_text("[faults]\n[[faults.hang]]\nrobot = 0\nat = 0.0\nduration = 0.02\n")
+    cmd, metrics = up(tmp_path, "--robots", "7", "--duration", "3", "--faults", str(faults), "--quiet")
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
+    logs = "".join(p.read_text() for p in (tmp_path / "logs").glob("*.log"))
+    assert out.returncode == 0, out.stderr + logs
+    m = json.loads(metrics.read_text())
+    sim = Simulation(scenario_file.load("paper-50hz", Overrides(robots=7, duration=3.0, faults=str(faults)))).run()
+    assert {k: m[k] for k in SAME} == {k: sim.metrics[k] for k in SAME}
+    assert m["robots_lost"] == 0 and m["cmd_misses"] == 0 and m["faults"]["hung"] == 1

@@ -746,3 +746,18 @@ def test_a_link_decides_as_decide_over_the_table():
     for bad in ((4, 0, 1), (0, 7, 1), (0, 0, -3)):
         with pytest.raises(ValueError):
             t.link(*bad)
+
+
+def test_real_time_process_faults_restart_and_resume_before_kill_and_hang_at_one_time():
+    """A hang at a robot's restart time stopped the old (dead) process and left the new one running; a
+    resume and a kill at one time were sent kill first (from a contract audit)."""
+    from swarm.launch.process_faults import ProcessFaults
+
+    f = Faults(0, kills=(Kill(2, 5.0, 2.0), Kill(3, 8.0)), hangs=(Hang(2, 7.0, 1.0), Hang(4, 7.0, 1.0)))
+    rt = ProcessFaults(f, 0.02, lockstep=False)
+    at7 = [(r, a) for t, _, r, a in rt.todo if t == 7.0]
+    assert at7.index((2, "start")) < at7.index((2, "stop"))
+    at8 = [(r, a) for t, _, r, a in rt.todo if t == 8.0]
+    assert at8.index((2, "cont")) < at8.index((3, "kill")) and at8.index((4, "cont")) < at8.index((3, "kill"))
+    ls = ProcessFaults(f, 0.02, lockstep=True).todo  # lock-step: the new process right after the kill, at its tick
+    assert ls.index((250, 0, 2, "kill")) < ls.index((250, 1, 2, "start"))
