@@ -45,6 +45,7 @@ from __future__ import annotations
 import heapq
 import itertools
 import logging
+import math
 import threading
 from collections.abc import Callable
 
@@ -99,6 +100,9 @@ class FaultBus:
         self.errors = getattr(inner, "errors", None) or protocol.BadMessages(log)
         self.dropped = [0, 0, 0, 0]  # by class, faultgen.CLS_* order
         self.delayed = [0, 0, 0, 0]
+        # by class, the t of the newest message this bus lost (pose, cmd, ref: one sender each): a receiver's
+        # window takes a gap it explains (after a partition or a burst of drops) as the schedule's, not a jump
+        self.lost_t = [-math.inf] * 4
         self.undecided = 0  # messages passed through without a decision (MAX_CHAIN_STEPS)
         self.overflow = 0  # held messages delivered early because HELD_MAX were held
         self._links: dict[tuple[int, int, int], object] = {}
@@ -163,6 +167,8 @@ class FaultBus:
             lost, late = link.decide(k, t)
             if lost:
                 self.dropped[cls] += 1
+                if t > self.lost_t[cls]:
+                    self.lost_t[cls] = t
                 return -1
             if late > 0:
                 self.delayed[cls] += 1

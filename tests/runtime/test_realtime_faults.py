@@ -326,3 +326,24 @@ def test_a_table_of_faults_decides_the_world_side_on_the_same_links(write_scenar
     assert world.fbus is not None and world.fbus.me == F.WORLD and world.bus is world.fbus
     lock = World(MemoryBus(MemoryNet()), scn, F_, lockstep=True)
     assert lock.fbus is None  # lock-step decides in world.faultworld
+
+
+def test_a_reference_gap_its_fault_bus_explains_is_taken_not_counted_bad():
+    """Real time under faults: after a partition (or a burst of drops) of references longer than the window's
+    t_span, the next reference jumped the window and was counted bad, 2 a partition's end (from a contract
+    audit). A gap the robot's own fault bus lost references in is the schedule's; any other jump is refused."""
+
+    class Counters:  # what the agent reads of its FaultBus
+        dropped, delayed, lost_t = [0] * 4, [0] * 4, [-math.inf] * 4
+
+    counters = Counters()
+    agent = robot.Agent(MemoryBus(MemoryNet()), CFG, F_, clock=FakeClock(), counters=counters)
+    ref = lambda t, seq: Ref(t=t, seq=seq, x=0.0, y=0.0, theta=0.0, v=0.5, w=0.0)  # noqa: E731
+    agent._on_ref(ref(1.0, 10))
+    agent._on_ref(ref(4.0, 40))  # 3 s later: beyond t_span, nothing lost in between
+    assert agent.bad.count == 1 and agent.ref.seq == 10
+    counters.lost_t[3] = 3.5  # faultgen.CLS_REF: the bus lost a reference of t = 3.5
+    agent._on_ref(ref(4.1, 41))
+    assert agent.bad.count == 1 and agent.ref.seq == 41
+    agent._on_ref(ref(9.0, 90))  # a jump past what the bus lost: still refused
+    assert agent.bad.count == 2 and agent.ref.seq == 41
