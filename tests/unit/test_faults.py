@@ -14,6 +14,8 @@ import pytest
 
 from swarm.core import faultgen as fg
 from swarm.core import faults as F
+from swarm.core import scenario_file
+from swarm.core.scenario_file import Overrides
 from swarm.core.faults import (
     DelayRule,
     DropRule,
@@ -761,3 +763,15 @@ def test_real_time_process_faults_restart_and_resume_before_kill_and_hang_at_one
     assert at8.index((2, "cont")) < at8.index((3, "kill")) and at8.index((4, "cont")) < at8.index((3, "kill"))
     ls = ProcessFaults(f, 0.02, lockstep=True).todo  # lock-step: the new process right after the kill, at its tick
     assert ls.index((250, 0, 2, "kill")) < ls.index((250, 1, 2, "start"))
+
+
+def test_a_delay_longer_than_the_run_costs_the_run_not_the_delay():
+    """A delay rule of 10^6 ticks made the simulator's rings robots x robots x 10^6 (11.7 GB at 37 robots,
+    1.16 TiB at 400) whatever the run's length (from a contract audit): a message later than the run is
+    never delivered, so they reach its last tick only."""
+    from swarm.core.faultsim import FaultState
+
+    scn = scenario_file.load("paper-50hz", Overrides(robots=7, duration=1.0), progress=scenario_file.silent)
+    f = parse('[faults]\n[[faults.delay]]\nclass = "state"\nticks = 1000000\n', robots=7, duration=1.0)
+    state = FaultState(scn.replace(faults=f))
+    assert state.ring_state.shape == (7, 7, scn.steps + 3) and state.dmax == scn.steps + 1
