@@ -446,6 +446,8 @@ def _resolve_faults(spec: Spec, ov: Overrides, scn: Scenario):
     from swarm.core import faults as fl
 
     if ov.faults is not None:
+        if spec.faults is not None:  # replaced, but still checked: a broken file is refused whatever replaces it
+            fl.parse_faults(spec.faults, spec.where, scn.n, scn.duration, scn.seed)
         f = fl.load_faults_file(ov.faults, scn.n, scn.duration, scn.seed)
     elif spec.faults is not None:
         f = fl.parse_faults(spec.faults, spec.where, scn.n, scn.duration, scn.seed)
@@ -695,7 +697,8 @@ def _arena_advisories(scn: Scenario) -> list[str]:
         x, y = kinematics.leader_state(table, float(t))[:2]
         if x + lo[0] < xmin or x + hi[0] > xmax or y + lo[1] < ymin or y + hi[1] > ymax:
             return [f"the formation's slots leave arena.bounds [{xmin:g}, {xmax:g}, {ymin:g}, {ymax:g}] at t = "
-                    f"{t:.4g} s (the leader is at ({x:.4g}, {y:.4g})): the robots follow them out"]
+                    f"{t:.4g} s (the leader is at ({x:.4g}, {y:.4g})): the robots follow them out (in real time "
+                    "each robot's drive halts it at the edge; swarm sim and lock-step, which have no drive, do not)"]
     return []
 
 

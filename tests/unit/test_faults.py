@@ -775,3 +775,15 @@ def test_a_delay_longer_than_the_run_costs_the_run_not_the_delay():
     f = parse('[faults]\n[[faults.delay]]\nclass = "state"\nticks = 1000000\n', robots=7, duration=1.0)
     state = FaultState(scn.replace(faults=f))
     assert state.ring_state.shape == (7, 7, scn.steps + 3) and state.dmax == scn.steps + 1
+
+
+def test_a_scenario_faults_table_is_checked_even_when_a_faults_file_replaces_it(tmp_path):
+    """A scenario with p = 3.0 in its [faults] ran without a word when --faults replaced the table (from a
+    contract audit): a broken file is refused whatever replaces a part of it."""
+    scn = tmp_path / "s.toml"
+    base = scenario_file.load("paper-50hz", Overrides(robots=7), progress=scenario_file.silent)
+    scn.write_text(scenario_file.to_toml(base) + '\n[faults]\n[[faults.drop]]\nclass = "state"\np = 3.0\n')
+    good = tmp_path / "f.toml"
+    good.write_text(CONTRACT)
+    with pytest.raises(ScenarioError, match=r"s\.toml: faults\.drop\[0\]\.p: must be a probability"):
+        scenario_file.load(str(scn), Overrides(faults=str(good)), progress=scenario_file.silent)
