@@ -564,8 +564,8 @@ def advisories(faults: Faults, duration: float, robots: int | None = None) -> li
         if d.p == 0.0:
             out.append(f"faults.drop[{i}] has p = 0: it never loses a message")
         if d.burst_given is not None:
-            out.append(f"faults.drop[{i}] has burst = {d.burst_given:g}, shorter than p = {d.p:g} allows (bursts of mean "
-                       f"length b lose at most b / (b + 1) of the messages): its bursts are p / (1 - p) = "
+            out.append(f"faults.drop[{i}] has burst = {d.burst_given:g}, shorter than p = {d.p:g} allows (bursts "
+                       f"of mean length b lose at most b / (b + 1) of the messages): its bursts are p / (1 - p) = "
                        f"{d.burst:.4g} messages long on average, so that it loses p of them")
     for i, d in enumerate(faults.delays):
         if d.ticks == 0 and d.jitter == 0:
@@ -576,8 +576,8 @@ def advisories(faults: Faults, duration: float, robots: int | None = None) -> li
             if why is not None:
                 out.append(f"faults.{name}[{i}] matches no message: {why}")
             elif r.start >= duration:
-                out.append(f"faults.{name}[{i}] starts at {r.start:g} s, not before the end of the run ({duration:g} s): "
-                           "it never acts")
+                out.append(f"faults.{name}[{i}] starts at {r.start:g} s, not before the end of the run "
+                           f"({duration:g} s): it never acts")
             elif r.end <= r.start:
                 out.append(f"faults.{name}[{i}] has an empty window (start = end = {r.start:g} s): it never acts")
     for i, pt in enumerate(faults.partitions):
