@@ -828,12 +828,14 @@ class Agent:
 
     def _on_ref(self, ref: protocol.Ref, key: str = "") -> None:
         v = self.w_ref.check(ref.t, ref.seq)
-        if v == window.JUMP and self.counters is not None and self.w_ref.t is not None and \
-                self.w_ref.t < getattr(self.counters, "lost_t", (-math.inf,) * 4)[3] < ref.t:  # [faultgen.CLS_REF]
-            # real time under faults: its fault bus lost the references in between (a partition, a burst of
-            # drops): the schedule's gap, not the leader's jump (each was counted bad, 2 a partition's end)
-            self.w_ref.reset()
-            v = self.w_ref.check(ref.t, ref.seq)
+        if v == window.JUMP and self.counters is not None and self.w_ref.t is not None:
+            lost = getattr(self.counters, "lost_t", (-math.inf,) * 4)[3]  # [faultgen.CLS_REF]
+            if self.w_ref.t < lost < ref.t <= lost + self.w_ref.t_span:
+                # real time under faults: its fault bus lost the references in between (a partition, a burst of
+                # drops), and this one is within the window of the last it lost: the schedule's gap, not the
+                # leader's jump (each was counted bad, 2 at a partition's end); a reference farther is refused
+                self.w_ref.reset()
+                v = self.w_ref.check(ref.t, ref.seq)
         if not self.bad.verdict(key, v, "the reference's t or seq"):
             return
         self.ref = ref
@@ -1143,9 +1145,11 @@ class Agent:
                 # a process stopped before its first tick (hung at tick 0, or at the tick it was restarted for)
                 # says so with tick 0 and its counters, all zero then (the world takes that as its word only)
                 done = max(self.k_done, 0)
-                # its next tick is its return: it hears every cell for it (stopped before it ran tick 0, it never
-                # reached the idle tick that subscribes it)
-                self._listen_all(self.view.returns_next(max(self.k_done, self._idle)))
+                # its next tick is its return: it hears every cell for it (stopped before its first tick, at 0 or
+                # at the tick it was restarted for, it never reached the idle tick that subscribes it)
+                with self.lock:
+                    nxt = self._next_tick()
+                self._listen_all(self.view.schedule.fresh(self.id, nxt) is not None)
                 self._resubscribe()
                 self.bus.put(self._faults_key, protocol.encode(protocol.FaultStats(
                     done * self.cfg.dt, done, *self.view.counters(),

@@ -35,14 +35,30 @@ def _process_age_s() -> float:
         return 0.0
 
 
-def _dash_values(argv: Sequence[str]) -> list[str]:
+def _value_options(parser) -> set[str]:
+    """The option strings, in every subcommand, that take exactly one value."""
+    import argparse
+
+    out, todo = set(), [parser]
+    while todo:
+        for action in todo.pop()._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                todo.extend(action.choices.values())
+            elif action.option_strings and action.nargs is None:
+                out.update(action.option_strings)
+    return out
+
+
+def _dash_values(argv: Sequence[str], takes_value: set[str] | None = None) -> list[str]:
     """`--kill -1@3` and `--initial-pose -1.5,2,0` as `--kill=-1@3`: argparse takes a value that starts with
     a dash and is not a plain number for an option, and says "expected one argument" instead of what is
-    wrong with the value. No option of swarm's starts with a dash and a digit, so such a token is a value."""
+    wrong with the value. No option of swarm's starts with a dash and a digit, so such a token after an
+    option that takes a value (takes_value; None: any long option) is that value."""
     out = list(argv)
     i = 0
     while i < len(out) - 1:
-        if out[i].startswith("--") and "=" not in out[i] and len(out[i]) > 2 and re.match(r"-[\d.]", out[i + 1]):
+        if out[i].startswith("--") and "=" not in out[i] and len(out[i]) > 2 and re.match(r"-[\d.]", out[i + 1]) \
+                and (takes_value is None or out[i] in takes_value):
             out[i:i + 2] = [f"{out[i]}={out[i + 1]}"]
         i += 1
     return out
@@ -53,7 +69,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     # imports count too when this is the command (argv None); a caller in-process counts from here
     started = time.perf_counter() - (_process_age_s() if argv is None else 0.0)
     parser = build_parser()
-    argv = _dash_values(sys.argv[1:] if argv is None else argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if any(re.match(r"-[\d.]", a) for a in argv):  # rare: only then are the options walked
+        argv = _dash_values(argv, _value_options(parser))
     args = parser.parse_args(argv)
     args.argv = argv  # for swarm.cli.parser.given_flags, on demand
     if args.command is None:

@@ -32,6 +32,11 @@ def cmd_robot(args, started: float) -> int:
         for flag, given in (("--namespace", args.namespace), ("--initial-pose", args.initial_pose)):
             if given is not None:
                 raise BadInput(f"{flag} needs --drive ros2")
+        if hasattr(args, "argv"):
+            from swarm.cli.parser import given_flags
+
+            for dest in sorted({"ros_flavor", "twist", "domain"} & given_flags(args.argv)):
+                raise BadInput(f"--{dest.replace('_', '-')} needs --drive ros2")
     elif args.mode == "lockstep":
         raise BadInput("--drive ros2 with --mode lockstep: a ROS 2 robot runs in real time only (odometry carries no "
                        "tick); give --mode realtime, or leave --mode out")

@@ -90,12 +90,25 @@ def python_note() -> str | None:
             "a robot's period costs about a third more CPU (docs/runtime.md)")
 
 
+def refuse_unused_flags(args) -> None:
+    """BadInput for a flag of another use, given to a simulated swarm: it would be dropped in silence."""
+    for flag, value in (("--initial-pose", args.initial_pose), ("--no-preflight", args.no_preflight or None)):
+        if value is not None:
+            raise BadInput(f"{flag} needs --inventory (real robots; a simulated swarm starts where the scenario says)")
+    if args.drive != "ros2" and hasattr(args, "argv"):
+        from swarm.cli.parser import given_flags
+
+        for dest in sorted({"ros_flavor", "twist", "domain"} & given_flags(args.argv)):
+            raise BadInput(f"--{dest.replace('_', '-')} needs --drive ros2 (the simulated ROS 2 robots' wire)")
+
+
 def cmd_up(args, started: float) -> int:
     die_with_parent()  # started by another swarm command (swarm campaign --up): dies with it, however it dies
     if args.inventory is not None:
         from swarm.cli.up_inventory import cmd_up_inventory
 
         return cmd_up_inventory(args, started)
+    refuse_unused_flags(args)
     scn = load_scenario(args)  # bad input is refused here, before anything starts
     cpu0 = cpu_counters()
     from swarm.core.scenario_file import advisories

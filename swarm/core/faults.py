@@ -299,7 +299,9 @@ class Faults:
 
 def _check_partitions(partitions: tuple[Partition, ...]) -> None:
     """Two partitions may not hold at once (the group of a robot would be ambiguous)."""
-    order = sorted(range(len(partitions)), key=lambda w: (partitions[w].start, w))
+    # an empty window (end == start) holds no time: it overlaps nothing
+    order = sorted((w for w in range(len(partitions)) if partitions[w].end > partitions[w].start),
+                   key=lambda w: (partitions[w].start, w))
     for a, b in pairwise(order):
         pa, pb = partitions[a], partitions[b]
         if pb.start < pa.end:
@@ -556,10 +558,11 @@ def merged(faults: Faults, drops: Iterable[DropRule] = (), kills: Iterable[Kill]
 
 
 def advisories(faults: Faults, duration: float, robots: int | None = None) -> list[str]:
-    """Valid but odd choices, to warn about: rules that never act (no link, an empty window, a time at or
-    after the end, one group of every robot), a burst raised to what p needs, restarts and resumes after
-    the end."""
+    """Valid but odd choices, to warn about: rules that never act (no link, an empty window, a time after the
+    run's last step, one group of every robot), a burst raised to what p needs, restarts and resumes after
+    it. duration [s]: the time of the run's last step (steps x dt: a fault at it still acts there)."""
     out = []
+    end = duration + fg.TIME_EPS
     for i, d in enumerate(faults.drops):
         if d.p == 0.0:
             out.append(f"faults.drop[{i}] has p = 0: it never loses a message")
@@ -575,8 +578,8 @@ def advisories(faults: Faults, duration: float, robots: int | None = None) -> li
             why = None if name == "partition" else _matches_nothing(r.cls, r.senders, r.receivers)
             if why is not None:
                 out.append(f"faults.{name}[{i}] matches no message: {why}")
-            elif r.start >= duration:
-                out.append(f"faults.{name}[{i}] starts at {r.start:g} s, not before the end of the run "
+            elif r.start > end:
+                out.append(f"faults.{name}[{i}] starts at {r.start:g} s, after the run's last step "
                            f"({duration:g} s): it never acts")
             elif r.end <= r.start:
                 out.append(f"faults.{name}[{i}] has an empty window (start = end = {r.start:g} s): it never acts")
@@ -586,16 +589,16 @@ def advisories(faults: Faults, duration: float, robots: int | None = None) -> li
                        "more group): it separates nothing")
     for name, events in (("kill", faults.kills), ("hang", faults.hangs)):
         for i, e in enumerate(events):
-            if e.at >= duration:
-                out.append(f"faults.{name}[{i}] is at {e.at:g} s, not before the end of the run ({duration:g} s): it "
+            if e.at > end:
+                out.append(f"faults.{name}[{i}] is at {e.at:g} s, after the run's last step ({duration:g} s): it "
                            "never happens")
     for i, k in enumerate(faults.kills):
-        if k.restart is not None and k.at < duration <= k.end:
-            out.append(f"faults.kill[{i}] restarts robot {k.robot} at {k.end:g} s, not before the end of the run "
+        if k.restart is not None and k.at <= end and k.end >= duration:
+            out.append(f"faults.kill[{i}] restarts robot {k.robot} at {k.end:g} s, not before the run's last step "
                        f"({duration:g} s): it stays dead")
     for i, h in enumerate(faults.hangs):
-        if h.at < duration <= h.end:
-            out.append(f"faults.hang[{i}] resumes robot {h.robot} at {h.end:g} s, not before the end of the run "
+        if h.at <= end and h.end >= duration:
+            out.append(f"faults.hang[{i}] resumes robot {h.robot} at {h.end:g} s, not before the run's last step "
                        f"({duration:g} s): it stays stopped")
     return out
 

@@ -447,7 +447,8 @@ def _resolve_faults(spec: Spec, ov: Overrides, scn: Scenario):
 
     if ov.faults is not None:
         if spec.faults is not None:  # replaced, but still checked: a broken file is refused whatever replaces it
-            fl.parse_faults(spec.faults, spec.where, scn.n, scn.duration, scn.seed)
+            # (ids against what a scenario can hold: --robots may have resized the file's robots below them)
+            fl.parse_faults(spec.faults, spec.where, MAX_ROBOTS, scn.duration, scn.seed)
         f = fl.load_faults_file(ov.faults, scn.n, scn.duration, scn.seed)
     elif spec.faults is not None:
         f = fl.parse_faults(spec.faults, spec.where, scn.n, scn.duration, scn.seed)
@@ -479,8 +480,9 @@ def _leader_heading(scn: Scenario, where: str) -> None:
     """The leader's heading (not wrapped) within MAX_ANGLE for the whole run: its references carry it."""
     theta, t = float(scn.leader.start[2]), 0.0
     segments = scn.leader.segments
+    until = (scn.steps + 1) * scn.dt  # the leader answers the last tick's clock with the next tick's reference
     for k, seg in enumerate(segments):
-        span = max(0.0, scn.duration - t) if k == len(segments) - 1 else min(seg.duration, max(0.0, scn.duration - t))
+        span = max(0.0, until - t) if k == len(segments) - 1 else min(seg.duration, max(0.0, until - t))
         theta += seg.w * span
         t += span
         if abs(theta) > MAX_ANGLE:
@@ -673,7 +675,7 @@ def advisories(scn: Scenario, counter: Counter | None = None) -> list[str]:
     if scn.faults:
         from swarm.core.faults import advisories as fault_advisories
 
-        out += fault_advisories(scn.faults, scn.duration, scn.n)
+        out += fault_advisories(scn.faults, scn.steps * scn.dt, scn.n)  # the last step's time: a fault there acts
     return out
 
 

@@ -39,7 +39,13 @@ class ProcessFaults:
         # its restart is its new process, stopped (it was the old one's pid, already gone); lock-step starts the
         # new process right after the kill, at the kill's tick
         first, then = (0, 1) if not lockstep else (0, 0)
+        # lock-step: a hang between two ticks stops the robot at none (its SIGCONT would come before its SIGSTOP
+        # and leave it stopped): neither signal is sent
+        skip = {(h.robot, t, kind) for h in (faults.hangs if faults and lockstep else ())
+                if fl.first_tick(h.at, dt) == fl.first_tick(h.end, dt) for t, kind in ((h.at, "hang"), (h.end, "resume"))}
         for t, robot, kind in (fl.events(faults) if faults else []):
+            if (robot, t, kind) in skip:
+                continue
             k = fl.first_tick(t, dt)
             if kind == "kill":
                 todo.append((k if lockstep else t, then, robot, "kill"))

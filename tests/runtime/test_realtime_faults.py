@@ -347,3 +347,6 @@ def test_a_reference_gap_its_fault_bus_explains_is_taken_not_counted_bad():
     assert agent.bad.count == 1 and agent.ref.seq == 41
     agent._on_ref(ref(9.0, 90))  # a jump past what the bus lost: still refused
     assert agent.bad.count == 2 and agent.ref.seq == 41
+    counters.lost_t[3] = 9.5
+    agent._on_ref(ref(1e6, 10**7))  # after a loss, but far beyond its window (a forged one): refused
+    assert agent.bad.count == 3 and agent.ref.seq == 41

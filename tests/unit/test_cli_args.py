@@ -17,3 +17,27 @@ def test_kill_of_a_negative_id_names_the_id_not_argparse(capsys):
     """`--kill -1@3` said "argument --kill: expected one argument"."""
     assert main(["sim", "--kill", "-1@3", "--quiet"]) == 2
     assert "--kill '-1@3': robot -1 is not in the scenario" in capsys.readouterr().err
+
+
+def test_a_dash_value_is_joined_only_to_an_option_that_takes_a_value():
+    from swarm.cli.main import _value_options
+    from swarm.cli.parser import build_parser
+
+    opts = _value_options(build_parser())
+    assert {"--kill", "--initial-pose", "--robots"} <= opts and "--force" not in opts and "--quiet" not in opts
+    # `--force -1`: a flag, then a folder named -1 (not --force=-1)
+    assert _dash_values(["secure", "init", "--force", "-1", "--robots", "3"], opts) == \
+        ["secure", "init", "--force", "-1", "--robots", "3"]
+    assert _dash_values(["sim", "--kill", "-1@3"], opts) == ["sim", "--kill=-1@3"]
+
+
+def test_flags_of_another_drive_are_refused_not_dropped(capsys):
+    """swarm up without --inventory dropped --initial-pose and --no-preflight; swarm up and swarm robot with
+    the simulated drive dropped --ros-flavor, --twist and --domain (from a review)."""
+    for argv, said in [(["up", "--initial-pose", "1:0,0,0", "--dry-run"], "--initial-pose needs --inventory"),
+                       (["up", "--no-preflight", "--dry-run"], "--no-preflight needs --inventory"),
+                       (["up", "--twist", "plain", "--dry-run"], "--twist needs --drive ros2"),
+                       (["up", "--ros-flavor", "bridge", "--dry-run"], "--ros-flavor needs --drive ros2"),
+                       (["robot", "--id", "1", "--domain", "3"], "--domain needs --drive ros2")]:
+        assert main(argv) == 2, argv
+        assert said in capsys.readouterr().err, argv

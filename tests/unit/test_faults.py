@@ -467,11 +467,11 @@ def test_first_tick():
     ("cmd to robots", _rule("drop", 'class = "cmd"\np = 0.1\nto = [1]'),
      "faults.drop[0] matches no message: a cmd goes to the world"),
     ("end equals start", _rule("drop", DROP + "start = 10.0\nend = 10.0"), "faults.drop[0] has an empty window"),
-    ("start after the run", _rule("drop", DROP + "start = 60.0"), "faults.drop[0] starts at 60 s, not before the end"),
+    ("start after the run", _rule("drop", DROP + "start = 61.0"), "faults.drop[0] starts at 61 s, after the run's last"),
     ("partition after the run", _rule("partition", "groups = [[0]]\nstart = 70.0"), "faults.partition[0] starts at 70"),
     ("one group of everyone", _rule("partition", "groups = [[0, 1, 2, 3, 4, 5, 6]]"),
      "faults.partition[0] puts all 7 robots in one group"),
-    ("kill at the end", _rule("kill", "robot = 1\nat = 60.0"), "faults.kill[0] is at 60 s, not before the end"),
+    ("kill after the end", _rule("kill", "robot = 1\nat = 60.5"), "faults.kill[0] is at 60.5 s, after the run's last"),
     ("hang after the end", _rule("hang", "robot = 1\nat = 61.0\nduration = 1.0"), "faults.hang[0] is at 61 s"),
 ])
 def test_valid_rules_that_never_act_are_accepted_and_said(name, text, said):
@@ -787,3 +787,32 @@ def test_a_scenario_faults_table_is_checked_even_when_a_faults_file_replaces_it(
     good.write_text(CONTRACT)
     with pytest.raises(ScenarioError, match=r"s\.toml: faults\.drop\[0\]\.p: must be a probability"):
         scenario_file.load(str(scn), Overrides(faults=str(good)), progress=scenario_file.silent)
+
+
+def test_a_lock_step_hang_between_two_ticks_sends_no_signal():
+    """A hang at 1.005 s for 0.01 s (dt 0.02) holds at no tick: its SIGCONT came at tick 50, before its
+    SIGSTOP at tick 51, and the robot stayed stopped until the world gave up (from a review)."""
+    from swarm.launch.process_faults import ProcessFaults
+
+    f = Faults(0, hangs=(Hang(1, 1.005, 0.01), Hang(2, 1.0, 0.5)))
+    assert [(r, a) for _, _, r, a in ProcessFaults(f, 0.02, lockstep=True).todo] == [(2, "stop"), (2, "cont")]
+    assert {r for _, _, r, _ in ProcessFaults(f, 0.02, lockstep=False).todo} == {1, 2}  # real time: on time
+
+
+def test_an_empty_partition_window_overlaps_nothing_in_any_order():
+    for text in ("groups = [[0]]\nstart = 5.0\nend = 8.0\n[[faults.partition]]\ngroups = [[1]]\nstart = 5.0\nend = 5.0",
+                 "groups = [[1]]\nstart = 5.0\nend = 5.0\n[[faults.partition]]\ngroups = [[0]]\nstart = 3.0\nend = 8.0"):
+        assert len(parse(_rule("partition", text)).partitions) == 2
+
+
+def test_a_replaced_faults_table_is_checked_against_the_files_own_robots(tmp_path):
+    """--robots 5 with --faults: the replaced table's kill of robot 6 (of the file's 7) was refused (review)."""
+    scn = tmp_path / "s.toml"
+    scn.write_text("[run]\nduration = 5.0\ndt = 0.02\n[leader]\nstart = [0.0, 0.0, 0.0]\n"
+                   "segments = [{duration = 5.0, v = 0.3, w = 0.0}]\n[formation]\nhex = {count = 7, spacing = 1.5}\n"
+                   "[robots]\nrandom = {count = 7, region = [-12.0, -4.0, -4.0, 4.0]}\n"
+                   "[faults]\n[[faults.kill]]\nrobot = 6\nat = 1.0\n")
+    other = tmp_path / "f.toml"
+    other.write_text('[faults]\n[[faults.drop]]\nclass = "state"\np = 0.1\n')
+    got = scenario_file.load(str(scn), Overrides(robots=5, faults=str(other)), progress=scenario_file.silent)
+    assert got.n == 5 and got.faults.drops and not got.faults.kills
