@@ -95,3 +95,20 @@ def test_a_robot_hung_at_tick_0_is_waited_for_and_the_run_equals_sim(tmp_path):
     sim = Simulation(scenario_file.load("paper-50hz", Overrides(robots=7, duration=3.0, faults=str(faults)))).run()
     assert {k: m[k] for k in SAME} == {k: sim.metrics[k] for k in SAME}
     assert m["robots_lost"] == 0 and m["cmd_misses"] == 0 and m["faults"]["hung"] == 1
+
+
+def test_a_restarted_robot_hung_at_its_restart_tick_returns_and_the_run_equals_sim(tmp_path):
+    """A kill with a restart at 1 s and a hang at 1 s (from a contract audit): the supervisor stopped the old,
+    dead process (real time), and in lock-step the new one, stopped before its first tick, never said it was
+    back (exit 1), then missed its command at the resume (it did not hear every cell)."""
+    faults = tmp_path / "faults.toml"
+    faults.write_text("[faults]\n[[faults.kill]]\nrobot = 2\nat = 0.5\nrestart = 0.5\n"
+                      "[[faults.hang]]\nrobot = 2\nat = 1.0\nduration = 0.5\n")
+    cmd, metrics = up(tmp_path, "--robots", "7", "--duration", "3", "--faults", str(faults), "--quiet")
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
+    logs = "".join(p.read_text() for p in (tmp_path / "logs").glob("*.log"))
+    assert out.returncode == 0, out.stderr + logs
+    m = json.loads(metrics.read_text())
+    sim = Simulation(scenario_file.load("paper-50hz", Overrides(robots=7, duration=3.0, faults=str(faults)))).run()
+    assert {k: m[k] for k in SAME} == {k: sim.metrics[k] for k in SAME}
+    assert m["robots_lost"] == 0 and m["cmd_misses"] == 0 and m["faults"]["hung"] == 1
