@@ -80,30 +80,19 @@ def test_faulty_lockstep_up_equals_faulty_sim_bit_for_bit(tmp_path):
     assert "robot 3 stopped (SIGSTOP" in done and "robot 3 resumed (SIGCONT" in done
 
 
-def test_a_robot_hung_at_tick_0_is_waited_for_and_the_run_equals_sim(tmp_path):
-    """A hang at t = 0 (from a contract audit): the world went on at tick 1 without the robot (its SIGCONT
-    came at tick 196), counted it lost and missed its commands (exit 3); with a 3 s hang, `robot 0 did not
-    come back` (exit 1). The world now waits for it before tick 0 begins, and the robot, stopped before its
-    first tick, says it is back all the same."""
+@pytest.mark.parametrize("text", [
+    # a hang at t = 0: the world went on at tick 1 without the robot (its SIGCONT came at tick 196), counted it
+    # lost and missed its commands (exit 3; with a 3 s hang, "robot 0 did not come back", exit 1). The world
+    # now waits for it before tick 0 begins, and the robot, stopped before its first tick, says it is back
+    "[[faults.hang]]\nrobot = 0\nat = 0.0\nduration = 0.02\n",
+    # a kill with a restart at 1 s and a hang at 1 s: the new process, stopped before its first tick, never said
+    # it was back (exit 1), then missed its command at the resume (it did not hear every cell)
+    "[[faults.kill]]\nrobot = 2\nat = 0.5\nrestart = 0.5\n[[faults.hang]]\nrobot = 2\nat = 1.0\nduration = 0.5\n",
+], ids=["hang at t = 0", "hang at the restart"])
+def test_a_robot_stopped_before_its_first_tick_returns_and_the_run_equals_sim(tmp_path, text):
+    """Found by a contract audit (session 26)."""
     faults = tmp_path / "faults.toml"
-    faults.write_text("[faults]\n[[faults.hang]]\nrobot = 0\nat = 0.0\nduration = 0.02\n")
-    cmd, metrics = up(tmp_path, "--robots", "7", "--duration", "3", "--faults", str(faults), "--quiet")
-    out = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
-    logs = "".join(p.read_text() for p in (tmp_path / "logs").glob("*.log"))
-    assert out.returncode == 0, out.stderr + logs
-    m = json.loads(metrics.read_text())
-    sim = Simulation(scenario_file.load("paper-50hz", Overrides(robots=7, duration=3.0, faults=str(faults)))).run()
-    assert {k: m[k] for k in SAME} == {k: sim.metrics[k] for k in SAME}
-    assert m["robots_lost"] == 0 and m["cmd_misses"] == 0 and m["faults"]["hung"] == 1
-
-
-def test_a_restarted_robot_hung_at_its_restart_tick_returns_and_the_run_equals_sim(tmp_path):
-    """A kill with a restart at 1 s and a hang at 1 s (from a contract audit): the supervisor stopped the old,
-    dead process (real time), and in lock-step the new one, stopped before its first tick, never said it was
-    back (exit 1), then missed its command at the resume (it did not hear every cell)."""
-    faults = tmp_path / "faults.toml"
-    faults.write_text("[faults]\n[[faults.kill]]\nrobot = 2\nat = 0.5\nrestart = 0.5\n"
-                      "[[faults.hang]]\nrobot = 2\nat = 1.0\nduration = 0.5\n")
+    faults.write_text("[faults]\n" + text)
     cmd, metrics = up(tmp_path, "--robots", "7", "--duration", "3", "--faults", str(faults), "--quiet")
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
     logs = "".join(p.read_text() for p in (tmp_path / "logs").glob("*.log"))
