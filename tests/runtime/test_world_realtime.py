@@ -195,7 +195,9 @@ def test_under_faults_the_real_time_world_says_where_the_still_robots_are(write_
     assert listed, "no bodies message listed the hung robot"
     assert all([s.id for s in b.bodies] == [1] for b in listed)  # only the still robot, never a running one
     # from its hang on, and after it (its token never came back: a robot gone) to the end
-    assert 1.0 - 1e-9 <= listed[0].t <= 1.0 + 0.02 + 1e-9 and listed[-1].t == pytest.approx(4.0)
+    # (the first period at or after 1 s: a loaded machine's world skips the periods it fell behind on, so
+    # that may be later than 1.02 s; CI once saw 1.106)
+    assert listed[0].t >= 1.0 - 1e-9 and listed[-1].t == pytest.approx(4.0)
     assert all(not b.bodies for b in got if b.t < 1.0 - 1e-9)  # none still before the hang: robot 1 never
     assert listed == [b for b in got if b.t >= 1.0 - 1e-9]  # commanded, and the others run
     x1, y1, _ = scn.poses[1]  # it never moved: where the world has it
