@@ -524,6 +524,8 @@ def _add_runtime_parsers(sub) -> None:
                      help="robot I stands at X,Y,THETA (beats the inventory and the scenario); repeatable")
     pre.add_argument("--odom-timeout", type=_positive_float, default=10.0, metavar="S",
                      help="seconds to wait for every robot's ROS 2 side and first odometry (default 10)")
+    pre.add_argument("--start-timeout", type=_positive_float, default=10.0, metavar="S",
+                     help="seconds to wait for the router given with --connect (default 10)")
     pre.add_argument("--odom-window", type=_positive_float, default=1.5, metavar="S",
                      help="seconds of odometry watched for gaps (default 1.5)")
     _add_scenario_flags(pre, "paper-50hz")

@@ -300,7 +300,8 @@ def cmd_preflight(args, started: float) -> int:
     with StopEvent() as stop:  # every check, static or not: the whole list at once
         ns, mode = bus_args(args, fleet)
         try:
-            bus = open_bus(ns, mode=mode, listen=[] if mode == "router" else None, stop=stop, timeout_s=10.0)
+            bus = open_bus(ns, mode=mode, listen=[] if mode == "router" else None, stop=stop,
+                           timeout_s=args.start_timeout)
         except Failure:  # no robot reachable: what was checked without them is still worth printing
             print(static_report(fleet).text().replace("pre-flight passed", "pre-flight: the checks that need no "
                                                       "robot passed; the robots were not reached"))

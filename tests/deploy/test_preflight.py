@@ -171,7 +171,7 @@ def test_no_router_reached_still_prints_the_checks_that_need_no_robot(tmp_path, 
     inv = tmp_path / "fleet.toml"
     inv.write_text(inventory_text(7, None, r3={"v_max": 0.15}))
     rc = main(["preflight", "--inventory", str(inv), "--scenario", "turtlebot3", "--connect",
-               f"tcp/127.0.0.1:{free_port()}"])
+               f"tcp/127.0.0.1:{free_port()}", "--start-timeout", "1"])
     out = capsys.readouterr()
     assert rc == 1 and "cannot open a zenoh client session" in out.err, out
     assert "robot 3: leader.segments[0] moves at |v| = 0.15 m/s" in out.out
