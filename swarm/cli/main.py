@@ -14,7 +14,7 @@ import time
 from typing import Sequence
 
 from swarm.cli.common import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure
-from swarm.cli.parser import build_parser
+from swarm.cli.parser import build_parser, value_options
 
 
 def run_command(func: str, args, started: float) -> int:
@@ -33,20 +33,6 @@ def _process_age_s() -> float:
         return max(0.0, uptime - start_ticks / os.sysconf("SC_CLK_TCK"))
     except (OSError, ValueError, IndexError):
         return 0.0
-
-
-def _value_options(parser) -> set[str]:
-    """The option strings, in every subcommand, that take exactly one value."""
-    import argparse
-
-    out, todo = set(), [parser]
-    while todo:
-        for action in todo.pop()._actions:
-            if isinstance(action, argparse._SubParsersAction):
-                todo.extend(action.choices.values())
-            elif action.option_strings and action.nargs is None:
-                out.update(action.option_strings)
-    return out
 
 
 def _dash_values(argv: Sequence[str], takes_value: set[str] | None = None) -> list[str]:
@@ -71,7 +57,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     if any(re.match(r"-[\d.]", a) for a in argv):  # rare: only then are the options walked
-        argv = _dash_values(argv, _value_options(parser))
+        argv = _dash_values(argv, value_options(parser))
     args = parser.parse_args(argv)
     args.argv = argv  # for swarm.cli.parser.given_flags, on demand
     if args.command is None:

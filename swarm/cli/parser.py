@@ -193,22 +193,44 @@ def _add_optional_scenario_flags(p: argparse.ArgumentParser, otherwise: str) -> 
     _add_fault_flags(g)
 
 
+def all_parsers(parser: argparse.ArgumentParser):
+    """The parser and every subcommand's parser under it."""
+    todo = [parser]
+    while todo:
+        p = todo.pop()
+        yield p
+        todo.extend(c for a in p._actions if isinstance(a, argparse._SubParsersAction) for c in a.choices.values())
+
+
+def value_options(parser: argparse.ArgumentParser) -> set[str]:
+    """The option strings, in every subcommand, that take exactly one value."""
+    return {s for p in all_parsers(parser) for a in p._actions if a.option_strings and a.nargs is None
+            for s in a.option_strings}
+
+
 def given_flags(argv: Sequence[str]) -> frozenset[str]:
     """The dests of the options argv gives explicitly, whatever their value (`--mode lockstep` too): the
     same parser with every default suppressed, so only what argv sets ends up in its namespace. For flags
     that a command ignores in some use and must refuse rather than drop (swarm up --inventory --mode)."""
     parser = build_parser()
-    todo, commands = [parser], set()
-    while todo:
-        p = todo.pop()
+    commands = set()
+    for p in all_parsers(parser):
         p._defaults.clear()  # set_defaults(func=...): not an option
         for action in p._actions:
             if isinstance(action, argparse._SubParsersAction):
-                todo.extend(action.choices.values())
                 commands.add(action.dest)
             elif action.dest != "help":
                 action.default = argparse.SUPPRESS
     return frozenset(vars(parser.parse_args(argv))) - commands
+
+
+def given(args, *dests: str) -> list[str]:
+    """Of `dests`, the flags the command line gave (as "--flag", in order); none when args did not come
+    from swarm.cli.main (a caller in-process: nothing tells a given flag from its default)."""
+    if not hasattr(args, "argv"):
+        return []
+    got = given_flags(args.argv)
+    return [f"--{d.replace('_', '-')}" for d in dests if d in got]
 
 
 def build_parser() -> argparse.ArgumentParser:

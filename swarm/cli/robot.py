@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 
+from swarm.cli.parser import given
 from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, BadInput, Failure, StopEvent, fleet_of,
                               load_scenario, open_bus, setup_logging)
 from swarm.core.clock import WALL
@@ -29,14 +30,11 @@ def cmd_robot(args, started: float) -> int:
     if scn is not None and args.id >= scn.n:
         raise BadInput(f"--id {args.id}: the scenario has {scn.n} robots (ids 0..{scn.n - 1})")
     if args.drive == "sim":
-        for flag, given in (("--namespace", args.namespace), ("--initial-pose", args.initial_pose)):
-            if given is not None:
+        for flag, value in (("--namespace", args.namespace), ("--initial-pose", args.initial_pose)):
+            if value is not None:
                 raise BadInput(f"{flag} needs --drive ros2")
-        if hasattr(args, "argv"):
-            from swarm.cli.parser import given_flags
-
-            for dest in sorted({"ros_flavor", "twist", "domain"} & given_flags(args.argv)):
-                raise BadInput(f"--{dest.replace('_', '-')} needs --drive ros2")
+        for flag in given(args, "ros_flavor", "twist", "domain"):
+            raise BadInput(f"{flag} needs --drive ros2")
     elif args.mode == "lockstep":
         raise BadInput("--drive ros2 with --mode lockstep: a ROS 2 robot runs in real time only (odometry carries no "
                        "tick); give --mode realtime, or leave --mode out")

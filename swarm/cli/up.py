@@ -13,6 +13,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from swarm.cli.parser import given
 from swarm.cli.common import (EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent, check_endpoint,
                               check_listen_free, check_out_dir, check_viz_port, clear_metrics, fleet_of, load_scenario,
                               open_bus, record_rate, scenario_args, viz_options, write_metrics)
@@ -95,11 +96,9 @@ def refuse_unused_flags(args) -> None:
     for flag, value in (("--initial-pose", args.initial_pose), ("--no-preflight", args.no_preflight or None)):
         if value is not None:
             raise BadInput(f"{flag} needs --inventory (real robots; a simulated swarm starts where the scenario says)")
-    if args.drive != "ros2" and hasattr(args, "argv"):
-        from swarm.cli.parser import given_flags
-
-        for dest in sorted({"ros_flavor", "twist", "domain"} & given_flags(args.argv)):
-            raise BadInput(f"--{dest.replace('_', '-')} needs --drive ros2 (the simulated ROS 2 robots' wire)")
+    if args.drive != "ros2":
+        for flag in given(args, "ros_flavor", "twist", "domain"):
+            raise BadInput(f"{flag} needs --drive ros2 (the simulated ROS 2 robots' wire)")
 
 
 def cmd_up(args, started: float) -> int:

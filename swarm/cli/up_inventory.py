@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 from swarm.cli import console, preflight
+from swarm.cli.parser import given
 from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent,
                               check_endpoint, check_listen_free, check_out_dir, check_viz_port, clear_metrics,
                               load_scenario, open_bus, record_rate, scenario_args, setup_logging, viz_options,
@@ -77,9 +78,9 @@ def cmd_robot_fleet(args, started: float) -> int:
             raise BadInput("--id auto with --inventory: a real robot's id is its inventory row's (hardware has fixed "
                            "ids); give --id I")
         entry = inv.entry(args.id)
-        for flag, given in (("--scenario", args.scenario), ("--initial-pose", args.initial_pose),
+        for flag, value in (("--scenario", args.scenario), ("--initial-pose", args.initial_pose),
                             ("--namespace", args.namespace)):
-            if given is not None:
+            if value is not None:
                 raise BadInput(f"{flag} with --inventory: the robot takes its configuration (its start and limits, "
                                "tightened by the inventory) from the world, and its drive from the inventory; give "
                                "starts to swarm up or swarm world --referee-only (--initial-pose I:X,Y,THETA)")
@@ -285,15 +286,12 @@ IGNORED_WITH_INVENTORY = {
 def refuse_fleet_flags(args) -> None:
     """BadInput for a flag given with --inventory that would be dropped (IGNORED_WITH_INVENTORY), and for
     --mode lockstep: real robots keep real time. `--mode realtime` says what happens anyway."""
-    if not hasattr(args, "argv"):  # called in-process without swarm.cli.main: nothing to tell given from default
-        return
-    from swarm.cli.parser import given_flags
-
-    given = given_flags(args.argv)
-    for dest, why in IGNORED_WITH_INVENTORY.items():
-        if dest in given:
-            raise BadInput(f"--{dest.replace('_', '-')} with --inventory: {why} (docs/deploy.md)")
-    if "mode" in given and args.mode != "realtime":
+    flags = given(args, *IGNORED_WITH_INVENTORY, "mode")
+    for flag in flags:
+        why = IGNORED_WITH_INVENTORY.get(flag[2:].replace("-", "_"))
+        if why is not None:
+            raise BadInput(f"{flag} with --inventory: {why} (docs/deploy.md)")
+    if "--mode" in flags and args.mode != "realtime":
         raise BadInput("--mode lockstep with --inventory: real robots keep real time, they cannot wait for a tick "
                        "(leave --mode out, or give --mode realtime)")
 

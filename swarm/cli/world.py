@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 
+from swarm.cli.parser import given
 from swarm.cli.common import (CHILD_EXIT_AFTER_S, BadInput, Failure, StopEvent, check_out_dir,
                               fleet_of, load_scenario, open_bus, setup_logging, write_json)
 from swarm.cli.console import exit_status
@@ -25,13 +26,9 @@ def cmd_world(args, started: float) -> int:
         if value is not None:
             raise BadInput(f"{flag} needs --inventory (real robots; a simulated world starts its robots where the "
                            "scenario says)")
-    if args.ros2_sim is None and hasattr(args, "argv"):
-        from swarm.cli.parser import given_flags
-
-        given = given_flags(args.argv)
-        for dest in ("twist", "domain"):
-            if dest in given:
-                raise BadInput(f"--{dest} needs --ros2-sim (it sets the simulated ROS 2 robots' {dest})")
+    if args.ros2_sim is None:
+        for flag in given(args, "twist", "domain"):
+            raise BadInput(f"{flag} needs --ros2-sim (it sets the simulated ROS 2 robots' {flag[2:]})")
     die_with_parent()
     setup_logging()
     scn = load_scenario(args, quiet=True)

@@ -13,7 +13,7 @@ from pathlib import Path
 import psutil
 import pytest
 
-from tests.integration.helpers import Procs, descendants, free_port, up, wait_for_ticks
+from tests.integration.helpers import Procs, descendants, free_port, up, wait_for_ticks, wait_until
 
 pytestmark = pytest.mark.integration
 
@@ -92,10 +92,8 @@ def test_a_robot_of_another_scenario_refuses_the_run_and_names_the_difference(tm
 
     with ZenohBus(zenoh_config(connect=[endpoint])) as bus:
         bus.token(keys.alive("f2", "robot", 9))
-        end = time.monotonic() + 30
-        while "robot 9 is alive but not in this world's scenario" not in procs.log("world"):
-            assert time.monotonic() < end, procs.log("world")
-            time.sleep(0.1)
+        wait_until(lambda: "robot 9 is alive but not in this world's scenario" in procs.log("world"), 30,
+                   "the world naming the stranger robot 9")
 
 
 def test_a_collision_is_a_failed_check_exit_3(tmp_path):

@@ -21,6 +21,7 @@ import pytest
 from swarm.core import scenario_file
 from swarm.core.scenario_file import Overrides
 from swarm.core.sim import Simulation
+from tests.integration.helpers import wait_until
 
 pytestmark = pytest.mark.integration
 
@@ -235,14 +236,13 @@ class Watch:
         self.alive: set[str] = set()
         self.epoch: float | None = None
         self.snaps: list[tuple[float, list[bool], list[float]]] = []
-        end = time.monotonic() + 30.0
-        while True:
+        def connect():
             try:
-                self.bus = ZenohBus(zenoh_config(connect=[endpoint]))
-                break
+                return ZenohBus(zenoh_config(connect=[endpoint]))
             except Exception:  # the router is not up yet
-                assert time.monotonic() < end, f"no router at {endpoint}"
-                time.sleep(0.1)
+                return None
+
+        self.bus = wait_until(connect, 30.0, f"a router at {endpoint}", every_s=0.1)
         self.bus.watch_alive(keys.alive_any(fleet), self._alive)
         self.bus.subscribe(keys.world_clock(fleet), self._clock)
         self.bus.subscribe(keys.world_snapshot(fleet), self._snap)

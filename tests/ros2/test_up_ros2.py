@@ -57,13 +57,13 @@ class CmdVel:
 
 
 def _bus(endpoint: str) -> ZenohBus:
-    end = time.monotonic() + 30
-    while True:
+    def connect():
         try:
             return ZenohBus(zenoh_config(connect=[endpoint]))
-        except Exception:
-            assert time.monotonic() < end, "no router"
-            time.sleep(0.1)
+        except Exception:  # the router is not up yet
+            return None
+
+    return wait_until(connect, 30, f"a router at {endpoint}", every_s=0.1)
 
 
 def _child(proc, role: str, robot_id: int | None = None) -> psutil.Process:

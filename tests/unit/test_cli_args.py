@@ -20,10 +20,9 @@ def test_kill_of_a_negative_id_names_the_id_not_argparse(capsys):
 
 
 def test_a_dash_value_is_joined_only_to_an_option_that_takes_a_value():
-    from swarm.cli.main import _value_options
-    from swarm.cli.parser import build_parser
+    from swarm.cli.parser import build_parser, value_options
 
-    opts = _value_options(build_parser())
+    opts = value_options(build_parser())
     assert {"--kill", "--initial-pose", "--robots"} <= opts and "--force" not in opts and "--quiet" not in opts
     # `--force -1`: a flag, then a folder named -1 (not --force=-1)
     assert _dash_values(["secure", "init", "--force", "-1", "--robots", "3"], opts) == \
