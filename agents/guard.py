@@ -18,7 +18,10 @@ A drive is halted (zero velocity, latched until the next command) when:
 - the leader's liveliness token is gone (at once: the leader was lost or cut off);
 - the world's liveliness token is gone (at once: the world, which puts the poses and referees the run,
   was lost or this robot was cut off from it);
-- the emergency stop is engaged (until released).
+- the emergency stop is engaged (until released);
+- its newest command has expired (real time: the swarm's time passed the command's `until`), for a drive that does
+  not enforce a command's validity itself (a ROS 2 robot; the simulated world does): the robot's base then
+  brakes along its own ramp (docs/runtime.md, "The safety invariant").
 Ctrl-C, SIGTERM and any exception end the control loop, whose way out closes the drive, which halts
 it. No process can catch its own SIGKILL or SIGSTOP: the robot's base must stop by itself then
 (docs/deploy.md says how, per base).
@@ -47,8 +50,9 @@ def arena_of(cfg) -> tuple[float, float, float, float] | None:
 class Guard:
     def __init__(self, drive, clock=WALL, pose_timeout_s: float = POSE_TIMEOUT_S,
                  ref_timeout_s: float = REF_TIMEOUT_S, period_s: float = 0.05,
-                 arena: tuple[float, float, float, float] | None = None) -> None:
-        """arena: (xmin, xmax, ymin, ymax) [m]; None: no arena check."""
+                 arena: tuple[float, float, float, float] | None = None, expire: bool = False) -> None:
+        """arena: (xmin, xmax, ymin, ymax) [m]; None: no arena check. expire: halt the drive when its newest
+        command's validity ran out (a drive that does not enforce it itself)."""
         if arena is not None:
             xmin, xmax, ymin, ymax = map(float, arena)
             if not (xmin < xmax and ymin < ymax):
@@ -65,6 +69,8 @@ class Guard:
         self.world_seen = False
         self.world_alive = False
         self.stopped: str | None = None  # the emergency stop's reason while engaged
+        self.expire = expire
+        self.until: float | None = None  # simulated time until which the newest command may be executed
         self.halts = 0  # times the guard itself halted the drive
         self._stop = threading.Event()
         self._wake = threading.Event()  # set by stop and by every event that may be a reason: the thread checks now
@@ -122,10 +128,15 @@ class Guard:
             return f"outside the arena: at ({x:.3f}, {y:.3f}), beyond [{xmin:g}, {xmax:g}] x [{ymin:g}, {ymax:g}]"
         if t is not None and self.ref_t is not None and t - self.ref_t > self.ref_timeout_s:
             return f"the reference has been extrapolated for more than {self.ref_timeout_s:g} s"
+        if self.expire and t is not None and self.until is not None and t > self.until:
+            return "its newest command expired (no newer one in time)"
         return None
 
-    def check(self, t: float | None) -> str | None:
-        """Halt the drive if there is a reason (once per reason: the halt is latched)."""
+    def check(self, t: float | None, until: float | None = None) -> str | None:
+        """Halt the drive if there is a reason (once per reason: the halt is latched). until: the validity of the
+        command about to be sent (it is the newest from now on)."""
+        if until is not None:
+            self.until = until
         why = self.reason(t)
         if why is not None and self.drive.halted != why:
             self.drive.halt(why)
@@ -166,6 +177,8 @@ class Guard:
             left = min(left, self.last_pose + self.pose_timeout_s - self.clock.monotonic())
         if t is not None and self.ref_t is not None:
             left = min(left, (self.ref_t + self.ref_timeout_s - t) / max(rate, 1e-9))
+        if self.expire and t is not None and self.until is not None:
+            left = min(left, (self.until - t) / max(rate, 1e-9))
         return max(self.period_s, left + 1e-3)  # just past the deadline: the reason is strictly beyond it
 
     def close(self) -> None:

@@ -51,7 +51,7 @@ import time
 from collections import deque
 
 from swarm.proto import keys, protocol
-from swarm.core import fastlaw, kinematics, law
+from swarm.core import fastlaw, kinematics, law, safety
 from swarm.core import runid
 from swarm.core.clock import WALL, said_step
 from swarm.launch.child import name_thread, settle_heap
@@ -71,11 +71,11 @@ STALE_AFTER_S = 0.5  # real time: a neighbour state older than this (simulated s
 KEY_IDS_MAX = 4096  # cell keys whose robot id a robot keeps parsed (more: it starts over)
 CLOSE_WAIT_S = 5.0  # lock-step inline: how long close() waits for a tick under way on a bus thread
 HINTS_PER_TICK = 64  # new cell keys a robot hints to its bus a tick, at most (Agent._hint_keys)
-CONFIRM_AFTER_S = 3.0  # real time: a robot whose token came back and sent no state for this long (wall s) is away
-# (1 s until session 22: under load a cut robot standing next to one outside the cut was once taken as away before
-# its first state after the cut came, and the two collided; docs/faults.md, Cutting a network)
-HORIZON_CAP_S = 0.5  # real time: the governor's horizon is at most HOLD_PERIODS control periods plus this
-HOLD_PERIODS = 2  # real time: a command acts its period and, when the next is missing, one more (then brakes)
+GAP_PERIODS = 3  # real time: control periods a near neighbour's states may be missing in a row (losses)
+RECENT_S = 1.0  # real time: the states received this recently [simulated s] say how old this robot's news may be
+FORGET_PERIODS = 10  # real time: a neighbour not heard for the information delay plus this many periods, that could
+# have left this robot's cells since, is taken as away (docs/runtime.md, "The safety invariant": knowledge)
+STAND_BELOW = 1e-3  # m/s: real time: a robot the safety rule allows less than this stands and promises to
 POSE_LATE_PERIODS = 1.5  # real time, periodic poses: a pose this many periods after the last one is lost
 LISTEN_PERIODS = 3  # real time: control periods a robot listens (commands 0) after its first pose
 WATCHDOG_S = 0.5  # the world's (or a drive's) watchdog: the windows on t and seq cover twice that, at least 2 s
@@ -109,15 +109,15 @@ class Agent:
     """
 
     def __init__(self, bus, cfg: Config, fleet: str = "default", wait_timeout: float = WAIT_TIMEOUT_S,
-                 clock=WALL, drive=None, guard=None, faults=None, horizon_floor: float = 0.0, counters=None,
-                 inline: bool = False):
+                 clock=WALL, drive=None, guard=None, faults=None, counters=None, inline: bool = False,
+                 partitions=()):
         """inline (zenoh's bus, no faults): a lock-step tick runs on the bus thread whose message made it due
         (its pose, the last state it waited for), and a real-time step on the thread of its simulated drive's
         pose, instead of waking the loop thread for it (`kick`, a swarm.core.wake.Runner; only on a bus that
         calls another session's messages on threads of its own: zenoh's).
-        Real time: horizon_floor [s] is the governor's least horizon (swarm.core.faultsim.horizon under
-        faults: a command may be held and braked); counters, when given, is an object with `dropped` and
-        `delayed` lists by class (a swarm.net.faultbus.FaultBus): reported to the world with every status."""
+        Real time: counters, when given, is an object with `dropped` and `delayed` lists by class (a
+        swarm.net.faultbus.FaultBus): reported to the world with every status; partitions, the run's
+        (swarm.core.faults.Partition): a neighbour cut off by one is never taken as away while it lasts."""
         self.bus, self.cfg, self.fleet = bus, cfg, fleet
         self.id = cfg.id
         self.clock = clock
@@ -235,15 +235,33 @@ class Agent:
         self.stale = 0
         self.oldest_state_s = 0.0  # real time: age of the oldest neighbour state in the last command
         self._first_pose_t: float | None = None
-        # real time: what it knows without messages (docs/faults.md, Safe under faults)
-        self.horizon_floor = horizon_floor
+        # real time: what it knows without messages (docs/faults.md, Safe under faults) and the safety rule
+        # (swarm.core.safety; docs/runtime.md, "The safety invariant")
         self.counters = counters
+        self.partitions = tuple(partitions)
+        self.V = cfg.v_bound  # the speed bound it keeps to and assumes of every other robot
+        self.ramp = getattr(drive, "ramp_s", safety.RAMP_S)  # its drive brakes from a command's until along this
+        self.switch = getattr(drive, "switch_s", 0.0)  # and takes a new command within this
+        self._pending: deque = deque()  # (|v|, |w|, until) of the commands sent that may still act
+        # the high but typical lag of its poses, of its commands (from computing one to its drive executing it)
+        # and of its neighbours' states when they come [s]: the commands' validity (swarm.core.safety.validity)
+        # and the information delay (_info_delay)
+        self._lag, self._act, self._news = safety.Recent(), safety.Recent(), safety.Recent()
+        self._sent_at: deque = deque(maxlen=256)  # (the t a command carries, the time it was computed)
+        self._still_until = -math.inf  # its promise: no command that moves it before this time
+        self._promises = 0
+        self._rt_until: float | None = None  # the last command's validity, its state's stop and still
+        self._rt_stop = 0.0
+        self._rt_still = 0.0
+        self.commanded = 0  # real time: commands its law computed (not listening)
+        self.held = 0  # of those, the ones the safety rule held back (slowed or stopped)
+        self.held_why = [0] * 5  # by what held them (swarm.core.safety: FREE, BODY, AWAY_ONLY, UNKNOWN, PENDING)
+        self.forgotten = 0  # neighbours taken as away by the knowledge rule
+        self._forget_min = FORGET_PERIODS * cfg.dt  # a neighbour heard within this is never taken as away
+        self._hold = law.hold_horizon(cfg.dt)  # how long a command of a sender that says nothing of it may act
         self.rx: dict[int, tuple[float, float]] = {}  # j -> (age of its state when it came [s], monotonic receipt)
         self.dead_age: dict[int, float] = {}  # j -> age of its last state when its token went [s]
-        self.away: set[int] = set()  # live robots whose last state was out of range: not used until a newer one
-        self.unconfirmed: dict[int, float] = {}  # j -> monotonic deadline: its token came back, no state since
-        self._offer_r = cfg.reach + (cfg.sense - cfg.reach) / 3.0  # reach + L: what this robot surely hears
-        self._offer2 = self._offer_r * self._offer_r
+        self.away: set[int] = set()  # live robots taken as away by the knowledge rule (_rt_bodies): until a newer state
         self.max_age = 0.0  # the oldest neighbour state a command used [s]
         self.reports = 0  # faultstats sent
         self._report_lock = threading.Lock()
@@ -272,7 +290,7 @@ class Agent:
             self._ref_inbox = self.bus.inbox(self._ref_key)
             self._handles.append(self._ref_inbox)
         self._handles.append(self.bus.subscribe(keys.estop(f), self._on_estop_msg))
-        if not self.cfg.lockstep and self.counters is not None:  # real time under faults: the still robots
+        if not self.cfg.lockstep or self.view is None:  # robots standing still (lock-step under faults: an input)
             self._handles.append(self.bus.subscribe(keys.world_bodies(f), self._on_bodies_msg))
         if self.view is not None:
             if self.view.returns():
@@ -379,7 +397,7 @@ class Agent:
         self._cell = cell
         self._block_prev = now
 
-    rt_static: list = []  # real time under faults: (x, y, r, R) of the robots standing still (_on_bodies)
+    rt_static: dict = {}  # real time: id -> (x, y, r, R) of the robots the world lists as standing still (_on_bodies)
     rt_static_t = 0.0  # the simulated time of that list
     _poses_by_callback = False  # real time inline: the drive's callback hands over every pose (drive.drain() has none)
     _drain_cells = None  # real time: drains the reference's and every cell's inbox in one call (swarm.net.bus.drainer)
@@ -503,8 +521,20 @@ class Agent:
         bodies for bodies() until the next message (World._publish_bodies_rt)."""
         if not self.cfg.lockstep:
             if self.bad.verdict(key, self.w_bodies.check(b.t, b.seq), "the bodies' t or seq"):
-                self.rt_static = [(s.x, s.y, s.r, s.R) for s in b.bodies if s.id != self.id and s.id < self.cfg.robots]
+                self.rt_static = {s.id: (s.x, s.y, s.r, s.R) for s in b.bodies if s.id != self.id and s.id < self.cfg.robots}
                 self.rt_static_t = b.t
+                if any(s.id == self.id for s in b.bodies):  # listed as standing: every robot takes it as static
+                    self._still_until = max(self._still_until, b.t + safety.BODIES_HOLD_S)  # until then: so be it
+            return
+        if self.view is None:  # lock-step without faults: robots lost (token gone) where the world stopped them
+            if self.bad.verdict(key, self.w_bodies.check(b.t, b.seq), "the bodies' t or seq"):
+                for s in b.bodies:
+                    if s.id != self.id and s.id < self.cfg.robots:
+                        nb = self.table.get(s.id)
+                        self.table[s.id] = State(id=s.id, t=b.t, seq=b.seq if nb is None else nb.seq, x=s.x, y=s.y,
+                                                 theta=0.0 if nb is None else nb.theta, r=s.r, R=s.R, frozen=False)
+                        self.dead.add(s.id)
+                        self.waiting.discard(s.id)
             return
         if b.seq <= self.k_done or b.seq > self._next_tick():
             return  # an old tick's, or one too far ahead (the world publishes a tick's bodies just before its poses)
@@ -707,7 +737,7 @@ class Agent:
         wire = protocol._wire
         if wire is not None:  # the common case of _take_one compiled; every other state goes to it in its turn
             n = wire.take_states(states, self.id, ahead, now, mono, self.w_state, self.table, self.rx, self.away,
-                                 self.unconfirmed, self._take_one)  # it counts its own: add after the call
+                                 self._take_one)  # it counts its own: add after the call
             self.states_received += n
             return
         for s, key in states:
@@ -730,8 +760,6 @@ class Agent:
         self.table[j] = s
         self.rx[j] = (0.0 if now is None or now <= t else now - t, mono)
         self.away.discard(j)
-        if self.unconfirmed:
-            self.unconfirmed.pop(j, None)
 
     def _due(self) -> bool:
         if self.pose is None:
@@ -799,7 +827,6 @@ class Agent:
         else:  # its age when it came: now on the swarm's clock minus its time (never below 0: clocks differ)
             self.rx[s.id] = (0.0 if now is None else max(0.0, now - s.t), self.clock.monotonic())
             self.away.discard(s.id)
-            self.unconfirmed.pop(s.id, None)
 
     def _on_alive(self, j: int, up: bool) -> None:
         """Robot j's token came (up) or went (under the lock): a robot that goes stays a static body at
@@ -807,8 +834,6 @@ class Agent:
         if up:
             if j in self.dead:
                 log.info("robot %d: robot %d back (its liveliness token is here again)", self.id, j)
-                if not self.cfg.lockstep and j in self.table:
-                    self.unconfirmed[j] = self.clock.monotonic() + CONFIRM_AFTER_S
             self.dead.discard(j)
             self.dead_age.pop(j, None)
         else:
@@ -925,87 +950,159 @@ class Agent:
             key = self._state_keys[c] = keys.cell(self.fleet, c[0], c[1], self.id)
         # the fields in State's order, encoded without building one (protocol.encoder)
         s = self._enc_state(self.id, pose.t, seq, pose.x, pose.y, pose.theta, self._r, self._R,
-                            self.mem[law.M_FROZEN] != 0.0)
+                            self.mem[law.M_FROZEN] != 0.0, self._rt_stop, self._rt_still)
         self.bus.put(key, s, loopback=False)  # its own state is of no use to this robot's cell inboxes
 
-    def bodies(self, x: float, y: float, seq: int | None, t: float | None = None):
-        """The known bodies closer than the cell side, in summation order: live robots by id, the
-        obstacles by index, dead robots by id (static bodies). Lock-step (seq given): a live robot
-        counts with its state of this tick, or, when it was awaited and did not come, its last one
-        (stale). Real time (t given): every live robot with its last state, however old (the table keeps
-        one state per robot id and never drops a live one), with its age; but a live robot whose last
-        state is out of range (farther than reach + L from this robot now, as the simulator's fault
-        kernel forgets one) is left out until a newer state of it comes: it left this robot's cells, or
-        this robot left its own, and its old position says nothing of where it is. So is a robot whose
-        token came back (one of the two was cut off) and that has sent no state for CONFIRM_AFTER_S
-        since: were it in this robot's cells, its states would come every period; it moved away meanwhile
-        (docs/faults.md, Cutting a network: kept, it froze this robot for the rest of the run).
-        Returns lists nx, ny, nr, nR, nk, na (the age [s] of what is known of each body: 0 in lock-step
-        and for obstacles; real time: a live robot's state's age now, a dead one's age when its token
-        went) and the numbers of robots and stale robots used."""
+    def bodies(self, x: float, y: float, seq: int):
+        """Lock-step: the known bodies closer than the cell side, in summation order: live robots by id, the
+        obstacles by index, dead robots by id (static bodies). A live robot counts with its state of this tick,
+        or, when it was awaited and did not come, its last one (stale). Returns lists nx, ny, nr, nR, nk, na
+        (ages, all 0) and the numbers of robots and stale robots used. Real time: _rt_bodies."""
         r2 = self.side * self.side
         wire = protocol._wire
         if wire is not None:  # the loop below over the table, compiled (swarm/proto/_wire.c)
-            if seq is not None:
-                nx, ny, nr, nR, nk, na, robots, stale, oldest, dead_near = wire.lock_bodies(
-                    self.table, self.dead, self.waiting, seq, x, y, r2, law.KIND_ROBOT)
-            else:
-                nx, ny, nr, nR, nk, na, robots, stale, oldest, dead_near = wire.live_bodies(
-                    self.table, self.dead, self.away, self.unconfirmed, self.rx, self.speed, self.clock.monotonic(),
-                    x, y, self._offer2, r2, STALE_AFTER_S, law.KIND_ROBOT, self._unconfirmed_away)
-            if dead_near or self.obstacles or self.rt_static:
-                self._static_bodies(x, y, seq, r2, nx, ny, nr, nR, nk, na, dead_near)
-            self.oldest_state_s = oldest
+            nx, ny, nr, nR, nk, na, robots, stale, oldest, dead_near = wire.lock_bodies(
+                self.table, self.dead, self.waiting, seq, x, y, r2, law.KIND_ROBOT)
+            if dead_near or self.obstacles:
+                self._static_bodies(x, y, r2, nx, ny, nr, nR, nk, na, dead_near)
             return nx, ny, nr, nR, nk, na, robots, stale
         nx, ny, nr, nR, nk, na = [], [], [], [], [], []
         robots = stale = 0
-        oldest = 0.0
-        table, dead, waiting, away, rx, speed = self.table, self.dead, self.waiting, self.away, self.rx, self.speed
-        unconfirmed = self.unconfirmed
+        table, dead, waiting = self.table, self.dead, self.waiting
         dead_near = []
-        mono = None if seq is not None else self.clock.monotonic()
-        offer2 = self._offer2
         for j in sorted(table):
             nb = table[j]
             if j in dead:
                 dead_near.append(nb)
                 continue
-            if seq is not None:
-                if nb.seq != seq and j not in waiting:
-                    continue
-                is_stale = nb.seq != seq
-                age = 0.0
-            else:
-                if j in away:
-                    continue
-                if j in unconfirmed and mono >= unconfirmed[j]:
-                    del unconfirmed[j]
-                    away.add(j)
-                    self._unconfirmed_away(j)
-                    continue
-                dx = x - nb.x
-                dy = y - nb.y
-                if dx * dx + dy * dy >= offer2:
-                    away.add(j)
-                    continue
-                a0, m0 = rx.get(j, (0.0, mono))  # _age(j, mono)
-                age = a0 + (mono - m0 if mono > m0 else 0.0) * speed
-                is_stale = age > STALE_AFTER_S
+            if nb.seq != seq and j not in waiting:
+                continue
             dx = x - nb.x
             dy = y - nb.y
             if dx * dx + dy * dy < r2:
                 nx.append(nb.x), ny.append(nb.y), nr.append(nb.r), nR.append(nb.R), nk.append(law.KIND_ROBOT)
-                na.append(age)
+                na.append(0.0)
                 robots += 1
-                stale += is_stale
-                oldest = max(oldest, age)
-        self._static_bodies(x, y, seq, r2, nx, ny, nr, nR, nk, na, dead_near)
-        self.oldest_state_s = oldest
+                stale += nb.seq != seq
+        self._static_bodies(x, y, r2, nx, ny, nr, nR, nk, na, dead_near)
         return nx, ny, nr, nR, nk, na, robots, stale
 
-    def _static_bodies(self, x: float, y: float, seq: int | None, r2: float, nx: list, ny: list, nr: list, nR: list,
-                       nk: list, na: list, dead_near: list) -> None:
-        """bodies(), its static part: the obstacles near, by index, then the dead robots near, by id, appended."""
+    def _rt_bodies(self, x: float, y: float, t: float, end: float):
+        """Real time (under the lock): the law's bodies as in lock-step (robots by id closer than the cell side,
+        with their last state however old, then the obstacles near, then the robots standing still: dead ones
+        and those the world lists; ages 0: the law and its governor run as in lock-step), and the safety rule's
+        bodies (x, y, contact distance, the most the body can be from (x, y) by `end`: swarm.core.safety).
+
+        What a robot knows (docs/runtime.md, "The safety invariant"): every live robot with its last state and
+        that state's age (the age it had when it came plus the time since, on this robot's clock), never
+        forgotten while it may be near: only a robot not heard for the information delay plus FORGET_PERIODS
+        periods that could have left this robot's cells since (the speed bound over its age covers the way out)
+        is taken as away, until a newer state comes, and never one that a partition of the run's faults cuts off
+        from this robot now. A robot whose token is gone stands where its last state put it, within the `stop`
+        it announced (the world stops it at once and lists it); the robots the world lists stand still until the
+        listing's t + BODIES_HOLD_S. Returns the law's lists nx, ny, nr, nR, nk, na, the numbers of robots and
+        stale robots it uses, the safety rule's list, and the information delay [s] (the oldest a state came
+        with, recently, plus GAP_PERIODS periods)."""
+        r2 = self.side * self.side
+        mono = self.clock.monotonic()
+        speed, V, eps = self.speed, self.V, safety.CLOCK_SKEW_S
+        hear = self.side
+        nx, ny, nr, nR, nk, na = [], [], [], [], [], []
+        safe = []
+        robots = stale = 0
+        oldest = 0.0
+        news, heard = 0.0, 0  # the ages recent states came with: their mean goes into the information delay
+        table, dead, away, rx = self.table, self.dead, self.away, self.rx
+        dead_near = []
+        listed = self._listed_now()
+        forget = None  # the receipt gap after which a neighbour may be taken as away [simulated s] (once known)
+        for j in sorted(table):
+            nb = table[j]
+            a0, m0 = rx.get(j, (0.0, mono))
+            since = (mono - m0) * speed if mono > m0 else 0.0
+            age = a0 + since
+            if since < RECENT_S:
+                news += a0
+                heard += 1
+            dx = x - nb.x
+            dy = y - nb.y
+            d2 = dx * dx + dy * dy
+            contact = nb.r if nb.r > self._r else self._r
+            if j in dead:
+                if j in listed:  # the world has it where it stands: that, not its last state, is the body
+                    continue
+                dead_near.append(nb)
+                if nb.stop is not None:  # it sends no command any more: its last one's reach
+                    m = nb.stop + V * eps
+                else:  # a sender that says nothing of its commands: the speed bound over its age and one hold
+                    m = V * (self.dead_age.get(j, age) + self._hold + eps)
+                safe.append((nb.x, nb.y, contact, m))
+                continue
+            if j in away:
+                continue
+            if since > self._forget_min:
+                if forget is None:
+                    forget = self._info_delay() + self._forget_min
+                if since > forget and V * (age + eps) >= hear - math.sqrt(d2) and not self._cut_off(j, t, forget):
+                    away.add(j)  # not heard, and it could have left: beyond the cells now (or it would be heard)
+                    self.forgotten += 1
+                    continue
+            m = V * (end - t + age + eps)  # safety.motion_bound, inline: the speed bound over the state's age,
+            if nb.still is not None and nb.stop is not None:  # or less while a promise to stand holds
+                left = nb.still - nb.t
+                ends = t - age + (left if left < safety.PROMISE_MAX_S else safety.PROMISE_MAX_S)
+                promised = nb.stop + V * (end - ends + eps if end + eps > ends else 0.0)
+                if promised < m:
+                    m = promised
+            safe.append((nb.x, nb.y, contact, m))
+            if d2 < r2:
+                nx.append(nb.x), ny.append(nb.y), nr.append(nb.r), nR.append(nb.R), nk.append(law.KIND_ROBOT)
+                na.append(0.0)
+                robots += 1
+                stale += age > STALE_AFTER_S
+                if age > oldest:
+                    oldest = age
+        self._static_bodies(x, y, r2, nx, ny, nr, nR, nk, na, dead_near)
+        for ox, oy, orr, _oR in self._obstacles_near(keys.cell_of(x, y, self.side)):
+            safe.append((ox, oy, orr, 0.0))
+        if listed:  # the robots the world lists as standing still: where it has them
+            now = self.sim_time(self.clock.time())
+            age = 0.0 if now is None else max(0.0, now - self.rt_static_t)
+            m = V * max(0.0, end - t + age - safety.BODIES_HOLD_S + eps)
+            for sx, sy, sr, _sR in listed.values():
+                safe.append((sx, sy, sr if sr > self._r else self._r, m))
+        self.oldest_state_s = oldest
+        if heard:
+            self._news.add(news / heard)
+        return nx, ny, nr, nR, nk, na, robots, stale, safe, self._info_delay()
+
+    def _listed_now(self) -> dict:
+        """Real time: the robots the world lists as standing still (id -> (x, y, r, R)); a list older than
+        RT_BODIES_TTL_S is dropped (the world sends one every period while it lists a robot)."""
+        if self.rt_static:
+            now = self.sim_time(self.clock.time())
+            if now is not None and now - self.rt_static_t > RT_BODIES_TTL_S:
+                self.rt_static = {}
+        return self.rt_static
+
+    def _info_delay(self) -> float:
+        """Real time: how old this robot's news may be [s]: a high but typical lag of its poses or age of its
+        neighbours' states when they come (the 75th percentile of the recent ones: a robot that comes near is heard
+        at its first state that gets through, not its latest), plus GAP_PERIODS periods of losses."""
+        return max(self._lag.value, self._news.value) + GAP_PERIODS * self.cfg.dt
+
+    def _cut_off(self, j: int, t: float, span: float) -> bool:
+        """Real time under faults: a partition of the run separates this robot from robot j at some time in
+        [t - span, t] (their states do not cross: not hearing j says nothing of where it is)."""
+        for p in self.partitions:
+            if p.start <= t and p.end >= t - span and p.group(self.id) != p.group(j):
+                return True
+        return False
+
+    def _static_bodies(self, x: float, y: float, r2: float, nx: list, ny: list, nr: list, nR: list, nk: list,
+                       na: list, dead_near: list) -> None:
+        """bodies(), its static part: the obstacles near, by index, then the dead robots near, by id, then (real time)
+        the robots the world lists as standing still, appended (ages 0)."""
         for ox, oy, orr, oR in self._obstacles_near(keys.cell_of(x, y, self.side)):
             dx = x - ox
             dy = y - oy
@@ -1017,37 +1114,20 @@ class Agent:
             dy = y - nb.y
             if dx * dx + dy * dy < r2:
                 nx.append(nb.x), ny.append(nb.y), nr.append(nb.r), nR.append(nb.R), nk.append(law.KIND_OBSTACLE)
-                na.append(0.0 if seq is not None else self.dead_age.get(nb.id, 0.0))
-        if self.rt_static and seq is None:  # real time under faults: the robots standing still, from the world
-            now = self.sim_time(self.clock.time())
-            age = 0.0 if now is None else max(0.0, now - self.rt_static_t)
-            if age > RT_BODIES_TTL_S:  # the world sends it every period: a list this old says nothing any more
-                self.rt_static = []
-            for sx, sy, sr, sR in self.rt_static:
+                na.append(0.0)
+        if self.rt_static and not self.cfg.lockstep:
+            for sx, sy, sr, sR in self._listed_now().values():
                 dx = x - sx
                 dy = y - sy
                 if dx * dx + dy * dy < r2:
                     nx.append(sx), ny.append(sy), nr.append(sr), nR.append(sR), nk.append(law.KIND_OBSTACLE)
-                    na.append(age)
+                    na.append(0.0)
 
-    def _unconfirmed_away(self, j: int) -> None:
-        log.info("robot %d: robot %d sent no state in %g s since its token came back: taken as away",
-                 self.id, j, CONFIRM_AFTER_S)
-
-    def command(self, t: float, x: float, y: float, th: float, ref: tuple, seq: int | None,
-                pose_t: float | None = None) -> tuple[float, float]:
-        """The law for this robot at time t with pose (x, y, th) and live reference ref = (xl, yl, thl, vl, wl).
-        Real time (seq None): each body comes with its age (bodies(): the governor takes the distance it may
-        have moved since off its clearance), and the governor's horizon is two control periods plus the age
-        of the robot's own pose (pose_t), at most HORIZON_CAP_S more, and at least horizon_floor: the
-        command stays in force until the next one lands, a period later, and when that one is missing the
-        world holds it one period more before it brakes (lock-step keeps the period: the world applies a
-        command for exactly dt)."""
-        nx, ny, nr, nR, nk, na, robots, stale = self.bodies(x, y, seq, t)
-        if seq is None:
-            lag = max(0.0, t - pose_t) if pose_t is not None else 0.0
-            self.p[law.P_DT] = max(self.horizon_floor, HOLD_PERIODS * self.cfg.dt + min(HORIZON_CAP_S, lag))
-            self.max_age = max(self.max_age, self.oldest_state_s)
+    def command(self, t: float, x: float, y: float, th: float, ref: tuple, seq: int) -> tuple[float, float]:
+        """Lock-step: the law for this robot at time t with pose (x, y, th) and live reference ref = (xl, yl, thl,
+        vl, wl), over the bodies of tick seq (the world applies a command for exactly dt: the governor's horizon
+        is the period)."""
+        nx, ny, nr, nR, nk, na, robots, stale = self.bodies(x, y, seq)
         xl, yl, thl, vl, wl = ref
         v, w = fastlaw.robot_command(x, y, th, self.cfg.dx, self.cfg.dy, self.cfg.r, t, xl, yl, thl, vl, wl,
                                      nx, ny, nr, nR, nk, na, len(nx), self.mem, self.p)
@@ -1055,14 +1135,99 @@ class Agent:
         self.stale_total += stale
         return v, w
 
+    def command_realtime(self, t: float, x: float, y: float, th: float, ref: tuple, pose_t: float,
+                         listen: bool = False) -> tuple[float, float]:
+        """Real time (under the lock): the command at time t from the pose (x, y, th) of time pose_t, and what its
+        state and command announce (_rt_until, _rt_stop, _rt_still). The law runs as in lock-step (its governor's
+        horizon the period, every age 0); then, with the governor on, the safety rule (swarm.core.safety;
+        docs/runtime.md, "The safety invariant"): the command is valid until t plus two periods and twice the
+        recent lag of its poses; the speed stays within the bound V; it is slowed (v and w together: the same
+        path) to the largest speed at which everything it can reach from its pose stays clear of everywhere every
+        known body (and every robot it has not heard) can be until its motion surely ends, unless it moves away
+        from that body; when no speed is allowed it stands (turning in place) and promises to stand a while
+        (`still`), so its neighbours may take it as a static body and pass. listen: it holds still (its first
+        periods), and says so."""
+        dt = self.cfg.dt
+        lag = t - pose_t if t > pose_t else 0.0
+        self._lag.add(lag)
+        until = t + safety.validity(dt, self._lag.value, self._act.value)
+        self._sent_at.append((pose_t, t))
+        eps, ramp = safety.CLOCK_SKEW_S, self.ramp
+        vp = wp = 0.0
+        ep = -math.inf
+        pend = self._pending
+        while pend and pend[0][2] + eps + ramp / 2.0 <= pose_t:
+            pend.popleft()  # its motion is over by the pose's time
+        for a, b, u in pend:
+            if a > vp:
+                vp = a
+            if b > wp:
+                wp = b
+            if u > ep:
+                ep = u
+        ep = max(ep + eps + ramp / 2.0, pose_t)  # (-inf without one: the pose's time)
+        plan = safety.Plan(pose_t, t, until, vp, ep, wp, ramp, self.switch, eps)
+        nx, ny, nr, nR, nk, na, robots, stale, safe, delay = self._rt_bodies(x, y, t, plan.end)
+        self.neighbours, self.stale = robots, stale
+        self.stale_total += stale
+        self.max_age = max(self.max_age, self.oldest_state_s)
+        if listen:
+            v = w = 0.0
+        else:
+            xl, yl, thl, vl, wl = ref
+            self.p[law.P_DT] = dt
+            v, w = fastlaw.robot_command(x, y, th, self.cfg.dx, self.cfg.dy, self.cfg.r, t, xl, yl, thl, vl, wl,
+                                         nx, ny, nr, nR, nk, na, len(nx), self.mem, self.p)
+            self.commanded += 1
+            if self.cfg.governor and v == v and w == w:  # a NaN goes on to be refused, never driven
+                v, w = self._safe(t, x, y, th, v, w, plan, safe, delay)
+        self._rt_until = until
+        self._rt_stop = plan.reach(abs(v))
+        self._rt_still = self._still_until if self._still_until > t else 0.0
+        pend.append((abs(v), abs(w), until))
+        return v, w
+
+    def _safe(self, t: float, x: float, y: float, th: float, v: float, w: float, plan, safe, delay: float
+              ) -> tuple[float, float]:
+        """Real time: the law's (v, w) within the speed bound and the safety rule (command_realtime)."""
+        V, held = self.V, False
+        if abs(v) > V:
+            f = V / abs(v)
+            v, w = v * f, w * f
+        if t < self._still_until:  # its promise: it stands (turning in place)
+            v, held = 0.0, True
+        else:
+            sv = 1.0 if v >= 0.0 else -1.0
+            unknown = safety.unheard_speed(self.side, self._r, delay, plan.end - t)
+            limit, why = plan.limit(x, y, sv * math.cos(th), sv * math.sin(th), w, safe, V, unknown)
+            if abs(v) > limit:
+                held = True
+                self.held_why[why] += 1
+                if limit < STAND_BELOW:  # no motion it could make: stand, turn in place, and say it stands a while
+                    if log.isEnabledFor(logging.DEBUG):
+                        near = sorted((round(math.hypot(x - b[0], y - b[1]) - b[2] - b[3], 3), b[:2]) for b in safe)[:3]
+                        log.debug("robot %d stands at t = %.2f s (its law asked v %.3f m/s): held by %s; the nearest "
+                                  "bodies' room (m) and places: %s", self.id, t, v,
+                                  ("a body", "only moving away from one", "robots it has not heard")[why - 1], near)
+                    v = 0.0
+                    self._promises += 1
+                    jitter = 0.5 * ((math.sin(self.id * 12.9898 + self._promises * 78.233) * 43758.5453) % 1.0)
+                    self._still_until = t + min(plan.end - t, safety.PROMISE_S) * (1.0 + jitter)
+                else:
+                    f = limit / abs(v)
+                    v, w = v * f, w * f
+        self.held += held
+        return v, w
+
     def _publish(self, t: float, seq: int, v: float, w: float, ref: tuple, pose) -> None:
         if self.estopped is not None:
             v = w = 0.0  # the emergency stop holds every robot still
-        cmd = Cmd(t=t, seq=seq, v=v, w=w)
+        until = None if self.cfg.lockstep else self._rt_until  # real time: how long the drive may execute it
+        cmd = Cmd(t=t, seq=seq, v=v, w=w, until=until)
         if self.drive is None:  # lock-step: the world's key
             self.bus.put(self._cmd_key, protocol.encode(cmd), reliable=True)
-        elif self.guard is not None and self.guard.check(t) is not None:
-            cmd = Cmd(t=t, seq=seq, v=0.0, w=0.0)  # halted (the guard says why, once)
+        elif self.guard is not None and self.guard.check(t, until) is not None:
+            cmd = Cmd(t=t, seq=seq, v=0.0, w=0.0, until=until)  # halted (the guard says why, once)
         else:
             self.drive.send(cmd)
         self.last_cmd = cmd
@@ -1072,7 +1237,8 @@ class Agent:
             xl, yl, thl = ref[0], ref[1], ref[2]
             st = Status(t=t, ex=xl + self.cfg.dx - pose.x, ey=yl + self.cfg.dy - pose.y,
                         etheta=law.wrap_angle(thl - pose.theta), frozen=self.mem[law.M_FROZEN] != 0.0,
-                        neighbours=self.neighbours, stale=self.stale, bad=self.bad.count)
+                        neighbours=self.neighbours, stale=self.stale, bad=self.bad.count,
+                        held=None if self.cfg.lockstep else self.held / max(1, self.commanded))
             self.bus.put(self._status_key, protocol.encode(st))
             if self.counters is not None:
                 self._report(t)
@@ -1277,6 +1443,8 @@ class Agent:
         else:
             self._rt_seq = pose.seq
             pose_t, x, y, th = pose.t, pose.x, pose.y, pose.theta
+            if pose.cmd is not None and pose.cmd >= 0.0:
+                self._acting(pose.t, pose.cmd)
             if pose_t < self._rt_t and last is not None:
                 # older than what it last published (a late pose after a step without one): brought to
                 # that time by its own last command, so its state and command never go back in time
@@ -1290,17 +1458,15 @@ class Agent:
         r = (ref.x + dx, ref.y + dy, ref.theta + dth, ref.v, ref.w)
         if self._first_pose_t is None:
             self._first_pose_t = pose_t
-        if pose_t - self._first_pose_t < LISTEN_PERIODS * self.cfg.dt - 1e-9:
-            # just started: listen before moving (the neighbours' first states are still on their way; a
-            # command computed without them would be blind to a robot 0.5 m away): hold still, say so
-            v = w = 0.0
-        else:
-            with self.lock:
-                v, w = self.command(t, x, y, th, r, None, pose_t)
-            # the law clips its speed bound's rounding; the governor's scaling can add one more ulp: a command one
-            # ulp beyond the bound would be refused, and the world would hold the previous one (seen once near an
-            # obstacle, at 100 rad/s). A NaN stays a NaN (the codec refuses it)
-            v, w = law.clip(v, self._vb), law.clip(w, self._wb)
+        # just started: listen before moving (the neighbours' first states are still on their way; a command
+        # computed without them would be blind to a robot 0.5 m away): hold still, say so
+        listen = pose_t - self._first_pose_t < LISTEN_PERIODS * self.cfg.dt - 1e-9
+        with self.lock:
+            v, w = self.command_realtime(t, x, y, th, r, pose_t, listen)
+        # the law clips its speed bound's rounding; the governor's scaling can add one more ulp: a command one
+        # ulp beyond the bound would be refused, and the world would hold the previous one (seen once near an
+        # obstacle, at 100 rad/s). A NaN stays a NaN (the codec refuses it)
+        v, w = law.clip(v, self._vb), law.clip(w, self._wb)
         # state and command go out back to back, so zenoh sends them in one write (one wake-up of its
         # thread instead of two); the command is stamped with its pose's time: a drive (or the world)
         # sees how old its input is
@@ -1310,6 +1476,15 @@ class Agent:
         self._rt_t = pose_t
         self._rt_belief = (pose_t, x, y, th)
         return True
+
+    def _acting(self, t: float, cmd_t: float) -> None:
+        """Real time: at time t its drive executes the command that carried cmd_t (a pose's `cmd`): how long that
+        one took from its computation to here goes into the recent ones (the commands' validity follows them)."""
+        sent = self._sent_at
+        while sent and sent[0][0] < cmd_t:
+            sent.popleft()  # older than the one acting: never looked up again
+        if sent and sent[0][0] == cmd_t:
+            self._act.add(t - sent[0][1])
 
     @staticmethod
     def _advanced(t0: float, x: float, y: float, th: float, cmd: Cmd, t: float) -> tuple[float, float, float, float]:
@@ -1399,24 +1574,25 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                 faults = _run_faults(run)
             obstacles = fetch_obstacles(bus, fleet, start_timeout, stop)
             drive = guard = fbus = None
-            rbus, floor = bus, 0.0
+            rbus = bus
             box: list[Agent] = []
             if cfg.lockstep and make_drive is not None:
                 make_drive(cfg, lambda: None)  # raises DriveRefused: a real drive has no ticks
             if not cfg.lockstep:
                 if faults:  # real time under faults: what this robot receives goes through the fault model
-                    fbus, floor = _fault_bus(bus, faults, cfg, fleet, clock, box)
-                    rbus = fbus
+                    rbus = fbus = _fault_bus(bus, faults, cfg, fleet, clock, box)
                 now = (lambda: box[0].sim_time(clock.time()) if box else None)
                 drive = make_drive(cfg, now) if make_drive is not None else None
                 if drive is None:
                     from swarm.drives.sim import SimDrive
 
                     drive = SimDrive(rbus, fleet, robot_id)
-                guard = Guard(drive, clock, pose_timeout_s=pose_timeout, ref_timeout_s=ref_timeout, arena=arena_of(cfg))
+                guard = Guard(drive, clock, pose_timeout_s=pose_timeout, ref_timeout_s=ref_timeout, arena=arena_of(cfg),
+                              expire=not getattr(drive, "enforces_validity", False))
             agent = Agent(rbus, cfg, fleet, wait_timeout=wait_timeout, clock=clock, drive=drive, guard=guard,
-                          faults=faults if cfg.lockstep else None, horizon_floor=floor, counters=fbus,
-                          inline=getattr(rbus, "threaded_callbacks", False))
+                          faults=faults if cfg.lockstep else None, counters=fbus,
+                          inline=getattr(rbus, "threaded_callbacks", False),
+                          partitions=() if cfg.lockstep or not faults else faults.partitions)
             box.append(agent)
             current[:] = [agent]
             if runs.latest is not None and runs.latest.run != run.run:
@@ -1449,6 +1625,13 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                      agent.cfg.run, agent.ticks, agent.skipped, agent.states_received, agent.refs_taken, agent.bad.count,
                      agent.bad.stale, agent.bad.duplicates, 1e6 * agent.loop_cpu_s / max(1, agent.ticks),
                      1e6 * agent.process_cpu_s / max(1, agent.ticks))
+            if not agent.cfg.lockstep:
+                w = agent.held_why
+                log.info("robot %d, run %s: safety rule: %d of %d commands held back (by a body %d, only away from "
+                         "one %d, robots unheard %d, its promise %d), %d promises to stand, %d neighbours taken as "
+                         "away", robot_id, agent.cfg.run, agent.held, agent.commanded, w[safety.BODY],
+                         w[safety.AWAY_ONLY], w[safety.UNKNOWN], agent.held - sum(w), agent._promises,
+                         agent.forgotten)
             served.append(agent)
             if once:
                 break
@@ -1462,15 +1645,13 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
 
 
 def _fault_bus(bus, faults, cfg: Config, fleet: str, clock, box: list):
-    """Real time under faults: (a swarm.net.faultbus.FaultBus around bus for this robot, the governor's least
-    horizon). Its holds follow the swarm's speed, which the agent (box[0], once made) learns from the clock."""
+    """Real time under faults: a swarm.net.faultbus.FaultBus around bus for this robot. Its holds follow the
+    swarm's speed, which the agent (box[0], once made) learns from the clock."""
     from swarm.core.faults import FaultTable
-    from swarm.core.faultsim import horizon
     from swarm.net.faultbus import FaultBus
 
     table = FaultTable.of(faults, cfg.robots, cfg.dt)
-    fbus = FaultBus(bus, table, cfg.id, cfg.dt, fleet, speed=lambda: box[0].speed if box else 1.0, clock=clock)
-    return fbus, horizon(faults, cfg.dt)
+    return FaultBus(bus, table, cfg.id, cfg.dt, fleet, speed=lambda: box[0].speed if box else 1.0, clock=clock)
 
 
 def _run_faults(run):

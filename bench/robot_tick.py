@@ -92,9 +92,9 @@ def lockstep(agent, scn, me: int, others: list[int], ticks: int, prof) -> tuple[
             if abs(sx - x) < 1.5 * scn.cell_side and abs(sy - y) < 1.5 * scn.cell_side:
                 c = keys.cell_of(sx, sy, scn.cell_side)
                 states.append((keys.cell(f, c[0], c[1], j), protocol.encode(protocol.State(
-                    id=j, t=t, seq=k, x=sx, y=sy, theta=sth, r=scn.r, R=scn.R, frozen=False))))
+                    id=j, t=t, seq=k, x=sx, y=sy, theta=sth, r=scn.r, R=scn.R, frozen=False, stop=0.05, still=0.0))))
         ref = protocol.encode(protocol.Ref(t, k, *lead))
-        pose = protocol.encode(protocol.Pose(t=t, seq=k, x=x, y=y, theta=th))
+        pose = protocol.encode(protocol.Pose(t=t, seq=k, x=x, y=y, theta=th, cmd=-1.0))
         if prof is not None and k >= 20:
             prof.enable()
         c0 = time.thread_time()
@@ -174,9 +174,9 @@ def main() -> None:
             if abs(sx - x) < 1.5 * scn.cell_side and abs(sy - y) < 1.5 * scn.cell_side:
                 c = keys.cell_of(sx, sy, scn.cell_side)
                 feed.put(keys.cell(FLEET, c[0], c[1], j), protocol.encode(protocol.State(
-                    id=j, t=t, seq=k, x=sx, y=sy, theta=sth, r=scn.r, R=scn.R, frozen=False)))
+                    id=j, t=t, seq=k, x=sx, y=sy, theta=sth, r=scn.r, R=scn.R, frozen=False, stop=0.05, still=0.0)))
         feed.put(ref_key, protocol.encode(protocol.Ref(t, k, *lead)))
-        feed.put(pose_key, protocol.encode(protocol.Pose(t=t, seq=k, x=x, y=y, theta=th)))
+        feed.put(pose_key, protocol.encode(protocol.Pose(t=t, seq=k, x=x, y=y, theta=th, cmd=-1.0)))
         if a.idle > 0:
             time.sleep(a.idle)  # a robot between poses: its caches go cold (the same work costs ~3x: docs/runtime.md)
         got = agent.drive.wait()  # the pose goes last on the feeder's one link: the rest is in

@@ -48,6 +48,7 @@ class Referee:
         self.frozen_now = 0
         self.alive_now = 0
         self.frozen = np.zeros(self.n, bool)
+        self.strands = metrics.Strands(self.n)  # robots stranded far from their slots (docs/metrics.md)
 
     def sample(self, t: float, q: np.ndarray, alive: np.ndarray, leader: tuple[float, float, float],
                frozen_by_law: np.ndarray | None = None) -> None:
@@ -68,6 +69,7 @@ class Referee:
             self.good_since = None
         elif self.good_since is None:
             self.good_since = t
+        self.strands.sample(t, pe, live, self.converged_now)
         self.pmax = float(pe[live].max()) if self.alive_now else 0.0
         self.emax = float(ee[live].max()) if self.alive_now else 0.0
         self.last_t = t
@@ -113,6 +115,10 @@ class Referee:
             self.freeze_intervals += int(np.count_nonzero(starts))
             self._frozen_until[frozen] = t
 
+    @property
+    def stranded_now(self) -> int:
+        return self.strands.now
+
     def _distance(self, x: np.ndarray, y: np.ndarray, i: int, j: int) -> float:
         """Centre distance of robot i to robot j, or to obstacle j - n's boundary (negative inside)."""
         if j < self.n:
@@ -138,7 +144,7 @@ class Referee:
             orientation_error_max=self.emax if self.samples and self.alive_now else None, min_robot_distance=self.min_rr, min_obstacle_distance=self.min_ro,
             collisions=self.collisions, last_freeze_end_s=self.last_frozen_t, wall_s=wall_s,
             interrupted=interrupted, mode=mode, freeze_intervals=self.freeze_intervals, samples=self.samples,
-            **extra)
+            **self.strands.keys(), **extra)
 
 
 def log_collisions(ref: Referee, t: float, log: logging.Logger = logging.getLogger("swarm.world")) -> None:

@@ -38,6 +38,7 @@ import numpy as np
 
 from swarm.core import kinematics, runid
 from swarm.core.clock import WALL, said_step
+from swarm.core.safety import RAMP_S
 from swarm.core.inventory import Fleet
 from swarm.launch.child import settle_heap
 from swarm.proto import keys, protocol, window
@@ -93,6 +94,9 @@ class RefereeWorld:
         self.q_t = np.full(n, -math.inf)  # the simulated time of that pose
         self.vw = np.zeros((n, 2))  # estimated from the last two states
         self.frozen = np.zeros(n, bool)
+        self.stop = np.full(n, math.nan)  # what each robot's newest state announced it can still move (nan: nothing)
+        self._listed: tuple[int, ...] = ()  # the robots the last bodies message listed, and its time
+        self._listed_t = -math.inf
         self._spans = window.spans(scn.dt, opts.watchdog)
         self.w_state = [window.Window(*self._spans) for _ in range(n)]
         self.w_status = [window.Window(*self._spans) for _ in range(n)]
@@ -214,6 +218,7 @@ class RefereeWorld:
             self.q[i] = (s.x, s.y, s.theta)
             self.q_t[i] = s.t
             self.frozen[i] = s.frozen
+            self.stop[i] = math.nan if s.stop is None else s.stop
             self.seen[i] = True
         for key, data in self._statuses.drain():
             parsed = keys.parse(key)
@@ -253,7 +258,29 @@ class RefereeWorld:
                           bool(stale[i]), bool(self.alive[i]))
                 for i, (x, y, th) in enumerate(self.q.tolist())))
             self.bus.put(key, protocol.encode(snap))
+        self._publish_bodies(t, k, age)
         self._report()
+
+    def _publish_bodies(self, t: float, k: int, age: np.ndarray) -> None:
+        """Who lists a dead robot where there is no simulating world (docs/deploy.md): the referee, each period,
+        lists every robot that stands silent (its token gone, or no state for the watchdog's time) at its newest
+        state, its r grown by the `stop` that state announced (the most its commands could still move it; a
+        sender that said nothing: the speed bound over the watchdog and one hold), so that every robot, near it or
+        not, takes it as a static body. Every period while it lists one, else every BODIES_EVERY_S."""
+        from world.world import BODIES_EVERY_S
+
+        with self.lock:
+            silent = self.seen & (~self.alive | (age > self.opts.watchdog))
+        listed = tuple(int(i) for i in np.flatnonzero(silent))
+        if not listed and not self._listed and t - self._listed_t < BODIES_EVERY_S:
+            return
+        V, scn = self.scn.speed_bound, self.scn
+        bodies = []
+        for i in listed:
+            grow = self.stop[i] if math.isfinite(self.stop[i]) else V * (self.opts.watchdog + 2 * scn.dt + RAMP_S)
+            bodies.append(protocol.Body(i, float(self.q[i, 0]), float(self.q[i, 1]), scn.r + grow, scn.R + grow))
+        self._listed, self._listed_t = listed, t
+        self.bus.put(keys.world_bodies(self.name), protocol.encode(protocol.Bodies(t=t, seq=k, bodies=tuple(bodies))))
 
     def progress(self) -> protocol.Progress:
         ref = self.referee
@@ -311,7 +338,7 @@ class RefereeWorld:
             self.referee.good_since = None
         return self.referee.metrics(
             time.perf_counter() - started, interrupted, "realtime", cmd_misses=0, bad_messages=self.bad_total(),
-            steps=self.k, robots_alive_at_end=alive_end, robots_lost=self.lost_events,
+            steps=self.k, robots_alive_at_end=alive_end, robots_lost=self.lost_events, lost_robots=sorted(self.lost),
             run_wall_s=time.perf_counter() - run_started, failure=self.failure, run_id=self.run_id,
             scenario_digest=self.digest, stale_messages=self.bad.stale, odometry_based=True,
             max_pose_age_s=self.max_pose_age, referee_only=True)

@@ -41,7 +41,7 @@ from swarm.proto.protocol import Clock, Obstacle, Obstacles, Pose, ProtocolError
 from swarm.core.geometry import pairs_within
 from swarm.core.scenario import Scenario
 from swarm.core.wake import Wake
-from world.faultworld import brake_factor
+from swarm.core.safety import BODIES_HOLD_S, RAMP_S
 from world.realtime_faults import RealtimeFaults
 from world.referee import Referee, log_collisions
 
@@ -52,6 +52,8 @@ TICK_TIMEOUT_S = 1.0
 LOST_TIMEOUT_S = 10.0  # s: a leader (or every robot) away this long ends the run with a failure
 FINE_DT_S = 0.001
 PROGRESS_PERIOD_S = 0.25  # wall seconds between progress messages
+BODIES_EVERY_S = 0.2  # real time: the bodies message goes out every period while it lists a robot, else this often
+BODIES_SILENT_S = 0.25  # real time: a robot stopped after commanding is listed once no command came for this long
 ROUND_TRIP_HISTORY_S = 5.0  # real time: poses remembered for round trips (simulated s; far past the watchdog)
 
 
@@ -127,8 +129,24 @@ class World:
         self.comp = [[0.0, 0.0, 0.0] for _ in range(n)]
         self.cmd = [(0.0, 0.0)] * n  # the command being applied
         self.cmd_new = [(0.0, 0.0)] * n  # real time: each robot's newest command (applied, held or braked)
-        self._held_from = [-math.inf] * n  # real time: cmd_time of the newest command a hold was counted for
-        self.cmd_held = 0  # real time: commands held a whole period past their successor's time (then braked)
+        self.cmd_held = 0  # real time: commands that ran out (their until passed without a newer one): braked
+        # real time: a command is executed until its `until`, then braked along safety.RAMP_S in steps of `_ramp_h`
+        # (never faster than a linear ramp: the safety rule counts on it; docs/runtime.md, "The safety invariant")
+        self.until = [-math.inf] * n
+        self._gen = [0] * n  # bumps at every change of a robot's command: plan entries of an older one are void
+        self._plan: list = []  # heap of (simulated time, robot, gen, step) at which a robot's speed changes
+        self._ramp_h = min(scn.dt, RAMP_S / 2.0)
+        self.hold_until = [-math.inf] * n  # a robot the world lists as standing does not move before this
+        self._deferred: dict[int, tuple] = {}  # (v, w, until, mono, its t) of a command held by a listing
+        self.commanded = [False] * n  # it sent a command this run
+        self.cmd_t = [-1.0] * n  # real time: the t of the command each robot's drive executes (its poses say it)
+        self._cmd_seen = [-math.inf] * n  # real time: when each robot's newest command came (too late or not)
+        self.cmd_expired = 0  # real time: commands that came after their until (refused: too late)
+        self._died: list[int] = []  # real time: robots whose token went (the loop stops them at its next step)
+        self._gone: set[int] = set()  # real time: robots whose token went during the run and is not back
+        self._listed: tuple[int, ...] = ()  # real time: the robots the last bodies message listed
+        self._listed_t = -math.inf  # and its time
+        self.held_by_robot: dict[int, float] = {}  # real time: each robot's share of commands its safety rule held
         self.watchdog_stops = 0  # real time: robots the watchdog stopped
         self._pose_keys = [keys.robot_pose(fleet, i) for i in range(n)]
         self._cmd_ids = {keys.robot_cmd(fleet, i): i for i in range(n)}
@@ -311,6 +329,8 @@ class World:
                 if self.bad.verdict(key, self._after_return(i, self.w_status[i], s.t, int(round(s.t / self.scn.dt))),
                                     "the status's t"):
                     self.robot_bad[i] = s.bad
+                    if s.held is not None:
+                        self.held_by_robot[i] = s.held
             elif tag == "state":
                 if protocol.decode(data, "state", i, self.limits).seq == 0:
                     self._state0.add(i)
@@ -366,6 +386,11 @@ class World:
                 self.lost.add(i)
                 self.lost_events += 1
                 log.warning("robot %d lost at t = %g s (its liveliness token is gone)", i, self.t)
+        if not up and self.alive[i] and self._running and not self.lockstep:
+            self._died.append(i)  # the loop stops it at its next fine step (a dead robot is a body on the floor)
+            self._gone.add(i)
+        if up:
+            self._gone.discard(i)
         self.alive[i] = up
         if up:
             self.w_cmd[i].reset()
@@ -425,7 +450,7 @@ class World:
         # lock-step: reliable (a lost pose would cost a tick timeout); real time: best effort, like a sensor (a
         # robot goes on without one), and a robot cut off from the router must not block the router's thread
         # that forwards every other pose (zenoh blocks a reliable put to a full queue for up to 5 s)
-        self.bus.put(self._pose_keys[i], protocol.encode(Pose(t=t, seq=seq, x=x, y=y, theta=th)),
+        self.bus.put(self._pose_keys[i], protocol.encode(Pose(t=t, seq=seq, x=x, y=y, theta=th, cmd=self.cmd_t[i])),
                      reliable=self.lockstep)
 
     def _publish_snapshot(self, t: float, seq: int) -> None:
@@ -479,7 +504,9 @@ class World:
                                  orientation_error=ref.emax if ref.samples and ref.alive_now else -1.0,
                                  converged_at=-1.0 if conv is None else conv,
                                  last_freeze=-1.0 if ref.last_frozen_t is None else ref.last_frozen_t,
-                                 dropped=self._dropped(), hung=self._hung_now())
+                                 dropped=self._dropped(), hung=self._hung_now(),
+                                 held=-1.0 if self.lockstep or self.held_back() is None else self.held_back(),
+                                 stranded=ref.stranded_now)
 
     def _dropped(self) -> int:
         if self.wf is not None:
@@ -527,7 +554,7 @@ class World:
             self.referee.good_since = None
         extra = dict(cmd_misses=self.misses, bad_messages=self.bad_total(), steps=self.k,
                      **({"lockstep_overruns": self.overruns} if self.lockstep else {}),
-                     robots_alive_at_end=int(self.alive.sum()), robots_lost=self.lost_events,
+                     robots_alive_at_end=int(self.alive.sum()), robots_lost=self.lost_events, lost_robots=sorted(self.lost),
                      run_wall_s=time.perf_counter() - self._run_started, failure=self.failure, run_id=self.run_id,
                      scenario_digest=self.digest, stale_messages=self.bad.stale, **self._latency(),
                      **({} if self.lockstep else {"samples_missed": self.samples_missed}))
@@ -535,6 +562,8 @@ class World:
             extra.update(self.wf.metrics(self._not_dead(), self.t))
         elif self.rtf is not None:  # real time: counted as it happened (docs/faults.md)
             extra.update(self.rtf.metrics(self.t, self.cmd_held, self.watchdog_stops))
+        if not self.lockstep:
+            extra.update(self._realtime_metrics())
         return self.referee.metrics(time.perf_counter() - started, interrupted,
                                     "lockstep" if self.lockstep else "realtime", **extra)
 
@@ -640,6 +669,8 @@ class World:
                         if not self._await_returns(k + 1, stop):
                             return stop.is_set()
                         self._publish_bodies(k)
+                    elif not self.alive.all():  # robots lost: every robot learns where they stand, each tick
+                        self._publish_lost(k)
                     self._publish_tick(t, k)
                 if wf is None:
                     self._sample(t)
@@ -704,6 +735,10 @@ class World:
                         self.stopped[i] = wf.stopped[i]
                         if i in pending:
                             self.cmd_time[i] = t
+                    elif not self.alive[i]:  # lost (its token went): it stops where it is, a body on the floor
+                        pending.pop(i, None)
+                        self.cmd[i] = (0.0, 0.0)
+                        self.stopped[i] = True
                     elif i in pending:
                         self.cmd[i] = pending.pop(i)
                         self.cmd_time[i] = t
@@ -810,6 +845,15 @@ class World:
             self.wake.clear()
         return False
 
+    def _publish_lost(self, k: int) -> None:
+        """Lock-step without faults, before tick k's poses: the robots lost (their token gone) where they stopped,
+        so that every robot, neighbour or not, takes them as static bodies (docs/faults.md)."""
+        with self.lock:
+            lost = [i for i in range(self.n) if not self.alive[i]]
+        bodies = tuple(protocol.Body(i, float(self.q[i][0]), float(self.q[i][1]), self.scn.r, self.scn.R) for i in lost)
+        self.bus.put(keys.world_bodies(self.fleet), protocol.encode(protocol.Bodies(t=self.t, seq=k, bodies=bodies)),
+                     reliable=True)
+
     def _publish_bodies(self, k: int) -> None:
         self.bus.put(keys.world_bodies(self.fleet), protocol.encode(self.wf.bodies(k, self.q)), reliable=True)
 
@@ -907,13 +951,14 @@ class World:
             fine_k = max(fine_k, min(end_k, int(math.floor((self.clock.time() - epoch) * self.speed / fine + 1e-9))))
             t = self.t = round(fine_k * fine, 9)
             mono = self.clock.monotonic()
+            self._follow_plans(t, advance)
             if self.fleet_ros2 is not None:
                 self._take_ros2_commands(mono, t, advance)
             else:
                 self._take_commands(t, mono, advance)
-            if mono - watch_t >= period / self.speed:  # hold, brake and watchdog, once a period (as a drive)
+            if mono - watch_t >= period / self.speed:  # the watchdog, once a period (as a drive)
                 watch_t = mono
-                self._brake(mono, t, advance)
+                self._watchdog(mono, t, advance)
             if poses[0][0] <= t + 1e-9:
                 sent = self._pose_sent  # this thread's only (_take_commands reads it)
                 sent[t] = mono
@@ -943,8 +988,7 @@ class World:
                 self._tell_events(t, seq, lambda te: te <= t + 1e-9)
                 self._publish_clock_rt(epoch)
                 self._publish_snapshot(t, seq)
-                if self.rtf is not None:
-                    self._publish_bodies_rt(t, seq)
+                self._publish_bodies_rt(t, seq)
                 self._sample(t)
                 self._report()
                 t_pub = (seq + 1) * period
@@ -972,8 +1016,10 @@ class World:
         return True
 
     def _take_commands(self, t: float, mono: float, advance) -> None:
-        """Real time: apply the commands that came since the last fine step (robot i moves to t with
-        its old command first), and measure their round trips (pose published -> command here)."""
+        """Real time: the commands that came since the last fine step, and their round trips (pose published ->
+        command here). A command is executed from now until its `until` (absent: two periods from now), then
+        braked (_follow_plans); one that comes after its until is refused as too late (counted, not bad), and one
+        of a robot whose token is gone is not executed (it is a body on the floor until its token is back)."""
         for key, data in self._cmd_inbox.drain():
             i = self._cmd_ids.get(key)
             try:
@@ -986,60 +1032,127 @@ class World:
             with self.lock:
                 fresh = self.bad.verdict(key, self._after_return(i, self.w_cmd[i], c.t, c.seq),
                                          f"robot {i}'s command t or seq")
+                alive = i not in self._gone
             if not fresh:
                 continue
-            advance(i, t)
-            self.cmd[i] = self.cmd_new[i] = (c.v, c.w)
-            self.cmd_time[i] = mono
-            self.stopped[i] = False
             sent = self._pose_sent.get(c.t)
             if sent is not None and len(self.round_trips) < 1_000_000:
                 self.round_trips.append(mono - sent)
+            self._command(i, t, mono, c.v, c.w, c.until, alive, advance, c.t)
 
-    def _brake(self, mono: float, t: float, advance) -> None:
-        """Real time, once a control period: a robot without a new command moves on with its newest one for
-        the period it was meant for and one more (held), then brakes to a stop along a ramp of BRAKE_S
-        (simulated s, a step each period, as the fault kernel does: world.faultworld.brake_factor); a robot
-        whose newest command is older than the watchdog (wall s, as a drive's) is stopped. (robot i moves
-        to t with its old command before each change.)"""
-        period, cmd = self.scn.dt, self.cmd
-        for i in range(self.n):
-            if self.stopped[i]:
-                continue
-            age = mono - self.cmd_time[i]
-            if age > self.watchdog:
+    def _command(self, i: int, t: float, mono: float, v: float, w: float, until: float | None, alive: bool,
+                 advance, ct: float = -1.0) -> None:
+        """Real time: robot i's new command (v, w) valid until `until` (None: two periods from t), at time t; ct:
+        the command's own t (its poses echo it once it acts)."""
+        if until is None:
+            until = t + 2.0 * self.scn.dt
+        self._cmd_seen[i] = t  # it speaks: not one to list as silent (_publish_bodies_rt), even if this one is late
+        if until < t:
+            self.cmd_expired += 1
+            return
+        if not alive:
+            self.bad.stale += 1  # a dead robot's command, late on the network: it stays where it stopped
+            return
+        self.cmd_time[i] = mono  # the watchdog's: a command came
+        if t < self.hold_until[i]:  # listed as standing: it does not move before the listing's hold ends
+            self._deferred[i] = (v, w, until, mono, ct)
+            heapq.heappush(self._plan, (self.hold_until[i], i, self._gen[i], 0))
+            return
+        self._deferred.pop(i, None)
+        advance(i, t)
+        self._gen[i] += 1
+        self.cmd[i] = self.cmd_new[i] = (v, w)
+        self.until[i] = until
+        self.cmd_t[i] = ct
+        self.stopped[i] = False
+        self.commanded[i] = True
+        heapq.heappush(self._plan, (until, i, self._gen[i], 1))
+
+    def _follow_plans(self, t: float, advance) -> None:
+        """Real time: every change of a robot's speed due by t: a command that ran out brakes, a step of the ramp
+        every _ramp_h (to 1 - k h / RAMP_S of its speed at the k-th: never faster than a linear ramp), then the
+        robot stands; a command held by a listing is executed when the hold ends (if still valid); a robot whose
+        token went stops at once."""
+        if self._died:
+            with self.lock:
+                died, self._died = self._died, []
+            for i in died:
                 advance(i, t)
-                cmd[i] = (0.0, 0.0)
+                self._gen[i] += 1
+                self.cmd[i] = (0.0, 0.0)
                 self.stopped[i] = True
-                if self.cmd_time[i] > -math.inf:
-                    self.watchdog_stops += 1
+                self._deferred.pop(i, None)
+        plan = self._plan
+        while plan and plan[0][0] <= t + 1e-9:
+            te, i, gen, k = heapq.heappop(plan)
+            if gen != self._gen[i]:
                 continue
-            since = int(age * self.speed / period + 1e-9)  # whole control periods since the newest command came
-            f = brake_factor(since, period)
-            if f < 1.0 and self._held_from[i] != self.cmd_time[i]:
-                self._held_from[i] = self.cmd_time[i]
+            if k == 0:
+                held = self._deferred.pop(i, None)
+                if held is not None:
+                    v, w, until, mono, ct = held
+                    self._command(i, te, mono, v, w, until, i not in self._gone, advance, ct)
+                continue
+            advance(i, te)
+            f = max(0.0, 1.0 - k * self._ramp_h / RAMP_S)
+            if k == 1:
                 self.cmd_held += 1
             v, w = self.cmd_new[i]
-            if cmd[i] != (v * f, w * f):
-                advance(i, t)
-                cmd[i] = (v * f, w * f)
+            self.cmd[i] = (v * f, w * f)
+            if f > 0.0:
+                heapq.heappush(plan, (te + self._ramp_h, i, gen, k + 1))
+            else:
+                self.stopped[i] = True
+
+    def _watchdog(self, mono: float, t: float, advance) -> None:
+        """Real time, once a control period: a robot whose newest command is older than the watchdog (wall s, as a
+        drive's) is stopped (a last resort: a command runs out long before)."""
+        for i in range(self.n):
+            if self.stopped[i] or mono - self.cmd_time[i] <= self.watchdog:
+                continue
+            advance(i, t)
+            self._gen[i] += 1
+            self.cmd[i] = (0.0, 0.0)
+            self.stopped[i] = True
+            if self.cmd_time[i] > -math.inf:
+                self.watchdog_stops += 1
 
     def _publish_bodies_rt(self, t: float, seq: int) -> None:
-        """Real time under faults, each period: the robots that stand still for the schedule's or the
-        watchdog's reason (dead or hung by the schedule, their token gone, or stopped by the watchdog after
-        commanding), where they are now, as lock-step's bodies message gives them every tick. A robot that
-        never heard such a robot's last state (it was outside its cells then) knows it only from here; without
-        it, a hung robot was invisible to it, and it drove into it. Sent every period of the run, empty when
-        none stands still."""
+        """Real time, each period: the robots that stand still and that nobody may hear (docs/runtime.md, "The
+        safety invariant"): dead (token gone) or dead or hung by the schedule, or stopped after commanding (its
+        commands ran out, or the watchdog) and silent for BODIES_SILENT_S (one whose commands keep coming, late,
+        also keeps sending its states), where they are now, as lock-step's bodies message gives them. A robot
+        that never heard such a robot's state (it was outside its cells then) knows it only from here. A listed
+        robot does not move before the listing's t + BODIES_HOLD_S (the world holds its next command), so every
+        robot may take it as a static body until then. Sent every period while it lists a robot, else every
+        BODIES_EVERY_S (a gap longer than the window's t_span would jump the robots' windows on it)."""
         if not self._running:
             return
-        q, cmd_time = self.q, self.cmd_time
-        static = tuple(protocol.Body(i, float(q[i][0]), float(q[i][1]), self.scn.r, self.scn.R) for i in range(self.n)
-                       if self.rtf.away(i, t) or not self.alive[i] or (self.stopped[i] and cmd_time[i] > -math.inf))
-        # every period, empty or not: a gap of more than t_span would jump the robots' windows on it, and
-        # they would refuse the first messages of the next listing, the very ones that matter
-        self.bus.put(keys.world_bodies(self.fleet), protocol.encode(protocol.Bodies(t=t, seq=seq, bodies=static)),
-                     reliable=True)
+        q, rtf = self.q, self.rtf
+        listed = tuple(i for i in range(self.n) if i in self._gone or (rtf is not None and rtf.away(i, t)) or
+                       (self.stopped[i] and self.commanded[i] and i not in self._deferred and
+                        t - self._cmd_seen[i] >= BODIES_SILENT_S))
+        if not listed and not self._listed and t - self._listed_t < BODIES_EVERY_S:
+            return
+        for i in listed:
+            self.hold_until[i] = t + BODIES_HOLD_S
+        static = tuple(protocol.Body(i, float(q[i][0]), float(q[i][1]), self.scn.r, self.scn.R) for i in listed)
+        self._listed, self._listed_t = listed, t
+        # best effort, like the poses: the next one comes a period later, and a reliable put to a robot behind a
+        # lossy or cut link blocks the router's thread, which then closes that robot's link
+        self.bus.put(keys.world_bodies(self.fleet), protocol.encode(protocol.Bodies(t=t, seq=seq, bodies=static)))
+
+    def held_back(self) -> float | None:
+        """Real time: the share of the robots' commands their safety rule held back (slowed or stopped), the mean
+        of what each robot said last; None before any said."""
+        shares = list(self.held_by_robot.values())
+        return sum(shares) / len(shares) if shares else None
+
+    def _realtime_metrics(self) -> dict:
+        """Real time's own metrics keys (docs/metrics.md)."""
+        held = self.held_back()
+        return {"held_back": None if held is None else round(held, 4), "cmd_expired": self.cmd_expired,
+                "cmd_braked": self.cmd_held, "watchdog_stops": self.watchdog_stops}
 
     def _take_faultstats(self) -> None:
         """Real time under faults: the robots' fault counters that came (world.realtime_faults)."""
@@ -1063,14 +1176,14 @@ class World:
             if not (abs(v) <= self.limits.v_max and abs(w) <= self.limits.w_max):
                 self.bad.reject(self.fleet_ros2.cmd_keys[i], ProtocolError(f"cmd_vel ({v:g}, {w:g}) beyond the bounds"))
                 continue
-            advance(i, t)
-            self.cmd[i] = self.cmd_new[i] = (v, w)
-            self.cmd_time[i] = mono
-            self.stopped[i] = False
+            with self.lock:
+                alive = i not in self._gone
+            self._command(i, t, mono, v, w, None, alive, advance)  # a base runs a cmd_vel two periods, then brakes
 
     def _publish_clock_rt(self, epoch: float) -> None:
+        """Real time, each period: the clock (its epoch is all a robot needs of it), best effort (as the bodies)."""
         self.bus.put(keys.world_clock(self.fleet),
-                     protocol.encode(Clock(t=self.t, seq=self.k, epoch=epoch, speed=self.speed)), reliable=True)
+                     protocol.encode(Clock(t=self.t, seq=self.k, epoch=epoch, speed=self.speed)))
 
 
 

@@ -149,6 +149,10 @@ def summary(m: dict, name: str) -> str:
                        ("launcher_bad_messages", "bad messages (launcher)")):
         if m.get(key) and not (faults is not None and key == "messages_dropped"):
             rows.append((label, str(m[key])))
+    if m.get("mode") == "realtime" and (m.get("round_trip_ms_p99") is not None or m.get("held_back") is not None):
+        rows.append(("real time", realtime_text(m)))
+    for line in m.get("stranded_detail") or ():
+        rows.append(("stranded", str(line)))
     if m.get("samples_missed"):  # real time: the world fell behind its control periods
         rows.append(("world behind", f"{m['samples_missed']} control periods not sampled (of "
                                      f"{m['samples_missed'] + m.get('samples', 0)}): the machine could not keep "
@@ -168,6 +172,21 @@ def summary(m: dict, name: str) -> str:
         wall += f"  (the host took {stolen:g} % of this machine's CPU meanwhile: a slow run may be its, not swarm's)"
     rows.append(("wall time", wall))
     return table(rows, "summary")
+
+
+def realtime_text(m: dict) -> str:
+    """How a real-time run held up: the control round trip's p99 and how often the robots' safety rule held them
+    back, then the commands the world braked (they ran out) or refused (they came after their validity)."""
+    parts = []
+    p99, held = m.get("round_trip_ms_p99"), m.get("held_back")
+    if isinstance(p99, (int, float)):
+        parts.append(f"round trip p99 {p99:.0f} ms")
+    if isinstance(held, (int, float)):
+        parts.append(f"robots held back {100 * held:.1f} % of the time")
+    text = ": ".join(parts)
+    late = [f"{m[k]} {what}" for k, what in (("cmd_braked", "commands ran out (braked)"),
+                                             ("cmd_expired", "came too late")) if m.get(k)]
+    return text + (f"; {', '.join(late)}" if late else "")
 
 
 def _by_class(counts: object) -> str:
@@ -223,6 +242,9 @@ def progress_line(p) -> str:
     robots: fault_fields), converged, frozen, the smallest distance, missed commands, bad messages."""
     dist = "-" if p.min_distance < 0 else f"{p.min_distance:.3f} m"
     faults = fault_fields(getattr(p, "dropped", 0), max(0, p.robots - p.alive), getattr(p, "hung", 0))
+    held = getattr(p, "held", -1.0)
+    extra = (f"  held {100 * held:.0f}%" if held >= 0 else "") + \
+        (f"  stranded {p.stranded}" if getattr(p, "stranded", 0) else "")
     return (f"{bar(p.t / p.duration if p.duration else 1)} t {p.t:7.2f}/{p.duration:.1f} s"
             f"  alive {p.alive}/{p.robots}{faults}  converged {p.converged}  frozen {p.frozen}  min distance {dist}"
-            f"  misses {p.misses}  bad {p.bad}")
+            f"  misses {p.misses}  bad {p.bad}{extra}")

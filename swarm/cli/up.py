@@ -125,6 +125,16 @@ def cmd_up(args, started: float) -> int:
     check_out_dir("--trace", args.trace)
     check_out_dir("--record", args.record)
     args.record_hz = record_rate(args)
+    if args.mode == "realtime" and not scn.control.governor:
+        print("swarm up: warning: real time without the governor (control.governor = false): the safety rule that "
+              "keeps late commands from driving robots into each other needs it (docs/runtime.md, \"The safety "
+              "invariant\"); robots may collide when messages come late", file=sys.stderr)
+    if args.mode == "realtime" and not args.dry_run and args.drive == "sim":
+        from swarm.launch.capacity import verdict
+
+        note = verdict(scn.n, scn.dt, args.speed)
+        if note is not None:
+            print(f"swarm up: warning: {note}", file=sys.stderr)
     if args.mode == "lockstep" and args.speed != 1.0:
         log.warning("--speed %g has no effect in lock-step, which runs as fast as the robots answer; "
                     "it applies with --mode realtime", args.speed)

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 # A robot is converged while its position error is below this and its heading error below that
 # (errors against the live leader reference): the convergence of the metrics contract.
 CONVERGED_POSITION_M = 0.05
@@ -58,6 +60,44 @@ def record(scn, *, duration_s: float, converged_at_s: float | None, position_err
     }
 
 
+# A live robot is stranded when it has been more than STRANDED_M from its slot for STRANDED_S while at least
+# STRANDED_SHARE of the live robots are converged (docs/metrics.md: a failed check in real time)
+STRANDED_M = 1.0
+STRANDED_S = 10.0
+STRANDED_SHARE = 0.8
+
+
+class Strands:
+    """Which robots got stranded, sample by sample (the world's referee at every step, `swarm sim` over its
+    recorded samples): robot -> (since when it was far, its distance from its slot when last stranded)."""
+
+    def __init__(self, n: int) -> None:
+        self._far_since = np.full(n, math.nan)  # since when each robot is beyond STRANDED_M (nan: it is not)
+        self.stranded: dict[int, tuple[float, float]] = {}
+        self.now = 0  # robots stranded at the last sample
+
+    def sample(self, t: float, pe: np.ndarray, live: np.ndarray, converged: int) -> None:
+        """pe (N,): each robot's distance from its slot at t [m]; live (N,) bool; converged: live robots converged.
+        The STRANDED_S count only while the rest have converged: a straggler still on its way while the swarm
+        converges is not stranded."""
+        far = live & (pe > STRANDED_M)
+        if converged < STRANDED_SHARE * max(1, int(np.count_nonzero(live))):
+            far[:] = False
+        since = self._far_since
+        since[~far] = math.nan
+        since[far & np.isnan(since)] = t
+        self.now = 0
+        for i in np.flatnonzero(far & (t - since >= STRANDED_S - 1e-9)):
+            self.stranded[int(i)] = (float(since[i]), float(pe[i]))
+            self.now += 1
+
+    def keys(self) -> dict:
+        """The metrics' keys: `stranded` (ids) and `stranded_detail` (a line each)."""
+        return {"stranded": sorted(self.stranded),
+                "stranded_detail": [f"robot {i} stranded {d:.1f} m from its slot since t = {since:g} s"
+                                    for i, (since, d) in sorted(self.stranded.items())]}
+
+
 def in_contract_order(m: dict) -> dict:
     """m with `failure` right after `interrupted`, the contract's last two keys (docs/metrics.md), wherever it was
     added (swarm up adds it to metrics it had to rebuild from the world's last progress)."""
@@ -83,7 +123,12 @@ def violations(m: dict) -> list[str]:
     if m.get("lockstep_overruns"):
         out.append(f"{m['lockstep_overruns']} lock-step overrun{'s' if m['lockstep_overruns'] != 1 else ''}")
     if m.get("robots_lost"):
-        out.append(f"{m['robots_lost']} robot{'s' if m['robots_lost'] != 1 else ''} lost")
+        ids = m.get("lost_robots")
+        named = f" ({', '.join(map(str, ids))})" if isinstance(ids, list) and ids else ""
+        out.append(f"{m['robots_lost']} robot{'s' if m['robots_lost'] != 1 else ''} lost{named}")
+    if m.get("mode") == "realtime" and m.get("stranded"):  # (a few seeds of the paper jam in simulation too)
+        ids = ", ".join(map(str, m["stranded"]))
+        out.append(f"robot{'s' if len(m['stranded']) != 1 else ''} {ids} stranded")
     return out
 
 

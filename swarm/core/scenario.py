@@ -137,6 +137,14 @@ class Scenario:
         """Side of a neighbourhood cell [m]: the largest R plus a margin."""
         return self.reach + CELL_MARGIN
 
+    @property
+    def speed_bound(self) -> float:
+        """Real time's speed bound V [m/s] (swarm.core.safety.speed_bound): control.v_max, or twice the leader's
+        largest speed, at least 1 m/s. Every real-time robot keeps to it and assumes it of every other."""
+        from swarm.core.safety import speed_bound
+
+        return speed_bound(float(self.control.v_max or 0.0), max(abs(s.v) for s in self.leader.segments))
+
     def params(self) -> np.ndarray:
         obstacle_r = float(self.obstacles[:, 2].max()) if len(self.obstacles) else 0.0
         return self.control.vector(self.dt, self.cell_side, self.reach, obstacle_r)
@@ -152,7 +160,8 @@ class Scenario:
                       r=float(self.r), R=float(self.R), k1=c.k1, k2=c.k2, k3=c.k3, tu=c.tu, vt=c.vt,
                       threshold=THRESHOLDS[c.threshold], governor=c.governor, dt=float(self.dt),
                       sense=float(self.cell_side), reach=self.reach, lockstep=lockstep,
-                      v_max=0.0 if c.v_max is None else c.v_max, w_max=0.0 if c.w_max is None else c.w_max)
+                      v_max=0.0 if c.v_max is None else c.v_max, w_max=0.0 if c.w_max is None else c.w_max,
+                      v_bound=self.speed_bound)
 
     def replace(self, **changes) -> "Scenario":
         from dataclasses import replace

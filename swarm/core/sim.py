@@ -207,8 +207,19 @@ class Simulation:
             min_robot_distance=min_rr, min_obstacle_distance=min_ro, collisions=self.iacc[k.I_COLLISIONS],
             last_freeze_end_s=None if last_frozen < 0 else _step_time(last_frozen, scn.dt), wall_s=wall_s,
             interrupted=interrupted, mode="sim", freeze_intervals=int(self.iacc[k.I_FREEZE_INTERVALS]),
-            governed_robot_steps=int(self.iacc[k.I_GOVERNED]), steps=max(last, 0),
+            governed_robot_steps=int(self.iacc[k.I_GOVERNED]), steps=max(last, 0), **self._strands(),
             **(self.faults.metrics(_step_time(max(last, 0), scn.dt)) if self.faults is not None else {}))
+
+    def _strands(self) -> dict:
+        """The metrics' `stranded` keys over the recorded samples (docs/metrics.md; every robot counts as live)."""
+        rec = self.recording()
+        strands = metrics.Strands(self.scn.n)
+        live = np.ones(self.scn.n, bool)
+        for t, err in zip(rec.t, rec.err):
+            pe = np.hypot(err[:, 0], err[:, 1])
+            ok = (pe < metrics.CONVERGED_POSITION_M) & (np.abs(err[:, 2]) < metrics.CONVERGED_ANGLE_RAD)
+            strands.sample(float(t), pe, live, int(np.count_nonzero(ok)))
+        return strands.keys()
 
 
 def _step_time(k: int, dt: float) -> float:

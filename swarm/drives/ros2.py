@@ -33,6 +33,7 @@ import threading
 import time
 from typing import Callable
 
+from swarm.core.safety import RAMP_S
 from swarm.proto import protocol, ros2
 from swarm.proto.protocol import Cmd, Pose
 from swarm.proto.ros2 import Entity, Ros2Error
@@ -53,6 +54,9 @@ class DiscoveryError(RuntimeError):
 
 class Ros2Drive:
     name = "ros2"
+    enforces_validity = False  # a base runs its last cmd_vel on: the agent's guard halts it when a command runs out
+    ramp_s = RAMP_S  # the base must stop within this of a zero cmd_vel (docs/deploy.md; real time's safety rule)
+    switch_s = RAMP_S  # and follow a new one within this
 
     def __init__(self, bus, *, namespace: str, now: Callable[[], float | None], flavor: str = "rmw_zenoh",
                  twist: str = "plain", domain: int = 0, initial_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),

@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import threading
 
+from swarm.core.safety import RAMP_S
 from swarm.proto import keys, protocol
 from swarm.proto.protocol import Cmd, Limits, Pose, ProtocolError
 
@@ -22,6 +23,9 @@ POSE_DEPTH = 8  # poses kept until the agent takes them (the newest: older ones 
 class SimDrive:
     name = "sim"
     periodic = True  # the world puts each robot's pose once a control period: a pose that does not come was lost
+    enforces_validity = True  # the world executes a command only until its `until`, then brakes (docs/runtime.md)
+    ramp_s = RAMP_S  # along this ramp
+    switch_s = 0.0  # and takes a new command at once
     takes_callback = True  # start(on_poses): poses handed to a callback on the bus's thread instead of an inbox
 
     def __init__(self, bus, fleet: str, robot_id: int, limits: Limits | None = None) -> None:
@@ -75,20 +79,20 @@ class SimDrive:
                 self.bad.reject(key, e)
         return out
 
-    def _put(self, t: float, v: float, w: float) -> None:
-        self.bus.put(self.cmd_key, self._enc(t, self.sent, v, w), reliable=True)  # a Cmd's fields, in order
+    def _put(self, t: float, v: float, w: float, until: float | None) -> None:
+        self.bus.put(self.cmd_key, self._enc(t, self.sent, v, w, until), reliable=True)  # a Cmd's fields, in order
         self.sent += 1
         self._t = t
 
     def send(self, cmd: Cmd) -> None:
         with self._lock:
-            self._put(cmd.t, cmd.v, cmd.w)
+            self._put(cmd.t, cmd.v, cmd.w, cmd.until)
             self.halted = None
 
     def halt(self, reason: str) -> None:
         """Zero velocity now, latched until send()."""
         with self._lock:
-            self._put(self._t, 0.0, 0.0)
+            self._put(self._t, 0.0, 0.0, None)
             if self.halted != reason:
                 log.info("robot %d halted: %s", self.id, reason)
             self.halted = reason

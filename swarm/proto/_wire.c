@@ -887,25 +887,24 @@ done:
     return ok;
 }
 
-/* take_states(states, me, ahead, now, mono, windows, table, rx, away, unconfirmed, slow): real time, a batch of
- * decoded neighbour states (agents.robot.Agent._on_states). A state of another robot, not ahead of this
- * robot's clock (t <= ahead), that its sender's window takes in the common case is taken here: table[j] = s,
- * rx[j] = (its age now, mono), j neither away nor unconfirmed any more. Any other goes to slow(s, key), in
- * its turn (the windows see the states in order). Returns how many were taken here. */
+/* take_states(states, me, ahead, now, mono, windows, table, rx, away, slow): real time, a batch of decoded
+ * neighbour states (agents.robot.Agent._on_states). A state of another robot, not ahead of this robot's clock
+ * (t <= ahead), that its sender's window takes in the common case is taken here: table[j] = s, rx[j] = (its age
+ * now, mono), j not away any more. Any other goes to slow(s, key), in its turn (the windows see the states in
+ * order). Returns how many were taken here. */
 static PyObject *wire_take_states(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
-    if (nargs != 11) {
-        PyErr_SetString(PyExc_TypeError,
-                        "take_states(states, me, ahead, now, mono, windows, table, rx, away, unconfirmed, slow)");
+    if (nargs != 10) {
+        PyErr_SetString(PyExc_TypeError, "take_states(states, me, ahead, now, mono, windows, table, rx, away, slow)");
         return NULL;
     }
     PyObject *states = args[0], *me = args[1], *now = args[3], *mono = args[4], *windows = args[5];
-    PyObject *table = args[6], *rx = args[7], *away = args[8], *unconfirmed = args[9], *slow = args[10];
+    PyObject *table = args[6], *rx = args[7], *away = args[8], *slow = args[9];
     double ahead = PyFloat_AsDouble(args[2]);
     if (ahead == -1.0 && PyErr_Occurred())
         return NULL;
     if (!PyList_Check(states) || !PyDict_Check(windows) || !PyDict_Check(table) || !PyDict_Check(rx) ||
-        !PySet_Check(away) || !PyDict_Check(unconfirmed)) {
-        PyErr_SetString(PyExc_TypeError, "take_states: states a list, windows, table, rx, unconfirmed dicts, away a set");
+        !PySet_Check(away)) {
+        PyErr_SetString(PyExc_TypeError, "take_states: states a list, windows, table, rx dicts, away a set");
         return NULL;
     }
     double nowv = 0.0;
@@ -950,11 +949,6 @@ static PyObject *wire_take_states(PyObject *module, PyObject *const *args, Py_ss
                 goto fail;
             }
             Py_DECREF(pair);
-            if (PyDict_GET_SIZE(unconfirmed) > 0) {
-                int has = PyDict_Contains(unconfirmed, j);
-                if (has < 0 || (has && PyDict_DelItem(unconfirmed, j) < 0))
-                    goto fail;
-            }
             taken++;
         } else {
             PyObject *r = PyObject_CallFunctionObjArgs(slow, st, key, NULL);
@@ -1083,108 +1077,6 @@ static int append_body(PyObject **out, PyObject *nb, PyObject *kind, double age)
     if (PyList_Append(out[4], kind) < 0 || append_double(out[5], age) < 0)
         return -1;
     return 0;
-}
-
-/* live_bodies(table, dead, away, unconfirmed, rx, speed, mono, x, y, offer2, r2, stale_after, kind, expired):
- * real time, agents.robot.Agent.bodies()'s loop over its table, robots in ascending id: a dead one goes to
- * the dead list; one away is left out; one unconfirmed past its deadline becomes away (expired(j) says so);
- * one at offer2 or farther (squared) becomes away; one closer than r2 (squared) is a body with its age now
- * (rx[j] = (age when it came, mono then), growing at speed). Returns (nx, ny, nr, nR, nk, na, robots, stale,
- * oldest, dead). */
-static PyObject *wire_live_bodies(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
-    if (nargs != 14) {
-        PyErr_SetString(PyExc_TypeError, "live_bodies(table, dead, away, unconfirmed, rx, speed, mono, x, y, offer2, "
-                                         "r2, stale_after, kind, expired)");
-        return NULL;
-    }
-    PyObject *table = args[0], *dead = args[1], *away = args[2], *unconfirmed = args[3], *rx = args[4];
-    PyObject *kind = args[12], *expired = args[13];
-    double v[7];
-    if (float_args(args + 5, 7, v) < 0)
-        return NULL;
-    double speed = v[0], mono = v[1], x = v[2], y = v[3], offer2 = v[4], r2 = v[5], stale_after = v[6];
-    if (!PyDict_Check(table) || !PyAnySet_Check(dead) || !PySet_Check(away) || !PyDict_Check(unconfirmed) ||
-        !PyDict_Check(rx)) {
-        PyErr_SetString(PyExc_TypeError, "live_bodies: table, unconfirmed, rx dicts; dead, away sets");
-        return NULL;
-    }
-    PyObject *ids = NULL, *out[6] = {NULL}, *dead_near = NULL, *result = NULL;
-    if (bodies_new(table, &ids, out, &dead_near) < 0)
-        goto done;
-    Py_ssize_t robots = 0, stale = 0;
-    double oldest = 0.0;
-    for (Py_ssize_t i = 0; i < PyList_GET_SIZE(ids); i++) {
-        PyObject *j = PyList_GET_ITEM(ids, i), *nb;
-        int c = table_entry(table, dead, dead_near, j, &nb, "live_bodies");
-        if (c < 0)
-            goto done;
-        if (c)
-            continue;
-        if ((c = PySet_Contains(away, j)) < 0)
-            goto done;
-        if (c)
-            continue;
-        PyObject *until = PyDict_GetItemWithError(unconfirmed, j);
-        if (until == NULL && PyErr_Occurred())
-            goto done;
-        if (until != NULL) {
-            PyObject *due = PyFloat_FromDouble(mono);
-            int past = due == NULL ? -1 : PyObject_RichCompareBool(due, until, Py_GE);
-            Py_XDECREF(due);
-            if (past < 0)
-                goto done;
-            if (past) {
-                Py_INCREF(j);
-                int rc = PyDict_DelItem(unconfirmed, j) < 0 || PySet_Add(away, j) < 0;
-                PyObject *r = rc ? NULL : PyObject_CallOneArg(expired, j);
-                Py_DECREF(j);
-                if (r == NULL)
-                    goto done;
-                Py_DECREF(r);
-                continue;
-            }
-        }
-        double bx, by;
-        if (attr_double(nb, s_x, &bx) < 0 || attr_double(nb, s_y, &by) < 0)
-            goto done;
-        double dx = x - bx, dy = y - by;
-        if (dx * dx + dy * dy >= offer2) {
-            if (PySet_Add(away, j) < 0)
-                goto done;
-            continue;
-        }
-        double a0 = 0.0, m0 = mono;
-        PyObject *got = PyDict_GetItemWithError(rx, j);
-        if (got == NULL && PyErr_Occurred())
-            goto done;
-        if (got != NULL) {
-            if (!PyTuple_Check(got) || PyTuple_GET_SIZE(got) != 2) {
-                PyErr_SetString(PyExc_TypeError, "live_bodies: rx holds (age, mono) pairs");
-                goto done;
-            }
-            a0 = PyFloat_AsDouble(PyTuple_GET_ITEM(got, 0));
-            if (a0 == -1.0 && PyErr_Occurred())
-                goto done;
-            m0 = PyFloat_AsDouble(PyTuple_GET_ITEM(got, 1));
-            if (m0 == -1.0 && PyErr_Occurred())
-                goto done;
-        }
-        double age = a0 + (mono > m0 ? mono - m0 : 0.0) * speed;
-        int is_stale = age > stale_after;
-        if (dx * dx + dy * dy < r2) {
-            if (append_body(out, nb, kind, age) < 0)
-                goto done;
-            robots += 1;
-            stale += is_stale;
-            if (age > oldest)
-                oldest = age; /* max(oldest, age) */
-        }
-    }
-    result = Py_BuildValue("(OOOOOOnndO)", out[0], out[1], out[2], out[3], out[4], out[5], robots, stale, oldest,
-                           dead_near);
-done:
-    bodies_free(ids, out, dead_near);
-    return result;
 }
 
 /* lock_bodies(table, dead, waiting, seq, x, y, r2, kind): lock-step, agents.robot.Agent.bodies()'s loop over
@@ -1796,9 +1688,7 @@ static PyMethodDef wire_methods[] = {
     {"decode_states", (PyCFunction)(void (*)(void))wire_decode_states, METH_FASTCALL,
      "decode_states(items, dec, ids, parse, states, bad, error, limit): decode a batch of cell states"},
     {"take_states", (PyCFunction)(void (*)(void))wire_take_states, METH_FASTCALL,
-     "take_states(states, me, ahead, now, mono, windows, table, rx, away, unconfirmed, slow): take a batch of states"},
-    {"live_bodies", (PyCFunction)(void (*)(void))wire_live_bodies, METH_FASTCALL,
-     "live_bodies(table, dead, away, unconfirmed, rx, speed, mono, x, y, offer2, r2, stale_after, kind, expired)"},
+     "take_states(states, me, ahead, now, mono, windows, table, rx, away, slow): take a batch of states"},
     {"lock_bodies", (PyCFunction)(void (*)(void))wire_lock_bodies, METH_FASTCALL,
      "lock_bodies(table, dead, waiting, seq, x, y, r2, kind): lock-step bodies() over the table"},
     {"wait_for", (PyCFunction)(void (*)(void))wire_wait_for, METH_FASTCALL,

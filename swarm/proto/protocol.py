@@ -71,6 +71,9 @@ class Pose:
     x: float
     y: float
     theta: float
+    # real time, optional (None: absent): the t of the newest command the drive executes now (the command's own t,
+    # the time of the pose it answered; < 0: none yet): a robot sees how long its commands take to act
+    cmd: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -81,6 +84,10 @@ class Cmd:
     seq: int
     v: float
     w: float
+    # real time: the swarm-clock time [s] until which a drive may execute this command; then it brakes along
+    # its ramp (docs/runtime.md, "The safety invariant"). Optional on the wire: None (absent) means the
+    # drive's own rule (the period the command was meant for and one more, then the ramp).
+    until: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -96,6 +103,12 @@ class State:
     r: float
     R: float
     frozen: bool
+    # real time, optional on the wire (None: absent): what bounds this robot's motion from (x, y). stop [m]: the
+    # most it moves from there if it sends no further command (its commands' validity and the brake ramp);
+    # still [s]: a promise that it sends no command that moves it before that time (standing robots). A
+    # receiver that has neither assumes the speed bound over the state's age (docs/runtime.md).
+    stop: float | None = None
+    still: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -110,6 +123,9 @@ class Status:
     neighbours: int
     stale: int
     bad: int
+    # real time, optional: the share of this robot's commands so far that its safety rule held back (slowed or
+    # stopped below what its law asked), in [0, 1]
+    held: float | None = None
 
 
 @dataclass(frozen=True)
@@ -194,6 +210,7 @@ class Config:
     xmax: float = 0.0
     ymin: float = 0.0
     ymax: float = 0.0
+    v_bound: float = 1.0  # real time: the speed bound [m/s] every robot keeps to and assumes of every other
 
 
 @dataclass(frozen=True)
@@ -284,6 +301,8 @@ class Progress:
     last_freeze: float = -1.0  # s; < 0: no freeze yet
     dropped: int = 0  # messages dropped by scheduled faults
     hung: int = 0  # robots whose process is hung now (by the fault schedule)
+    held: float = -1.0  # real time: the share of commands the robots' safety rule held back so far; < 0: none known
+    stranded: int = 0  # live robots stranded far from their slots now (docs/metrics.md)
 
 
 EVENTS = ("kill", "restart", "hang", "resume", "partition", "partition_end", "signal")
@@ -442,25 +461,31 @@ def _fields(d: dict, names: tuple[str, ...]) -> None:
         raise ProtocolError(f"unknown field(s) {', '.join(sorted(extra))[:80]}")
 
 
+def _spec_fields(d: dict, kind: str) -> None:
+    """_fields for a flat kind: every field of its spec but its optional ones (_OPTIONAL), nothing else."""
+    optional = _OPTIONAL.get(kind, ())
+    _fields(d, tuple(n for n, _ in _SPEC[kind] if n not in optional or n in d))
+
+
 _SPEC: dict[str, tuple[tuple[str, str], ...]] = {
     "ref": (("t", "n"), ("seq", "i"), ("x", "n"), ("y", "n"), ("theta", "n"), ("vel", "n"), ("w", "n")),
-    "pose": (("t", "n"), ("seq", "i"), ("x", "n"), ("y", "n"), ("theta", "n")),
-    "cmd": (("t", "n"), ("seq", "i"), ("vel", "n"), ("w", "n")),
+    "pose": (("t", "n"), ("seq", "i"), ("x", "n"), ("y", "n"), ("theta", "n"), ("cmd", "n")),
+    "cmd": (("t", "n"), ("seq", "i"), ("vel", "n"), ("w", "n"), ("until", "n")),
     "state": (("id", "id"), ("t", "n"), ("seq", "i"), ("x", "n"), ("y", "n"), ("theta", "n"), ("r", "n"),
-              ("R", "n"), ("frozen", "b")),
+              ("R", "n"), ("frozen", "b"), ("stop", "n"), ("still", "n")),
     "status": (("t", "n"), ("ex", "n"), ("ey", "n"), ("etheta", "n"), ("frozen", "b"), ("neighbours", "i"),
-               ("stale", "i"), ("bad", "i")),
+               ("stale", "i"), ("bad", "i"), ("held", "n")),
     "clock": (("t", "n"), ("seq", "i"), ("epoch", "n"), ("speed", "n")),
     "config": (("id", "id"), ("x", "n"), ("y", "n"), ("theta", "n"), ("dx", "n"), ("dy", "n"), ("r", "n"),
                ("R", "n"), ("k1", "n"), ("k2", "n"), ("k3", "n"), ("tu", "n"), ("vt", "n"), ("threshold", "i"),
                ("governor", "b"), ("dt", "n"), ("sense", "n"), ("reach", "n"), ("lockstep", "b"), ("robots", "i"),
                ("v_max", "n"), ("w_max", "n"), ("run", "s"), ("digest", "s"), ("arena", "b"), ("xmin", "n"),
-               ("xmax", "n"), ("ymin", "n"), ("ymax", "n")),
+               ("xmax", "n"), ("ymin", "n"), ("ymax", "n"), ("v_bound", "n")),
     "progress": (("t", "n"), ("seq", "i"), ("duration", "n"), ("robots", "i"), ("alive", "i"),
                  ("converged", "i"), ("frozen", "i"), ("min_distance", "n"), ("misses", "i"), ("bad", "i"),
                  ("collisions", "i"), ("overruns", "i"), ("min_obstacle", "n"), ("position_error", "n"),
                  ("orientation_error", "n"), ("converged_at", "n"), ("last_freeze", "n"), ("dropped", "i"),
-                 ("hung", "i")),
+                 ("hung", "i"), ("held", "n"), ("stranded", "i")),
     "run": (("run", "s"), ("digest", "s"), ("robots", "i"), ("lockstep", "b"), ("scenario", "S")),
     "estop": (("t", "n"), ("seq", "i"), ("engaged", "b"), ("reason", "s")),
     "faultstats": (("t", "n"), ("seq", "i"), ("dropped_state", "i"), ("dropped_pose", "i"), ("dropped_ref", "i"),
@@ -468,6 +493,11 @@ _SPEC: dict[str, tuple[tuple[str, str], ...]] = {
                    ("frozen", "b")),
     "claim": (("id", "id"), ("claim", "s"), ("granted", "b"), ("robots", "i"), ("reason", "s")),
 }
+# Fields a sender may leave out (the real-time safety fields: docs/protocol.md); absent, the message's field is
+# None. Encoders leave out a None one; a message that has them all takes the fast paths (generated and compiled
+# decoders, which know the full layout only), one without them the general path.
+_OPTIONAL: dict[str, tuple[str, ...]] = {"pose": ("cmd",), "cmd": ("until",), "state": ("stop", "still"),
+                                         "status": ("held",)}
 # The key-space contract names both the protocol version and the linear velocity of ref and cmd
 # "v"; one map cannot hold both. "v" stays the version (a decoder needs it before the kind);
 # on the wire the linear velocity is "vel" (docs/protocol.md). In Python it is still .v.
@@ -525,7 +555,10 @@ _FAST: dict[str, object] = {}
 def _compile_encode(kind: str):
     """encode() for a flat kind as one dict display (the general loop costs 3x as much)."""
     items = ", ".join(f"{wire!r}: m.{name}" for name, wire in _WIRE_NAMES[kind])
-    src = f"def enc(m):\n    return packb({{'v': {VERSION}, 'kind': {kind!r}, {items}}}, use_bin_type=True)"
+    optional = _OPTIONAL.get(kind, ())
+    src = f"def enc(m):\n    d = {{'v': {VERSION}, 'kind': {kind!r}, {items}}}\n"
+    src += "".join(f"    if m.{_FIELD.get(n, n)} is None:\n        del d[{n!r}]\n" for n in optional)
+    src += "    return packb(d, use_bin_type=True)"
     ns = {"packb": msgpack.packb}
     exec(compile(src, f"<protocol fast encoder for {kind}>", "exec"), ns)
     order = _wire_order(kind)
@@ -630,8 +663,8 @@ def _decode_map(d: dict, kind: str | None, key_id: int | None):
         msg = _snapshot(d)
     else:
         spec = _SPEC[k]
-        _fields(d, tuple(n for n, _ in spec))
-        msg = KINDS[k](**{_FIELD.get(n, n): _READ[t](d, n) for n, t in spec})
+        _spec_fields(d, k)
+        msg = KINDS[k](**{_FIELD.get(n, n): _READ[t](d, n) for n, t in spec if n in d})
         _CHECK.get(k, lambda m: None)(msg)
     if key_id is not None and k in ("state", "config") and msg.id != key_id:
         raise ProtocolError(f"id {msg.id} in the payload does not match id {key_id} in the key")
@@ -652,7 +685,7 @@ def _nonnegative(msg, *names: str) -> None:
 
 def _check_config(c: Config) -> None:
     _radii(c.r, c.R)
-    _positive(c, "k1", "k2", "k3", "tu", "dt", "sense")
+    _positive(c, "k1", "k2", "k3", "tu", "dt", "sense", "v_bound")
     _nonnegative(c, "vt")
     if c.threshold not in (0, 1, 2):
         raise ProtocolError(f"field 'threshold' must be 0, 1 or 2, got {c.threshold}")
@@ -680,24 +713,35 @@ def _check_pose(m: Pose) -> None:
     _within(m, MAX_TIME, "t")
     _within(m, MAX_COORD, "x", "y")
     _within(m, MAX_ANGLE, "theta")
+    if getattr(m, "cmd", None) is not None:  # (a state is checked as a pose too: it has no such field)
+        _within(m, MAX_TIME, "cmd")
 
 
 def _check_cmd(m: Cmd) -> None:
     _within(m, MAX_TIME, "t")
     _within(m, MAX_SPEED, "v")
     _within(m, MAX_TURN, "w")
+    if m.until is not None:
+        _within(m, MAX_TIME, "until")
 
 
 def _check_state(m: State) -> None:
     _radii(m.r, m.R)
     _within(m, MAX_COORD, "R")
     _check_pose(m)
+    if m.stop is not None:
+        _within(m, MAX_COORD, "stop")
+        _nonnegative(m, "stop")
+    if m.still is not None:
+        _within(m, MAX_TIME, "still")
 
 
 def _check_status(m: Status) -> None:
     _within(m, MAX_TIME, "t")
     _within(m, 2 * MAX_COORD, "ex", "ey")
     _within(m, MAX_ANGLE, "etheta")
+    if m.held is not None and not 0.0 <= m.held <= 1.0:
+        raise ProtocolError(f"field 'held' must be in [0, 1], got {m.held:g}")
 
 
 def _check_clock(m: Clock) -> None:
@@ -714,7 +758,7 @@ def _check_config_bounds(c: Config) -> None:
     if c.arena and not (c.xmin < c.xmax and c.ymin < c.ymax):
         raise ProtocolError(f"an arena must have xmin < xmax and ymin < ymax, got {(c.xmin, c.xmax, c.ymin, c.ymax)}")
     _within(c, MAX_ANGLE, "theta")
-    _within(c, MAX_SPEED, "v_max")
+    _within(c, MAX_SPEED, "v_max", "v_bound")
     _within(c, MAX_TURN, "w_max")
     _nonnegative(c, "v_max", "w_max")
     if not 1 <= c.robots <= MAX_ROBOTS or c.id >= c.robots:
@@ -801,12 +845,14 @@ _SNAP_FIELDS = ("id", "x", "y", "theta", "v", "w", "stopped", "alive")
 # The kinds every robot (or the world) decodes every control period, with the physical bounds of their
 # _CHECK functions: |field| <= bound (which also says finite); a state also has 0 < r < R.
 _HOT_BOUNDS: dict[str, tuple[tuple[str, float], ...]] = {
-    "state": (("t", MAX_TIME), ("x", MAX_COORD), ("y", MAX_COORD), ("theta", MAX_ANGLE), ("R", MAX_COORD)),
-    "pose": (("t", MAX_TIME), ("x", MAX_COORD), ("y", MAX_COORD), ("theta", MAX_ANGLE)),
+    "state": (("t", MAX_TIME), ("x", MAX_COORD), ("y", MAX_COORD), ("theta", MAX_ANGLE), ("R", MAX_COORD),
+              ("stop", MAX_COORD), ("still", MAX_TIME)),
+    "pose": (("t", MAX_TIME), ("x", MAX_COORD), ("y", MAX_COORD), ("theta", MAX_ANGLE), ("cmd", MAX_TIME)),
     "ref": (("t", MAX_TIME), ("x", MAX_COORD), ("y", MAX_COORD), ("theta", MAX_ANGLE), ("v", MAX_SPEED),
             ("w", MAX_TURN)),
-    "cmd": (("t", MAX_TIME), ("v", MAX_SPEED), ("w", MAX_TURN)),
+    "cmd": (("t", MAX_TIME), ("v", MAX_SPEED), ("w", MAX_TURN), ("until", MAX_TIME)),
 }
+_ABSENT = object()  # an optional field the map leaves out (an explicit nil is a wrong type, refused)
 _HOT: dict[tuple[str, int], tuple["Limits | None", object]] = {}  # (kind, id(limits)) -> (limits, decoder)
 
 
@@ -829,19 +875,25 @@ def decoder(kind: str, limits: Limits | None = None):
 def _compile_hot(kind: str, limits: Limits | None):
     spec = _SPEC[kind]
     cls = KINDS[kind]
+    optional = _OPTIONAL.get(kind, ())
     var = {_FIELD.get(n, n): f"a{i}" for i, (n, _) in enumerate(spec)}  # python name -> local
     types = {"n": "float", "i": "int", "id": "int", "b": "bool"}
     ns: dict = {"unpackb": _unpackb, "slow": _decode_checked, "new": object.__new__, "setattr": object.__setattr__,
-                "cls": cls, "limits": limits}
-    cond = [f"type({var[_FIELD.get(n, n)]}) is {types[t]}" for n, t in spec]
+                "cls": cls, "limits": limits, "ABSENT": _ABSENT}
+
+    def may_lack(name: str, test: str) -> str:  # an optional field may be absent: its test then holds
+        return f"({var[name]} is ABSENT or {test})" if _WIRE.get(name, name) in optional else test
+
+    cond = [may_lack(_FIELD.get(n, n), f"type({var[_FIELD.get(n, n)]}) is {types[t]}") for n, t in spec]
     for n, t in spec:
         if t in ("i", "id"):
             cond.append(f"0 <= {var[_FIELD.get(n, n)]} <= {MAX_ROBOTS - 1 if t == 'id' else 2**53}")
     for i, (name, bound) in enumerate(_HOT_BOUNDS[kind]):
         ns[f"B{i}"] = bound
-        cond.append(f"-B{i} <= {var[name]} <= B{i}")
+        cond.append(may_lack(name, f"-B{i} <= {var[name]} <= B{i}"))
     if kind == "state":
         cond.append(f"0 < {var['r']} < {var['R']}")
+        cond.append(may_lack("stop", f"0.0 <= {var['stop']}"))
     if limits is not None:
         tol = 1 + 1e-9  # as Limits.check
         ns.update(ROBOTS=limits.robots, RADIUS=limits.radius * tol, VMAX=limits.v_max * tol,
@@ -855,26 +907,27 @@ def _compile_hot(kind: str, limits: Limits | None):
             cond += [f"XMIN <= {var['x']} <= XMAX", f"YMIN <= {var['y']} <= YMAX"]
     if kind == "state":
         cond.append(f"(key_id is None or {var['id']} == key_id)")
-    if "__slots__" in cls.__dict__:  # each slot through its descriptor (a frozen class refuses setattr)
-        ns.update({f"_set_{name}": cls.__dict__[name].__set__ for name in var})
-        build = ["                m = new(cls)", *[f"                _set_{name}(m, {a})" for name, a in var.items()]]
-    else:  # the dict itself, its wire names renamed, becomes the message's __dict__
-        build = ["                del d['v'], d['kind']",
-                 *[f"                d[{_FIELD[n]!r}] = d.pop({n!r})" for n, _ in spec if n in _FIELD],
-                 "                m = new(cls)",
-                 "                setattr(m, '__dict__', d)"]
+    if "__slots__" not in cls.__dict__:
+        raise TypeError(f"{cls.__name__}: a kind of every control period is a slotted dataclass")
+    ns.update({f"_set_{name}": cls.__dict__[name].__set__ for name in var})
+    build = ["                m = new(cls)", *[f"                _set_{name}(m, {a})" if _WIRE.get(name, name) not in optional
+                                                 else f"                _set_{name}(m, None if {a} is ABSENT else {a})"
+                                                 for name, a in var.items()]]
+    # the map has exactly the fields of the spec, but the optional ones it leaves out: its size says how many
+    size = f"{len(spec) + 2 - len(optional)}" + "".join(f" + ({o!r} in d)" for o in optional)
     body = ["def dec(payload, key_id=None):",
             f"    if type(payload) is bytes and len(payload) <= {MAX_PAYLOAD}:",
             "        try:",
             "            d = unpackb(payload, raw=False, strict_map_key=True)",
             "        except Exception:",
             f"            return slow(payload, {kind!r}, key_id, limits)",
-            f"        if type(d) is dict and len(d) == {len(spec) + 2} and d.get('kind') == {kind!r} and "
+            f"        if type(d) is dict and d.get('kind') == {kind!r} and len(d) == {size} and "
             f"type(d.get('v')) is int and d['v'] == {VERSION}:",
             "            try:",
-            *[f"                {var[_FIELD.get(n, n)]} = d[{n!r}]" for n, _ in spec],
+            *[f"                {var[_FIELD.get(n, n)]} = d[{n!r}]" for n, _ in spec if n not in optional],
             "            except KeyError:",
             f"                return slow(payload, {kind!r}, key_id, limits)",
+            *[f"            {var[_FIELD.get(n, n)]} = d.get({n!r}, ABSENT)" for n, _ in spec if n in optional],
             "            if " + " and ".join(cond) + ":",
             *build,
             "                return m",
@@ -898,6 +951,7 @@ def _compile_wire(kind: str, limits: Limits | None, fallback):
         rng(_WIRE.get(name, name), -bound, bound)
     if kind == "state":
         conds += [(_wire.GT0, at["r"], at["r"], 0.0, 0.0, 0), (_wire.LT, at["r"], at["R"], 0.0, 0.0, 0)]
+        rng("stop", 0.0, MAX_COORD)
     if limits is not None:
         tol = 1 + 1e-9  # as Limits.check and _compile_hot
         if kind == "state":

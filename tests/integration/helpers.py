@@ -75,6 +75,18 @@ def wait_for_ticks(cmd: list[str] | str, fleet: str, tick: int, proc: subprocess
             bus.close()
 
 
+def child_of(proc: subprocess.Popen, role: str, robot_id: int | None = None) -> psutil.Process:
+    """The `swarm <role>` child of a `swarm up` process (robot `robot_id` for role "robot")."""
+    for p in descendants(proc.pid):
+        try:
+            line = p.cmdline()
+        except psutil.NoSuchProcess:
+            continue
+        if len(line) > 3 and line[3] == role and (robot_id is None or line[line.index("--id") + 1] == str(robot_id)):
+            return p
+    raise AssertionError(f"no {role} child of swarm up")
+
+
 def descendants(pid: int) -> list[psutil.Process]:
     try:
         return psutil.Process(pid).children(recursive=True)

@@ -13,7 +13,7 @@ from pathlib import Path
 import psutil
 import pytest
 
-from tests.integration.helpers import Procs, descendants, free_port, up, wait_for_ticks, wait_until
+from tests.integration.helpers import Procs, child_of, free_port, up, wait_for_ticks, wait_until
 
 pytestmark = pytest.mark.integration
 
@@ -25,18 +25,6 @@ def procs(tmp_path):
     p = Procs(tmp_path)
     yield p
     p.stop()
-
-
-def _child(proc: subprocess.Popen, role: str, robot_id: int | None = None) -> psutil.Process:
-    """The `swarm <role>` child of a `swarm up` process."""
-    for p in descendants(proc.pid):
-        try:
-            line = p.cmdline()
-        except psutil.NoSuchProcess:
-            continue
-        if len(line) > 3 and line[3] == role and (robot_id is None or line[line.index("--id") + 1] == str(robot_id)):
-            return p
-    raise AssertionError(f"no {role} child of swarm up")
 
 
 def _world(tmp_path: Path, procs: Procs, endpoint: str, name: str, *extra: str) -> dict:
@@ -118,7 +106,7 @@ def test_misses_and_a_lost_robot_show_in_the_summary_and_exit_3(tmp_path):
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         wait_for_ticks(cmd, "t", 25, proc)
-        victim = _child(proc, "robot", 1)
+        victim = child_of(proc, "robot", 1)
         victim.send_signal(signal.SIGSTOP)  # hung: misses, then its token lapses (1 s lease)
         time.sleep(2.0)  # the fault under test is the length of the hang
         try:
@@ -142,7 +130,7 @@ def test_every_robot_killed_is_a_failure_never_converged(tmp_path):
     try:
         wait_for_ticks(cmd, "t", 25, proc)
         for i in range(3):
-            _child(proc, "robot", i).kill()
+            child_of(proc, "robot", i).kill()
         _, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
@@ -160,7 +148,7 @@ def test_a_lost_router_ends_the_run_with_a_failure(tmp_path):
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         wait_for_ticks(cmd, "t", 25, proc)
-        _child(proc, "router").kill()
+        child_of(proc, "router").kill()
         _, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
@@ -177,7 +165,7 @@ def test_a_lost_world_keeps_the_run_up_to_its_last_tick(tmp_path):
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         wait_for_ticks(cmd, "t", 100, proc)
-        _child(proc, "world").kill()
+        child_of(proc, "world").kill()
         _, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
@@ -198,7 +186,7 @@ def test_a_lost_leader_ends_the_run_with_a_failure(tmp_path, mode):
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         wait_for_ticks(cmd, "t", 25, proc)
-        _child(proc, "leader").kill()
+        child_of(proc, "leader").kill()
         _, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
@@ -214,7 +202,7 @@ def test_a_killed_leader_is_restarted_and_lockstep_goes_on(tmp_path):
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         wait_for_ticks(cmd, "t", 25, proc)
-        _child(proc, "leader").kill()
+        child_of(proc, "leader").kill()
         _, err = proc.communicate(timeout=180)
     finally:
         if proc.poll() is None:

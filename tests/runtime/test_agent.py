@@ -10,7 +10,7 @@ import pytest
 
 from agents import robot
 from swarm.proto import keys, protocol
-from swarm.core import law
+from swarm.core import law, safety
 from swarm.net.bus import MemoryBus, MemoryNet
 from swarm.proto.protocol import Clock, Config, Pose, Ref, State
 
@@ -221,6 +221,12 @@ def test_bad_messages_are_dropped_counted_and_never_reach_the_law():
     assert w.statuses[-1].bad == 5 or w.agent.bad.count == 5
 
 
+def _capped(v, om, V):
+    """(v, w) scaled together to the speed bound V (the real-time rule keeps the law's path)."""
+    f = min(1.0, V / abs(v)) if v else 1.0
+    return v * f, om * f
+
+
 def test_real_time_tick_uses_the_newest_data_and_advances_the_reference():
     cfg = Config(**{**CFG.__dict__, "lockstep": False})
     w = Wire(cfg)
@@ -232,27 +238,88 @@ def test_real_time_tick_uses_the_newest_data_and_advances_the_reference():
         assert (w.cmds[-1].v, w.cmds[-1].w) == (0.0, 0.0)
     w.put(keys.robot_pose(F, cfg.id), Pose(t=1.0, seq=50, x=-1.0, y=0.0, theta=0.0))
     assert w.agent.tick_realtime(1.1)
-    # the leader moved 0.05 m along its heading since its last message; the governor's horizon is two
-    # periods (its own and the world's hold of a missing next one) plus the pose's age (0.1 s)
-    v, om = law_command((-1.0, 0.0, 0.0), (0.05, 0.0, 0.0, 0.5, 0.0), 1.1, [], cfg=cfg, horizon=2 * 0.02 + 0.1)
+    # the leader moved 0.05 m along its heading since its last message; the law runs as in lock-step (its
+    # governor's horizon the period), then within the speed bound (nothing near holds it back)
+    v, om = _capped(*law_command((-1.0, 0.0, 0.0), (0.05, 0.0, 0.0, 0.5, 0.0), 1.1, [], cfg=cfg), cfg.v_bound)
     assert w.cmds[-1].v == pytest.approx(v, abs=1e-15) and w.cmds[-1].w == pytest.approx(om, abs=1e-15)
-    assert w.agent.horizon_s == pytest.approx(0.14)
+    assert w.agent.horizon_s == cfg.dt
+    # the command is valid from now for at least three periods, and the state says how far it can take the robot
+    assert 1.1 + 3 * cfg.dt <= w.cmds[-1].until <= 1.1 + safety.VALIDITY_MAX_S
+    plan = safety.Plan(1.0, 1.1, w.cmds[-1].until, 0.0, 1.0)
+    assert w.states[-1].stop == pytest.approx(plan.reach(abs(v))) and w.states[-1].still == 0.0
+    assert w.cmds[-1].t == 1.0  # the time of the pose it answers
 
 
-def test_real_time_governor_horizon_counts_the_own_pose_and_is_capped():
-    """The horizon is two periods plus the own pose's age (capped); neighbour states' ages go to the law
-    body by body (tests/runtime/test_realtime_faults.py), not into the horizon."""
+def test_a_real_time_robot_blocked_by_a_neighbour_stands_turns_in_place_and_promises_to_stand():
+    """A neighbour 0.9 m ahead whose state is 0.5 s old may be anywhere within V x (that age plus this robot's
+    reservation): no forward motion is safe, so the robot stands (turning in place as the law asks), says so in
+    its state (`still`, a time ahead) and keeps to it: its next command moves it no more, whatever the law wants,
+    until that time."""
+    from swarm.core.clock import FakeClock
+
     cfg = Config(**{**CFG.__dict__, "lockstep": False})
+    clock = FakeClock()
     w = Wire(cfg)
+    w.agent.close()
+    w.agent = robot.Agent(MemoryBus(w.net), cfg, F, clock=clock)
+    w.agent.start([])
     w.agent._first_pose_t = 0.0  # past the listening start
-    w.put(keys.leader_ref(F), Ref(t=2.0, seq=100, x=0.0, y=0.0, theta=0.0, v=0.5, w=0.0))
-    w.put(keys.cell(F, 0, 0, 8), State(id=8, t=1.7, seq=85, x=0.5, y=0.2, theta=0.0, r=0.3, R=1.2, frozen=False))
+    w.agent.epoch, w.agent.speed = clock.time() - 2.0, 1.0  # the swarm's clock reads 2.0 now
+    w.put(keys.leader_ref(F), Ref(t=2.0, seq=100, x=5.0, y=0.5, theta=0.0, v=0.5, w=0.0))
+    w.put(keys.cell(F, 0, 0, 8), State(id=8, t=1.5, seq=75, x=0.9, y=0.02, theta=0.0, r=0.3, R=1.2, frozen=False))
     w.put(keys.robot_pose(F, cfg.id), Pose(t=2.0, seq=100, x=0.0, y=0.0, theta=0.0))
-    assert w.agent.tick_realtime(2.05)
-    assert w.agent.horizon_s == pytest.approx(2 * 0.02 + 0.05)  # two periods + own pose's age
-    w.put(keys.robot_pose(F, cfg.id), Pose(t=2.02, seq=101, x=0.0, y=0.0, theta=0.0))
-    assert w.agent.tick_realtime(2.6)  # pose 0.58 s old: capped
-    assert w.agent.horizon_s == pytest.approx(2 * 0.02 + robot.HORIZON_CAP_S)
+    w.agent._take_inboxes()
+    assert w.agent.tick_realtime(2.0)
+    law_v, law_w = law_command((0.0, 0.0, 0.0), (5.0, 0.5, 0.0, 0.5, 0.0), 2.0,
+                               [(0.9, 0.02, 0.3, 1.2, law.KIND_ROBOT)], cfg=cfg)
+    assert law_v > 0  # the law drives it at the neighbour
+    assert w.cmds[-1].v == 0.0 and w.cmds[-1].w != 0.0  # stands, turns in place
+    still = w.states[-1].still
+    assert still > 2.0 and w.agent.held == 1
+    clock.advance(0.02)
+    w.put(keys.robot_pose(F, cfg.id), Pose(t=2.02, seq=101, x=0.0, y=0.0, theta=0.3))
+    w.put(keys.cell(F, 0, 0, 8), State(id=8, t=2.02, seq=101, x=3.0, y=3.0, theta=0.0, r=0.3, R=1.2, frozen=False))
+    assert w.agent.tick_realtime(2.02)  # the neighbour is gone, but the promise holds
+    assert w.cmds[-1].v == 0.0 and w.states[-1].still == still
+    clock.advance(still - 2.02 + 0.01)
+    w.put(keys.robot_pose(F, cfg.id), Pose(t=still + 0.01, seq=102, x=0.0, y=0.0, theta=0.3))
+    assert w.agent.tick_realtime(still + 0.01)
+    assert w.cmds[-1].v > 0.0 and w.states[-1].still == 0.0  # past its promise, free to go
+    w.agent.close()
+
+
+def test_a_neighbour_not_heard_that_could_have_left_is_away_but_one_that_could_not_is_kept():
+    """The knowledge rule: a robot near this one is heard every period, so a neighbour not heard for the
+    information delay plus FORGET_PERIODS periods that could have left its cells since (the speed bound over its
+    state's age reaches beyond the cell side) is away until a newer state comes; one deep inside that could not
+    have left yet is kept (lost messages, not a departure), and so is one a partition of the run cuts off."""
+    from swarm.core.clock import FakeClock
+    from swarm.core.faults import Partition
+
+    cfg = Config(**{**CFG.__dict__, "lockstep": False, "v_bound": 1.0})
+    for partition in (False, True):
+        clock = FakeClock()
+        parts = (Partition(groups=((cfg.id,), (7, 8)), start=0.0, end=100.0),) if partition else ()
+        agent = robot.Agent(MemoryBus(MemoryNet()), cfg, F, clock=clock, partitions=parts)
+        agent.start([])
+        agent.epoch, agent.speed = clock.time(), 1.0
+        for j, x in ((7, 1.3), (8, 0.4)):  # 7 near the cell side, 8 deep inside
+            agent.table[j] = State(id=j, t=0.0, seq=1, x=x, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False)
+            agent.rx[j] = (0.0, clock.monotonic())
+
+        def robots_used(t):
+            with agent.lock:
+                return sorted(x for x, k in zip(*[agent._rt_bodies(0.0, 0.0, t, t + 0.2)[i] for i in (0, 4)])
+                              if k == law.KIND_ROBOT)
+
+        assert robots_used(0.0) == [0.4, 1.3]
+        forget = agent._info_delay() + robot.FORGET_PERIODS * cfg.dt
+        clock.advance(forget + 0.01)
+        t = forget + 0.01
+        assert robots_used(t) == ([0.4, 1.3] if partition else [0.4])  # 7 could have left (0.2 m to the side)
+        clock.advance(1.2)  # by now 8 could have left too
+        assert robots_used(t + 1.2) == ([0.4, 1.3] if partition else [])
+        agent.close()
 
 
 def test_agent_module_imports_nothing_of_the_world_nor_numpy():
@@ -286,46 +353,6 @@ def test_an_engaged_emergency_stop_is_always_obeyed_and_a_release_only_when_newe
     assert w2.agent.estopped is None
 
 
-def test_a_robot_whose_token_came_back_and_sent_no_state_for_a_second_is_away():
-    """Real time: after one of two robots was cut off, the other's old state says nothing of where it is
-    now (it may have moved on while this one stood halted). Kept forever, it froze a cut robot for the
-    rest of a run (docs/faults.md, Cutting a network). If no state of it comes within CONFIRM_AFTER_S of
-    its token's return it is away (left out until a newer state comes); a state in time keeps it."""
-    from swarm.core.clock import FakeClock
-
-    cfg = Config(**{**CFG.__dict__, "lockstep": False})
-    for sends_in_time in (False, True):
-        clock = FakeClock()
-        net = MemoryNet()
-        agent = robot.Agent(MemoryBus(net), cfg, F, clock=clock)
-        agent.start([])
-        probe = MemoryBus(net)
-        key = keys.cell(F, *keys.cell_of(0.6, 0.0, cfg.sense), 8)
-
-        def state(seq):
-            probe.put(key, protocol.encode(State(id=8, t=0.02 * seq, seq=seq, x=0.6, y=0.0, theta=0.0, r=0.3,
-                                                 R=1.2, frozen=False)))
-            agent._take_inboxes()
-
-        def robots_near():
-            return agent.bodies(0.0, 0.0, None, 0.0)[6]  # the number of robots used
-
-        token = probe.token(keys.alive(F, "robot", 8))
-        state(1)
-        assert robots_near() == 1
-        token.close()  # lost: a static body where it was
-        token = probe.token(keys.alive(F, "robot", 8))  # back
-        clock.advance(0.5)
-        if sends_in_time:
-            state(2)
-        assert robots_near() == 1
-        clock.advance(robot.CONFIRM_AFTER_S)
-        assert robots_near() == (1 if sends_in_time else 0)
-        state(3)  # a newer state brings it back in any case
-        assert robots_near() == 1
-        agent.close()
-
-
 @pytest.mark.skipif(protocol._wire is None, reason="the compiled codec is not built here (no C compiler)")
 def test_the_compiled_state_batch_takes_what_the_python_one_takes():
     """Real time: a batch of neighbour states with every case the sender windows and the agent tell apart
@@ -351,7 +378,7 @@ def test_the_compiled_state_batch_takes_what_the_python_one_takes():
         agent = robot.Agent(MemoryBus(MemoryNet()), cfg, F, clock=clock)
         agent.start([])
         agent.epoch, agent.speed = clock.time() - 100.0, 1.0  # the run began 100 s ago: states are 100 s old
-        agent.unconfirmed[5] = clock.monotonic() + 1.0
+        agent.away.add(5)  # a newer state takes it back
         saved, protocol._wire = protocol._wire, wire
         try:
             with agent.lock:
@@ -361,59 +388,13 @@ def test_the_compiled_state_batch_takes_what_the_python_one_takes():
         finally:
             protocol._wire = saved
         windows = {j: (w.t, w.seq, w._cand, w._run) for j, w in agent.w_state.items()}
-        results.append((dict(agent.table), dict(agent.rx), set(agent.away), dict(agent.unconfirmed), windows,
+        results.append((dict(agent.table), dict(agent.rx), set(agent.away), windows,
                         agent.states_received, agent.bad.count, agent.bad.stale, agent.bad.duplicates))
         agent.close()
     assert results[0] == results[1]
-    table, _, _, unconfirmed, _, received, bad, stale, duplicates = results[0]
+    table, _, away, _, received, bad, stale, duplicates = results[0]
     assert table[4].seq == 4 and table[5].seq == 6 and 7 in table and 3 not in table and 6 not in table
-    assert unconfirmed == {} and received > 0 and bad > 0 and stale > 0 and duplicates > 0
-
-
-@pytest.mark.skipif(protocol._wire is None, reason="the compiled codec is not built here (no C compiler)")
-@pytest.mark.parametrize("seed", range(20))
-def test_the_compiled_bodies_are_the_python_ones(seed):
-    """Real time: bodies() over a table of live, dead, away and unconfirmed robots (some past their deadline),
-    near and far, fresh and stale, with obstacles: the same bodies in the same order, the same ages and counts,
-    and the same robots left away, whether the compiled loop (swarm/proto/_wire.c, live_bodies) or Python runs."""
-    import random
-
-    from swarm.core.clock import FakeClock
-
-    rng = random.Random(seed)
-    cfg = Config(**{**CFG.__dict__, "lockstep": False})
-    results = []
-    for wire in (protocol._wire, None):
-        rng.seed(seed)
-        clock = FakeClock()
-        agent = robot.Agent(MemoryBus(MemoryNet()), cfg, F, clock=clock)
-        agent.start([protocol.Obstacle(rng.uniform(-2, 2), rng.uniform(-2, 2), 0.3, 1.0) for _ in range(3)])
-        agent.speed = rng.choice([1.0, 2.0])
-        mono = clock.monotonic()
-        for j in rng.sample(range(16), 12):
-            if j == cfg.id:
-                continue
-            agent.table[j] = State(id=j, t=1.0, seq=50, x=rng.uniform(-3, 3), y=rng.uniform(-3, 3), theta=0.0, r=0.3,
-                                   R=rng.choice([1.0, 1.2]), frozen=False)
-            if rng.random() < 0.8:
-                agent.rx[j] = (rng.choice([0.0, 0.3, 0.6]), mono - rng.uniform(0.0, 0.5))
-            u = rng.random()
-            if u < 0.15:
-                agent.dead.add(j)
-                agent.dead_age[j] = 0.4
-            elif u < 0.25:
-                agent.away.add(j)
-            elif u < 0.45:
-                agent.unconfirmed[j] = mono + rng.choice([-0.1, 0.0, 0.5])
-        saved, protocol._wire = protocol._wire, wire
-        try:
-            with agent.lock:
-                got = agent.bodies(rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), None, 1.0)
-        finally:
-            protocol._wire = saved
-        results.append((got, set(agent.away), dict(agent.unconfirmed), agent.oldest_state_s))
-        agent.close()
-    assert results[0] == results[1]
+    assert away == set() and received > 0 and bad > 0 and stale > 0 and duplicates > 0
 
 
 def _both_ways(seed: int, fill, act) -> list:
@@ -631,39 +612,47 @@ def test_the_lockstep_sink_reads_zenoh_samples_and_counts_its_own_errors():
         sink()
 
 
-@pytest.mark.parametrize("compiled", [True, False])
-def test_a_real_time_robot_takes_the_still_robots_the_world_lists_as_bodies(compiled):
-    """Real time under faults: robot 5, hung where this robot never heard it (not in its table), is a static
-    body from the world's bodies message (compiled bodies or Python alike); a message older than the last one
-    is refused by its window and changes nothing; an empty one takes it away."""
+def test_a_real_time_robot_takes_the_still_robots_the_world_lists_as_bodies():
+    """Real time: robot 5, standing where this robot never heard it (not in its table), is a static body from the
+    world's bodies message, for the law and for the safety rule (static until the listing's t + BODIES_HOLD_S);
+    a message older than the last one is refused by its window and changes nothing; an empty one takes it away;
+    a list that stopped coming is dropped past its time to live. A dead robot the world lists is where the world
+    has it, not where its last state put it."""
     from swarm.core.clock import FakeClock
     from swarm.proto.protocol import Bodies, Body
 
-    if compiled and protocol._wire is None:
-        pytest.skip("the compiled codec is not built here (no C compiler)")
     cfg = Config(**{**CFG.__dict__, "lockstep": False})
     agent = robot.Agent(MemoryBus(MemoryNet()), cfg, F, clock=FakeClock())
     agent.start([])
-    saved, protocol._wire = protocol._wire, (protocol._wire if compiled else None)
-    try:
-        key = keys.world_bodies(F)
-        with agent.lock:
-            assert agent.bodies(0.0, 0.0, None, 1.0)[0] == []
-            agent._on_bodies(Bodies(t=1.0, seq=50, bodies=(Body(5, 0.8, 0.1, 0.3, 1.2), Body(cfg.id, 0.0, 0.0, 0.3, 1.2),
-                                                            Body(6, 40.0, 0.0, 0.3, 1.2))), key)
-            nx, ny, nr, nR, nk, na, robots, stale = agent.bodies(0.0, 0.0, None, 1.0)
-            # robot 5 as a static body; not itself; not robot 6, out of this robot's cells
-            assert (nx, ny, nr, nR, nk) == ([0.8], [0.1], [0.3], [1.2], [law.KIND_OBSTACLE]) and robots == 0
-            agent._on_bodies(Bodies(t=0.98, seq=49, bodies=()), key)  # older: refused, nothing changes
-            assert agent.bodies(0.0, 0.0, None, 1.0)[0] == [0.8] and agent.bad.stale == 1
-            agent._on_bodies(Bodies(t=1.02, seq=51, bodies=()), key)  # none still any more
-            assert agent.bodies(0.0, 0.0, None, 1.0)[0] == []
-            # a list that stopped coming (the world sends one every period) is dropped past its time to live
-            agent._on_bodies(Bodies(t=1.04, seq=52, bodies=(Body(5, 0.8, 0.1, 0.3, 1.2),)), key)
-            agent.epoch, agent.speed = agent.clock.time() - 1.04, 1.0  # now: t = 1.04 on the swarm's clock
-            assert agent.bodies(0.0, 0.0, None, 1.04)[0] == [0.8]
-            agent.clock.advance(robot.RT_BODIES_TTL_S + 0.1)
-            assert agent.bodies(0.0, 0.0, None, 2.2)[0] == [] and agent.rt_static == []
-    finally:
-        protocol._wire = saved
-        agent.close()
+    agent.epoch, agent.speed = agent.clock.time() - 1.0, 1.0  # now: t = 1.0 on the swarm's clock
+    key = keys.world_bodies(F)
+
+    def bodies(t):
+        nx, ny, nr, nR, nk, na, robots, stale, safe, _delay = agent._rt_bodies(0.0, 0.0, t, t + 0.1)
+        return (nx, ny, nr, nR, nk), robots, safe
+
+    with agent.lock:
+        assert bodies(1.0)[0][0] == []
+        agent._on_bodies(Bodies(t=1.0, seq=50, bodies=(Body(5, 0.8, 0.1, 0.3, 1.2), Body(cfg.id, 0.0, 0.0, 0.3, 1.2),
+                                                        Body(6, 40.0, 0.0, 0.3, 1.2))), key)
+        (nx, ny, nr, nR, nk), robots, safe = bodies(1.0)
+        # robot 5 as a static body; not itself; not robot 6, out of this robot's cells (the rule has it, far)
+        assert (nx, ny, nr, nR, nk) == ([0.8], [0.1], [0.3], [1.2], [law.KIND_OBSTACLE]) and robots == 0
+        assert (0.8, 0.1, 0.3, 0.0) in safe and (40.0, 0.0, 0.3, 0.0) in safe
+        agent._on_bodies(Bodies(t=0.98, seq=49, bodies=()), key)  # older: refused, nothing changes
+        assert bodies(1.0)[0][0] == [0.8] and agent.bad.stale == 1
+        agent._on_bodies(Bodies(t=1.02, seq=51, bodies=()), key)  # none still any more
+        assert bodies(1.02)[0][0] == []
+        # a dead robot: its last state 0.2 m from where the world stopped it; the world's place wins
+        agent.table[5] = State(id=5, t=0.9, seq=45, x=0.6, y=0.1, theta=0.0, r=0.3, R=1.2, frozen=False, stop=0.3,
+                               still=0.0)
+        agent.dead.add(5)
+        assert bodies(1.02)[0][0] == [0.6] and bodies(1.02)[2] == [(0.6, 0.1, 0.3, 0.3 + cfg.v_bound * safety.CLOCK_SKEW_S)]
+        agent._on_bodies(Bodies(t=1.04, seq=52, bodies=(Body(5, 0.8, 0.1, 0.3, 1.2),)), key)
+        assert bodies(1.04)[0][0] == [0.8] and [b[0] for b in bodies(1.04)[2]] == [0.8]
+        # listed long enough ago that it may move again: the rule lets it grow
+        agent.clock.advance(safety.BODIES_HOLD_S)
+        assert bodies(1.04 + safety.BODIES_HOLD_S)[2][0][3] > 0.0
+        agent.clock.advance(robot.RT_BODIES_TTL_S)  # a list that stopped coming is dropped
+        assert bodies(2.5)[0][0] == [0.6] and agent.rt_static == {}
+    agent.close()

@@ -206,10 +206,14 @@ def test_under_faults_the_real_time_world_says_where_the_still_robots_are(write_
 
 
 def test_the_real_time_bodies_message_lists_the_still_robots_then_clears_once(write_scenario):
-    """World._publish_bodies_rt: nothing before the run; then one message every period, empty while every
-    robot runs (a gap longer than t_span would jump the robots' windows, and they would refuse the next
-    listing's first messages); a watchdog-stopped robot that had commanded is listed (one that never
-    commanded is not: it has not started)."""
+    """World._publish_bodies_rt: nothing before the run; then one message every period while it lists a robot,
+    and one every BODIES_EVERY_S while it lists none (a gap longer than t_span would jump the robots' windows, and
+    they would refuse the next listing's first messages); a robot stopped after commanding (its commands ran
+    out, or the watchdog) is listed, and does not move before the listing's t + BODIES_HOLD_S; one that never
+    commanded is not (it has not started); a robot whose token went is listed."""
+    from swarm.core.safety import BODIES_HOLD_S
+    from world.world import BODIES_EVERY_S
+
     d = doc()
     d["faults"] = {"drop": [{"class": "state", "p": 0.1}]}
     scn = scenario_file.load(write_scenario(d))
@@ -224,13 +228,21 @@ def test_the_real_time_bodies_message_lists_the_still_robots_then_clears_once(wr
         world._publish_bodies_rt(0.0, 0)  # before the run: nothing
         world._running = True
         world._publish_bodies_rt(0.02, 1)  # every robot runs: nothing
-        world.stopped[0], world.cmd_time[0] = True, 12.5  # robot 0 stopped by the watchdog after commanding
+        world.stopped[0], world.commanded[0] = True, True  # robot 0 stopped after commanding
+        world._cmd_seen[0] = 0.03  # and a command came lately: not yet
+        world._publish_bodies_rt(0.04, 1)
+        world._cmd_seen[0] = -1.0  # silent for long enough
         world._publish_bodies_rt(0.04, 2)
         world._publish_bodies_rt(0.06, 3)
+        assert world.hold_until[0] == pytest.approx(0.06 + BODIES_HOLD_S)
         world.stopped[0] = False  # it commands again
-        world._publish_bodies_rt(0.08, 4)
-        world._publish_bodies_rt(0.10, 5)
+        world._publish_bodies_rt(0.08, 4)  # the clearing
+        world._publish_bodies_rt(0.10, 5)  # nothing listed, nothing new: not yet
+        world._publish_bodies_rt(0.08 + BODIES_EVERY_S, 6)  # the heartbeat
+        world._gone.add(1)  # robot 1's token went
+        world._publish_bodies_rt(0.3, 7)
     finally:
         probe.close()
         world.close()
-    assert [(b.seq, [s.id for s in b.bodies]) for b in got] == [(1, []), (2, [0]), (3, [0]), (4, []), (5, [])]
+    assert [(b.seq, [s.id for s in b.bodies]) for b in got] == [(1, []), (2, [0]), (3, [0]), (4, []), (6, []),
+                                                               (7, [1])]
