@@ -242,6 +242,7 @@ class Agent:
         self.V = cfg.v_bound  # the speed bound it keeps to and assumes of every other robot
         self.ramp = getattr(drive, "ramp_s", safety.RAMP_S)  # its drive brakes from a command's until along this
         self.switch = getattr(drive, "switch_s", 0.0)  # and takes a new command within this
+        self.base_timeout = getattr(drive, "base_timeout_s", None)  # a base acts on a command that long (None: unknown)
         self._pending: deque = deque()  # (|v|, |w|, until) of the commands sent that may still act
         # the high but typical lag of its poses, of its commands (from computing one to its drive executing it)
         # and of its neighbours' states when they come [s]: the commands' validity (swarm.core.safety.validity)
@@ -1001,8 +1002,7 @@ class Agent:
         from this robot now. A robot whose token is gone stands where its last state put it, within the `stop`
         it announced (the world stops it at once and lists it); the robots the world lists stand still until the
         listing's t + BODIES_HOLD_S. Returns the law's lists nx, ny, nr, nR, nk, na, the numbers of robots and
-        stale robots it uses, the safety rule's list, and the information delay [s] (the oldest a state came
-        with, recently, plus GAP_PERIODS periods)."""
+        stale robots it uses, the safety rule's list, and the information delay [s] (_info_delay)."""
         r2 = self.side * self.side
         mono = self.clock.monotonic()
         speed, V, eps = self.speed, self.V, safety.CLOCK_SKEW_S
@@ -1072,8 +1072,9 @@ class Agent:
             for sx, sy, sr, _sR in listed.values():
                 safe.append((sx, sy, sr if sr > self._r else self._r, m))
         self.oldest_state_s = oldest
-        if heard:
-            self._news.add(news / heard)
+        # nobody heard lately: its own poses' lag says how late a robot coming near would be heard (an old figure
+        # kept forever would slow a robot alone for good)
+        self._news.add(news / heard if heard else self._lag.value)
         return nx, ny, nr, nR, nk, na, robots, stale, safe, self._info_delay()
 
     def _listed_now(self) -> dict:
@@ -1152,6 +1153,8 @@ class Agent:
         self._lag.add(lag)
         until = t + safety.validity(dt, self._lag.value, self._act.value)
         self._sent_at.append((pose_t, t))
+        # should this process die, a base with its own timeout acts on the command that long: its reach counts it
+        reserve = until if self.base_timeout is None else max(until, t + self.base_timeout)
         eps, ramp = safety.CLOCK_SKEW_S, self.ramp
         vp = wp = 0.0
         ep = -math.inf
@@ -1166,7 +1169,7 @@ class Agent:
             if u > ep:
                 ep = u
         ep = max(ep + eps + ramp / 2.0, pose_t)  # (-inf without one: the pose's time)
-        plan = safety.Plan(pose_t, t, until, vp, ep, wp, ramp, self.switch, eps)
+        plan = safety.Plan(pose_t, t, reserve, vp, ep, wp, ramp, self.switch, eps)
         nx, ny, nr, nR, nk, na, robots, stale, safe, delay = self._rt_bodies(x, y, t, plan.end)
         self.neighbours, self.stale = robots, stale
         self.stale_total += stale
@@ -1184,7 +1187,7 @@ class Agent:
         self._rt_until = until
         self._rt_stop = plan.reach(abs(v))
         self._rt_still = self._still_until if self._still_until > t else 0.0
-        pend.append((abs(v), abs(w), until))
+        pend.append((abs(v), abs(w), reserve))
         return v, w
 
     def _safe(self, t: float, x: float, y: float, th: float, v: float, w: float, plan, safe, delay: float

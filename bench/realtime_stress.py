@@ -43,7 +43,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from tests.integration import netns  # noqa: E402
-from tests.integration.helpers import child_of, free_port, wait_for_ticks  # noqa: E402
+from tests.integration.helpers import child_of, cpu_hogs, free_port, wait_for_ticks  # noqa: E402
 
 SWARM = [sys.executable, "-m", "swarm.cli"]
 CELLS = ("base", "n37", "speed2", "hog1", "hog2", "delay01", "delay1", "loss10", "kill3", "cut")
@@ -141,23 +141,19 @@ def run_cell(cell: str, args) -> tuple[dict, int]:
         extra = ["--restarts", "0"]
     cmd = [*SWARM, "up", *common, *extra, "--listen", f"tcp/127.0.0.1:{free_port()}", "--fleet", "stress",
            "--metrics", str(metrics), "--log-dir", str(tmp / "logs"), "--no-viz", "--quiet"]
-    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"], start_new_session=True)
-            for _ in range({"hog1": 1, "hog2": 2}.get(cell, 0))]
     pre = _quota_prefix(args.quota)
-    proc = subprocess.Popen(pre + cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    try:
-        if cell == "kill3":
-            wait_for_ticks(cmd, "stress", int(EVENT_AT_S / 0.02), proc, timeout_s=300)
-            for i in KILLED:
-                child_of(proc, "robot", i).kill()
-        rc = proc.wait(timeout=args.duration / speed + 300)
-    finally:
-        for h in hogs:
-            os.killpg(h.pid, signal.SIGKILL)
-            h.wait(10)
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(10)
+    with cpu_hogs({"hog1": 1, "hog2": 2}.get(cell, 0)):
+        proc = subprocess.Popen(pre + cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        try:
+            if cell == "kill3":
+                wait_for_ticks(cmd, "stress", int(EVENT_AT_S / 0.02), proc, timeout_s=300)
+                for i in KILLED:
+                    child_of(proc, "robot", i).kill()
+            rc = proc.wait(timeout=args.duration / speed + 300)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(10)
     return (json.loads(metrics.read_text()) if metrics.exists() else {"failure": "no metrics"}), rc
 
 

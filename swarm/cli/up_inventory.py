@@ -157,7 +157,7 @@ def _ros2_available(flag: str) -> None:
 def _row_drive(entry: inventory.RobotEntry):
     """make_drive for an inventory row (its ROS 2 topics), anchored at the start the world gives."""
     _ros2_available(f"the inventory's {entry.key}.drive = {entry.drive!r}")
-    return _drive_factory(entry.namespace, entry.flavor, entry.twist, entry.domain, None)
+    return _drive_factory(entry.namespace, entry.flavor, entry.twist, entry.domain, None, entry.cmd_timeout)
 
 
 def _flag_drive(args):
@@ -165,7 +165,7 @@ def _flag_drive(args):
     return _drive_factory(args.namespace, args.ros_flavor, args.twist, args.domain, args.initial_pose)
 
 
-def _drive_factory(namespace: str | None, flavor: str, twist: str, domain: int, pose):
+def _drive_factory(namespace: str | None, flavor: str, twist: str, domain: int, pose, cmd_timeout=None):
     def factory(bus):
         def make(cfg, now):
             from agents.robot import DriveRefused
@@ -175,7 +175,8 @@ def _drive_factory(namespace: str | None, flavor: str, twist: str, domain: int, 
                 raise DriveRefused("a ROS 2 robot runs in real time only (odometry carries no tick): the run is "
                                    "lock-step; start the world with --mode realtime (or --referee-only)")
             return Ros2Drive(bus, namespace=f"robot{cfg.id}" if namespace is None else namespace, now=now,
-                             flavor=flavor, twist=twist, domain=domain, initial_pose=pose or (cfg.x, cfg.y, cfg.theta))
+                             flavor=flavor, twist=twist, domain=domain, initial_pose=pose or (cfg.x, cfg.y, cfg.theta),
+                             base_timeout_s=cmd_timeout)
 
         return make
 

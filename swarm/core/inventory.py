@@ -20,6 +20,8 @@ The file:
     initial_pose = [-1.0, -2.5, 0.0]       # where it stands, x [m], y [m], theta [rad] (default: the scenario's start)
     v_max = 0.2                            # [m/s], may only tighten the scenario's control.v_max
     w_max = 2.0                            # [rad/s], may only tighten control.w_max
+    cmd_timeout = 0.5                      # [s] the base's own: how long it executes a cmd_vel with no newer one
+                                           # (twist_mux, a velocity smoother); real time's safety rule counts it
 
 Precedence: a flag beats the inventory, which beats the scenario. The scenario gives the starts and
 the limits; the inventory may move a start (`initial_pose`, where the robot really stands) and
@@ -51,7 +53,8 @@ DRIVES = ("ros2",)
 FLAVORS = ("rmw_zenoh", "bridge")
 TWISTS = ("plain", "stamped")
 PREFLIGHT_SHARE = 0.8  # a leader segment may use this share of a robot's speed limits
-ROBOT_KEYS = ("id", "drive", "flavor", "namespace", "domain", "twist", "connect", "initial_pose", "v_max", "w_max")
+ROBOT_KEYS = ("id", "drive", "flavor", "namespace", "domain", "twist", "connect", "initial_pose", "v_max", "w_max",
+              "cmd_timeout")
 _FLEET = re.compile(r"^[A-Za-z0-9_\-]{1,64}$")  # swarm.proto.keys' fleet names
 _ENDPOINT = re.compile(r"^(tcp|tls|udp|quic|ws|unixsock-stream)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+):([0-9]{1,5})$")
 
@@ -75,6 +78,7 @@ class RobotEntry:
     initial_pose: tuple[float, float, float] | None = None
     v_max: float | None = None  # m/s
     w_max: float | None = None  # rad/s
+    cmd_timeout: float | None = None  # s: the base's own cmd_vel timeout (None: not known)
 
 
 @dataclass(frozen=True)
@@ -215,7 +219,11 @@ def _robot(rd: _Reader, row: dict, key: str) -> RobotEntry:
             rd.number(pose[c], f"{key}.initial_pose[{c}]", bound=MAX_COORD)
     v_max = rd.number(row["v_max"], f"{key}.v_max", gt=0) if "v_max" in row else None
     w_max = rd.number(row["w_max"], f"{key}.w_max", gt=0) if "w_max" in row else None
-    return RobotEntry(i, key, drive, flavor, namespace, domain, twist, connect, pose, v_max, w_max)
+    timeout = rd.number(row["cmd_timeout"], f"{key}.cmd_timeout", gt=0) if "cmd_timeout" in row else None
+    if timeout is not None and timeout > 60.0:
+        raise rd.fail(f"{key}.cmd_timeout", f"must be at most 60 s (a base that keeps a command longer is not "
+                                            f"stopped by anything swarm can do), got {timeout:g}")
+    return RobotEntry(i, key, drive, flavor, namespace, domain, twist, connect, pose, v_max, w_max, timeout)
 
 
 # --------------------------------------------------------------------------- applying to a scenario

@@ -61,9 +61,13 @@ class Ros2Drive:
     def __init__(self, bus, *, namespace: str, now: Callable[[], float | None], flavor: str = "rmw_zenoh",
                  twist: str = "plain", domain: int = 0, initial_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
                  discover_timeout_s: float = DISCOVER_TIMEOUT_S, odom_depth: int = ODOM_DEPTH,
-                 wall_ns: Callable[[], int] = time.time_ns, announce: bool = True) -> None:
+                 wall_ns: Callable[[], int] = time.time_ns, announce: bool = True,
+                 base_timeout_s: float | None = None) -> None:
         """now(): the swarm's clock [s] (None until it is known: poses are not reported before);
-        wall_ns(): the wall clock [ns since the epoch] for TwistStamped headers and attachments."""
+        wall_ns(): the wall clock [ns since the epoch] for TwistStamped headers and attachments;
+        base_timeout_s: how long the robot's base executes a cmd_vel with no newer one (the inventory's
+        cmd_timeout; None: not known): should the agent die, its last command acts that long, and real time's
+        safety rule counts it in the robot's reach."""
         self.bus, self.now, self.wall_ns = bus, now, wall_ns
         self.namespace = ros2.check_namespace(namespace)
         self.flavor = ros2.check_flavor(flavor)
@@ -78,6 +82,7 @@ class Ros2Drive:
         self.discover_timeout_s = discover_timeout_s
         self.odom_depth = odom_depth
         self.announce = announce
+        self.base_timeout_s = base_timeout_s
         self.cmd_topic = ros2.topic_name(self.namespace, ros2.CMD_VEL)
         self.odom_topic = ros2.topic_name(self.namespace, ros2.ODOM)
         ros2.typestore()  # fail now, naming the extra, if rosbags is missing

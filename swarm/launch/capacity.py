@@ -18,12 +18,14 @@ import math
 import os
 import time
 
-# What a whole real-time swarm costs a robot-period, over the step measured here: on the 2-core development machine
-# (step 32 us) `swarm up --robots 19 --mode realtime --duration 30` took 1.0-1.6 ms of CPU a robot-period (all its
-# processes: the robot's own 0.6-0.9 ms, zenoh's threads and wake-ups in it, the world, the router, the leader)
-PROCESS_FACTOR = 30.0  # a robot process's CPU a period over the step
-SHARED_FACTOR = 10.0  # the world's, the router's and the leader's CPU a robot-period, over the step
-HEADROOM = 0.7  # the share of the cores a real-time swarm may take and still hold its period
+# What a whole real-time swarm costs a robot-period, over the step measured here. On the 2-core development machine
+# (a step of 32 us) `swarm up --robots 19 --mode realtime --duration 30` took 1.0-1.6 ms of CPU a robot-period at
+# speed 1 (all its processes: the robot's own, zenoh's threads and wake-ups in it, the world, the router, the
+# leader) and less at speed 2 (more work a wake-up); 1 850-1 900 robot-periods a second (37 robots at speed 1, 19
+# at speed 2) held the period in bench/realtime_stress.py (round trip p99 13-49 ms), 3 700 (37 at speed 2) did not
+PROCESS_FACTOR = 20.0  # a robot process's CPU a period over the step
+SHARED_FACTOR = 5.0  # the world's, the router's and the leader's CPU a robot-period, over the step
+HEADROOM = 0.8  # the share of the cores a real-time swarm may take and still hold its period
 BODIES = 8  # neighbours and obstacles a robot has near in a formation
 
 

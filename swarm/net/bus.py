@@ -303,6 +303,11 @@ def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen:
     # router included, until the link is closed: zenoh's default is 5 s, for each such peer in turn, and the
     # whole swarm stalls meanwhile; a peer that cannot take data for a lease is gone anyway (docs/runtime.md)
     conf.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close", str(int(lease_ms) * 1000))
+    # a session that dropped (its lease missed on a lossy link, a cut that ended) comes back in about a second, not
+    # in zenoh's 10 s handshake timeout and 1-4 s retry period (docs/faults.md, Cutting a network)
+    conf.insert_json5("transport/unicast/open_timeout", "2000")
+    conf.insert_json5("connect/retry", json.dumps({"period_init_ms": 250, "period_max_ms": 1000,
+                                                   "period_increase_factor": 2}))
     # small batches: lock-step traffic is many ~100-byte messages (+8-30 % ticks/s, docs/runtime.md)
     conf.insert_json5("transport/link/tx/batch_size", "4096")
     conf.insert_json5("transport/link/rx/buffer_size", "4096")

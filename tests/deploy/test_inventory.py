@@ -32,7 +32,7 @@ def test_defaults_and_a_full_row(tmp_path):
     doc = rows(7)
     doc["robot"][3] = {"id": 3, "drive": "ros2", "flavor": "bridge", "namespace": "/tb3_3/", "domain": 7,
                        "twist": "stamped", "connect": "tcp/192.168.1.23:7447", "initial_pose": [1.0, -2.0, 0.5],
-                       "v_max": 0.2, "w_max": 2.0}
+                       "v_max": 0.2, "w_max": 2.0, "cmd_timeout": 0.5}
     inv = inventory.load(write(tmp_path, doc))
     assert inv.fleet == "lab" and [e.id for e in inv.robots] == list(range(7))
     e0 = inv.entry(0)
@@ -41,6 +41,7 @@ def test_defaults_and_a_full_row(tmp_path):
     e3 = inv.entry(3)
     assert (e3.flavor, e3.namespace, e3.domain, e3.twist, e3.connect, e3.initial_pose, e3.v_max, e3.w_max) == \
         ("bridge", "tb3_3", 7, "stamped", "tcp/192.168.1.23:7447", (1.0, -2.0, 0.5), 0.2, 2.0)
+    assert e3.cmd_timeout == 0.5 and e0.cmd_timeout is None
     assert inv.endpoints == ("tcp/192.168.1.23:7447",)
     with pytest.raises(InventoryError, match="has no robot 9"):
         inv.entry(9)
@@ -66,6 +67,8 @@ def test_defaults_and_a_full_row(tmp_path):
     (lambda d: d["robot"][1].update(initial_pose=[1.0, math.nan, 0.0]), "robot[1].initial_pose[1]", "finite"),
     (lambda d: d["robot"][1].update(v_max=0.0), "robot[1].v_max", "must be > 0"),
     (lambda d: d["robot"][1].update(w_max=True), "robot[1].w_max", "must be a number"),
+    (lambda d: d["robot"][1].update(cmd_timeout=0), "robot[1].cmd_timeout", "must be > 0"),
+    (lambda d: d["robot"][1].update(cmd_timeout=90), "robot[1].cmd_timeout", "at most 60 s"),
 ])
 def test_every_refusal_names_the_file_the_key_and_the_reason(tmp_path, edit, key, reason):
     doc = rows(3)

@@ -3,6 +3,9 @@ the world's progress, killing what a test started by PID."""
 
 from __future__ import annotations
 
+import contextlib
+import os
+import signal
 import socket
 import subprocess
 import sys
@@ -73,6 +76,19 @@ def wait_for_ticks(cmd: list[str] | str, fleet: str, tick: int, proc: subprocess
     finally:
         if bus is not None:
             bus.close()
+
+
+@contextlib.contextmanager
+def cpu_hogs(n: int):
+    """n busy Python processes (a core's worth of demand each, at the caller's priority) for the `with` block;
+    killed by their process groups on the way out, whatever happened."""
+    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"], start_new_session=True) for _ in range(n)]
+    try:
+        yield hogs
+    finally:
+        for h in hogs:
+            os.killpg(h.pid, signal.SIGKILL)
+            h.wait(10)
 
 
 def child_of(proc: subprocess.Popen, role: str, robot_id: int | None = None) -> psutil.Process:

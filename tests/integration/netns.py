@@ -57,21 +57,26 @@ def firewall() -> str | None:
     return None
 
 
-def cut(ns: str, ifname: str, tool: str, on: bool) -> None:
-    """Drop everything in and out of `ifname` in namespace `ns` (on), or remove the rule (off)."""
+def _rules(ns: str, table: str, match: str, tool: str, on: bool, iptables: tuple[str, ...]) -> None:
+    """Drop what `match` selects (an nft match) on a link of namespace `ns`, in and out, in nft table `table`
+    (on), or remove it (off); without nft, the iptables rule `iptables` (its match and target), per direction."""
     if tool == "nft":
         if on:
-            rules = (f"table inet swcut {{\n chain i {{ type filter hook input priority 0; policy accept; "
-                     f'iifname "{ifname}" drop; }}\n chain o {{ type filter hook output priority 0; policy accept; '
-                     f'oifname "{ifname}" drop; }}\n}}\n')
-            subprocess.run(["ip", "netns", "exec", ns, "nft", "-f", "-"], input=rules.encode(), check=True,
-                           capture_output=True, timeout=30)
+            rules = "".join(f" chain {c} {{ type filter hook {hook} priority 0; policy accept; {match.format(io=io)} "
+                            f"drop; }}\n" for c, hook, io in (("i", "input", "iif"), ("o", "output", "oif")))
+            subprocess.run(["ip", "netns", "exec", ns, "nft", "-f", "-"], input=f"table inet {table} {{\n{rules}}}\n".encode(),
+                           check=True, capture_output=True, timeout=30)
         else:
-            sh("ip", "netns", "exec", ns, "nft", "delete", "table", "inet", "swcut")
+            sh("ip", "netns", "exec", ns, "nft", "delete", "table", "inet", table)
         return
     op = "-A" if on else "-D"
-    sh("ip", "netns", "exec", ns, "iptables", op, "INPUT", "-i", ifname, "-j", "DROP")
-    sh("ip", "netns", "exec", ns, "iptables", op, "OUTPUT", "-o", ifname, "-j", "DROP")
+    for chain, flag in (("INPUT", "-i"), ("OUTPUT", "-o")):
+        sh("ip", "netns", "exec", ns, "iptables", op, chain, flag, *iptables)
+
+
+def cut(ns: str, ifname: str, tool: str, on: bool) -> None:
+    """Drop everything in and out of `ifname` in namespace `ns` (on), or remove the rule (off)."""
+    _rules(ns, "swcut", f'{{io}}name "{ifname}"', tool, on, (ifname, "-j", "DROP"))
 
 
 def ns_pids(ns: str) -> list[int]:
@@ -83,21 +88,8 @@ def lossy(ns: str, ifname: str, tool: str, p: float, on: bool) -> None:
     """Lose each packet in and out of `ifname` in namespace `ns` with probability p, independently (on), or
     remove the rule (off). zenoh runs on TCP here: a lost segment is sent again, so loss becomes delay (a
     retransmission waits 200 ms at least), as on a lossy Wi-Fi link."""
-    if tool == "nft":
-        if on:
-            pct = int(round(100 * p))
-            rules = (f"table inet swloss {{\n chain i {{ type filter hook input priority 0; policy accept; "
-                     f'iifname "{ifname}" numgen random mod 100 < {pct} drop; }}\n chain o {{ type filter hook output '
-                     f'priority 0; policy accept; oifname "{ifname}" numgen random mod 100 < {pct} drop; }}\n}}\n')
-            subprocess.run(["ip", "netns", "exec", ns, "nft", "-f", "-"], input=rules.encode(), check=True,
-                           capture_output=True, timeout=30)
-        else:
-            sh("ip", "netns", "exec", ns, "nft", "delete", "table", "inet", "swloss")
-        return
-    op = "-A" if on else "-D"
-    for chain, flag in (("INPUT", "-i"), ("OUTPUT", "-o")):
-        sh("ip", "netns", "exec", ns, "iptables", op, chain, flag, ifname, "-m", "statistic", "--mode", "random",
-           "--probability", f"{p:g}", "-j", "DROP")
+    _rules(ns, "swloss", f'{{io}}name "{ifname}" numgen random mod 100 < {int(round(100 * p))}', tool, on,
+           (ifname, "-m", "statistic", "--mode", "random", "--probability", f"{p:g}", "-j", "DROP"))
 
 
 @contextlib.contextmanager

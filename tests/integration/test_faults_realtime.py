@@ -1,9 +1,9 @@
-"""Faults for real in `swarm up --mode realtime` (docs/faults.md, Lock-step and real time under faults):
-30 % of every message lost by each receiver's fault bus, and robot 2's process really killed (SIGKILL) at
-5 s. Every surviving robot hears that robot 2's liveliness token is gone within 1 s of the kill the
-supervisor logged, nobody collides, and the survivors converge. The issue's command ran 40 s and converged at
-28-38 s; on a host that took a third of the CPU (steal), and with the run capped at 1.3 cores, a robot that
-fell behind still trailed its slot by 0.6-1.4 m at 40 s (4 runs), so the run is 60 s. Bounded: `swarm up` runs under a timeout and stops every process it started."""
+"""Faults for real in `swarm up --mode realtime` (docs/faults.md, Lock-step and real time under faults): 30 % of
+every message lost by each receiver's fault bus, and robot 2's process really killed (SIGKILL) at 5 s by the
+schedule: every surviving robot hears that robot 2's liveliness token is gone within 1 s of the kill the
+supervisor logged, and the world counts it as the schedule's, not a lost robot. (That the survivors of
+kills, scheduled or not, converge under 30 % loss: tests/integration/test_safe_realtime.py.) Bounded: `swarm
+up` runs under a timeout and stops every process it started."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from tests.integration.helpers import up
 pytestmark = pytest.mark.integration
 
 N = 7
-DURATION = 60  # simulated s: 30 wall s at speed 2 (see the module's docstring)
+DURATION = 12  # simulated s: 6 wall s at speed 2
 KILLED = 2
 LOST = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d),(\d{3}) swarm\.robot WARNING: robot (\d+): robot (\d+) lost "
                   r"\(its liveliness token is gone\)$", re.M)
@@ -31,7 +31,7 @@ def log_time(stamp: str, ms: str) -> float:
     return time.mktime(time.strptime(stamp, "%Y-%m-%d %H:%M:%S")) + int(ms) / 1000.0
 
 
-def test_realtime_drop_and_a_real_kill_survivors_see_it_within_a_second_and_converge(tmp_path):
+def test_realtime_drop_and_a_scheduled_kill_the_survivors_see_within_a_second(tmp_path):
     cmd, metrics = up(tmp_path, "--mode", "realtime", "--robots", str(N), "--duration", str(DURATION), "--speed", "2",
                       "--drop", "0.3", "--kill", f"{KILLED}@5", "--quiet")
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
@@ -56,8 +56,8 @@ def test_realtime_drop_and_a_real_kill_survivors_see_it_within_a_second_and_conv
         assert seen, f"robot {i} never logged robot {KILLED} lost"
         assert abs(seen[0] - killed_at) <= 1.0, (i, seen[0] - killed_at)
 
-    # no collision, the survivors converged, and the faults were really there
-    assert m["mode"] == "realtime" and m["collisions"] == 0 and m["converged_at_s"] is not None
+    # no collision, and the faults were really there
+    assert m["mode"] == "realtime" and m["collisions"] == 0
     assert m["robots_alive_at_end"] == N - 1 and m["robots_lost"] == 0  # a scheduled kill is no loss
     f = m["faults"]
     assert f["killed"] == 1 and f["restarted"] == 0 and m["robot_restarts"] == 0

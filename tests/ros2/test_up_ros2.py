@@ -16,7 +16,7 @@ import pytest
 
 from swarm.net.bus import ZenohBus, zenoh_config
 from swarm.proto import keys, ros2
-from tests.integration.helpers import descendants, free_port, up, wait_for_ticks, wait_until
+from tests.integration.helpers import child_of, descendants, up, wait_for_ticks, wait_until
 
 pytestmark = pytest.mark.integration
 CLI = [sys.executable, "-m", "swarm.cli"]
@@ -64,19 +64,6 @@ def _bus(endpoint: str) -> ZenohBus:
             return None
 
     return wait_until(connect, 30, f"a router at {endpoint}", every_s=0.1)
-
-
-def _child(proc, role: str, robot_id: int | None = None) -> psutil.Process:
-    for p in descendants(proc.pid):
-        try:
-            line = p.cmdline()
-        except psutil.NoSuchProcess:
-            continue
-        if len(line) > 3 and line[3] == role and (robot_id is None or line[line.index("--id") + 1] == str(robot_id)):
-            return p
-    raise AssertionError(f"no {role} child")
-
-
 
 
 def test_five_ros2_robots_converge_on_rmw_zenoh(tmp_path):
@@ -136,7 +123,7 @@ def test_watchdog_estop_and_ctrl_c_put_zero_velocity_on_cmd_vel(tmp_path):
         wait_until(lambda: all(listener.moving(i) > n_before[i] for i in range(3)), 10, "moving again after release")
 
         # the pose stream stops (the world hangs): each robot's guard halts it within 0.5 s
-        world = _child(proc, "world")
+        world = child_of(proc, "world")
         world.send_signal(signal.SIGSTOP)
         t0 = time.monotonic()
         try:
@@ -148,7 +135,7 @@ def test_watchdog_estop_and_ctrl_c_put_zero_velocity_on_cmd_vel(tmp_path):
         wait_until(lambda: all(listener.moving(i) > n_before[i] + 5 for i in range(3)), 10, "moving again after resume")
 
         # Ctrl-C on a robot: zero velocity before it exits
-        victim = _child(proc, "robot", 1)
+        victim = child_of(proc, "robot", 1)
         t0 = time.monotonic()
         victim.send_signal(signal.SIGINT)
         victim.wait(10)
@@ -156,7 +143,7 @@ def test_watchdog_estop_and_ctrl_c_put_zero_velocity_on_cmd_vel(tmp_path):
 
         # the leader lost: the others stop at once
         t0 = time.monotonic()
-        _child(proc, "leader").kill()
+        child_of(proc, "leader").kill()
         wait_until(lambda: all(listener.first_zero_after(i, t0) is not None for i in (0, 2)), 5, "zero after leader lost")
         for i in (0, 2):
             assert listener.first_zero_after(i, t0) - t0 < 0.5

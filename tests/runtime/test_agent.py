@@ -250,6 +250,33 @@ def test_real_time_tick_uses_the_newest_data_and_advances_the_reference():
     assert w.cmds[-1].t == 1.0  # the time of the pose it answers
 
 
+def test_a_base_that_keeps_a_command_longer_than_its_validity_makes_the_robot_s_reach_longer():
+    """A ROS 2 base with its own cmd_vel timeout (the inventory's cmd_timeout) executes the last command that long
+    should the agent die: the robot's reach (its state's `stop`) counts it, its command keeps its validity, and it
+    goes no faster (a longer reservation asks more room of robots it has not heard)."""
+    from swarm.drives.sim import SimDrive
+
+    class SlowBase(SimDrive):
+        base_timeout_s = 0.5
+
+    cfg = Config(**{**CFG.__dict__, "lockstep": False})
+    reach = {}
+    for drive_cls in (SimDrive, SlowBase):
+        w = Wire(cfg)
+        w.agent.close()
+        w.agent = robot.Agent(MemoryBus(w.net), cfg, F, drive=drive_cls(MemoryBus(w.net), F, cfg.id))
+        w.agent.start([])
+        w.agent._first_pose_t = 0.0
+        w.put(keys.leader_ref(F), Ref(t=1.0, seq=50, x=0.0, y=0.0, theta=0.0, v=0.5, w=0.0))
+        w.put(keys.robot_pose(F, cfg.id), Pose(t=1.0, seq=50, x=-1.0, y=0.0, theta=0.0))
+        assert w.agent.tick_realtime(1.0)
+        reach[drive_cls.__name__] = (w.states[-1].stop, w.agent.last_cmd.v, w.agent.last_cmd.until)
+        w.agent.close()
+    (stop0, v0, until0), (stop1, v1, until1) = reach["SimDrive"], reach["SlowBase"]
+    assert v0 >= v1 > 0.0 and until0 == until1 < 1.5
+    assert stop1 >= v1 * 0.5 > stop0
+
+
 def test_a_real_time_robot_blocked_by_a_neighbour_stands_turns_in_place_and_promises_to_stand():
     """A neighbour 0.9 m ahead whose state is 0.5 s old may be anywhere within V x (that age plus this robot's
     reservation): no forward motion is safe, so the robot stands (turning in place as the law asks), says so in

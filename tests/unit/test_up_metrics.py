@@ -52,3 +52,22 @@ def test_the_summary_says_when_the_host_took_the_machines_cpu():
         text = summary({**m, "host_steal_pct": pct}, "paper-50hz")
         assert ("the host took 31.9 % of this machine's CPU" in text) == said, text
         assert "406 s" in text
+
+
+def test_the_summary_names_the_lost_and_stranded_robots_and_how_real_time_held_up():
+    """The failed checks name the robots lost and stranded (stranded fails only a real-time run), and a real-time
+    run's summary says how it held up under its load: the round trip's p99, the share of commands the safety rule
+    held back, the commands that ran out or came too late."""
+    from swarm.cli.console import exit_status, summary
+    from swarm.core.metrics import violations
+
+    scn = scenario_file.load("paper-50hz", scenario_file.Overrides(robots=7), progress=scenario_file.silent)
+    m = {**metrics_from_progress(scn, "realtime", None), "wall_s": 30.0, "interrupted": False,
+         "round_trip_ms_p99": 41.2, "held_back": 0.027, "cmd_braked": 250, "cmd_expired": 12, "robots_lost": 3,
+         "lost_robots": [1, 3, 5], "stranded": [0], "stranded_detail": ["robot 0 stranded 21.8 m from its slot since t = 43 s"]}
+    text = summary(m, "paper-50hz")
+    assert "round trip p99 41 ms: robots held back 2.7 % of the time; 250 commands ran out (braked), 12 came too late" \
+        in text
+    assert "robot 0 stranded 21.8 m from its slot since t = 43 s" in text
+    assert violations(m) == ["3 robots lost (1, 3, 5)", "robot 0 stranded"] and exit_status(m) == 3
+    assert violations({**m, "mode": "lockstep"}) == ["3 robots lost (1, 3, 5)"]  # (the paper jams a few seeds too)
