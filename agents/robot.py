@@ -195,9 +195,10 @@ class Agent:
         if self.drive is not None and getattr(self.drive, "limits", False) is None:
             self.drive.limits = self.limits  # the simulated drive decodes poses with the scenario's bounds
         self._spans = window.spans(cfg.dt, WATCHDOG_S)
-        self.w_pose = window.Window(*self._spans)  # the world (or localization)
+        self._tick = cfg.dt if cfg.lockstep else 0.0  # lock-step: a pose's, reference's, state's t is seq x dt
+        self.w_pose = window.Window(*self._spans, dt=self._tick)  # the world (or localization)
         self.w_clock = window.Window(*self._spans)  # the world
-        self.w_ref = window.Window(*self._spans)  # the leader
+        self.w_ref = window.Window(*self._spans, dt=self._tick)  # the leader
         self.w_bodies = window.Window(*self._spans)  # the world (real time under faults)
         self.w_state: dict[int, window.Window] = {}  # robot j
         self.ended = False  # the run this agent serves is over (a new run began): ignore everything
@@ -816,7 +817,7 @@ class Agent:
             return
         w = self.w_state.get(s.id)
         if w is None:
-            w = self.w_state[s.id] = window.Window(math.inf, 2**62)  # forward only (see above)
+            w = self.w_state[s.id] = window.Window(math.inf, 2**62, dt=self._tick)  # forward only (see above)
         v = w.check(s.t, s.seq)
         if v != window.OK and not self.bad.verdict(key, v, f"robot {s.id}'s t or seq"):
             return

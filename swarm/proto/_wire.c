@@ -841,7 +841,7 @@ static PyObject *wire_decode_states(PyObject *module, PyObject *const *args, Py_
 
 /* ------------------------------------------------------------------------------------------- states */
 
-static PyObject *s_id, *s_t, *s_seq, *s_seq_span, *s_t_span, *s_cand, *s_run;
+static PyObject *s_id, *s_t, *s_seq, *s_seq_span, *s_t_span, *s_cand, *s_run, *s_dt;
 
 /* 1: robot j's state (tt, a float, and seq) is in its window's common case (swarm.proto.window.Window.check's
  * first test), and the window took it (its t the same object, as the Python's); 0: it is not (nothing changed:
@@ -874,6 +874,15 @@ static int window_take(PyObject *w, PyObject *tt, PyObject *seq) {
     }
     if (!(a < q && q <= a + b && t0v <= t && t <= t0v + PyFloat_AS_DOUBLE(tspan)))
         goto done;
+    PyObject *dt = PyObject_GetAttr(w, s_dt); /* lock-step: t must be q x dt (Window.dt; 0: not tied) */
+    if (dt == NULL) {
+        ok = -1;
+        goto done;
+    }
+    double dtv = PyFloat_Check(dt) ? PyFloat_AS_DOUBLE(dt) : -1.0;
+    Py_DECREF(dt);
+    if (dtv < 0.0 || (dtv > 0.0 && !(fabs(t - (double)q * dtv) <= 1e-6))) /* window.TICK_EPS */
+        goto done; /* the full check decides (and refuses) */
     PyObject *zero = PyLong_FromLong(0);
     ok = -1;
     if (zero != NULL && PyObject_SetAttr(w, s_t, tt) == 0 && PyObject_SetAttr(w, s_seq, seq) == 0 &&
@@ -1717,6 +1726,7 @@ PyMODINIT_FUNC PyInit__wire(void) {
         (s_seq_span = PyUnicode_InternFromString("seq_span")) == NULL ||
         (s_t_span = PyUnicode_InternFromString("t_span")) == NULL ||
         (s_cand = PyUnicode_InternFromString("_cand")) == NULL || (s_run = PyUnicode_InternFromString("_run")) == NULL ||
+        (s_dt = PyUnicode_InternFromString("dt")) == NULL ||
         (s_x = PyUnicode_InternFromString("x")) == NULL || (s_y = PyUnicode_InternFromString("y")) == NULL ||
         (s_r = PyUnicode_InternFromString("r")) == NULL || (s_R = PyUnicode_InternFromString("R")) == NULL ||
         (s_ended = PyUnicode_InternFromString("ended")) == NULL ||

@@ -1084,6 +1084,8 @@ class BadMessages:
             self.stale += 1
         elif verdict == "duplicate":
             self.duplicates += 1
+        elif verdict == "forged":
+            self.reject(key, ProtocolError(f"{what or 'seq or t'}: lock-step, and t is not seq x dt (its tick's time)"))
         else:
             self.reject(key, ProtocolError(f"{what or 'seq or t'} jumps beyond the sender's window"))
         return False

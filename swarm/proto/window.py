@@ -3,6 +3,7 @@
     w = Window(t_span=2.0, seq_span=101)
     w.check(t, seq)      # -> OK, DUPLICATE, STALE or JUMP; only OK moves the window forward
     w.reset()            # the sender's liveliness token is new, or a new run started
+    Window(t_span, seq_span, dt=0.02)   # lock-step: t must also be seq's tick time, seq x dt (else FORGED)
 
 A message from a sender is adopted only if it moves forward from what the receiver has from that
 sender, and not too far: seq in (last, last + seq_span] and t in [last_t, last_t + t_span]. One
@@ -11,6 +12,10 @@ old). The first message after a reset anchors the window. A refused jump is coun
 older message as stale, the same (t, seq) again as a duplicate; none of them is adopted, so a
 lock-step barrier never advances on a refused message. The spans: t_span = max(2 s, 2 x the
 watchdog), seq_span = the number of control periods in t_span (docs/protocol.md).
+
+In lock-step a message's t is its tick's time, seq x dt: a window made with the tick dt refuses any other
+(FORGED, counted as bad, never adopted, never a candidate to re-anchor the window). A forged state with the
+next seq and t = 1e8 would otherwise be adopted, and every true state after it refused as older.
 """
 
 from __future__ import annotations
@@ -21,6 +26,9 @@ OK = "ok"
 DUPLICATE = "duplicate"
 STALE = "stale"
 JUMP = "jump"
+FORGED = "forged"
+
+TICK_EPS = 1e-6  # s: how far a lock-step message's t may be from seq x dt (roundings of k x dt)
 
 
 def spans(dt: float, watchdog: float) -> tuple[float, int]:
@@ -35,10 +43,11 @@ CONFIRM = 3  # jumped messages in a row, each in the window of the one before, t
 class Window:
     """One sender's forward window (not thread-safe: the caller holds its lock)."""
 
-    __slots__ = ("t_span", "seq_span", "t", "seq", "_cand", "_run")
+    __slots__ = ("t_span", "seq_span", "dt", "t", "seq", "_cand", "_run")
 
-    def __init__(self, t_span: float, seq_span: int) -> None:
+    def __init__(self, t_span: float, seq_span: int, dt: float = 0.0) -> None:
         self.t_span, self.seq_span = t_span, seq_span
+        self.dt = float(dt)  # lock-step: the tick; 0: t and seq are not tied
         self.t: float | None = None
         self.seq = -1
         self._cand: tuple[float, int] | None = None  # the last refused jump
@@ -58,12 +67,15 @@ class Window:
 
     def peek(self, t: float, seq: int) -> str:
         """What check() would say about a message, without adopting it."""
+        if self.dt and not abs(t - seq * self.dt) <= TICK_EPS:
+            return FORGED
         return OK if self.t is None else self._verdict(t, seq, self.t, self.seq)
 
     def check(self, t: float, seq: int) -> str:
         """Adopt (t, seq) if it is in the window (OK), else say why not."""
         t0 = self.t
-        if t0 is not None and self.seq < seq <= self.seq + self.seq_span and t0 <= t <= t0 + self.t_span:
+        if t0 is not None and self.seq < seq <= self.seq + self.seq_span and t0 <= t <= t0 + self.t_span and \
+                (not self.dt or abs(t - seq * self.dt) <= TICK_EPS):
             self.t, self.seq, self._cand, self._run = t, seq, None, 0  # the common case: _verdict's OK
             return OK
         v = self.peek(t, seq)

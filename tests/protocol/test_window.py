@@ -49,3 +49,20 @@ def test_reset_starts_afresh():
     w.check(50.0, 2500)
     w.reset()
     assert w.check(0.0, 0) == OK  # a restarted sender counts from 0 again
+
+
+def test_a_lockstep_window_refuses_a_t_that_is_not_its_seqs_tick_and_never_follows_it():
+    """With the tick dt (lock-step), t must be seq x dt within TICK_EPS: anything else is FORGED, first message
+    or not, however often repeated (never a candidate to re-anchor), and the true messages go on."""
+    from swarm.proto.window import FORGED, TICK_EPS
+    w = Window(2.0, 101, dt=0.02)
+    assert w.check(1e8, 1) == FORGED and w.t is None  # not even the first message anchors it
+    assert w.check(0.0, 0) == OK
+    for _ in range(CONFIRM + 2):
+        assert w.check(1e8, 1) == FORGED
+    assert w.check(0.02 + TICK_EPS / 2, 1) == OK  # a rounding of k x dt passes
+    assert w.check(0.04 + 10 * TICK_EPS, 2) == FORGED
+    assert w.check(float("nan"), 2) == FORGED
+    assert w.check(0.04, 2) == OK and (w.t, w.seq) == (0.04, 2)
+    assert w.check(0.02, 1) == STALE  # older and true: stale, as before
+    assert Window(2.0, 101).check(1e8, 1) == OK  # real time: t and seq are not tied

@@ -114,6 +114,47 @@ def test_a_running_swarm_under_attack_equals_the_simulator():
     assert all(len(a.w_state) < scn.n for a in agents)
 
 
+class Forger:
+    """On each pose of each robot i (seq k), states of every other robot j with the next seq, k + 1, and a t
+    far ahead (1e8) on the cell key i hears j on: adopted, such a state would make every true state of j after
+    it look older to i, and i would wait for j until the watchdog."""
+
+    def __init__(self, net: MemoryNet, n: int, sense: float) -> None:
+        self.bus = MemoryBus(net)
+        self.n, self.sense, self.sent = n, sense, 0
+        for i in range(n):
+            self.bus.subscribe(keys.robot_pose(F, i), self._pose)
+
+    def _pose(self, key: str, payload: bytes) -> None:
+        try:
+            pose = protocol.decode(payload, "pose")
+        except protocol.ProtocolError:
+            return
+        cx, cy = keys.cell_of(pose.x, pose.y, self.sense)
+        for j in range(self.n):
+            self.bus.put(keys.cell(F, cx, cy, j), protocol.encode(protocol.State(
+                id=j, t=1e8, seq=pose.seq + 1, x=pose.x, y=pose.y, theta=0.0, r=0.3, R=1.2, frozen=False)))
+            self.sent += 1
+
+
+@pytest.mark.timeout(240)
+def test_lockstep_states_with_forged_times_are_refused_and_the_run_equals_the_simulator():
+    """Lock-step: a state's t is its seq's tick time (seq x dt). Forged states with the next tick's seq and
+    t = 1e8, one per robot and neighbour every tick, are refused and counted; no robot adopts one, so no true
+    state looks older and no tick waits: the run equals swarm sim step for step."""
+    scn = scenario_file.load("paper-50hz", Overrides(robots=4, duration=4.0))
+    net = MemoryNet()
+    forger = Forger(net, scn.n, scn.cell_side)
+    metrics, world, agents = run_swarm(scn, net=net, timeout_s=120)
+    assert forger.sent > 500
+    sim = Simulation(scn, record_period=scn.dt).run()
+    q = np.array(world.trace).reshape(-1, scn.n, 3)
+    assert np.abs(q - sim.recording.q).max() == 0.0
+    assert metrics["cmd_misses"] == 0 and metrics["collisions"] == 0 and metrics["lockstep_overruns"] == 0
+    assert all(a.bad.count > 0 for a in agents)
+    assert all(w.t is None or w.t < 1e3 for a in agents for w in a.w_state.values())  # none was adopted
+
+
 def _callbacks(net: MemoryNet):
     """Every bus callback of a lock-step agent, a real-time agent, a world and a leader, with the key it
     listens on: (key, callable(key, payload))."""
