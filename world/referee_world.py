@@ -101,7 +101,7 @@ class RefereeWorld:
         self.w_state = [window.Window(*self._spans) for _ in range(n)]
         self.w_status = [window.Window(*self._spans) for _ in range(n)]
         self.bad = protocol.BadMessages(log)
-        self.robot_bad: dict[int, int] = {}
+        self.robot_bad = protocol.Claims()  # the robots' own counts of bad messages, bounded
         self.lost: set[int] = set()
         self.lost_events = 0
         self.failure: str | None = None
@@ -233,7 +233,7 @@ class RefereeWorld:
             with self.lock:
                 if self.bad.verdict(key, self.w_status[i].check(st.t, int(round(st.t / self.scn.dt))),
                                     "the status's t"):
-                    self.robot_bad[i] = st.bad
+                    self.robot_bad.take(i, st.bad, self.clock.monotonic())
 
     # ------------------------------------------------------------------ a period
 

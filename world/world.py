@@ -165,7 +165,7 @@ class World:
         self._dec_cmd = protocol.decoder("cmd", self.limits)
         self._pending: dict[int, tuple[float, float]] = {}
         self.bad = protocol.BadMessages(log)
-        self.robot_bad: dict[int, int] = {}
+        self.robot_bad = protocol.Claims()  # the robots' own counts of bad messages, bounded
         self.misses = 0
         self._miss_events = 0  # lock-step ticks with a miss (for the log's rate limit)
         # lock-step: pairs of robots a tick that the agents' wait rule could not cover (see _check_wait_rule)
@@ -328,7 +328,7 @@ class World:
                 s = protocol.decode(data, "status", None, self.limits)
                 if self.bad.verdict(key, self._after_return(i, self.w_status[i], s.t, int(round(s.t / self.scn.dt))),
                                     "the status's t"):
-                    self.robot_bad[i] = s.bad
+                    self.robot_bad.take(i, s.bad, self.clock.monotonic())
                     if s.held is not None:
                         self.held_by_robot[i] = s.held
             elif tag == "state":

@@ -1049,8 +1049,41 @@ def _snapshot(d: dict) -> Snapshot:
     return snap
 
 
+REFUSALS_PER_S_MAX = 1_000_000  # messages a process can refuse in a second of wall time (each costs it a
+# microsecond or more of decoding): the most a robot's own `bad` counter can have grown by in that time
+
+
+class Claims:
+    """What the robots say they refused (their statuses' `bad`), each bounded by what that robot can have
+    seen: its counter grows at most REFUSALS_PER_S_MAX a second of the receiver's wall time since the robot's
+    previous status (plus one second), so one status claiming 2^53 does not reach the metrics. A lower count
+    is taken as is (a restarted process counts from zero again). `total` is what the run reports."""
+
+    def __init__(self) -> None:
+        self.by_robot: dict[int, int] = {}
+        self._mono: dict[int, float] = {}
+        self.capped = 0  # statuses whose claim was cut to the bound
+
+    def take(self, i: int, bad: int, mono: float) -> None:
+        prev, last = self.by_robot.get(i, 0), self._mono.get(i)
+        bound = prev + int(REFUSALS_PER_S_MAX * ((0.0 if last is None else max(0.0, mono - last)) + 1.0))
+        if bad > bound:
+            self.capped += 1
+            bad = bound
+        self.by_robot[i], self._mono[i] = bad, mono
+
+    def values(self):
+        return self.by_robot.values()
+
+    @property
+    def total(self) -> int:
+        return sum(self.by_robot.values())
+
+
 class BadMessages:
-    """Counts refused messages and logs them, at most one line per `every` seconds.
+    """Counts refused messages and logs them, at most one line per `every` seconds. A message is counted once
+    by each process that refuses it (a state refused by the 6 robots that hear it counts 6 in a run's
+    `bad_messages`, which adds the robots' own counts to the world's).
 
     count: bad messages (malformed, out of bounds, a jump beyond a sender's window, a key that names
     no robot of the scenario); stale: older than what the receiver has from that sender (not
