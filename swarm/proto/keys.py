@@ -173,7 +173,10 @@ def lockstep_wait_reach(reach: float, side: float) -> float:
 
 def cell_robot(key: str) -> int | None:
     """The robot id at the end of a cell key (the hot path of a robot's state messages; `parse`
-    does the full check). None if the last chunk is not an id."""
+    does the full check). None if the last chunk is not an id, or the key is a wildcard expression (a put on
+    cell/*/*/5 reaches every cell subscription of every robot: it is no robot's state)."""
+    if "*" in key or "$" in key:
+        return None
     _, _, last = key.rpartition("/")
     if last.isascii() and last.isdigit() and len(last) <= 10 and (last == "0" or last[0] != "0"):
         return int(last)

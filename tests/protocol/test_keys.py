@@ -64,3 +64,10 @@ def test_cell_robot_agrees_with_parse(last):
     key = f"swarm/f/cell/1/-2/{last}"
     full = keys.parse(key)
     assert keys.cell_robot(key) == (full.id if full is not None else None)
+
+
+@pytest.mark.parametrize("key", ["swarm/f/cell/*/*/5", "swarm/*/cell/1/2/5", "swarm/f/cell/**/5", "swarm/f/cell/$*1/2/5",
+                                 "**/5"])
+def test_a_wildcard_cell_key_names_no_robot(key):
+    """A put on a key expression with wildcards reaches every subscription it intersects: no robot's state."""
+    assert keys.cell_robot(key) is None and keys.parse(key) is None
