@@ -11,7 +11,7 @@ ticks per wall second (the world's steps / run_wall_s) and the mean over robots 
 CPU a tick that each robot logs at exit ("loop CPU N us a tick, process CPU M us a tick"); then the
 medians of each tree and in how many pairs this tree's loop was the cheaper. `--mode realtime` runs at
 50 Hz in real time instead and gives the world's round trip (pose out, command back: median and p99 [ms])
-in place of ticks/s. The session 19 and 20 figures of docs/runtime.md come from it.
+in place of ticks/s. docs/performance.md quotes its figures.
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ Starts `swarm up --no-viz` (its own port and fleet), waits --window/2 s past the
 /proc/PID/task/*/{stat,status} of one robot process (the middle id) at the start and end of a --window s
 window: each thread's CPU and its voluntary context switches (its wake-ups: the loop thread is the
 process's main thread, zenoh's are app-0 and app-1). With the run's ticks per second (lock-step: from
-its metrics) it prints the CPU and wake-ups a tick. docs/runtime.md ("Lock-step's two phases") compares
+its metrics) it prints the CPU and wake-ups a tick. docs/performance.md compares
 them with a floor robot's (bench/zenoh_floor.py).
 """
 

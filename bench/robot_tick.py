@@ -178,7 +178,7 @@ def main() -> None:
         feed.put(ref_key, protocol.encode(protocol.Ref(t, k, *lead)))
         feed.put(pose_key, protocol.encode(protocol.Pose(t=t, seq=k, x=x, y=y, theta=th, cmd=-1.0)))
         if a.idle > 0:
-            time.sleep(a.idle)  # a robot between poses: its caches go cold (the same work costs ~3x: docs/runtime.md)
+            time.sleep(a.idle)  # a robot between poses: its caches go cold (the same work costs 2-3x: docs/performance.md)
         got = agent.drive.wait()  # the pose goes last on the feeder's one link: the rest is in
         if prof is not None and k >= 20:
             prof.enable()

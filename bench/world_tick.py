@@ -8,7 +8,7 @@ does each tick besides waiting: taking the N commands (on zenoh's threads, each 
 every awaited command is in), moving every robot one exact arc, the wait-rule check, the metrics sample, and
 publishing the clock and every pose (encoding and memory-bus puts). Which of them stand between the
 last command of tick k and the first pose of tick k + 1 (the path every robot waits on) is in
-docs/runtime.md.
+docs/performance.md ("The world's part of a lock-step tick").
 """
 
 from __future__ import annotations

@@ -6,13 +6,13 @@ Three processes on this machine: a router with swarm's configuration, a publishe
 ~90 bytes on 8 keys of one cell every millisecond, and a subscriber with a robot's 9 cell inboxes that
 drains them every 10 ms. The subscriber's session comes in variants:
   full      swarm's session (swarm.net.bus.zenoh_config: the low_pass_filter size rules on ingress), the
-            8 keys hinted (ZenohBus.hint), as a robot does since session 20
+            8 keys hinted (ZenohBus.hint), as a robot does
   no-hint   the same without the hints: zenoh matches every sample against the session's subscriptions
   no-ros    without the four ROS 2 rules that begin with ** (the cmd_vel and odom topics a drive uses)
   no-filter without any size rule
 Prints the subscriber process's CPU (from /proc, user + system) per message received, the first 2.5 s
 left out, for each variant in turn, `--rounds` times (the VM's speed drifts: compare within a round).
-docs/runtime.md quotes it.
+docs/performance.md quotes it.
 """
 
 from __future__ import annotations

@@ -14,12 +14,12 @@ pose of a tick at once and waits for every command before the next tick (its rob
 neighbour, so this bounds swarm's rate from above). `--wait` adds swarm's wait rule to lock-step: a
 robot sends its state on its pose, then takes its command only once the state of that tick of every
 robot in its 3x3 cells is in (it blocks on a cell's inbox that still lacks one): the floor of swarm's
-two-phase tick, which no code in a robot can beat (docs/runtime.md). `--callbacks` (with `--wait`) takes
+two-phase tick, which no code in a robot can beat (docs/performance.md). `--callbacks` (with `--wait`) takes
 the pose and the cells' states in Python callbacks on zenoh's threads that wake the loop (a condition
 variable), as a swarm robot's lock-step does, instead of blocking in zenoh on inboxes:
 the cost of that hand-over alone. Robots do nothing else, or spin `--work-us` of CPU
 a period to stand in for decoding, the law and encoding. So the figures are what zenoh and 40 processes
-cost on this machine: the floor under `python bench/up_speed.py` (docs/runtime.md compares them).
+cost on this machine: the floor under `python bench/up_speed.py` (docs/performance.md compares them).
 
 Prints the round trip (median, p99, max) or the ticks per second, the states a robot took per period,
 its loop thread's CPU per period, and the CPU of each role in cores, from /proc over the run.

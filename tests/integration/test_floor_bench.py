@@ -1,4 +1,4 @@
-"""bench/zenoh_floor.py (the floor docs/runtime.md compares swarm with) runs, in both modes, and leaves nothing."""
+"""bench/zenoh_floor.py (the floor docs/performance.md compares swarm with) runs, in both modes, and leaves nothing."""
 
 from __future__ import annotations
 

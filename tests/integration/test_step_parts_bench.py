@@ -1,4 +1,4 @@
-"""bench/step_parts.py (docs/runtime.md, "A period measured inside the swarm") times the parts it names in a
+"""bench/step_parts.py (docs/performance.md, "A period measured inside the swarm") times the parts it names in a
 real `swarm up`: a part of every period that is renamed or no longer on the step's path fails here (its
 calls fall to zero, or the robots cannot be patched and write no sums)."""
 

@@ -1,4 +1,4 @@
-"""bench/world_tick.py (the world's part of a lock-step tick, quoted in docs/runtime.md) runs and says what it timed."""
+"""bench/world_tick.py (the world's part of a lock-step tick, quoted in docs/performance.md) runs and says what it timed."""
 
 from __future__ import annotations
 
