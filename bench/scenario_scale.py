@@ -1,4 +1,4 @@
-"""What building and checking a scenario costs as N grows (issue 21: it was all pairs, now grids).
+"""What building and checking a scenario costs as N grows (grids, not all pairs).
 
     python bench/scenario_scale.py                     # N = 1 000, 10 000, 100 000
     python bench/scenario_scale.py --robots 1000 20000 --repeats 3

@@ -5,7 +5,7 @@
 Runs `swarm up --robots N --trace t.npz` (real processes: router, world, leader, N robots) and
 `swarm sim --scenario paper-50hz` in this process with the same N, seed and duration, then prints
 the largest pose difference over all steps and robots and the metrics of both side by side.
-The requirement (issue 3) is a difference of at most 1e-9 at every step; the exit code is 1 if
+The requirement is a difference of at most 1e-9 at every step; the exit code is 1 if
 it is not met. tests/integration/test_up.py checks the same with N = 7 in CI; this is the
 N = 37 check, about 3 minutes on 2 cores for the paper's 120 s.
 """

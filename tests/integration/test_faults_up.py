@@ -90,7 +90,7 @@ def test_faulty_lockstep_up_equals_faulty_sim_bit_for_bit(tmp_path):
     "[[faults.kill]]\nrobot = 2\nat = 0.5\nrestart = 0.5\n[[faults.hang]]\nrobot = 2\nat = 1.0\nduration = 0.5\n",
 ], ids=["hang at t = 0", "hang at the restart"])
 def test_a_robot_stopped_before_its_first_tick_returns_and_the_run_equals_sim(tmp_path, text):
-    """Found by a contract audit (session 26)."""
+    """Found by a contract audit."""
     faults = tmp_path / "faults.toml"
     faults.write_text("[faults]\n" + text)
     cmd, metrics = up(tmp_path, "--robots", "7", "--duration", "3", "--faults", str(faults), "--quiet")

@@ -67,7 +67,7 @@ def _bus(endpoint: str) -> ZenohBus:
 
 
 def test_five_ros2_robots_converge_on_rmw_zenoh(tmp_path):
-    # speed 2, not 3: less load. On session 13's slow 2-core machine (3.5 times slower than session 12's) this run
+    # speed 2, not 3: less load. On a slow 2-core machine (3.5 times slower than the reference VM) this run
     # had one collision in the full suite at speed 3 and again at speed 2, and alone at speed 2 in 2 runs of 7:
     # the open real-time safety finding under load (docs/runtime.md, Real time), not hidden here
     cmd, metrics = up(tmp_path, "--robots", "5", "--mode", "realtime", "--drive", "ros2", "--duration", "60",

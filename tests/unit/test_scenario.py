@@ -629,7 +629,7 @@ def test_random_poses_gives_up_when_there_is_no_room():
                                 max_tries=5000)
 
 
-# --------------------------------------------------------------------------- what cannot run (issue 21)
+# --------------------------------------------------------------------------- what cannot run
 
 RUN_REFUSALS = [
     # k1 times the 8 m from robot 0's start to its slot overflows: the simulator stopped with "non-finite state"

@@ -1,6 +1,6 @@
 """Building and checking a scenario is O(N log N) and resolves to the very numbers it always did.
 
-The closest-pair checks and the random generator search grids instead of all pairs (issue 21); these
+The closest-pair checks and the random generator search grids instead of all pairs; these
 tests hold the grids to the all-pairs answers, the generator to its all-pairs original draw for draw,
 the built-in scenarios to their recorded text, and count the pair checks at 20 000 robots.
 """
@@ -105,7 +105,7 @@ def test_random_poses_draw_what_the_all_pairs_generator_drew():
         assert a.random() == b.random()  # the same draws consumed: what follows (the assignment) is unchanged
 
 
-# sha256 of `swarm scenario show NAME --robots N [--seed S]` as written before the grids (issue 21)
+# sha256 of `swarm scenario show NAME --robots N [--seed S]` as written before the grids
 RECORDED = {
     ("paper-50hz", 37, None): "755045f23b28dee7e190a665e2dc940e02b5e6ea10a0f109b84cc0e89281c344",
     ("paper", 100, None): "a74db70f502a65acc9872e72c44a8c981c39d3f839ad64b1c54f84346542981c",
