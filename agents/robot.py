@@ -32,7 +32,7 @@ Real time: for every new pose it takes the newest reference (advanced exactly al
 leader's arc to now on its own clock) and neighbour states, and publishes state and command; the
 command carries the time of the pose it was computed from. States and references wait in bus
 inboxes (zenoh ring channels) and the loop decodes them in one batch at each pose: zenoh's thread
-runs no Python for them and never waits for the robot's GIL (docs/runtime.md, session 18). What it
+runs no Python for them and never waits for the robot's GIL (docs/performance.md, "Tried and dropped"). What it
 does without a message (docs/faults.md): it keeps the last state of every live neighbour with its age (the time since
 receipt on its own clock plus the age the state had when it came) and never forgets a live one; the
 law's governor takes each body's age off its clearance (older than STALE_AFTER_S also counts as
@@ -99,7 +99,7 @@ class Agent:
     loop thread's, and the loop thread does every bus call (publish, move subscriptions, drain inboxes).
     Inline (no faults, on zenoh: run_robot), `kick` is a Runner that computes the tick on the callback's
     own thread at once (lock-step; in real time the simulated drive's pose callback runs the step): no
-    loop thread woken for it (docs/runtime.md); the loop thread then only closes the subscriptions a tick
+    loop thread woken for it (docs/performance.md, "A tick on the thread its message came on"); the loop thread then only closes the subscriptions a tick
     let go (_release) and computes a lock-step tick that is overdue.
     Lock-step takes everything through callbacks (its wait rule needs each state as it arrives); its
     neighbour states through a compiled sink where it was built (swarm.proto._wire.StateSink: the same
@@ -444,7 +444,7 @@ class Agent:
     def _release(self, what, handle) -> None:
         """Close a subscription that a tick no longer needs: at once on the loop thread; inline, by the loop
         thread, which this wakes. zenoh's undeclare waits for the subscription's callbacks under way, and the
-        tick may run in one of them (docs/runtime.md): closed there, it would wait for itself."""
+        tick may run in one of them (docs/performance.md, "A tick on the thread its message came on"): closed there, it would wait for itself."""
         if self.kick is self.wake:
             handle.close()
             return

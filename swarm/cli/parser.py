@@ -447,7 +447,7 @@ def _add_runtime_parsers(sub) -> None:
                     "metrics; stop everything on the way out (also on Ctrl-C and SIGTERM). Without "
                     "--scenario it runs the built-in paper-50hz scenario (dt = 0.02 s, governor on).",
         epilog="Examples: swarm up --robots 37 | swarm up --robots 7 --mode realtime --speed 2 | "
-               "swarm up --listen tcp/0.0.0.0:7447 (robots on other machines: see README)")
+               "swarm up --listen tcp/0.0.0.0:7447 (robots on other machines: docs/runtime.md, \"Running across machines\")")
     _add_scenario_flags(up, "paper-50hz")
     _add_run_flags(up, up=True)
     _add_net_flags(up, listen=True, connect_help="join the router at ENDPOINT instead of starting one")

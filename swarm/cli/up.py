@@ -88,7 +88,7 @@ def python_note() -> str | None:
     why = "SWARM_PURE_PYTHON is set" if os.environ.get("SWARM_PURE_PYTHON") else \
         "no C compiler was found when swarm was installed: install gcc and run pip install -e . again"
     return (f"note: the robots' {' and '.join(missing)} {'run' if len(missing) > 1 else 'runs'} as Python ({why}); "
-            "a robot's period costs about a third more CPU (docs/runtime.md)")
+            "a robot's period costs about a third more CPU (docs/performance.md)")
 
 
 def refuse_unused_flags(args) -> None:

@@ -1,4 +1,4 @@
-/* swarm.core.law.robot_command compiled, for the robot process (docs/runtime.md, "A robot's control period").
+/* swarm.core.law.robot_command compiled, for the robot process (docs/performance.md, "The compiled parts of a period").
  *
  * swarm/core/law.py stays the law: it is what the paper's equations are written as, what numba compiles for
  * the simulator, and what a robot runs where this file is not built. This is a line-for-line transcription of

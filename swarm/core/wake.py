@@ -8,7 +8,7 @@
 A bus callback sets it to wake a process's run loop (a robot's, the world's). threading.Event does the
 same with a Condition written in Python: a set() runs five Python frames and a wait() allocates a lock
 for each call. With about two of each a robot's lock-step tick on zenoh's threads, that was about a
-twentieth of its CPU (docs/runtime.md). Here a set() is one attribute store and a lock release.
+twentieth of its CPU (docs/performance.md, "Callbacks on zenoh's threads, and the world's commands"). Here a set() is one attribute store and a lock release.
 
 The lock is a token: released (available) when a set() may not have been seen yet. wait() returns as
 soon as the flag is set, or when it can take the token (it puts it back: a set stays set until clear()).
@@ -65,7 +65,7 @@ class Runner:
 
     A lock-step robot's tick (agents.robot): the message that makes the tick due (its pose, the last state
     it waited for) comes on zenoh's thread; handing it to a loop thread costs a thread wake-up, its cold
-    caches and a GIL hand-over twice a tick in each of 37 processes on 2 cores (docs/runtime.md).
+    caches and a GIL hand-over twice a tick in each of 37 processes on 2 cores (docs/performance.md, "A tick on the thread its message came on").
 
     work() never runs on two threads at once, and no set() is lost: a set() that finds work() under way on
     another thread leaves a mark (`_again`), and that thread runs work() once more after it, before it

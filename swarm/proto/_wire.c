@@ -1,5 +1,5 @@
-/* The wire codec of the flat message kinds of every control period, compiled (docs/runtime.md, "A robot's
- * control period"). swarm.proto.protocol builds one Decoder and one Encoder per kind from its own tables
+/* The wire codec of the flat message kinds of every control period, compiled (docs/performance.md, "The
+ * compiled parts of a period"). swarm.proto.protocol builds one Decoder and one Encoder per kind from its own tables
  * (_SPEC, _WIRE_NAMES, _HOT_BOUNDS, Limits): this file holds no field, bound or key of its own, so the
  * contract lives in one place. It is optional: without a compiler the same generated Python runs.
  *
@@ -1483,7 +1483,7 @@ static void sink_message(StateSink *k, PyObject *key, PyObject *payload) {
 /* A thread that Python did not start (zenoh's) gets a fresh Python thread state for every callback and
    loses it after: pyo3 takes the GIL with PyGILState_Ensure, and the matching Release deletes a thread state
    whose count falls to 0, with the 16 KiB frame stack CPython maps for it (an mmap, page faults and a munmap
-   a message: docs/runtime.md). One Ensure never released keeps this thread's state for the life of the
+   a message: docs/performance.md, "Callbacks on zenoh's threads"). One Ensure never released keeps this thread's state for the life of the
    process; every later callback then only takes and drops the GIL. Call it with the GIL held. */
 static _Thread_local int thread_pinned = 0;
 
