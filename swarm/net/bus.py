@@ -314,6 +314,15 @@ def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen:
     # payloads beyond the codec's limits are dropped by zenoh itself, on the way in and out, so an
     # oversized payload never reaches a subscriber (the codec would refuse it, but only after it came)
     conf.insert_json5("low_pass_filter", json.dumps(size_limits()))
+    # ... but zenoh applies that filter to a whole message, once it has put the message's fragments back
+    # together, up to 1 GiB by default: 12 puts of 64 MiB from a client left the router 84-160 MiB larger
+    # (bench/router_memory.py). Each link's defragmentation stops at the largest message the swarm sends:
+    # a large kind at the codec's limit (a snapshot is ~83 N bytes for N robots: 164 kB at 2000, 8.3 MB at
+    # MAX_ROBOTS) and zenoh's header (key, timestamp, encoding: bytes; MAX_PAYLOAD is ample). zenoh drops
+    # a message beyond it as its fragments come and keeps the link open (docs/security.md).
+    from swarm.proto.protocol import MAX_LARGE_PAYLOAD, MAX_PAYLOAD
+
+    conf.insert_json5("transport/link/rx/max_message_size", str(MAX_LARGE_PAYLOAD + MAX_PAYLOAD))
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps(connect))
     if listen is not None:
