@@ -323,11 +323,37 @@ def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen:
     from swarm.proto.protocol import MAX_LARGE_PAYLOAD, MAX_PAYLOAD
 
     conf.insert_json5("transport/link/rx/max_message_size", str(MAX_LARGE_PAYLOAD + MAX_PAYLOAD))
+    # a put on a key expression with wildcards (cell/*/*/5) reaches every subscription it intersects: dropped
+    # on the way in, before routing or any callback (wildcard_guard), after any downsampling of the user's
+    try:
+        theirs = json.loads(conf.get_json("downsampling") or "null") or []
+    except Exception:  # not set
+        theirs = []
+    conf.insert_json5("downsampling", json.dumps(list(theirs) + [wildcard_guard()]))
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps(connect))
     if listen is not None:
         conf.insert_json5("listen/endpoints", json.dumps(listen))
     return conf
+
+
+WILDCARD_CHUNK = "$*~$*"  # a chunk with a "~": no key the swarm puts has one (ids, cells and kinds are [A-Za-z0-9_-])
+
+
+def wildcard_guard() -> dict:
+    """A zenoh downsampling item that drops, on the way in (ingress), every put or delete whose key
+    expression has a wildcard in any chunk: a rate of 0 (zenoh then lets none through) on key expressions
+    with a "~" in a chunk. No concrete key of the swarm has one, so no concrete key intersects them, while
+    every key expression with a wildcard chunk (*, **, $*) after the first does (cell/*/*/5 meets
+    cell/~/x/5). zenoh matches a downsampling rule by intersection, not inclusion; its access control
+    (--secure) matches by inclusion and cannot tell a wildcard put from a concrete one: a robot allowed
+    cell/*/*/5 may put on that expression itself. A concrete key (even under a wildcard fleet,
+    swarm/*/cell/1/2/5, which meets each subscription at most once) goes through, and the receiver refuses it
+    (keys.cell_robot, keys.parse). docs/security.md."""
+    w = WILDCARD_CHUNK
+    return {"id": "swarm-wildcards", "flows": ["ingress"], "messages": ["put", "delete"],
+            "rules": [{"key_expr": f"{w}/**", "freq": 0.0}, {"key_expr": f"*/{w}/**", "freq": 0.0},
+                      {"key_expr": f"*/*/**/{w}/**", "freq": 0.0}]}
 
 
 def size_limits() -> list[dict]:

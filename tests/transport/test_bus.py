@@ -231,6 +231,63 @@ def test_zenoh_drops_a_payload_past_the_size_limit_on_its_way_in(router_filters)
         router.close()
 
 
+WILDCARDS = ["swarm/t/cell/*/*/5", "swarm/t/cell/**", "swarm/**", "swarm/t/cell/0/*/5", "swarm/t/cell/$*0/0/5",
+             "swarm/t/cell/0/0/*", "**", "swarm/t/**/5", "*/t/cell/0/0/5", "swarm/*/cell/0/0/5"]
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("router_filters", [True, False])
+def test_zenoh_drops_a_put_on_a_wildcard_key_expression_before_any_subscriber(router_filters):
+    """A put on a key expression with wildcards (cell/*/*/5) reaches every subscription it intersects: a
+    robot's 9 cell subscriptions got it 9 times, a flood of them stalled a lock-step swarm. zenoh's
+    downsampling interceptor (bus.wildcard_guard, a rate of 0 on the key expressions only a wildcard put can
+    intersect) drops it at our router's ingress, and, behind a router without the rule, at the receiving
+    client's ingress. Concrete keys go through; the receiver sees none of the wildcard puts."""
+    import zenoh
+
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    if router_filters:
+        router = busmod.ZenohBus(busmod.zenoh_config("router", listen=[endpoint]))
+    else:
+        conf = zenoh.Config()
+        conf.insert_json5("mode", '"router"')
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        conf.insert_json5("listen/endpoints", f'["{endpoint}"]')
+        router = busmod.ZenohBus(conf)
+    attacker_conf = zenoh.Config()  # a plain client: no rule of ours on its way out
+    attacker_conf.insert_json5("mode", '"client"')
+    attacker_conf.insert_json5("scouting/multicast/enabled", "false")
+    attacker_conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
+    try:
+        with busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint])) as b, \
+                busmod.ZenohBus(attacker_conf) as a:
+            events, got = Events(), []
+
+            def on(k, p):
+                with events.cond:
+                    got.append((k, p))
+                    events.cond.notify_all()
+
+            subs = [b.subscribe(f"swarm/t/cell/{cx}/{cy}/*", on) for cx in (-1, 0, 1) for cy in (-1, 0, 1)]
+            deadline = time.monotonic() + 10
+            while not got:  # the subscriptions reach the router asynchronously
+                a.put("swarm/t/cell/0/0/5", b"ping", reliable=True)
+                with events.cond:
+                    events.cond.wait_for(lambda: bool(got), timeout=0.05)
+                assert time.monotonic() < deadline, "no message through the router"
+            for i in range(200):
+                for key in WILDCARDS:
+                    a.put(key, b"flood", reliable=True)
+            a.put("swarm/t/cell/1/-1/6", b"last", reliable=True)
+            events.wait_until(lambda: got[-1][1] == b"last", 20, "the concrete put after the flood")
+            assert {k for k, p in got} == {"swarm/t/cell/0/0/5", "swarm/t/cell/1/-1/6"}
+            assert not any(p == b"flood" for _, p in got)
+            for sub in subs:
+                sub.close()
+    finally:
+        router.close()
+
+
 @pytest.mark.timeout(60)
 def test_zenoh_bus_through_a_router():
     """Two clients of a router in this process: pub/sub, BLOCK puts, liveliness, queryable."""
