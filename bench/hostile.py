@@ -1,6 +1,15 @@
 """A hostile network against a running `swarm up`: malformed and out-of-window messages on every key.
 
     python bench/hostile.py [--robots 7] [--duration 200] [--rate 2000] [--attack-s 20] [--out DIR]
+    python bench/hostile.py --floods [--robots 7] [--duration 60]
+
+--floods: instead of the mixed attack below, one flood after the other on the running lock-step swarm, each
+measured on its own (the robots' CPU and the world's missed commands over the flood and 2 s after it, against
+as long a quiet stretch just before): 20 000 puts of one robot's state on the wildcard cell key
+cell/*/*/<id>, 20 000 states on 20 000 distinct wildcard keys cell/*/*/<j>, 20 000 states of the robots
+with the next tick's seq and a forged t (1e8) on the cell keys they are heard on, and 12 payloads of 64 MiB
+on a robot's command key (the router's resident memory before and after). Then the run's checks: exit 0,
+no collision, no missed command, the trace equal to swarm sim's.
 
 Starts a lock-step `swarm up --robots N --duration D --no-viz --trace --metrics --log-dir` on a free
 loopback port, waits on the world's progress messages (world/progress) until the run is past tick
@@ -399,6 +408,92 @@ def kill_tree(proc: subprocess.Popen, known: list[psutil.Process]) -> None:
         proc.wait(10)
 
 
+FLOOD_PUTS = 20_000
+BIG_PUTS, BIG_MIB = 12, 64
+SETTLE_S = 2.0  # wall s after a flood that still counts as its cost
+
+
+def _cpu(procs: list[psutil.Process]) -> float:
+    total = 0.0
+    for p in procs:
+        try:
+            c = p.cpu_times()
+            total += c.user + c.system
+        except psutil.Error:
+            pass
+    return total
+
+
+def _rss_mib(p: psutil.Process | None) -> float:
+    try:
+        return p.memory_info().rss / 2**20 if p is not None else float("nan")
+    except psutil.Error:
+        return float("nan")
+
+
+def floods(session, n: int, cells: Cells, progress: dict, robots: list[psutil.Process],
+           router: psutil.Process | None) -> list[tuple[str, int, float, int, float, str]]:
+    """Each flood in turn: (name, puts, wall s, missed commands, extra robot CPU [core s a robot], note)."""
+    import zenoh
+
+    block = zenoh.CongestionControl.BLOCK
+    state = protocol.encode(State(id=3 % n, t=1.0, seq=1, x=0.0, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False))
+
+    def one_id():
+        key = f"swarm/{FLEET}/cell/*/*/{3 % n}"
+        for _ in range(FLOOD_PUTS):
+            session.put(key, state, congestion_control=block)
+        return ""
+
+    def many_ids():
+        for j in range(FLOOD_PUTS):
+            session.put(f"swarm/{FLEET}/cell/*/*/{10_000 + j}", state, congestion_control=block)
+        return ""
+
+    def forged_times():
+        sent = 0
+        while sent < FLOOD_PUTS:
+            k = progress["seq"]
+            for i in range(n):
+                cx, cy = cells.current(i)
+                for j in range(n):
+                    if j != i:
+                        session.put(keys.cell(FLEET, cx, cy, j), protocol.encode(State(
+                            id=j, t=1e8, seq=k + 1, x=0.0, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False)),
+                            congestion_control=block)
+                        sent += 1
+        return ""
+
+    def oversized():
+        before = _rss_mib(router)
+        big = b"\x00" * (BIG_MIB << 20)
+        for _ in range(BIG_PUTS):
+            session.put(keys.robot_cmd(FLEET, 3 % n), big, congestion_control=block)
+        session.put(keys.robot_cmd(FLEET, 3 % n), b"\xc1", congestion_control=block)  # after the big ones
+        time.sleep(SETTLE_S)
+        return f"router RSS {before:.0f} -> {_rss_mib(router):.0f} MiB"
+
+    out = []
+    for name, fn, puts in (("wildcard cell key, one id", one_id, FLOOD_PUTS),
+                           ("wildcard cell keys, 20 000 ids", many_ids, FLOOD_PUTS),
+                           ("forged-time states (seq k + 1, t = 1e8)", forged_times, FLOOD_PUTS),
+                           (f"{BIG_PUTS} x {BIG_MIB} MiB on a command key", oversized, BIG_PUTS)):
+        quiet0, m0 = _cpu(robots), progress["misses"]
+        t0 = time.monotonic()
+        time.sleep(SETTLE_S + 1.0)
+        quiet = (_cpu(robots) - quiet0) / (time.monotonic() - t0)  # the robots' CPU a wall second, quiet
+        c0, m0, t0 = _cpu(robots), progress["misses"], time.monotonic()
+        note = fn()
+        spent = time.monotonic() - t0
+        time.sleep(SETTLE_S)
+        wall = time.monotonic() - t0
+        extra = (_cpu(robots) - c0 - quiet * wall) / max(1, len(robots))
+        out.append((name, puts, spent, progress["misses"] - m0, extra, note))
+        print(f"  {name:44} {puts:6d} puts in {spent:5.2f} s: missed commands {progress['misses'] - m0}, "
+              f"extra robot CPU {extra:+.2f} core s a robot {note}", flush=True)
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--robots", type=int, default=7)
@@ -406,6 +501,7 @@ def main() -> int:
     ap.add_argument("--rate", type=float, default=2000.0, help="attack messages a second")
     ap.add_argument("--attack-s", type=float, default=20.0, help="wall seconds of attack")
     ap.add_argument("--out", type=Path, help="where the run's files go (default: a new temp dir)")
+    ap.add_argument("--floods", action="store_true", help="the floods, one after the other, each with its cost")
     a = ap.parse_args()
     out = a.out or Path(tempfile.mkdtemp(prefix="swarm-hostile-"))
     out.mkdir(parents=True, exist_ok=True)
@@ -433,6 +529,8 @@ def main() -> int:
             try:
                 conf = zenoh_config(connect=[endpoint])
                 conf.insert_json5("low_pass_filter", "[]")  # a hostile client does not filter its own traffic
+                # and waits as long as it takes to send a 64 MiB payload (ours closes a link stalled for 1 s)
+                conf.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close", "60000000")
                 bus = ZenohBus(conf)
             except Exception:  # noqa: BLE001 (zenoh raises its own error types while the router is not up)
                 if time.monotonic() > deadline or proc.poll() is not None:
@@ -447,6 +545,7 @@ def main() -> int:
             except protocol.ProtocolError:
                 return
             progress["seq"], progress["t"] = max(progress["seq"], p.seq), p.t
+            progress["misses"] = max(progress.get("misses", 0), p.misses)
 
         bus.subscribe(keys.world_progress(FLEET), on_progress)
         bus.subscribe(keys.robot_any(FLEET, "pose"), cells.on_pose)
@@ -460,6 +559,8 @@ def main() -> int:
             time.sleep(0.05)
         children = psutil.Process(proc.pid).children(recursive=True)
         k0 = progress["seq"]
+        if a.floods:
+            return _floods_run(a, bus, proc, scn, cells, progress, children, trace, metrics_path, log_dir)
         print(f"attack: tick {k0} reached; {a.rate:g} messages a second for {a.attack_s:g} s ...", flush=True)
         spent = run_attack(bus.session, Attack(scn.n, cells, ledger), ledger, a.rate, a.attack_s)
         k1 = progress["seq"]
@@ -547,6 +648,45 @@ def main() -> int:
                (f"the attack sent at least 90 % of {a.rate * a.attack_s:.0f}", ledger.total >= 0.9 * a.rate * a.attack_s),
                ("the trace equals swarm sim's (largest difference 0)", diff == 0.0)]
     print("\nchecks:")
+    for name, ok in checks:
+        print(f"  {'ok  ' if ok else 'FAIL'} {name}")
+    return 0 if all(ok for _, ok in checks) else 1
+
+
+def _floods_run(a, bus, proc, scn, cells, progress, children, trace, metrics_path, log_dir) -> int:
+    """--floods: the floods on the running swarm, then the run's checks."""
+    def role(p: psutil.Process) -> str:
+        try:
+            cmd = p.cmdline()
+        except psutil.Error:
+            return ""
+        return next((c for c in cmd if c in ("robot", "router", "world", "leader")), "")
+
+    robots = [p for p in children if role(p) == "robot"]
+    router = next((p for p in children if role(p) == "router"), None)
+    progress.setdefault("misses", 0)
+    print(f"floods on {len(robots)} robot processes, from tick {progress['seq']}:", flush=True)
+    out = floods(bus.session, scn.n, cells, progress, robots, router)
+    k1 = progress["seq"]
+    try:
+        rc = proc.wait(timeout=120 + 10 * a.duration)
+    except subprocess.TimeoutExpired:
+        print("swarm up did not end in time")
+        return 1
+    m = json.loads(metrics_path.read_text()) if metrics_path.exists() else {}
+    q = np.load(trace)["q"] if trace.exists() else np.zeros((0, scn.n, 3))
+    sim = Simulation(scn, record_period=scn.dt).run()
+    diff = float(np.abs(q - sim.recording.q).max()) if q.shape == sim.recording.q.shape else None
+    print("\n| flood | puts | sent in | missed commands | extra robot CPU (core s a robot) | note |")
+    print("|---|---|---|---|---|---|")
+    for name, puts, spent, missed, extra, note in out:
+        print(f"| {name} | {puts} | {spent:.2f} s | {missed} | {extra:+.2f} | {note} |")
+    print(f"\nthe run: exit {rc}, failure {m.get('failure')!r}, collisions {m.get('collisions')}, cmd_misses "
+          f"{m.get('cmd_misses')}, bad_messages {m.get('bad_messages')}, trace against swarm sim: largest "
+          f"difference {diff}")
+    checks = [("swarm up exited 0", rc == 0), ("no collision", m.get("collisions") == 0),
+              ("no missed command", m.get("cmd_misses") == 0), ("the run outlasted the floods", k1 < scn.steps),
+              ("the trace equals swarm sim's (largest difference 0)", diff == 0.0)]
     for name, ok in checks:
         print(f"  {'ok  ' if ok else 'FAIL'} {name}")
     return 0 if all(ok for _, ok in checks) else 1
