@@ -197,7 +197,7 @@ class Agent:
         self._spans = window.spans(cfg.dt, WATCHDOG_S)
         self._tick = cfg.dt if cfg.lockstep else 0.0  # lock-step: a pose's, reference's, state's t is seq x dt
         self.w_pose = window.Window(*self._spans, dt=self._tick)  # the world (or localization)
-        self.w_clock = window.Window(*self._spans)  # the world
+        self.w_clock = window.Window(*self._spans, dt=self._tick)  # the world
         self.w_ref = window.Window(*self._spans, dt=self._tick)  # the leader
         self.w_bodies = window.Window(*self._spans)  # the world (real time under faults)
         self.w_state: dict[int, window.Window] = {}  # robot j

@@ -294,7 +294,10 @@ class World:
 
     def _take_cmd(self, i: int, c: protocol.Cmd) -> None:
         """Lock-step (under the lock): only the command of the tick under way counts (the world publishes
-        tick k before anyone can answer it); a later seq is refused, an earlier one is late (stale)."""
+        tick k before anyone can answer it); a later seq is refused, an earlier one is late (stale), and so is
+        one whose t is not its seq's tick time (forged: docs/protocol.md, Windows)."""
+        if not abs(c.t - c.seq * self.scn.dt) <= window.TICK_EPS:
+            raise ProtocolError(f"a command of tick {c.seq} with t {c.t:g}: lock-step, and t is not seq x dt")
         if c.seq == self.k and c.seq > self.cmd_seq[i]:
             self.cmd_seq[i] = c.seq
             self._pending[i] = (c.v, c.w)
@@ -606,7 +609,7 @@ class World:
             back, self._leader_back = self._leader_back, False
         if back:
             self.bus.put(keys.world_clock(self.fleet), protocol.encode(
-                Clock(t=self.t, seq=max(0, self.k - 1), epoch=0.0, speed=1.0)), reliable=True)
+                Clock(t=max(0, self.k - 1) * self.scn.dt, seq=max(0, self.k - 1), epoch=0.0, speed=1.0)), reliable=True)
 
     def _latency(self) -> dict:
         if not self.round_trips:

@@ -117,7 +117,8 @@ def test_a_running_swarm_under_attack_equals_the_simulator():
 class Forger:
     """On each pose of each robot i (seq k), states of every other robot j with the next seq, k + 1, and a t
     far ahead (1e8) on the cell key i hears j on: adopted, such a state would make every true state of j after
-    it look older to i, and i would wait for j until the watchdog."""
+    it look older to i, and i would wait for j until the watchdog. And a command for robot i of tick k with that
+    t (before i's own), a reference and a clock of tick k + 1 with it."""
 
     def __init__(self, net: MemoryNet, n: int, sense: float) -> None:
         self.bus = MemoryBus(net)
@@ -131,6 +132,14 @@ class Forger:
         except protocol.ProtocolError:
             return
         cx, cy = keys.cell_of(pose.x, pose.y, self.sense)
+        i = int(key.split("/")[-2])
+        if i == 0:  # once a tick: the leader's reference and the world's clock, forged the same way
+            self.bus.put(keys.leader_ref(F), protocol.encode(protocol.Ref(
+                t=1e8, seq=pose.seq + 1, x=pose.x, y=pose.y, theta=0.0, v=0.5, w=0.0)))
+            self.bus.put(keys.world_clock(F), protocol.encode(protocol.Clock(t=1e8, seq=pose.seq + 1, epoch=0.0,
+                                                                             speed=1.0)))
+        # robot i's command of this very tick, before its own: taken, the true one would be late
+        self.bus.put(keys.robot_cmd(F, i), protocol.encode(protocol.Cmd(t=1e8, seq=pose.seq, v=1.0, w=0.5)))
         for j in range(self.n):
             self.bus.put(keys.cell(F, cx, cy, j), protocol.encode(protocol.State(
                 id=j, t=1e8, seq=pose.seq + 1, x=pose.x, y=pose.y, theta=0.0, r=0.3, R=1.2, frozen=False)))
@@ -139,9 +148,10 @@ class Forger:
 
 @pytest.mark.timeout(240)
 def test_lockstep_states_with_forged_times_are_refused_and_the_run_equals_the_simulator():
-    """Lock-step: a state's t is its seq's tick time (seq x dt). Forged states with the next tick's seq and
-    t = 1e8, one per robot and neighbour every tick, are refused and counted; no robot adopts one, so no true
-    state looks older and no tick waits: the run equals swarm sim step for step."""
+    """Lock-step: a message's t is its seq's tick time (seq x dt). Forged states with the next tick's seq and
+    t = 1e8, one per robot and neighbour every tick, forged commands of the tick under way, references and
+    clocks, are refused and counted; none is adopted, so no true message looks older or late and no tick
+    waits: the run equals swarm sim step for step."""
     scn = scenario_file.load("paper-50hz", Overrides(robots=4, duration=4.0))
     net = MemoryNet()
     forger = Forger(net, scn.n, scn.cell_side)
@@ -153,6 +163,8 @@ def test_lockstep_states_with_forged_times_are_refused_and_the_run_equals_the_si
     assert metrics["cmd_misses"] == 0 and metrics["collisions"] == 0 and metrics["lockstep_overruns"] == 0
     assert all(a.bad.count > 0 for a in agents)
     assert all(w.t is None or w.t < 1e3 for a in agents for w in a.w_state.values())  # none was adopted
+    assert all(a.w_ref.t < 1e3 and a.w_clock.t < 1e3 for a in agents)
+    assert world.bad.count >= forger.sent // (scn.n * scn.n)  # the forged commands, refused (not stale)
 
 
 def _callbacks(net: MemoryNet):
