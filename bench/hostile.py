@@ -18,9 +18,9 @@ session to every key of the running swarm: leader/ref, every robot's pose, cmd a
 keys of every robot's neighbourhood, world/clock, world/progress, world/run, world/snapshot and
 estop. Only messages that the receivers must refuse: garbage bytes, an unhashable kind, a kind
 that is a map, another protocol version, numbers beyond the physical bounds (vel 1.7e308, x = 1e7),
-sequence numbers and times that jump (seq 2^53 - 1, a clock of seq 10^9, t = 1e8), messages older
-than what the receivers have (stale), states with ids outside the scenario or an id that differs
-from the key's, a cell key whose last chunk is no id, and payloads beyond zenoh's size limits (100 kB
+sequence numbers and times that jump (seq 2^53 - 1, a clock of seq 10^9, t = 1e8), times that are
+not their seq's tick (t != seq x dt: forged, bad in lock-step), messages older than what the receivers
+have (stale), states with ids outside the scenario or an id that differs from the key's, a cell key whose last chunk is no id, and payloads beyond zenoh's size limits (100 kB
 on a small key, 10 MB on a cell key, 20 MB on world/snapshot). On world/run, world/progress and
 estop it sends malformed messages only: a well-formed run announcement starts a new run and a
 well-formed emergency stop stops every robot, by design (docs/security.md).
@@ -196,8 +196,8 @@ class Cells:
 class Attack:
     """The attack messages, each with what every receiver must make of it."""
 
-    def __init__(self, n: int, cells: Cells, ledger: Ledger) -> None:
-        self.n, self.cells, self.ledger = n, cells, ledger
+    def __init__(self, n: int, cells: Cells, ledger: Ledger, dt: float) -> None:
+        self.n, self.cells, self.ledger, self.dt = n, cells, ledger, dt  # dt: lock-step's tick (t = seq x dt)
         self.robots = [f"robot {i}" for i in range(n)]
         self.stranger = n  # next id outside the scenario
         self.cell_turn = [0] * n  # which cell of robot i's neighbourhood is next
@@ -215,10 +215,12 @@ class Attack:
 
         ref = keys.leader_ref(F)
         malformed("leader/ref", ref, self._all(BAD))
-        out += [("leader/ref", ref, "t 1e9, seq 7 (stale: seq)", protocol.encode(
-                    Ref(t=1e9, seq=7, x=60.0, y=0.0, theta=0.0, v=0.5, w=0.0)), self._all(STALE)),
-                ("leader/ref", ref, "t 1, seq 2^53-1 (stale: t)", protocol.encode(
-                    Ref(t=1.0, seq=BIG_SEQ, x=60.0, y=0.0, theta=0.0, v=0.5, w=0.0)), self._all(STALE)),
+        out += [("leader/ref", ref, "t 7 dt, seq 7 (stale)", protocol.encode(
+                    Ref(t=7 * self.dt, seq=7, x=60.0, y=0.0, theta=0.0, v=0.5, w=0.0)), self._all(STALE)),
+                ("leader/ref", ref, "t 1e9, seq 7 (forged: t not seq x dt)", protocol.encode(
+                    Ref(t=1e9, seq=7, x=60.0, y=0.0, theta=0.0, v=0.5, w=0.0)), self._all(BAD)),
+                ("leader/ref", ref, "t 1, seq 2^53-1 (forged)", protocol.encode(
+                    Ref(t=1.0, seq=BIG_SEQ, x=60.0, y=0.0, theta=0.0, v=0.5, w=0.0)), self._all(BAD)),
                 ("leader/ref", ref, "t 1e8, seq 2^53-1 (jump)", protocol.encode(
                     Ref(t=1e8, seq=BIG_SEQ, x=60.0, y=0.0, theta=0.0, v=0.5, w=0.0)), self._all(BAD)),
                 ("leader/ref", ref, "vel 1.7e308", pack({"v": 1, "kind": "ref", "t": 5.0, "seq": 300, "x": 0.0,
@@ -228,8 +230,8 @@ class Attack:
             me = [(f"robot {i}", BAD)]
             pose = keys.robot_pose(F, i)
             malformed("robot/<id>/pose", pose, me)
-            out += [("robot/<id>/pose", pose, "t 1, seq 2^53-1 (stale: t)", protocol.encode(
-                        Pose(t=1.0, seq=BIG_SEQ, x=0.0, y=0.0, theta=0.0)), [(f"robot {i}", STALE)]),
+            out += [("robot/<id>/pose", pose, "t 1, seq 2^53-1 (forged)", protocol.encode(
+                        Pose(t=1.0, seq=BIG_SEQ, x=0.0, y=0.0, theta=0.0)), me),
                     ("robot/<id>/pose", pose, "t 1e8, seq 2^53-1 (jump)", protocol.encode(
                         Pose(t=1e8, seq=BIG_SEQ, x=0.0, y=0.0, theta=0.0)), me),
                     ("robot/<id>/pose", pose, "t 0, seq 0 (stale)", protocol.encode(
@@ -254,8 +256,10 @@ class Attack:
                      [("world", STALE)])]
         clock = keys.world_clock(F)  # after the start barrier only the leader listens (robots drop it)
         malformed("world/clock", clock, [("leader", BAD)])
-        out += [("world/clock", clock, "t 1, seq 10^9 (stale: t)", protocol.encode(
-                    Clock(t=1.0, seq=10**9, epoch=0.0, speed=1.0)), [("leader", STALE)]),
+        out += [("world/clock", clock, "t 1, seq 10^9 (forged)", protocol.encode(
+                    Clock(t=1.0, seq=10**9, epoch=0.0, speed=1.0)), [("leader", BAD)]),
+                ("world/clock", clock, "t dt, seq 1 (stale)", protocol.encode(
+                    Clock(t=self.dt, seq=1, epoch=0.0, speed=1.0)), [("leader", STALE)]),
                 ("world/clock", clock, "t 1e8, seq 10^9 (jump)", protocol.encode(
                     Clock(t=1e8, seq=10**9, epoch=0.0, speed=1.0)), [("leader", BAD)])]
         malformed("world/progress", keys.world_progress(F), [("launcher", BAD)])
@@ -562,7 +566,7 @@ def main() -> int:
         if a.floods:
             return _floods_run(a, bus, proc, scn, cells, progress, children, trace, metrics_path, log_dir)
         print(f"attack: tick {k0} reached; {a.rate:g} messages a second for {a.attack_s:g} s ...", flush=True)
-        spent = run_attack(bus.session, Attack(scn.n, cells, ledger), ledger, a.rate, a.attack_s)
+        spent = run_attack(bus.session, Attack(scn.n, cells, ledger, scn.dt), ledger, a.rate, a.attack_s)
         k1 = progress["seq"]
         print(f"attack: {ledger.total} messages ({ledger.bytes / 1e6:.1f} MB) in {spent:.1f} s "
               f"({ledger.total / spent:.0f} a second), ticks {k0}..{k1} ({(k1 - k0) / spent:.0f} ticks/s "
