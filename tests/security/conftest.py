@@ -128,6 +128,7 @@ class Net:
             conf = secure.router_config(self.dir, listen=[self.endpoint])
             if self.told:
                 conf.insert_json5("access_control", json.dumps(told(json.loads(conf.get_json("access_control")))))
+            conf = zenoh_config("router", base=conf)  # our settings on top, as `swarm router --secure` has them
         else:
             conf = zenoh_config("router", listen=[self.endpoint])
         self.router = ZenohBus(conf)
@@ -140,8 +141,7 @@ class Net:
         if self.secure:
             conf = secure.secure_config(directory or self.dir, role, i if role == "robot" else None,
                                         connect=[self.endpoint])
-            conf.insert_json5("transport/link/tx/lease", "1000")
-            return conf
+            return zenoh_config("client", base=conf)  # our settings on top, as every process has them
         return zenoh_config("client", connect=[self.endpoint])
 
     def bus(self, role: str, i: int = 0, directory: Path | None = None) -> ZenohBus:

@@ -136,3 +136,23 @@ def test_with_secure_the_attack_is_stopped(fleet_dir, a, told):
             let_in = {k for k, _ in net.auditor.items}
             assert not let_in & set(a.forged), let_in
         assert keys.alive(FLEET, "robot", PHANTOM) not in tokens_at_router(net)
+
+
+@pytest.mark.parametrize("secure_", [False, True], ids=["open", "secure"])
+def test_robot_3s_put_on_its_own_wildcard_cell_key_reaches_no_one(fleet_dir, secure_):
+    """Robot 3's certificate may put on cell/*/*/3 (the access control's rule includes that expression
+    itself), and one such put would reach each of a robot's 9 cell subscriptions: zenoh's wildcard guard
+    (swarm.net.bus.wildcard_guard) drops it at the router, with --secure and without."""
+    with Net(fleet_dir, secure_=secure_) as net:
+        victim, heard = net.bus("robot", 5), Seen()
+        for cx in (-1, 0, 1):
+            for cy in (-1, 0, 1):
+                victim.subscribe(keys.cell_any(FLEET, cx, cy), heard.add)  # a robot's 3 x 3 block
+        robot3 = net.bus("robot", 3)
+        heard.retry(lambda: robot3.put(STATE3, b"prime"), lambda items: (STATE3, b"prime") in items,
+                    "the victim to hear robot 3")
+        for _ in range(100):
+            robot3.put(f"swarm/{FLEET}/cell/*/*/3", b"wildcard")
+        robot3.put(STATE3, b"sentinel")
+        heard.wait_key(STATE3, b"sentinel")
+        assert {p for _, p in heard.items} <= {b"prime", b"sentinel"}, heard.items
