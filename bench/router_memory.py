@@ -16,9 +16,7 @@ whether the attacker's session stayed up (its token never went down). docs/secur
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -53,30 +51,6 @@ def start_router(endpoint: str, fleet: str, log_path: Path) -> subprocess.Popen:
         return subprocess.Popen([sys.executable, "-m", "swarm.cli", "router", "--listen", endpoint, "--fleet", fleet,
                                  "--log-level", "warning"], stdin=subprocess.DEVNULL, stdout=log,
                                 stderr=subprocess.STDOUT, process_group=0, cwd=ROOT)
-
-
-def stop_router(p: subprocess.Popen) -> None:
-    if p.poll() is None:
-        try:
-            os.killpg(p.pid, signal.SIGTERM)
-        except ProcessLookupError:
-            pass
-    try:
-        p.wait(10)
-    except subprocess.TimeoutExpired:
-        os.killpg(p.pid, signal.SIGKILL)
-        p.wait(5)
-
-
-def attacker_config(endpoint: str):
-    """A plain zenoh client: zenoh's defaults (no low_pass_filter, 1 GiB max_message_size), no scouting."""
-    import zenoh
-
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"client"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    return conf
 
 
 def open_until(conf_fn, deadline: float):
@@ -127,7 +101,8 @@ class Seen:
 def run(puts: int, mib: float, settle_s: float) -> dict:
     import zenoh
 
-    from swarm.net.bus import zenoh_config
+    from swarm.launch.child import stop_group
+    from swarm.net.bus import plain_config, zenoh_config
     from swarm.proto import keys
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -143,7 +118,7 @@ def run(puts: int, mib: float, settle_s: float) -> dict:
         sessions.append(sub_s)
         while not list(sub_s.liveliness().get(keys.alive(FLEET, "router"), timeout=1.0)):  # the router's token
             assert time.monotonic() < deadline, "the router's liveliness token did not appear"
-        atk = open_until(lambda: attacker_config(endpoint), deadline)
+        atk = open_until(lambda: plain_config("client", connect=[endpoint]), deadline)
         sessions.append(atk)
         seen = Seen()
         key = keys.robot_cmd(FLEET, 3)
@@ -183,7 +158,7 @@ def run(puts: int, mib: float, settle_s: float) -> dict:
     finally:
         for s in reversed(sessions):
             s.close()
-        stop_router(router)
+        stop_group(router)
         if ok:
             log.unlink(missing_ok=True)
         else:

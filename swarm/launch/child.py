@@ -44,3 +44,20 @@ def settle_heap() -> None:
 
     gc.collect()
     gc.freeze()
+
+
+def stop_group(proc, term_s: float = 10.0) -> None:
+    """Stop a child that leads its own process group (started with process_group=0): SIGTERM to the group,
+    SIGKILL to it if the child has not ended within term_s, and reap it."""
+    import subprocess
+
+    if proc.poll() is None:
+        try:
+            os.killpg(proc.pid, signal.SIGTERM)
+        except ProcessLookupError:
+            pass
+    try:
+        proc.wait(term_s)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(5)

@@ -337,6 +337,23 @@ def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen:
     return conf
 
 
+def plain_config(mode: str, connect: list[str] | None = None, listen: list[str] | None = None):
+    """zenoh's own defaults with explicit endpoints and multicast scouting off: what another zenoh program
+    (somebody else's router, an attacker's client) runs, without any of zenoh_config's settings."""
+    import json
+
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps(connect))
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps(listen))
+    return conf
+
+
 WILDCARD_CHUNK = "$*~$*"  # a chunk with a "~": no key the swarm puts has one (ids, cells and kinds are [A-Za-z0-9_-])
 
 

@@ -199,19 +199,11 @@ def test_zenoh_drops_a_payload_past_the_size_limit_on_its_way_in(router_filters)
     """zenoh's low_pass_filter (bus.size_limits) drops a payload larger than the codec's limit before any
     subscriber sees it: at our router's ingress, and, behind a router without the rules (somebody
     else's), at the receiving client's ingress. A payload at the limit goes through."""
-    import zenoh
-
     from swarm.proto.protocol import MAX_PAYLOAD
 
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
-    if router_filters:
-        router = busmod.ZenohBus(busmod.zenoh_config("router", listen=[endpoint]))
-    else:
-        conf = zenoh.Config()
-        conf.insert_json5("mode", '"router"')
-        conf.insert_json5("scouting/multicast/enabled", "false")
-        conf.insert_json5("listen/endpoints", f'["{endpoint}"]')
-        router = busmod.ZenohBus(conf)
+    router = busmod.ZenohBus(busmod.zenoh_config("router", listen=[endpoint]) if router_filters else
+                             busmod.plain_config("router", listen=[endpoint]))
     try:
         with busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint])) as a, \
                 busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint])) as b:
@@ -243,21 +235,10 @@ def test_zenoh_drops_a_put_on_a_wildcard_key_expression_before_any_subscriber(ro
     downsampling interceptor (bus.wildcard_guard, a rate of 0 on the key expressions only a wildcard put can
     intersect) drops it at our router's ingress, and, behind a router without the rule, at the receiving
     client's ingress. Concrete keys go through; the receiver sees none of the wildcard puts."""
-    import zenoh
-
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
-    if router_filters:
-        router = busmod.ZenohBus(busmod.zenoh_config("router", listen=[endpoint]))
-    else:
-        conf = zenoh.Config()
-        conf.insert_json5("mode", '"router"')
-        conf.insert_json5("scouting/multicast/enabled", "false")
-        conf.insert_json5("listen/endpoints", f'["{endpoint}"]')
-        router = busmod.ZenohBus(conf)
-    attacker_conf = zenoh.Config()  # a plain client: no rule of ours on its way out
-    attacker_conf.insert_json5("mode", '"client"')
-    attacker_conf.insert_json5("scouting/multicast/enabled", "false")
-    attacker_conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
+    router = busmod.ZenohBus(busmod.zenoh_config("router", listen=[endpoint]) if router_filters else
+                             busmod.plain_config("router", listen=[endpoint]))
+    attacker_conf = busmod.plain_config("client", connect=[endpoint])  # no rule of ours on its way out
     try:
         with busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint])) as b, \
                 busmod.ZenohBus(attacker_conf) as a:

@@ -10,9 +10,6 @@ Waits are on events with deadlines, never sleeps.
 
 from __future__ import annotations
 
-import json
-import os
-import signal
 import socket
 import subprocess
 import sys
@@ -22,7 +19,8 @@ from pathlib import Path
 
 import pytest
 
-from swarm.net.bus import ZenohBus, zenoh_config
+from swarm.launch.child import stop_group
+from swarm.net.bus import ZenohBus, plain_config, zenoh_config
 from swarm.proto import keys, protocol
 
 pytestmark = pytest.mark.integration
@@ -102,24 +100,9 @@ def router(tmp_path):
             probe.close()
         yield endpoint, proc
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGTERM)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(5)
+        stop_group(proc)
 
 
-def plain_client(endpoint: str):
-    """An attacker's session: zenoh's defaults (no low_pass_filter, a 1 GiB max_message_size), no scouting."""
-    import zenoh
-
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"client"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    return zenoh.open(conf)
 
 
 @pytest.mark.timeout(60)
@@ -137,7 +120,7 @@ def test_oversized_puts_cost_the_router_neither_their_size_nor_memory_it_keeps(r
         robot.subscribe(key, lambda k, p: seen.add(p if len(p) < 64 else len(p).to_bytes(8, "big")))
         robot.session.liveliness().declare_subscriber(
             "attacker/alive", lambda s: tokens.add(b"up" if s.kind == zenoh.SampleKind.PUT else b"down"), history=True)
-        attacker = plain_client(endpoint)
+        attacker = zenoh.open(plain_config("client", connect=[endpoint]))
         try:
             token = attacker.liveliness().declare_token("attacker/alive")  # kept: a dropped token is undeclared
             assert tokens.wait_for(lambda items: b"up" in items, "the attacker's token"), "the attacker's token"
