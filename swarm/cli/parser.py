@@ -11,6 +11,7 @@
     swarm viz --connect ENDPOINT [--fleet NAME] [--scenario ...] [--viz-host H] [--viz-port P]
     swarm router | world | leader | robot --id I     (the processes `swarm up` starts; each runs alone
                                                      with --connect ENDPOINT, e.g. on another machine)
+    swarm --version
 
 Each subcommand's `func` names the module and function that runs it ("swarm.cli.up:cmd_up"), imported
 only when that command runs: `swarm sim` never loads zenoh, a robot process never loads matplotlib.
@@ -21,10 +22,54 @@ from __future__ import annotations
 import argparse
 import math
 import socket
+import sys
 from pathlib import Path
 from typing import Sequence
 
 from swarm.launch.plan import VIZ_HOST
+
+# --------------------------------------------------------------------------- swarm --version
+
+DISTRIBUTION = "swarm"  # the distribution's name: [project] name in pyproject.toml
+PYPROJECT = Path(__file__).resolve().parents[2] / "pyproject.toml"  # in a source checkout
+
+
+def version() -> str:
+    """The installed distribution's version; not installed (run from a checkout), pyproject.toml's."""
+    from importlib import metadata
+
+    try:
+        return metadata.version(DISTRIBUTION)
+    except metadata.PackageNotFoundError:
+        return pyproject_version()
+
+
+def pyproject_version(path: Path = PYPROJECT) -> str:
+    """[project] version of the pyproject.toml at path, when it is this project's; else "unknown"."""
+    import tomllib
+
+    try:
+        project = tomllib.loads(path.read_text(encoding="utf-8")).get("project")
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return "unknown"
+    if not isinstance(project, dict) or project.get("name") != DISTRIBUTION or \
+            not isinstance(project.get("version"), str):
+        return "unknown"
+    return project["version"]
+
+
+class _Version(argparse.Action):
+    """--version: print "swarm <version>" and exit 0. The version is looked up only then (not at each start
+    of a process, which builds the parser)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        sys.stdout.write(f"{parser.prog} {version()}\n")
+        sys.stdout.flush()
+        parser.exit(0)
+
 
 # --------------------------------------------------------------------------- argument types
 
@@ -241,6 +286,7 @@ def build_parser() -> argparse.ArgumentParser:
                "missed commands, lock-step overruns, robots lost; --allow-violations: 0), 130 interrupted. "
                "Docs: README.md and docs/ in the repository.",
     )
+    parser.add_argument("--version", action=_Version, help="print swarm's version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     sim = sub.add_parser(

@@ -5,6 +5,7 @@
 - docs/protocol.md names every key builder of swarm.proto.keys, every message kind with every field
   of it, and its worked example is what the codec writes.
 - docs/metrics.md names every metric key the simulator, the referee, the world and `swarm up` write.
+- `swarm --version` prints the installed distribution's version (pyproject.toml's when not installed).
 """
 
 from __future__ import annotations
@@ -229,3 +230,38 @@ def test_metrics_doc_keeps_its_sections():
     assert "## Exit codes" in text and "## Under faults" in text
     for code in ("| 0 |", "| 1 |", "| 2 |", "| 3 |", "| 130 |"):
         assert code in text
+
+
+# --------------------------------------------------------------------------- swarm --version
+
+
+def test_swarm_version_prints_the_version_and_exits_0(capsys):
+    from swarm.cli import parser
+    from swarm.cli.main import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code in (0, None)
+    out = capsys.readouterr().out
+    assert out == f"swarm {parser.version()}\n"
+    assert re.fullmatch(r"swarm \d+(\.\d+)*\S*\n", out), out
+
+
+def test_swarm_version_without_an_installed_distribution_is_pyproject_s(monkeypatch, tmp_path):
+    import tomllib
+    from importlib import metadata
+
+    from swarm.cli import parser
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    assert project["name"] == parser.DISTRIBUTION and parser.PYPROJECT == ROOT / "pyproject.toml"
+
+    def not_installed(name):
+        raise metadata.PackageNotFoundError(name)
+
+    monkeypatch.setattr(metadata, "version", not_installed)
+    assert parser.version() == project["version"]
+    other = tmp_path / "pyproject.toml"
+    other.write_text('[project]\nname = "another"\nversion = "9.9"\n')
+    assert parser.pyproject_version(other) == "unknown"
+    assert parser.pyproject_version(tmp_path / "absent.toml") == "unknown"
