@@ -13,6 +13,8 @@
                                                      with --connect ENDPOINT, e.g. on another machine)
     swarm --version
 
+Every subcommand and flag is in docs/cli.md, generated from this parser (python -m swarm.cli.reference).
+
 Each subcommand's `func` names the module and function that runs it ("swarm.cli.up:cmd_up"), imported
 only when that command runs: `swarm sim` never loads zenoh, a robot process never loads matplotlib.
 """

@@ -5,6 +5,7 @@
 - docs/protocol.md names every key builder of swarm.proto.keys, every message kind with every field
   of it, and its worked example is what the codec writes.
 - docs/metrics.md names every metric key the simulator, the referee, the world and `swarm up` write.
+- docs/cli.md is what swarm.cli.reference generates from the parsers, and names every command and flag.
 - `swarm --version` prints the installed distribution's version (pyproject.toml's when not installed).
 """
 
@@ -232,7 +233,49 @@ def test_metrics_doc_keeps_its_sections():
         assert code in text
 
 
-# --------------------------------------------------------------------------- swarm --version
+# --------------------------------------------------------------------------- docs/cli.md and swarm --version
+
+CLI = ROOT / "docs" / "cli.md"
+REGENERATE = "python -m swarm.cli.reference > docs/cli.md"
+
+
+def test_cli_doc_is_what_the_parsers_generate():
+    from swarm.cli import reference
+
+    assert reference.REGENERATE == REGENERATE
+    text = CLI.read_text(encoding="utf-8")
+    assert REGENERATE in text.split("\n## ", 1)[0], "docs/cli.md must say how it is regenerated, at its top"
+    assert text == reference.render(), f"docs/cli.md is out of date: run {REGENERATE}"
+
+
+def _cli_sections(text: str) -> dict[str, str]:
+    """docs/cli.md's text under each "## swarm ..." heading, by command (its prog: "swarm secure init")."""
+    parts = re.split(r"^## (swarm(?: [a-z0-9-]+)*)\s*$", text, flags=re.MULTILINE)
+    return dict(zip(parts[1::2], parts[2::2]))
+
+
+def test_cli_doc_names_every_command_and_flag():
+    import argparse
+
+    from swarm.cli.parser import all_parsers, build_parser
+
+    text = CLI.read_text(encoding="utf-8")
+    sections = _cli_sections(text)
+    parsers = list(all_parsers(build_parser()))
+    assert {"swarm", "swarm up", "swarm secure init", "swarm scenario show"} <= {p.prog for p in parsers}
+    missing = sorted({p.prog for p in parsers} - set(sections))
+    assert not missing, f"docs/cli.md has no section for the commands {missing}: run {REGENERATE}"
+    absent = []
+    for p in parsers:
+        for action in p._actions:
+            if action.help == argparse.SUPPRESS:
+                continue
+            # -h/--help, every command's, is said once at the top; any other flag in its command's section
+            where = text if isinstance(action, argparse._HelpAction) else sections[p.prog]
+            for flag in action.option_strings:
+                if not re.search(rf"(?<![\w-]){re.escape(flag)}(?![\w-])", where):
+                    absent.append(f"{p.prog} {flag}")
+    assert not absent, f"docs/cli.md does not document the flags {absent}: run {REGENERATE}"
 
 
 def test_swarm_version_prints_the_version_and_exits_0(capsys):
