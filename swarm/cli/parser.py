@@ -301,7 +301,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_scenario_flags(sim, "paper")
     out = sim.add_argument_group("output")
-    out.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (its keys: docs/design.md, Metrics)")
+    out.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (its keys: docs/metrics.md)")
     out.add_argument("--plots", type=Path, metavar="DIR", help="write the panels of the paper's Fig. 2 as PNG")
     out.add_argument("--quiet", action="store_true", help="no progress bar and no summary table")
     _add_violation_flag(out)
