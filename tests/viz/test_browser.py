@@ -143,7 +143,9 @@ def test_the_legend_and_the_overlay_are_on_the_page_and_follow_the_run(tmp_path)
 
 def test_swarm_up_draws_the_live_swarm_and_a_sigkill_leaves_nothing_behind(tmp_path):
     """The real path: `swarm up` with its viewer child; then SIGKILL `swarm up` alone."""
-    child = Child(["up", "--robots", "7", "--duration", "120", "--listen", f"tcp/127.0.0.1:{free_port()}",
+    # long enough to be running still when it is killed (lock-step at 7 robots does 120 simulated s in 20-30 s
+    # here: a run that had ended left its processes exiting, zombies, when the test read their command lines)
+    child = Child(["up", "--robots", "7", "--duration", "1200", "--listen", f"tcp/127.0.0.1:{free_port()}",
                    "--fleet", "vizup", "--log-dir", str(tmp_path / "logs"), "--quiet"], tmp_path / "up.err")
     try:
         url = child.expect(URL_LINE, 60).group(1)
