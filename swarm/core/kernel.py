@@ -51,7 +51,7 @@ A_FAR_RO = 5  # the same for robot-obstacle pairs [m]
 A_SIZE = 6
 # While no pair has come within the cell side, every pair is measured at every step (the metrics
 # contract samples every step), up to this many pairs; beyond it metrics fall back to the samples.
-FAR_PAIRS_MAX = 1 << 19  # 524288 pairs: 1024 robots (about 0.5 ms a step compiled); 8192 (128 robots) until session 26
+FAR_PAIRS_MAX = 1 << 19  # 524288 pairs: 1024 robots (about 0.5 ms a step compiled)
 # Integer accumulators (iacc).
 I_COLLISIONS = 0
 I_LAST_BAD = 1  # last step with some robot not converged (-1: none)

@@ -308,7 +308,7 @@ def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen:
     conf.insert_json5("transport/unicast/open_timeout", "2000")
     conf.insert_json5("connect/retry", json.dumps({"period_init_ms": 250, "period_max_ms": 1000,
                                                    "period_increase_factor": 2}))
-    # small batches: lock-step traffic is many ~100-byte messages (+8-30 % ticks/s, docs/runtime.md)
+    # small batches: lock-step traffic is many ~100-byte messages
     conf.insert_json5("transport/link/tx/batch_size", "4096")
     conf.insert_json5("transport/link/rx/buffer_size", "4096")
     # payloads beyond the codec's limits are dropped by zenoh itself, on the way in and out, so an
@@ -479,7 +479,7 @@ class ZenohBus:
         neighbour's cell key, a robot's command key): declared to zenoh (declare_keyexpr), so that its
         session resolves the key's route once and keeps it. Without it, zenoh matches every sample on a key
         it does not know against all of its subscriptions again (Resource::get_matches): about 4 % of the
-        whole machine's CPU in a 37-robot real-time run (docs/runtime.md). At most KEY_HINTS are kept: past
+        whole machine's CPU in a 37-robot real-time run (docs/performance.md, "Key hints"). At most KEY_HINTS are kept: past
         that they are all undeclared and it starts over (keys of robots long gone, or a stranger's)."""
         with self._pub_lock:
             if key in self._hints or self._closed:
@@ -528,7 +528,7 @@ class ZenohBus:
         """Samples wait in a zenoh ring channel (the newest `depth`) until drain(): zenoh's thread
         never runs Python for them (no GIL, no callback), and the owner decodes them in one batch.
         A robot's neighbour states take this path in real time: its receiving thread never waits for the GIL
-        (docs/runtime.md, session 18)."""
+        (docs/performance.md, "Tried and dropped")."""
         sub = self.session.declare_subscriber(key_expr, self._z.handlers.RingChannel(depth))
         return self._keep(_ZenohInbox(sub, self.session, key_expr, self._z))
 
@@ -604,7 +604,7 @@ def _pin_thread_ctypes() -> None:
 # Every callback zenoh runs calls this first, on zenoh's thread with the GIL held: it keeps that thread's
 # Python thread state for the life of the process. Without it CPython makes and deletes a thread state for
 # each callback (pyo3 takes the GIL with PyGILState_Ensure), with an mmap, page faults and a munmap of its
-# frame stack: about a tenth of a lock-step robot's CPU (docs/runtime.md). Compiled where _wire is built
+# frame stack: about a tenth of a lock-step robot's CPU (docs/performance.md, "Callbacks on zenoh's threads"). Compiled where _wire is built
 # (a C thread-local flag), else the same Ensure through ctypes; the flag is per thread either way.
 try:
     from swarm.proto._wire import pin_thread
