@@ -14,6 +14,8 @@ from swarm.proto import keys, protocol
 from world import claims
 from world.claims import ClaimServer, ClaimTable
 
+pytestmark = pytest.mark.unit
+
 
 def test_lowest_free_ids_in_order_and_the_same_key_gets_the_same_answer():
     t = ClaimTable(3)

@@ -13,6 +13,8 @@ from agents.guard import Guard, arena_of
 from swarm.core import runid, scenario_file
 from swarm.core.clock import FakeClock
 
+pytestmark = pytest.mark.unit
+
 
 class Drive:
     """Records halts; `halted` as the real drives keep it (latched until send())."""

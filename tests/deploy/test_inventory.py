@@ -15,6 +15,8 @@ from swarm.core.inventory import InventoryError
 from swarm.core.scenario import ScenarioError
 from tests.conftest import toml_text
 
+pytestmark = pytest.mark.unit
+
 TB3 = scenario_file.load("turtlebot3", progress=scenario_file.silent)
 
 

@@ -17,7 +17,7 @@ from swarm.proto import keys, protocol
 from swarm.proto.protocol import State
 from world.referee_world import NotReady, RefereeOptions, RefereeWorld, run_referee
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.unit, pytest.mark.timeout(60)]
 TB3 = scenario_file.load("turtlebot3", progress=scenario_file.silent)
 SCN = TB3.replace(duration=2.0)
 

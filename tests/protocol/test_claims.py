@@ -1,6 +1,10 @@
 """The robots' own counts of bad messages (their statuses' `bad`), as the world and the referee add them up."""
 
+import pytest
+
 from swarm.proto.protocol import REFUSALS_PER_S_MAX, Claims
+
+pytestmark = pytest.mark.unit
 
 
 def test_a_claim_beyond_what_a_robot_can_have_seen_is_cut_to_the_bound():

@@ -11,6 +11,8 @@ from hypothesis import strategies as st
 
 from swarm.proto import protocol as p
 
+pytestmark = pytest.mark.unit
+
 MESSAGES = [
     p.Ref(t=1.5, seq=75, x=1.0, y=-2.0, theta=0.3, v=0.5, w=0.0982),
     p.Pose(t=0.0, seq=0, x=-1e3, y=2.5, theta=-3.14),

@@ -4,6 +4,8 @@ import pytest
 
 from swarm.proto import keys
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.mark.parametrize(
     "key, expected",

@@ -1,7 +1,11 @@
 """Windows, not "newest wins" (swarm.proto.window)."""
 
+import pytest
+
 from swarm.proto import window
 from swarm.proto.window import CONFIRM, DUPLICATE, JUMP, OK, STALE, Window
+
+pytestmark = pytest.mark.unit
 
 
 def test_spans_cover_twice_the_watchdog_and_at_least_two_seconds():

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 from mcap.reader import make_reader
+import pytest
 
 from swarm.proto import keys, protocol
 from swarm.view import record, report
@@ -13,6 +14,8 @@ from swarm.core import geometry, scenario_file as sf
 from swarm.net.bus import MemoryBus, MemoryNet
 from swarm.proto.protocol import Cmd, RobotSnap, Snapshot, Status
 from world.referee import Referee
+
+pytestmark = pytest.mark.unit
 
 
 def three_robots():

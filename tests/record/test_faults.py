@@ -7,12 +7,15 @@ import html
 import json
 
 import numpy as np
+import pytest
 
 from swarm.cli.main import main
 from swarm.core import faults as fl
 from swarm.net.bus import MemoryBus, MemoryNet
 from swarm.proto import keys, protocol
 from swarm.view import record, report
+
+pytestmark = pytest.mark.unit
 
 
 def _faults(path) -> list[tuple]:

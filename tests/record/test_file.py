@@ -10,6 +10,8 @@ from mcap.reader import make_reader
 
 from swarm.view import record, report
 
+pytestmark = pytest.mark.unit
+
 TYPES = {"number": (int, float), "integer": (int,), "boolean": (bool,), "string": (str,), "array": (list,),
          "object": (dict,), "null": (type(None),)}
 

@@ -6,9 +6,12 @@ import json
 
 import numpy as np
 from mcap.reader import make_reader
+import pytest
 
 from swarm.view import report
 from swarm.core.sim import Simulation
+
+pytestmark = pytest.mark.unit
 
 
 def recorded(path, topic):

@@ -12,6 +12,8 @@ from mcap.writer import Writer
 from swarm.view import record, report
 from swarm.view.plots import TITLES, write_panels
 
+pytestmark = pytest.mark.unit
+
 PANELS = [f"{stem}.png" for stem in TITLES] + ["fig2.png"]
 
 

@@ -10,6 +10,8 @@ from swarm.core import scenario_file as sf
 from swarm.core.sim import Simulation
 from tests.record.conftest import small_scenario
 
+pytestmark = pytest.mark.unit
+
 
 def expected_samples(steps: int, every: int) -> int:
     """Samples at k % every == 0 for k = 0..steps, plus the last step when off the grid."""

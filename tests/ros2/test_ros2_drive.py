@@ -14,6 +14,8 @@ from swarm.proto import ros2
 from swarm.proto.protocol import Cmd
 from world.ros2_fleet import Ros2Fleet
 
+pytestmark = pytest.mark.unit
+
 WALL_NS = 1_700_000_000_250_000_000
 
 

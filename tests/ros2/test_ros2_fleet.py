@@ -12,6 +12,8 @@ from swarm.proto import ros2
 from tests.ros2.helpers import Collector
 from world.ros2_fleet import Ros2Fleet
 
+pytestmark = pytest.mark.unit
+
 STARTS = [(1.0, 2.0, 0.5), (-3.0, 0.0, -2.5)]
 
 

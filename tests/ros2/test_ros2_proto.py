@@ -15,6 +15,8 @@ from hypothesis import strategies as st
 
 from swarm.proto import ros2
 
+pytestmark = pytest.mark.unit
+
 # The hashes as published for Jazzy (the same strings appear in rmw_zenoh-compatible code bases).
 TWIST_HASH = "RIHS01_9c45bf16fe0983d80e3cfe750d6835843d265a9a6c46bd2e609fcddde6fb8d2a"
 TWIST_STAMPED_HASH = "RIHS01_5f0fcd4f81d5d06ad9b4c4c63e3ea51b82d6ae4d0558f1d475229b1121db6f64"

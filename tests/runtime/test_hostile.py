@@ -21,6 +21,8 @@ from swarm.net.bus import MemoryBus, MemoryNet
 from swarm.proto import keys, protocol
 from tests.runtime.harness import run_swarm
 
+pytestmark = pytest.mark.unit
+
 F = "t"
 
 

@@ -18,6 +18,8 @@ from swarm.proto import keys, protocol
 from swarm.proto.protocol import Clock, Pose, Ref, State
 from tests.runtime.test_agent import CFG, F, Wire
 
+pytestmark = pytest.mark.unit
+
 DEADLINE_S = 20.0
 
 

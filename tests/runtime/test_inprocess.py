@@ -12,6 +12,8 @@ from swarm.core.scenario_file import Overrides
 from swarm.core.sim import Simulation
 from tests.runtime.harness import run_swarm
 
+pytestmark = pytest.mark.unit
+
 METRIC_KEYS = ("robots", "obstacles", "duration_s", "dt", "seed", "converged_at_s", "final_position_error_max_m",
                "final_orientation_error_max_rad", "min_robot_distance_m", "min_obstacle_distance_m", "collisions",
                "last_freeze_end_s", "freeze_intervals")

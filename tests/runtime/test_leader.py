@@ -13,6 +13,8 @@ from swarm.net.bus import MemoryBus, MemoryNet
 from swarm.proto.protocol import Clock
 from swarm.core.scenario import Leader, Segment
 
+pytestmark = pytest.mark.unit
+
 F = "t"
 
 

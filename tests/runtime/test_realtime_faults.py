@@ -22,6 +22,8 @@ from swarm.proto import keys, protocol
 from swarm.proto.protocol import Clock, Cmd, Config, FaultStats, Pose, Ref, State
 from world.world import World
 
+pytestmark = pytest.mark.unit
+
 F_ = "rtf"
 CFG = Config(id=3, x=0.0, y=0.0, theta=0.0, dx=1.5, dy=-0.5, r=0.3, R=1.2, k1=0.5, k2=0.5, k3=1.0, tu=1.0,
              vt=0.05, threshold=law.THRESHOLD_FROZEN, governor=True, dt=0.02, sense=1.5, reach=1.2,

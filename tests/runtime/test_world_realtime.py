@@ -16,6 +16,8 @@ from swarm.net.bus import MemoryBus, MemoryNet
 from swarm.proto.protocol import Cmd
 from world.world import World
 
+pytestmark = pytest.mark.unit
+
 F = "wrt"
 V, W = 0.4, 0.3  # robot 0's constant command
 

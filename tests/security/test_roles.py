@@ -9,6 +9,8 @@ import pytest
 from swarm.net.bus import matches
 from swarm.proto import keys, roles
 
+pytestmark = pytest.mark.unit
+
 FLEET = "f"
 # a sample value per parameter name of a key builder (a builder with another parameter fails the
 # test below: give it a sample here and a row in swarm.proto.roles.TABLE)

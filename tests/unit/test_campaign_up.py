@@ -13,6 +13,8 @@ from swarm.cli.campaign_files import cell, read_campaign, write_campaign_json
 from swarm.cli.campaign_up import Check, TraceDiff, compare_traces, line, metric_differences, row_differences
 from swarm.cli.common import BadInput
 
+pytestmark = pytest.mark.unit
+
 
 def trace(seed: int = 0) -> np.ndarray:
     return np.random.default_rng(seed).normal(size=(50, 5, 3))

@@ -3,7 +3,11 @@ realtime says before it starts."""
 
 from __future__ import annotations
 
+import pytest
+
 from swarm.launch import capacity
+
+pytestmark = pytest.mark.unit
 
 
 def test_the_demand_grows_with_robots_and_speed_and_a_warning_says_what_this_machine_holds():

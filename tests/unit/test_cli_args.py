@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import pytest
+
 from swarm.cli.main import _dash_values, main
+
+pytestmark = pytest.mark.unit
 
 
 def test_a_value_that_starts_with_a_dash_is_a_value():

@@ -9,6 +9,8 @@ import pytest
 
 from swarm.core.clock import STEP_WARN_S, WallClock, said_step
 
+pytestmark = pytest.mark.unit
+
 
 class Sources:
     """A system clock and a monotonic clock a test moves: step() moves only the system clock."""

@@ -18,6 +18,8 @@ from swarm.net.faultbus import FaultBus
 from swarm.proto import keys, protocol
 from swarm.proto.protocol import Cmd, Pose, Ref, State, Status
 
+pytestmark = pytest.mark.unit
+
 FLEET = "fb"
 N = 5
 DT = 0.02

@@ -27,6 +27,8 @@ from swarm.core.faults import (
 )
 from swarm.core.scenario import ScenarioError
 
+pytestmark = pytest.mark.unit
+
 N = 7  # robots of the scenario the faults are checked against
 DURATION = 60.0  # s
 

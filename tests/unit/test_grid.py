@@ -7,6 +7,8 @@ import pytest
 
 from swarm.core import grid
 
+pytestmark = pytest.mark.unit
+
 
 def build(xs, ys, side):
     n = len(xs)

@@ -19,6 +19,8 @@ from swarm.core import scenario_file as sf
 from swarm.core.scenario import Control, Scenario
 from swarm.core.sim import Simulation
 
+pytestmark = pytest.mark.unit
+
 
 class Reference:
     """A pure-Python, one-robot-at-a-time simulation of a scenario."""

@@ -11,6 +11,8 @@ from numpy.testing import assert_allclose
 from swarm.core import kinematics
 from swarm.core.scenario import Leader, Segment
 
+pytestmark = pytest.mark.unit
+
 
 def rk4_unicycle(x, y, th, v, w, duration, substeps):
     """Integrate q' = (v cos th, v sin th, w) with classical RK4."""

@@ -12,6 +12,8 @@ from swarm.core import kinematics, law
 from swarm.core import scenario_file as sf
 from swarm.core.scenario import Control, Leader, Segment
 
+pytestmark = pytest.mark.unit
+
 K1, K2, K3 = 0.5, 0.5, 1.0
 SENSE = 1.5  # m, the default cell side (R + margin)
 REACH = 1.2  # m, the default largest R

@@ -14,7 +14,8 @@ from hypothesis import strategies as st
 
 from swarm.core import fastlaw, law
 
-pytestmark = pytest.mark.skipif(fastlaw._law is None, reason="the compiled law is not built here (no C compiler)")
+pytestmark = [pytest.mark.unit,
+              pytest.mark.skipif(fastlaw._law is None, reason="the compiled law is not built here (no C compiler)")]
 
 
 def test_ci_builds_the_compiled_law():

@@ -8,6 +8,8 @@ from swarm.core import scenario_file as sf
 from swarm.view.plots import TITLES, close_pairs, write_panels
 from swarm.core.sim import Recording, Simulation
 
+pytestmark = pytest.mark.unit
+
 NAMES = [f"{stem}.png" for stem in TITLES] + ["fig2.png"]
 
 

@@ -10,6 +10,8 @@ import pytest
 
 from swarm.core import kinematics, safety
 
+pytestmark = pytest.mark.unit
+
 RAMP, EPS, DT = safety.RAMP_S, safety.CLOCK_SKEW_S, 0.02
 H = min(DT, RAMP / 2.0)  # the simulated world's ramp step
 

@@ -15,6 +15,8 @@ from swarm.core import scenario_file as sf
 from swarm.core.geometry import closest_pair
 from swarm.core.scenario import ScenarioError
 
+pytestmark = pytest.mark.unit
+
 # The example of the scenario contract (docs/scenarios.md), as first written.
 DESIGN_EXAMPLE = """
 [run]

@@ -16,6 +16,8 @@ import pytest
 from swarm.core import generators, geometry
 from swarm.core import scenario_file as sf
 
+pytestmark = pytest.mark.unit
+
 
 def all_pairs_closest(points: np.ndarray, within: float):
     """The reference: every pair, the first smallest in (i, j) order."""

@@ -4,8 +4,11 @@ while at least 80 % of the live robots are converged, counted only while they ar
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from swarm.core.metrics import STRANDED_S, Strands
+
+pytestmark = pytest.mark.unit
 
 
 def run(errors_of, n: int = 10, seconds: float = 40.0, dt: float = 0.05, live=None) -> Strands:

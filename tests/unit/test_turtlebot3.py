@@ -2,9 +2,12 @@
 speed limits at every step, converging with no collision."""
 
 import numpy as np
+import pytest
 
 from swarm.core import scenario_file
 from swarm.core.sim import Simulation
+
+pytestmark = pytest.mark.unit
 
 
 def test_turtlebot3_converges_within_the_robots_limits():

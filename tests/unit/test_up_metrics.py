@@ -3,10 +3,14 @@ rounding of step times as every other run's metrics (swarm.core.metrics.record).
 
 from __future__ import annotations
 
+import pytest
+
 from swarm.cli.up import metrics_from_progress
 from swarm.core import scenario_file
 from swarm.proto import protocol
 from swarm.proto.protocol import Progress
+
+pytestmark = pytest.mark.unit
 
 
 def test_a_lost_worlds_step_times_read_as_the_failure_line_says():

@@ -9,6 +9,8 @@ import pytest
 
 from swarm.core.wake import Wake
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.mark.parametrize("cls", [Wake, threading.Event])
 def test_set_stays_set_until_cleared(cls):

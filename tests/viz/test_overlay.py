@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from swarm.core import scenario_file
 from swarm.core.scenario_file import Overrides
@@ -18,6 +19,8 @@ from swarm.view.meshcat_objects import CommandLog
 from swarm.view.viz import DEAD, FROZEN, HUD, LEGEND, STOPPED, TRACKING, SceneInfo, Stats, Viewer
 from swarm.view.watch import SwarmWatcher, play_simulation
 from tests.viz.test_viz_unit import FLEET, FakeViewer, snapshot
+
+pytestmark = pytest.mark.unit
 
 
 class Clock:

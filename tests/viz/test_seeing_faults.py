@@ -22,6 +22,8 @@ from swarm.view.watch import SwarmWatcher, play_simulation
 from tests.viz.test_overlay import Clock, hud_texts
 from tests.viz.test_viz_unit import FLEET, snapshot
 
+pytestmark = pytest.mark.unit
+
 # --------------------------------------------------------------------------- the marks from events
 
 
