@@ -46,11 +46,13 @@ def _config(path: Path, env: dict | None = None, *extra: str) -> subprocess.Comp
                           timeout=60, env={**os.environ, **(env or {})})
 
 
+@pytest.mark.integration
 def test_hadolint_passes():
     out = subprocess.run([_tool("hadolint"), str(DOCKER / "Dockerfile")], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stdout + out.stderr
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("path", [COMPOSE, FLEET], ids=["compose", "fleet"])
 def test_compose_config_is_valid(path):
     out = subprocess.run([_tool("docker-compose"), "-f", str(path), "--profile", "check", "--profile", "estop",
@@ -58,6 +60,7 @@ def test_compose_config_is_valid(path):
     assert out.returncode == 0, out.stderr
 
 
+@pytest.mark.integration
 def test_compose_config_refuses_a_broken_file(tmp_path):
     """config -q is a real check: a port of the wrong type fails it."""
     bad = tmp_path / "compose.yaml"
@@ -67,6 +70,7 @@ def test_compose_config_refuses_a_broken_file(tmp_path):
     assert out.returncode != 0 and "ports" in out.stderr, out.stderr
 
 
+@pytest.mark.unit
 def test_the_image_ships_what_the_project_needs():
     """The Dockerfile copies what pyproject installs, and its constraints pin every runtime dependency."""
     text = (DOCKER / "Dockerfile").read_text()
@@ -168,6 +172,7 @@ def _order(services: dict) -> list[str]:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.integration
 @pytest.mark.timeout(300)
 def test_compose_services_as_processes_in_namespaces_converge(tmp_path):
@@ -216,6 +221,7 @@ def test_compose_services_as_processes_in_namespaces_converge(tmp_path):
         net.close()
 
 
+@pytest.mark.integration
 def test_the_fleet_files_hub_command_is_a_valid_up_inventory(tmp_path):
     out = _config(FLEET, {"SWARM_SCENARIO": "turtlebot3"})
     assert out.returncode == 0, out.stderr

@@ -60,6 +60,7 @@ def _truth(fleet) -> dict:
     return json.loads((fleet.tmp / "truth.json").read_text())
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_up_inventory_converges_watched_recorded_and_reported(fleet):
     fleet.start()

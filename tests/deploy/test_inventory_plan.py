@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import subprocess
 
+import pytest
+
 from swarm.launch.inventory_plan import NO_RESTARTS, FleetUpOptions, make_fleet_plan
 from swarm.launch.plan import VizOptions
 from tests.deploy.helpers import ENTRY, ENV, ROOT, inventory_text
 
 
+@pytest.mark.unit
 def test_the_plan():
     o = FleetUpOptions(inventory="/etc/fleet.toml", robots=3,
                        scenario_args=("--scenario", "turtlebot3", "--robots", "3"),
@@ -32,6 +35,7 @@ def test_the_plan():
     assert joined.router is None and joined.endpoint == "tcp/hub:7447" and joined.world.argv[2] == "swarm.cli"
 
 
+@pytest.mark.integration
 def test_dry_run_prints_the_plan_the_fleet_and_the_static_preflight(tmp_path):
     inv = tmp_path / "fleet.toml"
     inv.write_text(inventory_text(7, "tcp/192.168.1.20:7447", r3={"v_max": 0.15}))
@@ -51,6 +55,7 @@ def test_dry_run_prints_the_plan_the_fleet_and_the_static_preflight(tmp_path):
     assert bad.returncode == 2 and "robot[5].id: robot 5 is not in scenario 'turtlebot3' (5 robots" in bad.stderr
 
 
+@pytest.mark.unit
 def test_flags_that_mean_nothing_with_a_real_fleet_are_refused_not_dropped(tmp_path, capsys):
     """--drive, --ros-flavor, --twist, --domain, --restarts, --restart-window, --tick-timeout and --mode lockstep
     were accepted with --inventory and silently ignored; a given flag is refused, its value whatever it is
@@ -82,6 +87,7 @@ def test_flags_that_mean_nothing_with_a_real_fleet_are_refused_not_dropped(tmp_p
         assert said in capsys.readouterr().err, argv
 
 
+@pytest.mark.unit
 def test_given_flags_are_the_explicit_ones_whatever_their_value():
     from swarm.cli.parser import given_flags
 
@@ -91,6 +97,7 @@ def test_given_flags_are_the_explicit_ones_whatever_their_value():
                                                                                                         "kill"}
 
 
+@pytest.mark.unit
 def test_help_names_every_built_in_scenario():
     from swarm.cli.parser import build_parser
     from swarm.core.scenario_file import BUILTINS

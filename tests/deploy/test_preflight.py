@@ -19,6 +19,7 @@ pytestmark = pytest.mark.timeout(60)
 TB3 = scenario_file.load("turtlebot3", progress=scenario_file.silent).replace()
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("arrivals, verdict", [
     ([], "no odometry"),
     ([9.0 + 0.05 * k for k in range(31)], None),  # 20 Hz through the window
@@ -87,6 +88,7 @@ def run_check(fleet, rates, timeout_s=3.0, **kw):
         sim.close()
 
 
+@pytest.mark.unit
 def test_a_good_fleet_passes_and_nothing_is_sent_to_a_robot():
     report, sim = run_check(fleet_of(), {0: 20, 1: 20, 2: 20})
     assert report.ok, report.text()
@@ -95,6 +97,7 @@ def test_a_good_fleet_passes_and_nothing_is_sent_to_a_robot():
     assert report.text().splitlines()[-1] == "pre-flight passed" and "robot 2: ok" in report.text()
 
 
+@pytest.mark.unit
 def test_a_stale_and_a_silent_robot_are_refused():
     report, _ = run_check(fleet_of(), {0: 20, 1: 0.4, 2: 0}, timeout_s=2.0)
     text = report.text()
@@ -104,6 +107,7 @@ def test_a_stale_and_a_silent_robot_are_refused():
     assert text.splitlines()[-1] == "pre-flight FAILED: 2 problems, robots 1, 2; no robot was moved"
 
 
+@pytest.mark.unit
 def test_a_robot_missing_from_the_ros_graph():
     fleet = fleet_of()
     report, _ = run_check(fleet, {0: 20, 1: 20, 2: 20}, timeout_s=1.0,
@@ -114,6 +118,7 @@ def test_a_robot_missing_from_the_ros_graph():
     assert probs[1].startswith("robot 2: no publisher of /robot2/odom (nav_msgs/msg/Odometry)")
 
 
+@pytest.mark.unit
 def test_cmd_vel_of_the_other_type_names_the_fix():
     report, _ = run_check(fleet_of(), {0: 20, 1: 20, 2: 20}, twist="stamped", timeout_s=1.0)
     assert len(report.problems) == 3
@@ -122,6 +127,7 @@ def test_cmd_vel_of_the_other_type_names_the_fix():
                                        "'plain': set twist = \"stamped\" in robot[0]")
 
 
+@pytest.mark.unit
 def test_bridge_flavour():
     fleet = fleet_of(r0={"flavor": "bridge"}, r1={"flavor": "bridge"}, r2={"flavor": "bridge"})
     report, _ = run_check(fleet, {0: 20, 1: 20, 2: 20}, flavor="bridge")
@@ -138,6 +144,7 @@ def test_bridge_flavour():
                                                                  "robot 2: nothing subscribes robot2/cmd_vel"]
 
 
+@pytest.mark.unit
 def test_unreadable_odometry():
     fleet = fleet_of(r0={"flavor": "bridge"}, r1={"flavor": "bridge"}, r2={"flavor": "bridge"})
     net = MemoryNet()
@@ -161,6 +168,7 @@ def test_unreadable_odometry():
     assert len(report.problems) == 3 and "odometry on robot0/odom is unreadable" in str(report.problems[0])
 
 
+@pytest.mark.integration
 def test_no_router_reached_still_prints_the_checks_that_need_no_robot(tmp_path, capsys):
     """`swarm preflight --connect` to a router that is not there printed only the connection error: the
     static checks (a segment too fast for robot 3) were lost with it."""

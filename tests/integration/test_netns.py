@@ -116,6 +116,7 @@ LOSS_P = 0.1
 LOSS_DURATION = 90.0  # simulated s (45 wall s at speed 2)
 
 
+@pytest.mark.slow
 def test_real_time_robots_behind_links_that_lose_a_tenth_of_their_packets_converge_without_collision(tmp_path):
     """10 % of the packets on every robot's link lost, each way, for the whole run (nftables' numgen, or
     iptables' statistic match), real time at twice real time: zenoh's TCP sends them again, so the loss is a
@@ -260,6 +261,7 @@ class Watch:
         self.bus.close()
 
 
+@pytest.mark.slow
 def test_a_namespace_of_robots_cut_off_for_2_s_is_stopped_by_the_watchdog_and_rejoins(cut_namespaces, tmp_path):
     """Real time, 7 robots, the even ones in namespace a: at 10 s its link to the hub drops everything for
     2 s. The world's watchdog stops every robot of a within its 0.5 s (the snapshots' stopped flags, to a

@@ -42,6 +42,7 @@ def _finish(proc: subprocess.Popen, timeout_s: float) -> tuple[int, str]:
     return proc.returncode, out + err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["lockstep", "realtime"])
 def test_robots_killed_outside_the_schedule_are_bodies_named_and_the_survivors_converge(tmp_path, mode):
     """3 of 7 robots' processes get SIGKILL at t = 12 s, with no fault table and no restart: the world stops each

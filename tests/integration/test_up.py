@@ -20,13 +20,12 @@ from swarm.core.scenario_file import Overrides
 from swarm.core.sim import Simulation
 from tests.integration.helpers import descendants, free_port, kill_all, up, wait_for_ticks
 
-pytestmark = pytest.mark.integration
-
 METRIC_KEYS = ("robots", "obstacles", "duration_s", "dt", "seed", "converged_at_s", "final_position_error_max_m",
                "final_orientation_error_max_rad", "min_robot_distance_m", "min_obstacle_distance_m", "collisions",
                "last_freeze_end_s")
 
 
+@pytest.mark.integration
 def test_up_lockstep_equals_sim_step_for_step(tmp_path):
     cmd, metrics = up(tmp_path, "--robots", "7", "--duration", "6", "--trace", str(tmp_path / "trace.npz"),
                       "--quiet")
@@ -52,6 +51,7 @@ def test_up_lockstep_equals_sim_step_for_step(tmp_path):
     assert json.loads((tmp_path / "logs" / "metrics.json").read_text()) == m
 
 
+@pytest.mark.integration
 def test_robots_without_the_compiled_parts_say_so_and_give_the_same_run(tmp_path):
     """SWARM_PURE_PYTHON=1, as where setup.py found no C compiler: `swarm up` says so, every robot runs the
     Python wire codec and law, and lock-step still equals swarm sim step for step."""
@@ -66,6 +66,7 @@ def test_robots_without_the_compiled_parts_say_so_and_give_the_same_run(tmp_path
     assert np.abs(q - Simulation(scn, record_period=scn.dt).run().recording.q).max() <= 1e-9
 
 
+@pytest.mark.integration
 def test_sigint_mid_run_stops_everything_and_writes_interrupted_metrics(tmp_path):
     cmd, metrics = up(tmp_path, "--robots", "5", "--duration", "300")
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -88,6 +89,7 @@ def test_sigint_mid_run_stops_everything_and_writes_interrupted_metrics(tmp_path
             proc.kill()
 
 
+@pytest.mark.integration
 def test_a_failed_launch_reports_its_own_empty_metrics_not_an_earlier_runs(tmp_path):
     cmd, metrics = up(tmp_path, "--robots", "3", "--duration", "5", "--start-timeout", "0.05")
     metrics.write_text(json.dumps({"converged_at_s": 12.34, "collisions": 7, "launch_s": 1.0}))  # a stale file
@@ -100,6 +102,7 @@ def test_a_failed_launch_reports_its_own_empty_metrics_not_an_earlier_runs(tmp_p
     assert m["failure"] and keys_.index("failure") == keys_.index("interrupted") + 1
 
 
+@pytest.mark.integration
 def test_a_killed_robot_is_restarted_and_the_run_completes(tmp_path):
     cmd, metrics = up(tmp_path, "--robots", "4", "--duration", "20", "--quiet")
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -125,6 +128,7 @@ def test_a_killed_robot_is_restarted_and_the_run_completes(tmp_path):
             proc.kill()
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("args, message", [
     (["--robots", "0"], "must be >= 1"),
     (["--scenario", "/nonexistent/x.toml"], "x.toml"),
@@ -143,6 +147,7 @@ def test_bad_input_is_refused_before_anything_starts(args, message):
     assert message in out.stderr
 
 
+@pytest.mark.integration
 def test_up_against_no_router_fails_in_its_start_timeout_and_shows_no_run(tmp_path):
     """`swarm up --connect DEAD --start-timeout 3`: gives up after 3 s (not a fixed 15), says where it
     tried without zenoh's Rust source paths, and prints no table of zeros that reads like a clean run."""
@@ -157,6 +162,7 @@ def test_up_against_no_router_fails_in_its_start_timeout_and_shows_no_run(tmp_pa
     assert time.monotonic() - started < 30  # not the former fixed 15 s plus the rest
 
 
+@pytest.mark.unit
 def test_old_default_log_folders_are_pruned_to_the_newest(tmp_path):
     from swarm.cli.up import prune_logs
 
@@ -177,6 +183,7 @@ def test_old_default_log_folders_are_pruned_to_the_newest(tmp_path):
     assert current.exists() and other.exists() and (tmp_path / "swarm-f-notes").exists()
 
 
+@pytest.mark.integration
 def test_robot_without_a_world_says_what_it_waited_for(tmp_path):
     port = free_port()
     router = subprocess.Popen([sys.executable, "-m", "swarm.cli", "router", "--listen", f"tcp/127.0.0.1:{port}"],
@@ -196,6 +203,7 @@ def test_robot_without_a_world_says_what_it_waited_for(tmp_path):
     assert router.returncode in (130, -signal.SIGTERM, -signal.SIGKILL)
 
 
+@pytest.mark.integration
 def test_realtime_mode_runs_on_the_wall_clock_and_measures_the_round_trip(tmp_path):
     cmd, metrics = up(tmp_path, "--robots", "4", "--duration", "6", "--mode", "realtime", "--speed", "2", "--quiet",
                       "--trace", str(tmp_path / "trace.npz"))
@@ -222,6 +230,7 @@ def test_realtime_mode_runs_on_the_wall_clock_and_measures_the_round_trip(tmp_pa
     assert int(gaps[t[1:] > 1.0].sum()) <= m["samples_missed"] <= int(gaps.sum())  # counted from the start barrier on
 
 
+@pytest.mark.integration
 def test_up_lockstep_equals_sim_with_speed_limits_on(tmp_path):
     """The built-in turtlebot3 scenario (control.v_max, w_max): the limits act alike in every agent."""
     cmd, metrics = up(tmp_path, "--scenario", "turtlebot3", "--robots", "4", "--duration", "8",
@@ -235,6 +244,7 @@ def test_up_lockstep_equals_sim_with_speed_limits_on(tmp_path):
     assert np.abs(sim.recording.cmd[:, :, 0]).max() > 0.2  # the bound binds in this stretch
 
 
+@pytest.mark.integration
 def test_a_viewer_that_does_not_start_in_time_leaves_the_run_going_and_says_how_to_attach_one(tmp_path):
     """--viz-timeout (default 60 s): a meshcat server slower than that (here: 10 ms) fails the viewer
     only; the swarm runs to its end and the line says how to attach a viewer later."""
@@ -246,6 +256,7 @@ def test_a_viewer_that_does_not_start_in_time_leaves_the_run_going_and_says_how_
     assert json.loads(metrics.read_text())["steps"] == 50
 
 
+@pytest.mark.integration
 def test_processes_say_what_they_do_and_log_level_quiets_them(tmp_path):
     """Each process says when it is connected and when a run begins and ends (with its counters);
     --log-level warning, handed to every process, leaves only warnings and errors."""

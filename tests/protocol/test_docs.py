@@ -57,6 +57,7 @@ def _text(path: Path) -> str | None:
         return None
 
 
+@pytest.mark.integration
 def test_no_tracked_file_cites_a_file_outside_the_repository():
     found = []
     for path in _tracked():
@@ -71,6 +72,7 @@ def test_no_tracked_file_cites_a_file_outside_the_repository():
                        "project's own docs):\n" + "\n".join(found))
 
 
+@pytest.mark.unit
 def test_the_outside_pattern_finds_what_it_must_and_not_more():
     assert OUTSIDE.search("see " + "DESIGN" + ".md section 5")
     assert OUTSIDE.search("../" + "sha" + "red/x") and OUTSIDE.search("Reci" + "pes section 8")
@@ -121,6 +123,7 @@ def _doc_keys(text: str) -> list[list[str]]:
     return out
 
 
+@pytest.mark.unit
 def test_protocol_doc_names_every_key():
     text = PROTOCOL.read_text()
     assert "swarm/<fleet>" in text
@@ -141,6 +144,7 @@ def _sections(text: str) -> dict[str, str]:
     return dict(zip(parts[1::2], parts[2::2]))
 
 
+@pytest.mark.unit
 def test_protocol_doc_names_every_kind_and_field():
     text = PROTOCOL.read_text()
     sections = _sections(text)
@@ -155,6 +159,7 @@ def test_protocol_doc_names_every_kind_and_field():
         assert not absent, f"docs/protocol.md, `{kind}`: fields not described: {absent}"
 
 
+@pytest.mark.unit
 def test_protocol_doc_worked_example_is_what_the_codec_writes():
     flat = re.sub(r"\s+", "", PROTOCOL.read_text())
     cmd = protocol.encode(protocol.Cmd(t=1.0, seq=50, v=0.4, w=-0.1))
@@ -167,6 +172,7 @@ def test_protocol_doc_worked_example_is_what_the_codec_writes():
     assert keys.cell("default", -2, 0, 3) in PROTOCOL.read_text()
 
 
+@pytest.mark.unit
 def test_protocol_doc_states_the_codec_bounds():
     text = PROTOCOL.read_text()
     for figure in ("MAX_COORD = 1e6", "MAX_TIME = 1e9", "MAX_SPEED = 100", "MAX_TURN = 100"):
@@ -209,6 +215,7 @@ def _up_keys() -> set[str]:
         re.findall(r"metrics\.setdefault\(\"([a-z_0-9]+)\"", text))
 
 
+@pytest.mark.unit
 @pytest.mark.timeout(300)
 def test_metrics_doc_names_every_key_the_code_writes():
     from swarm.core import scenario_file
@@ -226,6 +233,7 @@ def test_metrics_doc_names_every_key_the_code_writes():
     assert not missing, f"docs/metrics.md does not document the metric keys {missing}"
 
 
+@pytest.mark.unit
 def test_metrics_doc_keeps_its_sections():
     text = METRICS.read_text()
     assert "## Exit codes" in text and "## Under faults" in text
@@ -239,6 +247,7 @@ CLI = ROOT / "docs" / "cli.md"
 REGENERATE = "python -m swarm.cli.reference > docs/cli.md"
 
 
+@pytest.mark.unit
 def test_cli_doc_is_what_the_parsers_generate():
     from swarm.cli import reference
 
@@ -254,6 +263,7 @@ def _cli_sections(text: str) -> dict[str, str]:
     return dict(zip(parts[1::2], parts[2::2]))
 
 
+@pytest.mark.unit
 def test_cli_doc_names_every_command_and_flag():
     import argparse
 
@@ -278,6 +288,7 @@ def test_cli_doc_names_every_command_and_flag():
     assert not absent, f"docs/cli.md does not document the flags {absent}: run {REGENERATE}"
 
 
+@pytest.mark.unit
 def test_swarm_version_prints_the_version_and_exits_0(capsys):
     from swarm.cli import parser
     from swarm.cli.main import main
@@ -290,6 +301,7 @@ def test_swarm_version_prints_the_version_and_exits_0(capsys):
     assert re.fullmatch(r"swarm \d+(\.\d+)*\S*\n", out), out
 
 
+@pytest.mark.unit
 def test_swarm_version_without_an_installed_distribution_is_pyproject_s(monkeypatch, tmp_path):
     import tomllib
     from importlib import metadata

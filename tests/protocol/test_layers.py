@@ -66,12 +66,14 @@ CORE = sorted(m for m in MODULES if m.startswith(("swarm.core.", "swarm.proto.")
 COMPILED = {"swarm.core.jit", "swarm.core.kernel", "swarm.core.faultkernel", "swarm.core.sim"}
 
 
+@pytest.mark.unit
 def test_the_walk_finds_the_layers():
     assert {"swarm.core.law", "swarm.proto.keys", "swarm.net.bus", "agents.robot", "world.world",
             "swarm.cli.main"} <= set(MODULES)
     assert "swarm.core.law" in GRAPH["agents.robot"]
 
 
+@pytest.mark.unit
 def test_no_import_cycle():
     """Tarjan's strongly connected components over the module graph: none may hold two modules."""
     index: dict[str, int] = {}
@@ -120,18 +122,21 @@ def _reaches(start: str) -> set[str]:
     return seen
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("module", [m for m in MODULES if m.startswith("agents")])
 def test_agents_import_nothing_of_world_or_view(module):
     bad = sorted(m for m in _reaches(module) if m.startswith(("world", "swarm.view")))
     assert bad == [], f"{module} reaches {bad}"
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("module", [m for m in MODULES if m.startswith("world")])
 def test_world_imports_nothing_of_agents_or_view(module):
     bad = sorted(m for m in _reaches(module) if m.startswith(("agents", "swarm.view")))
     assert bad == [], f"{module} reaches {bad}"
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("module", CORE)
 def test_pure_layers_reach_no_process_or_view_code(module):
     """core and proto reach only core and proto (never net, launch, view or cli), and no module
@@ -144,6 +149,7 @@ def test_pure_layers_reach_no_process_or_view_code(module):
         assert "import subprocess" not in text and "from subprocess" not in text, f"{m} imports subprocess"
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("module", CORE)
 def test_pure_module_loads_no_transport_viewer_or_compiler(module):
     forbidden = ("zenoh", "meshcat", "matplotlib") + (() if module in COMPILED else ("numba", "subprocess"))
@@ -152,6 +158,7 @@ def test_pure_module_loads_no_transport_viewer_or_compiler(module):
     assert out.stdout.strip() == "", f"{module} pulled in {out.stdout.strip()}"
 
 
+@pytest.mark.unit
 def test_only_the_bus_touches_zenoh():
     users = sorted(m for m, p in MODULES.items() if "import zenoh" in p.read_text(encoding="utf-8"))
     assert all(m.startswith("swarm.net") for m in users), users

@@ -68,6 +68,7 @@ def killed_recording(path: Path, flushes: int = 3, timeout_s: float = 60.0) -> i
     return last
 
 
+@pytest.mark.unit
 def test_a_cut_recording_gives_back_every_complete_chunk(sim_run, tmp_path):
     """Cut a finished file anywhere: what comes back is a prefix of its snapshots, growing with the cut."""
     scn = small_scenario()
@@ -98,6 +99,7 @@ def test_a_cut_recording_gives_back_every_complete_chunk(sim_run, tmp_path):
     assert previous > len(full.recording.t) // 2
 
 
+@pytest.mark.integration
 def test_a_recorder_killed_with_sigkill_leaves_a_readable_file(tmp_path):
     path = tmp_path / "killed.mcap"
     last_tick = killed_recording(path)
@@ -115,6 +117,7 @@ def test_a_recorder_killed_with_sigkill_leaves_a_readable_file(tmp_path):
     assert f"recovered {k} snapshots up to t = " in text and "of the 600 s run" in text and "no footer" in text
 
 
+@pytest.mark.integration
 def test_report_and_replay_say_what_they_recovered(tmp_path):
     path = tmp_path / "killed.mcap"
     killed_recording(path, flushes=2)
@@ -134,6 +137,7 @@ def test_report_and_replay_say_what_they_recovered(tmp_path):
     assert "replay: done," in played.stdout
 
 
+@pytest.mark.unit
 def test_a_file_killed_before_any_snapshot_says_so(tmp_path, sim_run):
     """Only the scenario (flushed at once) came back: a clear error, not a crash."""
     scn = small_scenario()
@@ -151,6 +155,7 @@ def test_a_file_killed_before_any_snapshot_says_so(tmp_path, sim_run):
     assert report.recovery(path) is None and len(report.read_recording(path).recording.t) == 1
 
 
+@pytest.mark.unit
 def test_the_recorder_flushes_on_its_period_and_when_idle(tmp_path):
     scn = small_scenario()
     wall = [0.0]

@@ -14,6 +14,7 @@ TOKEN = ("@ros2_lv/0/0a1b2c3d/0/11/MS/%/%robot1/turtlebot3_node/%robot1%cmd_vel/
 DATA = "0/robot1/cmd_vel/geometry_msgs::msg::dds_::Twist_/RIHS01_9c45"
 
 
+@pytest.mark.unit
 def test_memory_attachment_reaches_raw_subscribers_only():
     net = busmod.MemoryNet()
     a, b = busmod.MemoryBus(net), busmod.MemoryBus(net)
@@ -29,6 +30,7 @@ def test_memory_attachment_reaches_raw_subscribers_only():
     assert all(type(p) is bytes and (att is None or type(att) is bytes) for _, p, att in raw.snapshot())
 
 
+@pytest.mark.unit
 def test_memory_raw_subscription_closes_and_honours_loopback():
     net = busmod.MemoryNet()
     a, b = busmod.MemoryBus(net), busmod.MemoryBus(net)
@@ -44,6 +46,7 @@ def test_memory_raw_subscription_closes_and_honours_loopback():
     assert not a.wanted(DATA)
 
 
+@pytest.mark.unit
 def test_memory_tokens_on_ros2_liveliness_keys():
     net = busmod.MemoryNet()
     a, b = busmod.MemoryBus(net), busmod.MemoryBus(net)
@@ -56,6 +59,7 @@ def test_memory_tokens_on_ros2_liveliness_keys():
     assert seen.snapshot() == [(TOKEN, True), (TOKEN, False)]
 
 
+@pytest.mark.integration
 @pytest.mark.timeout(60)
 def test_zenoh_attachment_and_ros2_tokens_through_a_router(client):
     a, b = client(), client()

@@ -16,6 +16,8 @@ from swarm.proto.protocol import Cmd
 from tests.ros2.helpers import wait_until
 from world.ros2_fleet import Ros2Fleet
 
+pytestmark = pytest.mark.integration
+
 START = (1.0, -2.0, 0.5)
 CASES = [("rmw_zenoh", "plain", 10), ("rmw_zenoh", "stamped", 11), ("bridge", "plain", 12), ("bridge", "stamped", 13)]
 

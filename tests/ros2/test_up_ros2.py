@@ -66,6 +66,7 @@ def _bus(endpoint: str) -> ZenohBus:
     return wait_until(connect, 30, f"a router at {endpoint}", every_s=0.1)
 
 
+@pytest.mark.slow
 def test_five_ros2_robots_converge_on_rmw_zenoh(tmp_path):
     # speed 2, not 3: less load. On a slow 2-core machine (3.5 times slower than the reference VM) this run
     # had one collision in the full suite at speed 3 and again at speed 2, and alone at speed 2 in 2 runs of 7:

@@ -68,6 +68,7 @@ def law_command(pose, ref, t, bodies, mem=None, cfg=CFG, horizon=None, obstacle_
                              [0.0] * len(bodies), len(bodies), mem, p)
 
 
+@pytest.mark.unit
 def test_command_is_the_core_law_with_neighbours_and_an_obstacle():
     w = Wire(obstacles=[(0.9, 0.8, 0.3, 1.2)])
     pose, ref = (0.2, 0.1, 0.4), (1.0, 0.5, 0.2, 0.5, 0.05)
@@ -83,6 +84,7 @@ def test_command_is_the_core_law_with_neighbours_and_an_obstacle():
     assert w.statuses and w.statuses[0].neighbours == 2 and w.statuses[0].frozen
 
 
+@pytest.mark.unit
 def test_freeze_memory_carries_over_ticks_like_the_law():
     w = Wire()
     mem = [0.0] * law.M_SIZE
@@ -95,6 +97,7 @@ def test_freeze_memory_carries_over_ticks_like_the_law():
         assert (w.cmds[-1].v, w.cmds[-1].w) == expected
 
 
+@pytest.mark.unit
 def test_waits_for_neighbours_known_at_the_previous_tick():
     w = Wire()
     ref = (0.0, 0.0, 0.0, 0.5, 0.0)
@@ -110,6 +113,7 @@ def test_waits_for_neighbours_known_at_the_previous_tick():
     assert len(w.cmds) == 2
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("distance, awaited", [(2.15, True), (2.25, False)])
 def test_the_wait_reach_follows_the_largest_R_of_any_body(distance, awaited):
     """An obstacle with R = 2 makes the law's reach 2 m (the governor counts robots that close), so
@@ -130,6 +134,7 @@ def test_the_wait_reach_follows_the_largest_R_of_any_body(distance, awaited):
     assert w.agent.waiting == ({5} if awaited else set())
 
 
+@pytest.mark.unit
 def test_a_robot_whose_token_goes_is_a_static_obstacle_and_not_awaited():
     w = Wire()
     tok = w.probe.token(keys.alive(F, "robot", 5))
@@ -145,6 +150,7 @@ def test_a_robot_whose_token_goes_is_a_static_obstacle_and_not_awaited():
     assert w.agent.neighbours == 0  # robots counted; the dead one is a body, not a neighbour
 
 
+@pytest.mark.unit
 def test_subscriptions_follow_the_cell_and_keep_the_old_block_one_tick():
     w = Wire()
     ref = (0.0, 0.0, 0.0, 0.5, 0.0)
@@ -166,6 +172,7 @@ class HintBus(MemoryBus):
         self.hinted.append(key)
 
 
+@pytest.mark.unit
 def test_the_cell_keys_a_robot_hears_are_hinted_to_its_bus_once_each():
     """ZenohBus.hint: zenoh resolves a hinted key's route once. Every neighbour's cell key the agent
     heard goes to its bus at its next tick, once; a key it never heard does not."""
@@ -197,6 +204,7 @@ def test_the_cell_keys_a_robot_hears_are_hinted_to_its_bus_once_each():
     w.agent.close()
 
 
+@pytest.mark.unit
 def test_bad_messages_are_dropped_counted_and_never_reach_the_law():
     w = Wire()
     ref = (0.0, 0.0, 0.0, 0.5, 0.0)
@@ -227,6 +235,7 @@ def _capped(v, om, V):
     return v * f, om * f
 
 
+@pytest.mark.unit
 def test_real_time_tick_uses_the_newest_data_and_advances_the_reference():
     cfg = Config(**{**CFG.__dict__, "lockstep": False})
     w = Wire(cfg)
@@ -250,6 +259,7 @@ def test_real_time_tick_uses_the_newest_data_and_advances_the_reference():
     assert w.cmds[-1].t == 1.0  # the time of the pose it answers
 
 
+@pytest.mark.unit
 def test_a_base_that_keeps_a_command_longer_than_its_validity_makes_the_robot_s_reach_longer():
     """A ROS 2 base with its own cmd_vel timeout (the inventory's cmd_timeout) executes the last command that long
     should the agent die: the robot's reach (its state's `stop`) counts it, its command keeps its validity, and it
@@ -277,6 +287,7 @@ def test_a_base_that_keeps_a_command_longer_than_its_validity_makes_the_robot_s_
     assert stop1 >= v1 * 0.5 > stop0
 
 
+@pytest.mark.unit
 def test_a_real_time_robot_blocked_by_a_neighbour_stands_turns_in_place_and_promises_to_stand():
     """A neighbour 0.9 m ahead whose state is 0.5 s old may be anywhere within V x (that age plus this robot's
     reservation): no forward motion is safe, so the robot stands (turning in place as the law asks), says so in
@@ -315,6 +326,7 @@ def test_a_real_time_robot_blocked_by_a_neighbour_stands_turns_in_place_and_prom
     w.agent.close()
 
 
+@pytest.mark.unit
 def test_a_neighbour_not_heard_that_could_have_left_is_away_but_one_that_could_not_is_kept():
     """The knowledge rule: a robot near this one is heard every period, so a neighbour not heard for the
     information delay plus FORGET_PERIODS periods that could have left its cells since (the speed bound over its
@@ -349,6 +361,7 @@ def test_a_neighbour_not_heard_that_could_have_left_is_away_but_one_that_could_n
         agent.close()
 
 
+@pytest.mark.integration
 def test_agent_module_imports_nothing_of_the_world_nor_numpy():
     code = ("import sys, agents.robot; bad = [m for m in sys.modules if m.split('.')[0] in "
             "('world', 'numpy', 'numba', 'zenoh')]; print(','.join(bad))")
@@ -359,6 +372,7 @@ def test_agent_module_imports_nothing_of_the_world_nor_numpy():
                            if line.startswith(("import ", "from "))]
 
 
+@pytest.mark.unit
 def test_an_engaged_emergency_stop_is_always_obeyed_and_a_release_only_when_newer():
     """A forged release far ahead (seq 2^53) must not make the operator's later stop look old: an engage
     that decodes is obeyed whatever its t and seq (and counted when out of order); a release only when it
@@ -380,6 +394,7 @@ def test_an_engaged_emergency_stop_is_always_obeyed_and_a_release_only_when_newe
     assert w2.agent.estopped is None
 
 
+@pytest.mark.unit
 @pytest.mark.skipif(protocol._wire is None, reason="the compiled codec is not built here (no C compiler)")
 def test_the_compiled_state_batch_takes_what_the_python_one_takes():
     """Real time: a batch of neighbour states with every case the sender windows and the agent tell apart
@@ -457,6 +472,7 @@ def _random_table(agent, rng, seqs: list[int], spread: float, awaited: float) ->
             agent.waiting.add(j)
 
 
+@pytest.mark.unit
 @pytest.mark.skipif(protocol._wire is None, reason="the compiled codec is not built here (no C compiler)")
 def test_the_compiled_lockstep_bodies_are_the_python_ones():
     """Lock-step: bodies() over a table of live robots with this tick's state, awaited ones with an older
@@ -484,6 +500,7 @@ def test_the_compiled_lockstep_bodies_are_the_python_ones():
     assert min(seen.values()) > 0, seen  # every kind of body was compared
 
 
+@pytest.mark.unit
 @pytest.mark.skipif(protocol._wire is None, reason="the compiled codec is not built here (no C compiler)")
 def test_the_compiled_wait_set_is_the_python_one():
     """Lock-step, as a tick starts: the robots it waits for (live, with a state of the tick before, near where
@@ -581,6 +598,7 @@ def _lockstep_run(sink: bool, seed: int) -> tuple:
     return out
 
 
+@pytest.mark.unit
 @pytest.mark.skipif(protocol._wire is None, reason="the compiled codec is not built here (no C compiler)")
 @pytest.mark.parametrize("seed", range(12))
 def test_the_compiled_lockstep_sink_takes_what_the_python_callback_takes(seed):
@@ -595,6 +613,7 @@ def test_the_compiled_lockstep_sink_takes_what_the_python_callback_takes(seed):
     assert 1 in table and CFG.id not in table
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("sink", [True, False])
 def test_a_lockstep_state_whose_t_is_not_its_ticks_is_refused_and_the_true_ones_still_come(sink):
     """Lock-step: a state's t is its seq's tick time. A forged state of robot 5 with the next seq and t = 1e8 is
@@ -617,6 +636,7 @@ def test_a_lockstep_state_whose_t_is_not_its_ticks_is_refused_and_the_true_ones_
     assert w.agent.bad.count == bad + 1 and w.agent.k_done == 2
 
 
+@pytest.mark.unit
 @pytest.mark.skipif(protocol._wire is None, reason="the compiled codec is not built here (no C compiler)")
 def test_the_lockstep_sink_reads_zenoh_samples_and_counts_its_own_errors():
     """The sink as zenoh calls it (a sample: key_expr, payload.to_bytes(), attachment) takes a state; an error
@@ -663,6 +683,7 @@ def test_the_lockstep_sink_reads_zenoh_samples_and_counts_its_own_errors():
         sink()
 
 
+@pytest.mark.unit
 def test_a_real_time_robot_takes_the_still_robots_the_world_lists_as_bodies():
     """Real time: robot 5, standing where this robot never heard it (not in its table), is a static body from the
     world's bodies message, for the law and for the safety rule (static until the listing's t + BODIES_HOLD_S);

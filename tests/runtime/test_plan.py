@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from swarm.launch.plan import RestartPolicy, UpOptions, make_plan
 
 
@@ -16,6 +18,7 @@ def opts(**kw):
     return UpOptions(**base)
 
 
+@pytest.mark.unit
 def test_plan_starts_router_world_leader_and_one_process_per_robot():
     plan = make_plan(opts(), python="py")
     names = [p.name for p in plan.processes]
@@ -30,10 +33,12 @@ def test_plan_starts_router_world_leader_and_one_process_per_robot():
     assert ("--scenario", "paper-50hz") == plan.world.argv[4:6] == plan.leader.argv[4:6]
 
 
+@pytest.mark.unit
 def test_plan_is_pure_and_deterministic():
     assert make_plan(opts(), python="py") == make_plan(opts(), python="py")
 
 
+@pytest.mark.unit
 def test_connect_joins_an_existing_router_and_listen_any_is_reached_on_loopback():
     plan = make_plan(opts(connect="tcp/10.0.0.5:7447", listen=None), python="py")
     assert plan.router is None and plan.endpoint == "tcp/10.0.0.5:7447"
@@ -41,6 +46,7 @@ def test_connect_joins_an_existing_router_and_listen_any_is_reached_on_loopback(
     assert plan.router.argv[-1] == "tcp/0.0.0.0:7500" and plan.endpoint == "tcp/127.0.0.1:7500"
 
 
+@pytest.mark.unit
 def test_options_reach_every_process():
     plan = make_plan(opts(fleet="blue", zenoh_config="/etc/z.json5", multicast=True, mode="realtime", speed=2.0,
                           metrics="/tmp/m.json", restart=RestartPolicy(5, 10.0)), python="py")
@@ -54,6 +60,7 @@ def test_options_reach_every_process():
     assert "at most 5 times in 10 s" in plan.describe()
 
 
+@pytest.mark.integration
 def test_dry_run_prints_the_plan_and_starts_nothing():
     out = subprocess.run([sys.executable, "-m", "swarm.cli", "up", "--robots", "4", "--dry-run", "--fleet", "x"],
                          capture_output=True, text=True, timeout=60)
@@ -61,6 +68,7 @@ def test_dry_run_prints_the_plan_and_starts_nothing():
     assert "4 robots" in out.stdout and out.stdout.count(" robot --id ") == 4
 
 
+@pytest.mark.integration
 def test_speed_in_lockstep_is_said_to_have_no_effect():
     base = [sys.executable, "-m", "swarm.cli", "up", "--robots", "2", "--dry-run", "--speed", "3"]
     out = subprocess.run(base, capture_output=True, text=True, timeout=60)
@@ -69,6 +77,7 @@ def test_speed_in_lockstep_is_said_to_have_no_effect():
     assert out.returncode == 0 and "no effect" not in out.stderr
 
 
+@pytest.mark.unit
 def test_the_viewer_is_a_viz_process_right_after_the_router():
     from swarm.launch.plan import VizOptions
 
@@ -84,6 +93,7 @@ def test_the_viewer_is_a_viz_process_right_after_the_router():
     assert make_plan(opts(), python="py").viz is None
 
 
+@pytest.mark.integration
 def test_dry_run_shows_the_viewer_unless_no_viz():
     base = [sys.executable, "-m", "swarm.cli", "up", "--robots", "2", "--dry-run", "--viz-port", "7123"]
     out = subprocess.run(base, capture_output=True, text=True, timeout=60)
@@ -94,6 +104,7 @@ def test_dry_run_shows_the_viewer_unless_no_viz():
     assert out.returncode == 0 and " viz " not in out.stdout
 
 
+@pytest.mark.integration
 def test_compile_project_leaves_bytecode_the_children_use(tmp_path):
     """The launcher compiles the project once; a child that may not write bytecode still reads it."""
     import shutil
@@ -116,6 +127,7 @@ def test_compile_project_leaves_bytecode_the_children_use(tmp_path):
     assert {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*.pyc")} == stamps
 
 
+@pytest.mark.integration
 def test_a_stopped_child_whose_shutdown_hangs_exits_anyway():
     """StopEvent(exit_after_s): after the stop signal, a process stuck in its clean shutdown (here: a
     wait that never ends) still exits, with 130, so a SIGKILLed launcher leaves nothing behind."""
@@ -129,6 +141,7 @@ def test_a_stopped_child_whose_shutdown_hangs_exits_anyway():
     assert "clean shutdown took more than 0.5 s" in out.stderr
 
 
+@pytest.mark.integration
 def test_stop_event_survives_a_storm_of_signals():
     """The handler takes no lock: signals arriving while the main thread waits on the event, or while an
     earlier handler runs, must neither deadlock nor break the process (a leader once hung that way)."""

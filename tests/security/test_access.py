@@ -14,7 +14,7 @@ from swarm.net.bus import ZenohBus, matches, zenoh_config
 from swarm.proto import keys, roles
 from tests.security.conftest import FLEET, WAIT_S, Net, Seen, tokens_at_router
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
 
 
 def _no_certificate(net: Net, fleet_dir, other_dir):

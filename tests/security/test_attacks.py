@@ -24,7 +24,7 @@ from swarm.net.bus import ZenohBus
 from swarm.proto import keys
 from tests.security.conftest import FLEET, WAIT_S, Net, Seen, tokens_at_router
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
 
 PHANTOM = 500
 STATUS3 = keys.robot_status(FLEET, 3)

@@ -24,6 +24,7 @@ def _cert(path) -> x509.Certificate:
     return x509.load_pem_x509_certificate(path.read_bytes())
 
 
+@pytest.mark.unit
 def test_the_directory_holds_a_folder_per_identity(fleet_dir):
     assert (fleet_dir / "ca" / "ca.pem").is_file() and (fleet_dir / "ca" / "ca-key.pem").is_file()
     for role, i in roles.identities(ROBOTS):
@@ -36,6 +37,7 @@ def test_the_directory_holds_a_folder_per_identity(fleet_dir):
     assert (m["fleet"], m["robots"], m["port"], m["revoked"]) == (FLEET, ROBOTS, 7447, [])
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("role, i", [("robot", 4), ("world", 0), ("viz", 0), ("router", 0)])
 def test_certificates_name_their_identity_and_are_signed_by_the_ca(fleet_dir, role, i):
     ca = _cert(fleet_dir / "ca" / "ca.pem")
@@ -51,6 +53,7 @@ def test_certificates_name_their_identity_and_are_signed_by_the_ca(fleet_dir, ro
     assert ca.extensions.get_extension_for_class(x509.BasicConstraints).value.ca
 
 
+@pytest.mark.unit
 def test_the_router_certificate_names_its_hosts(tmp_path):
     w = secure.init_fleet(tmp_path / "f", 1, "f", router_hosts=("10.0.0.7", "hub.lan"), port=7500)
     san = _cert(tmp_path / "f" / "router" / "cert.pem").extensions.get_extension_for_class(
@@ -64,6 +67,7 @@ def test_the_router_certificate_names_its_hosts(tmp_path):
     assert w.manifest["listen"] == ["tls/0.0.0.0:7500"]
 
 
+@pytest.mark.unit
 def test_configs_are_mutual_tls_with_files_of_their_own_folder(fleet_dir):
     doc = json.loads((fleet_dir / "robot-2" / "zenoh.json5").read_text())
     tls = doc["transport"]["link"]["tls"]
@@ -82,6 +86,7 @@ def test_configs_are_mutual_tls_with_files_of_their_own_folder(fleet_dir):
         secure.secure_config(fleet_dir, "robot", 2, connect=["tcp/127.0.0.1:9999"])
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("where, role, i, found", [
     ("", "robot", 3, ("robot", 3)),  # the fleet directory: its folder for the identity
     ("robot-3", "robot", 3, ("robot", 3)),
@@ -94,6 +99,7 @@ def test_find_identity(fleet_dir, where, role, i, found):
     assert ident.folder == fleet_dir / roles.common_name(*found)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("where, role, i, message", [
     ("robot-3", "robot", 5, "its id is 3, not 5"),  # swarm robot --secure DIR/robot-3 --id 5
     ("robot-3", "world", None, "robot-3, not of a world"),
@@ -107,11 +113,13 @@ def test_find_identity_refuses(fleet_dir, where, role, i, message):
         secure.find_identity(fleet_dir / where if where else fleet_dir, role, i)
 
 
+@pytest.mark.unit
 def test_robot_id_of(fleet_dir):
     assert secure.robot_id_of(fleet_dir / "robot-4") == 4
     assert secure.robot_id_of(fleet_dir / "leader") is None
 
 
+@pytest.mark.integration
 def test_a_robot_folder_alone_is_enough(fleet_dir, tmp_path):
     """Copied elsewhere (another machine), robot 2's folder still connects as robot 2."""
     alone = tmp_path / "on-the-robot"
@@ -123,6 +131,7 @@ def test_a_robot_folder_alone_is_enough(fleet_dir, tmp_path):
         seen.retry(lambda: robot.put(keys.robot_status(FLEET, 2), b"from its own folder"), bool, "robot 2's status")
 
 
+@pytest.mark.integration
 def test_update_adds_robots_and_revokes_with_the_same_ca(tmp_path):
     d = tmp_path / "f"
     secure.init_fleet(d, 3, FLEET)
@@ -154,6 +163,7 @@ def test_update_adds_robots_and_revokes_with_the_same_ca(tmp_path):
         assert [k for k, _ in items if k != keys.robot_status(FLEET, 4)] == []
 
 
+@pytest.mark.integration
 def test_force_makes_a_new_ca_and_old_certificates_are_refused(tmp_path):
     d = tmp_path / "f"
     secure.init_fleet(d, 2, FLEET)
@@ -170,6 +180,7 @@ def test_force_makes_a_new_ca_and_old_certificates_are_refused(tmp_path):
         net.bus("robot", 0)  # the new one connects
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("kwargs, message", [
     ({"robots": 0}, "--robots"),
     ({"fleet": "bad fleet"}, "fleet name"),
@@ -187,6 +198,7 @@ def test_init_refuses(tmp_path, kwargs, message):
         secure.init_fleet(tmp_path / "f", **args)
 
 
+@pytest.mark.unit
 def test_update_refuses_another_fleet_and_fewer_robots(tmp_path):
     secure.init_fleet(tmp_path / "f", 3, FLEET)
     with pytest.raises(secure.SecureError, match="keeps the fleet"):
@@ -195,6 +207,7 @@ def test_update_refuses_another_fleet_and_fewer_robots(tmp_path):
         secure.init_fleet(tmp_path / "f", 2, FLEET, update=True)
 
 
+@pytest.mark.unit
 def test_extra_robot_keys_reach_the_acl(tmp_path):
     secure.init_fleet(tmp_path / "f", 2, FLEET, extra_robot_keys=("robot{id}/cmd_vel",))
     acl = json.loads((tmp_path / "f" / "router" / "zenoh.json5").read_text())["access_control"]
@@ -203,6 +216,7 @@ def test_extra_robot_keys_reach_the_acl(tmp_path):
     assert not any("robot0/cmd_vel" in r["key_exprs"] for r in robot1)
 
 
+@pytest.mark.unit
 def test_the_command_line(tmp_path, capsys):
     d = tmp_path / "fleet"
     assert main(["secure", "init", str(d), "--robots", "2", "--fleet", "cli", "--port", "7600"]) == 0
@@ -220,6 +234,7 @@ def test_the_command_line(tmp_path, capsys):
     assert main(["secure", "init", str(tmp_path / "g"), "--robots", "2", "--fleet", "a b"]) == 2
 
 
+@pytest.mark.unit
 def test_a_robot_given_only_its_folder_takes_its_id_from_the_certificate(fleet_dir, tmp_path, capsys):
     """docs/security.md: on a robot's machine, `swarm robot --secure robot-3/ --connect tls/...` with no --id:
     the id is the certificate's (it was refused: --id required). Without --secure, --id is still required;

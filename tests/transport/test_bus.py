@@ -25,6 +25,7 @@ class Events:
                 raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(
     "expr, key, ok",
     [
@@ -37,6 +38,7 @@ def test_matches(expr, key, ok):
     assert busmod.matches(expr, key) is ok
 
 
+@pytest.mark.unit
 def test_memory_bus_pubsub_tokens_and_queries():
     net = busmod.MemoryNet()
     a, b = busmod.MemoryBus(net), busmod.MemoryBus(net)
@@ -58,6 +60,7 @@ def test_memory_bus_pubsub_tokens_and_queries():
     assert b.query("swarm/f/world/obstacles") == []
 
 
+@pytest.mark.unit
 def test_memory_inbox_keeps_the_newest_until_drained():
     net = busmod.MemoryNet()
     a, b = busmod.MemoryBus(net), busmod.MemoryBus(net)
@@ -72,6 +75,7 @@ def test_memory_inbox_keeps_the_newest_until_drained():
     assert box.drain() == []
 
 
+@pytest.mark.unit
 def test_memory_put_without_loopback_skips_the_publishers_own_subscribers():
     net = busmod.MemoryNet()
     a, b = busmod.MemoryBus(net), busmod.MemoryBus(net)
@@ -102,6 +106,7 @@ def _check_wait_and_wake(box, put, key: str, timeout_s: float) -> None:
     assert out == [[]] and not th.is_alive()
 
 
+@pytest.mark.unit
 def test_memory_inbox_wait_returns_on_a_message_or_a_wake():
     net = busmod.MemoryNet()
     a, b = busmod.MemoryBus(net), busmod.MemoryBus(net)
@@ -169,6 +174,7 @@ print(threading.get_native_id(), *(f"{t}:{h}" for t, h in seen))
 """
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("pin", ["compiled", "ctypes", "none"])
 def test_zenohs_threads_keep_their_python_thread_state_between_callbacks(pin):
     """A callback on zenoh's thread runs on the thread state the first one made (bus.pin_thread): a
@@ -193,6 +199,7 @@ def test_zenohs_threads_keep_their_python_thread_state_between_callbacks(pin):
         known.add(tid)
 
 
+@pytest.mark.integration
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("router_filters", [True, False])
 def test_zenoh_drops_a_payload_past_the_size_limit_on_its_way_in(router_filters):
@@ -227,6 +234,7 @@ WILDCARDS = ["swarm/t/cell/*/*/5", "swarm/t/cell/**", "swarm/**", "swarm/t/cell/
              "swarm/t/cell/0/0/*", "**", "swarm/t/**/5", "*/t/cell/0/0/5", "swarm/*/cell/0/0/5"]
 
 
+@pytest.mark.integration
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("router_filters", [True, False])
 def test_zenoh_drops_a_put_on_a_wildcard_key_expression_before_any_subscriber(router_filters):
@@ -269,6 +277,7 @@ def test_zenoh_drops_a_put_on_a_wildcard_key_expression_before_any_subscriber(ro
         router.close()
 
 
+@pytest.mark.integration
 @pytest.mark.timeout(60)
 def test_zenoh_bus_through_a_router():
     """Two clients of a router in this process: pub/sub, BLOCK puts, liveliness, queryable."""
@@ -360,6 +369,7 @@ def test_zenoh_bus_through_a_router():
         router.close()
 
 
+@pytest.mark.integration
 @pytest.mark.timeout(60)
 def test_hinted_keys_still_deliver_and_the_hints_stay_bounded(monkeypatch):
     """ZenohBus.hint declares a key this session receives through a wildcard subscription (its route is
@@ -391,6 +401,7 @@ def test_hinted_keys_still_deliver_and_the_hints_stay_bounded(monkeypatch):
         router.close()
 
 
+@pytest.mark.integration
 @pytest.mark.timeout(60)
 def test_a_drainer_drains_every_inbox_in_turn_in_one_call():
     """bus.drainer(boxes): every inbox's items, inbox after inbox, each in its own order. Over zenoh inboxes it

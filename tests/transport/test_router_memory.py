@@ -23,8 +23,6 @@ from swarm.launch.child import stop_group
 from swarm.net.bus import ZenohBus, plain_config, zenoh_config
 from swarm.proto import keys, protocol
 
-pytestmark = pytest.mark.integration
-
 ROOT = Path(__file__).resolve().parents[2]
 FLEET = "mem"
 WAIT_S = 10.0  # the longest any one wait may take
@@ -105,6 +103,7 @@ def router(tmp_path):
 
 
 
+@pytest.mark.integration
 @pytest.mark.timeout(60)
 def test_oversized_puts_cost_the_router_neither_their_size_nor_memory_it_keeps(router):
     """12 puts of 64 MiB on a robot's command key from a client without a size filter: no subscriber gets
@@ -146,6 +145,7 @@ def test_oversized_puts_cost_the_router_neither_their_size_nor_memory_it_keeps(r
     assert after - before < GROWTH_MIB, f"the router's RSS went from {before:.0f} to {after:.0f} MiB"
 
 
+@pytest.mark.integration
 @pytest.mark.timeout(60)
 def test_the_largest_legitimate_messages_still_go_through_the_router(router):
     """A snapshot-key payload at the codec's large limit (16 MiB), and a real snapshot of 2000 robots, go
@@ -172,6 +172,7 @@ def test_the_largest_legitimate_messages_still_go_through_the_router(router):
     assert protocol.decode(got[1], kind="snapshot") == snap
 
 
+@pytest.mark.unit
 def test_the_router_trims_its_heap_while_memory_is_up_and_takes_memory_in_use_as_its_base(monkeypatch):
     """swarm.cli.router.HeapTrim, on a made-up resident size: no trim below base + TRIM_STEP; a trim at every
     look above it while trims free memory; after TRIM_IDLE trims in a row that freed nothing, what is

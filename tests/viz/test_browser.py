@@ -24,7 +24,7 @@ from tests.viz.helpers import (SCENE_ROWS, URL_LINE, Child, assert_all_gone, bro
                                count_pixels, free_port, instance_colours, listening, meshcat_server_of,
                                needs_chromium, robots_js, screenshot_path, settle, wait_until)
 
-pytestmark = [pytest.mark.integration, pytest.mark.browser, needs_chromium]
+pytestmark = [pytest.mark.browser, needs_chromium]
 
 PROGRAMS_JS = "() => viewer.renderer.info.programs.map(p => p.id).join(',')"
 

@@ -74,6 +74,7 @@ class Clock:
 # --------------------------------------------------------------------------- states and colours
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("alive, stopped, frozen, age, code", [
     (True, False, False, 0.1, TRACKING),
     (True, False, True, 0.1, FROZEN),
@@ -88,6 +89,7 @@ def test_state_code_from_the_flags(alive, stopped, frozen, age, code):
     assert got.tolist() == [code]
 
 
+@pytest.mark.unit
 def test_every_state_has_its_own_colour():
     assert len({tuple(c) for c in PALETTE.tolist()}) == len(PALETTE) == 6
 
@@ -112,6 +114,7 @@ def frame_commands(n: int):
     return sink.commands[first:], sink, q, codes
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("n", [37, 500])
 def test_a_frame_is_one_instanced_mesh_and_three_transforms_whatever_n(n):
     cmds, sink, _, codes = frame_commands(n)
@@ -124,6 +127,7 @@ def test_a_frame_is_one_instanced_mesh_and_three_transforms_whatever_n(n):
     np.testing.assert_array_equal(colours, PALETTE[codes])
 
 
+@pytest.mark.unit
 def test_the_instances_are_the_robots_poses_and_the_twin_matches_the_material():
     _, sink, q, _ = frame_commands(37)
     robots = sink.last["/swarm/robots"]["object"]
@@ -138,6 +142,7 @@ def test_the_instances_are_the_robots_poses_and_the_twin_matches_the_material():
     assert twin["object"]["count"] == 1
 
 
+@pytest.mark.unit
 def test_the_slots_are_the_leader_plus_the_unrotated_offsets():
     # The law's slot (docs/design.md): x_id = x_l + d_ix. The slots' node is translated, never rotated.
     offsets = np.array([[1.5, 0.0], [0.0, 1.5]])
@@ -151,6 +156,7 @@ def test_the_slots_are_the_leader_plus_the_unrotated_offsets():
     assert sink.last["/swarm/formation"]["matrix"][12:14] == [4.0, -2.0]
 
 
+@pytest.mark.unit
 def test_trails_are_one_line_segments_object_resent_at_a_low_rate():
     sink = CommandLog()
     viewer = Viewer(sink, SceneInfo())
@@ -163,6 +169,7 @@ def test_trails_are_one_line_segments_object_resent_at_a_low_rate():
     assert sink.last["/swarm/trails"]["object"]["object"]["type"] == "LineSegments"
 
 
+@pytest.mark.unit
 def test_draw_refuses_mismatched_shapes():
     viewer = Viewer(CommandLog(), None)
     with pytest.raises(ValueError, match="3 poses but 2 state codes"):
@@ -177,6 +184,7 @@ def watcher_on(net: MemoryNet, viewer, scene: SceneInfo | None = SceneInfo(), **
     return w
 
 
+@pytest.mark.unit
 def test_a_slow_viewer_skips_to_the_newest_snapshot_and_never_blocks_the_publisher():
     net = MemoryNet()
     pub = MemoryBus(net)
@@ -202,6 +210,7 @@ def test_a_slow_viewer_skips_to_the_newest_snapshot_and_never_blocks_the_publish
     assert not w.running
 
 
+@pytest.mark.unit
 def test_frames_are_paced_at_max_hz():
     net = MemoryNet()
     pub = MemoryBus(net)
@@ -222,6 +231,7 @@ def test_frames_are_paced_at_max_hz():
     assert seq > 100
 
 
+@pytest.mark.unit
 def test_bad_messages_are_dropped_and_counted_and_drawing_goes_on():
     net = MemoryNet()
     pub = MemoryBus(net)
@@ -241,6 +251,7 @@ def test_bad_messages_are_dropped_and_counted_and_drawing_goes_on():
     w.close()
 
 
+@pytest.mark.unit
 def test_frozen_stopped_dead_and_stale_reach_the_colours():
     net = MemoryNet()
     pub = MemoryBus(net)
@@ -265,6 +276,7 @@ def test_frozen_stopped_dead_and_stale_reach_the_colours():
     w.close()
 
 
+@pytest.mark.unit
 def test_without_a_leader_table_the_leader_is_its_reference_advanced_along_the_arc():
     net = MemoryNet()
     pub = MemoryBus(net)
@@ -279,6 +291,7 @@ def test_without_a_leader_table_the_leader_is_its_reference_advanced_along_the_a
     w.close()
 
 
+@pytest.mark.unit
 def test_with_a_scenario_the_leader_is_exact_from_its_segments():
     scn = scenario_file.load("paper-50hz", Overrides(robots=3))
     net = MemoryNet()
@@ -293,6 +306,7 @@ def test_with_a_scenario_the_leader_is_exact_from_its_segments():
     w.close()
 
 
+@pytest.mark.unit
 def test_without_a_scenario_the_scene_comes_from_the_worlds_queryables():
     from world.world import World
 
@@ -321,6 +335,7 @@ def test_without_a_scenario_the_scene_comes_from_the_worlds_queryables():
 # --------------------------------------------------------------------------- the simulator in the viewer
 
 
+@pytest.mark.unit
 def test_play_simulation_runs_to_the_end_and_shows_the_last_sample():
     from swarm.core.sim import Simulation
 
@@ -338,6 +353,7 @@ def test_play_simulation_runs_to_the_end_and_shows_the_last_sample():
     assert viewer.frames >= 3
 
 
+@pytest.mark.unit
 def test_play_simulation_stops_when_asked():
     from swarm.core.sim import Simulation
 
@@ -367,6 +383,7 @@ def taken_port():
         yield s.getsockname()[1]
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("argv, message", [
     (["up", "--viz-port", "65536"], "must be a port in 0..65535"),
     (["up", "--viz-port", "-1"], "must be a port in 0..65535"),
@@ -383,12 +400,14 @@ def test_bad_viewer_values_are_refused_with_exit_2(argv, message, capsys):
     assert message in capsys.readouterr().err
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("command", [["up", "--robots", "2", "--fleet", "taken"], ["viz"], ["sim", "--viz"]])
 def test_a_taken_viewer_port_is_refused_before_anything_starts(command, taken_port, capsys):
     assert run_cli([*command, "--viz-port", str(taken_port)]) == 2
     assert f"--viz-port {taken_port}: cannot listen on 127.0.0.1:{taken_port}" in capsys.readouterr().err
 
 
+@pytest.mark.integration
 def test_drawing_modules_import_no_transport():
     code = ("import sys, swarm.view.viz, swarm.view.watch, swarm.view.meshcat_server; "
             "print(','.join(m for m in ('zenoh', 'numba', 'IPython') if m in sys.modules))")
@@ -396,6 +415,7 @@ def test_drawing_modules_import_no_transport():
     assert out.stdout.strip() == ""
 
 
+@pytest.mark.unit
 def test_swarm_up_reads_this_runs_viewer_url_then_reports_an_early_exit(tmp_path):
     from types import SimpleNamespace
 
