@@ -1,8 +1,12 @@
-"""Shared helpers of the unit tests: scenario documents and a small TOML writer.
+"""Shared helpers of the tests: scenario documents, a small TOML writer, and the tier rule.
 
 The standard library reads TOML (tomllib) but cannot write it; the scenario tests need
 to write many slightly broken files, so `toml_text` turns the dictionaries they edit
 into TOML text (tables, arrays of tables, inline tables, nan/inf literals).
+
+Every test carries exactly one tier marker (pyproject.toml): unit, integration or browser, or
+slow, which may go with integration or browser. Collection fails on a test without one, or
+with two, naming it (CONTRIBUTING.md, "Test tiers").
 """
 
 from __future__ import annotations
@@ -81,3 +85,33 @@ def write_scenario(tmp_path: Path) -> Callable[..., str]:
         return str(path)
 
     return write
+
+
+TIERS = ("unit", "integration", "browser", "slow")
+TESTS = Path(__file__).resolve().parent
+
+
+def tier_error(markers: set[str]) -> str | None:
+    """Why a test with these marker names breaks the tier rule, or None if it keeps it."""
+    tiers = markers & set(TIERS)
+    if not tiers:
+        return "no tier marker"
+    if len(tiers - {"slow"}) > 1 or tiers == {"unit", "slow"}:
+        return "more than one tier: " + ", ".join(t for t in TIERS if t in tiers)
+    return None
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Refuse to run when a collected test under tests/ breaks the tier rule (before -m deselects any)."""
+    bad = []
+    for item in items:
+        if TESTS not in Path(item.path).resolve().parents:
+            continue
+        why = tier_error({m.name for m in item.iter_markers()})
+        if why:
+            bad.append(f"{item.nodeid}: {why}")
+    if bad:
+        raise pytest.UsageError(
+            "every test needs exactly one tier marker: @pytest.mark.unit, integration or browser, or slow "
+            "(alone or with integration or browser); see CONTRIBUTING.md\n  " + "\n  ".join(bad))
