@@ -38,7 +38,6 @@ import math
 import os
 import shlex
 import shutil
-import signal
 import socket
 import subprocess
 import sys
@@ -52,7 +51,7 @@ from swarm.cli import console
 from swarm.cli.campaign_files import (WALL_CLOCK, Point, cell, flatten, overrides, scenario_flags, scenario_source,
                                       write_csv)
 from swarm.cli.common import EXIT_INTERRUPTED, EXIT_OK, BadInput, StopEvent
-from swarm.launch.child import PARENT_ENV
+from swarm.launch.child import PARENT_ENV, stop_group
 
 EXIT_DIFFERS = 3
 UP_CSV = "up.csv"
@@ -164,8 +163,6 @@ def run_up(argv: list[str], output: Path, limit_s: float, stop, tick) -> UpRun:
     """Run `swarm up` in its own process group, its stdout and stderr into `output`; end it when it
     exceeds limit_s or when `stop` is set; tick(elapsed_s) about every 0.25 s. Nothing it started
     outlives this call."""
-    import psutil
-
     t0 = time.perf_counter()
     with open(output, "wb") as out:
         proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, process_group=0,
@@ -187,41 +184,11 @@ def run_up(argv: list[str], output: Path, limit_s: float, stop, tick) -> UpRun:
                 break
             tick(elapsed)
     finally:
-        if proc.poll() is None:
-            _end(proc, psutil)
+        if proc.poll() is None:  # SIGTERM to swarm up's group (it shuts its processes down and writes its metrics),
+            # SIGKILL to it and to every process it started after GRACE_S (they also die with it: PR_SET_PDEATHSIG)
+            stop_group(proc, GRACE_S, descendants=True)
         run.wall_s = time.perf_counter() - t0
     return run
-
-
-def _end(proc: subprocess.Popen, psutil) -> None:
-    """SIGTERM to swarm up's group (it shuts its processes down and writes its metrics), SIGKILL to it and
-    to every process it started after GRACE_S (they also die with it: PR_SET_PDEATHSIG)."""
-    try:
-        os.killpg(proc.pid, signal.SIGTERM)
-    except ProcessLookupError:
-        pass
-    try:
-        proc.wait(GRACE_S)
-        return
-    except subprocess.TimeoutExpired:
-        pass
-    try:
-        left = psutil.Process(proc.pid).children(recursive=True)
-    except psutil.NoSuchProcess:
-        left = []
-    for p in left:
-        try:
-            os.killpg(p.pid, signal.SIGKILL)  # each child of swarm up leads its own group
-        except (ProcessLookupError, PermissionError):
-            pass
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
-    try:
-        proc.wait(5.0)
-    except subprocess.TimeoutExpired:
-        pass
 
 
 # --------------------------------------------------------------------------- one row

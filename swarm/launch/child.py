@@ -46,9 +46,10 @@ def settle_heap() -> None:
     gc.freeze()
 
 
-def stop_group(proc, term_s: float = 10.0) -> None:
+def stop_group(proc, term_s: float = 10.0, descendants: bool = False) -> None:
     """Stop a child that leads its own process group (started with process_group=0): SIGTERM to the group,
-    SIGKILL to it if the child has not ended within term_s, and reap it."""
+    and if the child has not ended within term_s, SIGKILL to it (with descendants, first to the group of
+    every process it started: swarm up's children lead groups of their own), then reap it."""
     import subprocess
 
     if proc.poll() is None:
@@ -58,6 +59,26 @@ def stop_group(proc, term_s: float = 10.0) -> None:
             pass
     try:
         proc.wait(term_s)
+        return
     except subprocess.TimeoutExpired:
+        pass
+    if descendants:
+        import psutil
+
+        try:
+            left = psutil.Process(proc.pid).children(recursive=True)
+        except psutil.NoSuchProcess:
+            left = []
+        for p in left:
+            try:
+                os.killpg(p.pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
+    try:
         os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait(5)
+    except ProcessLookupError:
+        pass
+    try:
+        proc.wait(5.0)
+    except subprocess.TimeoutExpired:
+        pass

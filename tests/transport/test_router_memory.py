@@ -22,6 +22,7 @@ import pytest
 from swarm.launch.child import stop_group
 from swarm.net.bus import ZenohBus, plain_config, zenoh_config
 from swarm.proto import keys, protocol
+from tests.integration.helpers import wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 FLEET = "mem"
@@ -83,14 +84,15 @@ def router(tmp_path):
                                 stderr=subprocess.STDOUT, process_group=0, cwd=ROOT)
     try:
         deadline = time.monotonic() + WAIT_S
-        while True:  # the router opens its port asynchronously: a client session opens once it does
+
+        def opened():  # the router opens its port asynchronously: a client session opens once it does
+            assert proc.poll() is None, (tmp_path / "router.log").read_text(errors="replace")
             try:
-                probe = zenoh.open(zenoh_config("client", connect=[endpoint]))
-                break
+                return zenoh.open(zenoh_config("client", connect=[endpoint]))
             except Exception:
-                assert proc.poll() is None, (tmp_path / "router.log").read_text(errors="replace")
-                assert time.monotonic() < deadline, f"no router on {endpoint} within {WAIT_S} s"
-                time.sleep(0.05)
+                return None
+
+        probe = wait_until(opened, WAIT_S, f"a router on {endpoint}", every_s=0.05)
         try:
             while not list(probe.liveliness().get(keys.alive(FLEET, "router"), timeout=1.0)):
                 assert time.monotonic() < deadline, "the router's liveliness token did not appear"
