@@ -73,8 +73,12 @@ CLOSE_WAIT_S = 5.0  # lock-step inline: how long close() waits for a tick under 
 HINTS_PER_TICK = 64  # new cell keys a robot hints to its bus a tick, at most (Agent._hint_keys)
 GAP_PERIODS = 3  # real time: control periods a near neighbour's states may be missing in a row (losses)
 RECENT_S = 1.0  # real time: the states received this recently [simulated s] say how old this robot's news may be
-FORGET_PERIODS = 10  # real time: a neighbour not heard for the information delay plus this many periods, that could
-# have left this robot's cells since, is taken as away (docs/runtime.md, "The safety invariant": knowledge)
+DEPART_S = 4.0  # real time: after a robot moves to another cell, every DEPART_EVERY-th of its states goes to the
+# cells it left this long too [simulated s], so a robot that heard it there learns that it left (docs/runtime.md,
+# "The safety invariant": knowledge); not every one: on a lossy link each message more makes TCP stall more often
+DEPART_EVERY = 10
+PROBE_S = 3.0  # real time: a neighbour kept but not heard this long [simulated s] is listened for in every cell
+HEAR_GAP_PERIODS = 3  # real time: poses this many periods apart (wall), or a pose missing, is a gap in its hearing
 STAND_BELOW = 1e-3  # m/s: real time: a robot the safety rule allows less than this stands and promises to
 POSE_LATE_PERIODS = 1.5  # real time, periodic poses: a pose this many periods after the last one is lost
 LISTEN_PERIODS = 3  # real time: control periods a robot listens (commands 0) after its first pose
@@ -239,6 +243,9 @@ class Agent:
         # real time: what it knows without messages (docs/faults.md, Safe under faults) and the safety rule
         # (swarm.core.safety; docs/runtime.md, "The safety invariant")
         self.counters = counters
+        # its poses come through the router as its neighbours' states do, each link in order (zenoh over TCP; no
+        # fault bus, which drops and delays messages one by one): a gap in its poses shows where it may miss states
+        self._ordered = counters is None and self.periodic
         self.partitions = tuple(partitions)
         self.V = cfg.v_bound  # the speed bound it keeps to and assumes of every other robot
         self.ramp = getattr(drive, "ramp_s", safety.RAMP_S)  # its drive brakes from a command's until along this
@@ -259,11 +266,13 @@ class Agent:
         self.held = 0  # of those, the ones the safety rule held back (slowed or stopped)
         self.held_why = [0] * 5  # by what held them (swarm.core.safety: FREE, BODY, AWAY_ONLY, UNKNOWN, PENDING)
         self.forgotten = 0  # neighbours taken as away by the knowledge rule
-        self._forget_min = FORGET_PERIODS * cfg.dt  # a neighbour heard within this is never taken as away
-        self._hold = law.hold_horizon(cfg.dt)  # how long a command of a sender that says nothing of it may act
         self.rx: dict[int, tuple[float, float]] = {}  # j -> (age of its state when it came [s], monotonic receipt)
-        self.dead_age: dict[int, float] = {}  # j -> age of its last state when its token went [s]
         self.away: set[int] = set()  # live robots taken as away by the knowledge rule (_rt_bodies): until a newer state
+        self._beyond: set[int] = set()  # those of them it took as away when last asked (forgotten counts the new ones)
+        self._gaps: deque = deque(maxlen=32)  # real time: the last gaps in its poses, (from, to) monotonic (_missed)
+        self._left: dict[str, float] = {}  # real time: key of a cell it left -> until when its states go there too
+        self._probes: dict = {}  # real time: j -> an inbox on j's states in every cell (_update_probes)
+        self._want_probe: set[int] = set()  # real time: neighbours _rt_bodies kept but has not heard for PROBE_S
         self.max_age = 0.0  # the oldest neighbour state a command used [s]
         self.reports = 0  # faultstats sent
         self._report_lock = threading.Lock()
@@ -372,9 +381,10 @@ class Agent:
         for h in self._inputs:
             h.close()
         self._inputs = []
-        for h in list(self._cells.values()) + self._handles[::-1]:
+        for h in list(self._cells.values()) + list(self._probes.values()) + self._handles[::-1]:
             h.close()
         self._cells.clear()
+        self._probes.clear()
         self._handles.clear()
 
     def _move_cells(self, x: float, y: float) -> None:
@@ -399,6 +409,28 @@ class Agent:
         self._cell = cell
         self._block_prev = now
 
+    def _update_probes(self) -> None:
+        """Real time (loop thread): listen for each neighbour the knowledge rule keeps but has not heard for
+        PROBE_S in every cell (`cell/*/*/<j>`): its next state says where it is (in this robot's block: heard
+        again; beyond it: away), so a neighbour that left while its states were lost (its cell-leaving copies too)
+        does not hold this robot back for good. A probe ends once its robot is heard, away or dead."""
+        probes = self._probes
+        mono = self.clock.monotonic()
+        with self.lock:
+            add = [j for j in self._want_probe if j not in probes]
+            self._want_probe.clear()
+            rx, dead, away, speed = self.rx, self.dead, self.away, self.speed
+            drop = [j for j in probes if j in dead or j in away or j not in self.table or
+                    (mono - rx.get(j, (0.0, -math.inf))[1]) * speed < PROBE_S]
+        for j in drop:
+            self._release(("probe", j), probes.pop(j))
+        for j in add:
+            probes[j] = self.bus.inbox(keys.cell_robot_any(self.fleet, j))
+            self.probed += 1
+        if add or drop:
+            self._drain_cells = None
+
+    probed = 0  # real time: neighbours listened for in every cell (_update_probes)
     rt_static: dict = {}  # real time: id -> (x, y, r, R) of the robots the world lists as standing still (_on_bodies)
     rt_static_t = 0.0  # the simulated time of that list
     _poses_by_callback = False  # real time inline: the drive's callback hands over every pose (drive.drain() has none)
@@ -690,7 +722,8 @@ class Agent:
             self.take_poses(self.drive.drain())  # one that came since the loop woke (the newest wins)
         bad, refs, states = [], [], []
         if self._drain_cells is None:  # the reference's inbox and every cell's in one call (swarm.net.bus.drainer),
-            self._drain_cells = drainer([self._ref_inbox, *self._cells.values()])  # remade when the cells change
+            self._drain_cells = drainer([self._ref_inbox, *self._cells.values(), *self._probes.values()])  # remade
+            # when the cells or the probes change
         items = self._drain_cells()
         if items and items[0][0] == self._ref_key:  # the reference's come first (its inbox's key is exact)
             n = 1
@@ -831,19 +864,17 @@ class Agent:
             self.away.discard(s.id)
 
     def _on_alive(self, j: int, up: bool) -> None:
-        """Robot j's token came (up) or went (under the lock): a robot that goes stays a static body at
-        its last state (real time: with the age that state had then); both are logged."""
+        """Robot j's token came (up) or went (under the lock): a robot that goes is a static body for the law at
+        its last state (real time: the safety rule keeps its motion bound until the world lists it: _rt_bodies);
+        both are logged."""
         if up:
             if j in self.dead:
                 log.info("robot %d: robot %d back (its liveliness token is here again)", self.id, j)
             self.dead.discard(j)
-            self.dead_age.pop(j, None)
         else:
             if j not in self.dead:  # once the world is gone (the end of a run) robots leaving is no news
                 log.log(logging.WARNING if self.world_alive else logging.INFO,
                         "robot %d: robot %d lost (its liveliness token is gone)", self.id, j)
-                if not self.cfg.lockstep and j in self.rx:
-                    self.dead_age[j] = self._age(j, self.clock.monotonic())
             self.dead.add(j)
             self.waiting.discard(j)
 
@@ -892,7 +923,33 @@ class Agent:
             self.w_pose.reset()  # it returns at pose.seq (restarted or resumed): its poses resume after a gap
         if not self.bad.verdict(key, self.w_pose.check(pose.t, pose.seq), "the pose's t or seq"):
             return
+        if not self.cfg.lockstep:
+            mono = self.clock.monotonic()
+            last = self.pose
+            if last is None:
+                self._heard_from = mono  # states before its first pose: nothing known of what it missed
+            elif pose.seq != last.seq + 1 or mono - self._pose_mono > HEAR_GAP_PERIODS * self._period_wall():
+                gaps = self._gaps  # a pose lost or late: states may have been missed in between
+                if len(gaps) == gaps.maxlen:
+                    self._heard_from = gaps[0][1]
+                gaps.append((self._pose_mono, mono))
+            self._pose_mono = mono
         self.pose = pose
+
+    _pose_mono = -math.inf  # real time: when the newest pose came (monotonic)
+    _heard_from = math.inf  # real time: states that came before this (monotonic) take the speed bound over their age
+
+    def _missed(self, m0: float) -> float:
+        """Real time: how long [simulated s] since monotonic time m0 this robot may have missed states (the gaps
+        in its poses since); inf when that is not known (before its first pose, or further back than it keeps)."""
+        if m0 < self._heard_from:
+            return math.inf
+        out = 0.0
+        for a, b in reversed(self._gaps):
+            if b <= m0:
+                break
+            out += b - (a if a > m0 else m0)
+        return out * self.speed
 
     def _start_tick(self, pose) -> None:
         """Lock-step tick k starts (loop thread): publish state_k, decide whose state_k to wait for.
@@ -954,6 +1011,33 @@ class Agent:
         s = self._enc_state(self.id, pose.t, seq, pose.x, pose.y, pose.theta, self._r, self._R,
                             self.mem[law.M_FROZEN] != 0.0, self._rt_stop, self._rt_still)
         self.bus.put(key, s, loopback=False)  # its own state is of no use to this robot's cell inboxes
+        if not self.cfg.lockstep:
+            self._tell_cells_left(key, pose.t, s)
+
+    def _tell_cells_left(self, key: str, t: float, s: bytes) -> None:
+        """Real time: the state s (of time t, put on `key`, its cell's) goes to the cells this robot left within
+        DEPART_S too (the first after a change, then every DEPART_EVERY-th), so a robot that heard it there and does not hear its new cell learns where it went (the
+        knowledge rule takes a neighbour as away only on such news: _rt_bodies)."""
+        left = self._left
+        last = self._last_key
+        due = key != last  # the first at once, then every DEPART_EVERY-th
+        if due:
+            if last is not None:
+                left[last] = t + DEPART_S
+            left.pop(key, None)
+            self._last_key = key
+            self._since_left = 0
+        self._since_left += 1
+        if left:
+            due = due or self._since_left % DEPART_EVERY == 0
+            for k, until in list(left.items()):
+                if t > until:
+                    del left[k]
+                elif due:
+                    self.bus.put(k, s, loopback=False)
+
+    _last_key: str | None = None  # real time: the cell key of its last state
+    _since_left = 0  # real time: states put since its last cell change
 
     def bodies(self, x: float, y: float, seq: int):
         """Lock-step: the known bodies closer than the cell side, in summation order: live robots by id, the
@@ -995,28 +1079,37 @@ class Agent:
         and those the world lists; ages 0: the law and its governor run as in lock-step), and the safety rule's
         bodies (x, y, contact distance, the most the body can be from (x, y) by `end`: swarm.core.safety).
 
-        What a robot knows (docs/runtime.md, "The safety invariant"): every live robot with its last state and
-        that state's age (the age it had when it came plus the time since, on this robot's clock), never
-        forgotten while it may be near: only a robot not heard for the information delay plus FORGET_PERIODS
-        periods that could have left this robot's cells since (the speed bound over its age covers the way out)
-        is taken as away, until a newer state comes, and never one that a partition of the run's faults cuts off
-        from this robot now. A robot whose token is gone stands where its last state put it, within the `stop`
-        it announced (the world stops it at once and lists it); the robots the world lists stand still until the
-        listing's t + BODIES_HOLD_S. Returns the law's lists nx, ny, nr, nR, nk, na, the numbers of robots and
-        stale robots it uses, the safety rule's list, and the information delay [s] (_info_delay)."""
-        r2 = self.side * self.side
+        What a robot knows (docs/runtime.md, "The safety invariant"): every robot with its last state and that
+        state's age (the age it had when it came plus the time since, on this robot's clock), never forgotten while
+        it may be near: only a robot whose newest state puts it outside this robot's block of cells (the 3x3 it
+        hears: everything within the cell side) is taken as away, until a newer state comes (a robot that leaves
+        a cell keeps putting its states there a while: DEPART_S), and never one that a partition of the run's
+        faults cuts off from this robot now. Not hearing a robot says nothing of where it is: its link may be
+        stalled or down. A robot whose token is gone is a static body for the law; the safety rule keeps its
+        motion bound (this robot's newest state of it need not be its last) until the world lists it: the robots
+        the world lists stand still until the listing's t + BODIES_HOLD_S. Returns the law's lists nx, ny, nr,
+        nR, nk, na, the numbers of robots and stale robots it uses, the safety rule's list, and the information
+        delay [s] (_info_delay)."""
+        side = self.side
+        r2 = side * side
         mono = self.clock.monotonic()
         speed, V, eps = self.speed, self.V, safety.CLOCK_SKEW_S
-        hear = self.side
+        cx, cy = math.floor(x / side), math.floor(y / side)
         nx, ny, nr, nR, nk, na = [], [], [], [], [], []
         safe = []
         robots = stale = 0
         oldest = 0.0
         news, heard = 0.0, 0  # the ages recent states came with: their mean goes into the information delay
-        table, dead, away, rx = self.table, self.dead, self.away, self.rx
+        table, dead, away, rx, beyond = self.table, self.dead, self.away, self.rx, self._beyond
         dead_near = []
         listed = self._listed_now()
-        forget = None  # the receipt gap after which a neighbour may be taken as away [simulated s] (once known)
+        # what a neighbour heard in order may do: its announced stop, and V over the times a command of it this
+        # robot has not heard of may have begun: since the newest pose came, and in the gaps of its poses since the
+        # state came (each plus the longest reservation); only on links that keep order (no fault bus)
+        pose = self.pose
+        since_pose = end - t + (t - pose.t if pose is not None and t > pose.t else 0.0) + eps
+        ordered = self._ordered and pose is not None
+        reserve = safety.VALIDITY_MAX_S + safety.RAMP_S
         for j in sorted(table):
             nb = table[j]
             a0, m0 = rx.get(j, (0.0, mono))
@@ -1029,26 +1122,27 @@ class Agent:
             dy = y - nb.y
             d2 = dx * dx + dy * dy
             contact = nb.r if nb.r > self._r else self._r
-            if j in dead:
-                if j in listed:  # the world has it where it stands: that, not its last state, is the body
-                    continue
-                dead_near.append(nb)
-                if nb.stop is not None:  # it sends no command any more: its last one's reach
-                    m = nb.stop + V * eps
-                else:  # a sender that says nothing of its commands: the speed bound over its age and one hold
-                    m = V * (self.dead_age.get(j, age) + self._hold + eps)
-                safe.append((nb.x, nb.y, contact, m))
+            gone = j in dead
+            if gone and j in listed:  # the world has it where it stands: that, not its last state, is the body
                 continue
-            if j in away:
-                continue
-            if since > self._forget_min:
-                if forget is None:
-                    forget = self._info_delay() + self._forget_min
-                if since > forget and V * (age + eps) >= hear - math.sqrt(d2) and not self._cut_off(j, t, forget):
-                    away.add(j)  # not heard, and it could have left: beyond the cells now (or it would be heard)
+            if (abs(math.floor(nb.x / side) - cx) > 1 or abs(math.floor(nb.y / side) - cy) > 1) and \
+                    not self._cut_off(j, t, age):
+                if j not in beyond:  # its newest state is beyond the cells this robot hears: it hears it come back
+                    beyond.add(j)
                     self.forgotten += 1
-                    continue
+                away.add(j)
+                continue
+            beyond.discard(j)
+            if gone:
+                dead_near.append(nb)
+            elif since > PROBE_S and j not in self._probes:
+                self._want_probe.add(j)  # kept, not heard: where is it? (_update_probes)
             m = V * (end - t + age + eps)  # safety.motion_bound, inline: the speed bound over the state's age,
+            if nb.stop is not None and ordered:  # or what it announced, heard in order (above),
+                missed = self._missed(m0)
+                quiet = nb.stop + V * (since_pose + (missed + reserve if missed > 0.0 else 0.0))
+                if quiet < m:
+                    m = quiet
             if nb.still is not None and nb.stop is not None:  # or less while a promise to stand holds
                 left = nb.still - nb.t
                 ends = t - age + (left if left < safety.PROMISE_MAX_S else safety.PROMISE_MAX_S)
@@ -1056,7 +1150,7 @@ class Agent:
                 if promised < m:
                     m = promised
             safe.append((nb.x, nb.y, contact, m))
-            if d2 < r2:
+            if not gone and d2 < r2:
                 nx.append(nb.x), ny.append(nb.y), nr.append(nb.r), nR.append(nb.R), nk.append(law.KIND_ROBOT)
                 na.append(0.0)
                 robots += 1
@@ -1479,6 +1573,8 @@ class Agent:
         self._publish(pose_t, self.seq, v, w, r, used)
         self._rt_t = pose_t
         self._rt_belief = (pose_t, x, y, th)
+        if self._want_probe or self._probes:
+            self._update_probes()  # after the command is out: subscriptions cost a declaration each
         return True
 
     def _acting(self, t: float, cmd_t: float) -> None:
@@ -1633,9 +1729,9 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                 w = agent.held_why
                 log.info("robot %d, run %s: safety rule: %d of %d commands held back (by a body %d, only away from "
                          "one %d, robots unheard %d, its promise %d), %d promises to stand, %d neighbours taken as "
-                         "away", robot_id, agent.cfg.run, agent.held, agent.commanded, w[safety.BODY],
-                         w[safety.AWAY_ONLY], w[safety.UNKNOWN], agent.held - sum(w), agent._promises,
-                         agent.forgotten)
+                         "away, %d listened for in every cell", robot_id, agent.cfg.run, agent.held, agent.commanded,
+                         w[safety.BODY], w[safety.AWAY_ONLY], w[safety.UNKNOWN], agent.held - sum(w),
+                         agent._promises, agent.forgotten, agent.probed)
             served.append(agent)
             if once:
                 break

@@ -75,6 +75,11 @@ def cell_all(fleet: str) -> str:
     return f"{base(fleet)}/cell/*/*/*"
 
 
+def cell_robot_any(fleet: str, i: int) -> str:
+    """Key expression for robot i's state in every cell (a real-time robot that lost track of a neighbour)."""
+    return f"{base(fleet)}/cell/*/*/{_id(i)}"
+
+
 def world_obstacles(fleet: str) -> str:
     return f"{base(fleet)}/world/obstacles"
 

@@ -77,6 +77,7 @@ TABLE: dict[str, Row] = {
     "cell": Row(put=_own("robot"), subscribe=_all("robot", "world")),
     "cell_any": Row(alias_of=("cell",)),
     "cell_all": Row(alias_of=("cell",)),
+    "cell_robot_any": Row(alias_of=("cell",)),
     # the world's keys: it alone puts or serves them
     "world_obstacles": Row(serve=_all("world"), query=_all("robot", *READERS)),
     "world_snapshot": Row(put=_all("world"), subscribe=_all(*READERS)),

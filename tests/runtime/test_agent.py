@@ -327,37 +327,122 @@ def test_a_real_time_robot_blocked_by_a_neighbour_stands_turns_in_place_and_prom
 
 
 @pytest.mark.unit
-def test_a_neighbour_not_heard_that_could_have_left_is_away_but_one_that_could_not_is_kept():
-    """The knowledge rule: a robot near this one is heard every period, so a neighbour not heard for the
-    information delay plus FORGET_PERIODS periods that could have left its cells since (the speed bound over its
-    state's age reaches beyond the cell side) is away until a newer state comes; one deep inside that could not
-    have left yet is kept (lost messages, not a departure), and so is one a partition of the run cuts off."""
+def test_a_neighbour_not_heard_is_kept_however_old_until_news_puts_it_beyond_the_cells_this_robot_hears():
+    """The knowledge rule: not hearing a robot says nothing of where it is (its link may be stalled or its session
+    down), so a neighbour whose newest state lies in the block of cells this robot hears is kept however old,
+    its motion bound growing with its age (the safety rule holds this robot back); a newer state that puts it
+    outside the block (it moved on) takes it as away, until one puts it back; a partition of the run's faults
+    that cuts it off keeps it known whatever its state says."""
     from swarm.core.clock import FakeClock
     from swarm.core.faults import Partition
 
     cfg = Config(**{**CFG.__dict__, "lockstep": False, "v_bound": 1.0})
+    side = cfg.sense
     for partition in (False, True):
         clock = FakeClock()
         parts = (Partition(groups=((cfg.id,), (7, 8)), start=0.0, end=100.0),) if partition else ()
         agent = robot.Agent(MemoryBus(MemoryNet()), cfg, F, clock=clock, partitions=parts)
         agent.start([])
         agent.epoch, agent.speed = clock.time(), 1.0
-        for j, x in ((7, 1.3), (8, 0.4)):  # 7 near the cell side, 8 deep inside
+        for j, x in ((7, 1.3), (8, 0.4)):
             agent.table[j] = State(id=j, t=0.0, seq=1, x=x, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False)
             agent.rx[j] = (0.0, clock.monotonic())
 
-        def robots_used(t):
+        def used(t):
             with agent.lock:
-                return sorted(x for x, k in zip(*[agent._rt_bodies(0.0, 0.0, t, t + 0.2)[i] for i in (0, 4)])
-                              if k == law.KIND_ROBOT)
+                out = agent._rt_bodies(0.0, 0.0, t, t + 0.2)
+            return sorted(x for x, k in zip(out[0], out[4]) if k == law.KIND_ROBOT), sorted(b[0] for b in out[8])
 
-        assert robots_used(0.0) == [0.4, 1.3]
-        forget = agent._info_delay() + robot.FORGET_PERIODS * cfg.dt
-        clock.advance(forget + 0.01)
-        t = forget + 0.01
-        assert robots_used(t) == ([0.4, 1.3] if partition else [0.4])  # 7 could have left (0.2 m to the side)
-        clock.advance(1.2)  # by now 8 could have left too
-        assert robots_used(t + 1.2) == ([0.4, 1.3] if partition else [])
+        assert used(0.0) == ([0.4, 1.3], [0.4, 1.3])
+        clock.advance(60.0)  # a minute without a word: both kept, each a disk 60 m wide by now
+        robots, bounds = used(60.0)
+        assert robots == [0.4, 1.3] and bounds == [0.4, 1.3] and agent.forgotten == 0
+        with agent.lock:  # 7's state as it left: two cells on, out of the block this robot hears
+            agent._take_one(State(id=7, t=60.0, seq=2, x=2.2 * side, y=0.0, theta=0.0, r=0.3, R=1.2,
+                                  frozen=False), keys.cell(F, 0, 0, 7))
+        robots, bounds = used(60.0)
+        assert robots == [0.4] and bounds == ([0.4, 2.2 * side] if partition else [0.4])
+        assert agent.forgotten == (0 if partition else 1) and (7 in agent.away) != partition
+        with agent.lock:  # and back in
+            agent._take_one(State(id=7, t=60.1, seq=3, x=1.0, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False),
+                            keys.cell(F, 0, 0, 7))
+        assert used(60.1)[0] == [0.4, 1.0] and 7 not in agent.away
+        agent.close()
+
+
+@pytest.mark.unit
+def test_a_neighbour_heard_in_order_is_bounded_by_what_it_announced_and_the_gaps_in_this_robots_poses():
+    """On links that keep order, a neighbour's command this robot has not heard of began no earlier than the
+    newest pose came (both pass the router, the command on to the world), or in a gap of this robot's poses: a
+    silent neighbour (its link stalled: so are its commands) may be within its announced stop plus V over the
+    time since that pose and over each gap since its state came (plus the longest reservation), however long it
+    has been silent. With a fault bus (which drops and delays messages one by one), the speed bound over its age."""
+    from swarm.core.clock import FakeClock
+
+    for faulty in (False, True):
+        cfg = Config(**{**CFG.__dict__, "lockstep": False, "v_bound": 1.0})
+        clock = FakeClock()
+        agent = robot.Agent(MemoryBus(MemoryNet()), cfg, F, clock=clock, counters=object() if faulty else None)
+        agent.start([])
+        agent.epoch, agent.speed = clock.time(), 1.0
+        V, eps = cfg.v_bound, safety.CLOCK_SKEW_S
+
+        def pose(seq, t):
+            with agent.lock:
+                agent._on_pose(Pose(t=t, seq=seq, x=0.0, y=0.0, theta=0.0), keys.robot_pose(F, cfg.id))
+
+        def bound(t):
+            with agent.lock:
+                return agent._rt_bodies(0.0, 0.0, t, t + 0.2)[8][0][3]
+
+        pose(1, 0.0)
+        clock.advance(0.02)
+        pose(2, 0.02)
+        agent.table[7] = State(id=7, t=0.02, seq=1, x=1.0, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False,
+                               stop=0.3, still=0.0)
+        agent.rx[7] = (0.0, clock.monotonic() + 1e-9)  # it came after pose 2
+        for k in range(3, 53):  # a second of poses, each a period on; the neighbour silent
+            clock.advance(0.02)
+            pose(k, 0.02 * (k - 1))
+        t = 0.02 * 51
+        live = V * (0.2 + (t - 0.02) + eps)
+        assert bound(t) == pytest.approx(live if faulty else 0.3 + V * (0.2 + eps))
+        clock.advance(0.06)  # a pose lost: states may have been missed in the 0.06 s since the last one
+        pose(54, t + 0.06)
+        gap = 0.3 + V * (0.2 + eps + 0.06 + safety.VALIDITY_MAX_S + safety.RAMP_S)
+        assert bound(t + 0.06) == pytest.approx(V * (0.2 + (t + 0.06 - 0.02) + eps) if faulty else gap)
+        for k in range(55, 105):  # heard again, a second on: it grows no more
+            clock.advance(0.02)
+            pose(k, t + 0.06 + 0.02 * (k - 54))
+        assert bound(t + 1.06) == pytest.approx(V * (0.2 + (t + 1.06 - 0.02) + eps) if faulty else gap)
+        agent.close()
+
+
+@pytest.mark.unit
+def test_a_real_time_robot_that_moves_to_another_cell_puts_its_states_in_the_one_it_left_for_a_while():
+    """Real time: after a cell change its states go to its new cell and, for DEPART_S, to the cell it left too
+    (the first at once, then every DEPART_EVERY-th: each message more makes a lossy link stall more often), so a
+    robot that heard it there learns where it went; lock-step puts each state on its own cell only."""
+    from swarm.core.clock import FakeClock
+
+    for lockstep in (False, True):
+        cfg = Config(**{**CFG.__dict__, "lockstep": lockstep, "v_bound": 1.0})
+        net = MemoryNet()
+        agent = robot.Agent(MemoryBus(net), cfg, F, clock=FakeClock())
+        seen = []
+        tap = MemoryBus(net)
+        tap.subscribe(f"{keys.base(F)}/cell/**", lambda k, d: seen.append(k))
+        side = cfg.sense
+        every = robot.DEPART_EVERY
+        path = [(0.0, 0.5)] + [(0.02 * k, 1.6) for k in range(1, 2 * every + 1)] + [(0.1 + robot.DEPART_S, 1.8)]
+        for seq, (t, x) in enumerate(path):
+            agent._publish_state(Pose(t=t, seq=seq, x=x, y=0.0, theta=0.0), seq)
+        a, b = keys.cell(F, 0, 0, cfg.id), keys.cell(F, 1, 0, cfg.id)
+        assert side < 1.6 < 2 * side
+        # real time: a copy on a at the change (the 1st state in b), at the 10th and the 20th; none past DEPART_S
+        rt = [a, b, a] + [b] * (every - 2) + [b, a] + [b] * (every - 1) + [b, a] + [b]
+        assert seen == ([a] + [b] * (2 * every + 1) if lockstep else rt)
+        tap.close()
         agent.close()
 
 
@@ -689,7 +774,7 @@ def test_a_real_time_robot_takes_the_still_robots_the_world_lists_as_bodies():
     world's bodies message, for the law and for the safety rule (static until the listing's t + BODIES_HOLD_S);
     a message older than the last one is refused by its window and changes nothing; an empty one takes it away;
     a list that stopped coming is dropped past its time to live. A dead robot the world lists is where the world
-    has it, not where its last state put it."""
+    has it, not where its last state put it; one it has not listed yet keeps its motion bound."""
     from swarm.core.clock import FakeClock
     from swarm.proto.protocol import Bodies, Body
 
@@ -715,11 +800,14 @@ def test_a_real_time_robot_takes_the_still_robots_the_world_lists_as_bodies():
         assert bodies(1.0)[0][0] == [0.8] and agent.bad.stale == 1
         agent._on_bodies(Bodies(t=1.02, seq=51, bodies=()), key)  # none still any more
         assert bodies(1.02)[0][0] == []
-        # a dead robot: its last state 0.2 m from where the world stopped it; the world's place wins
+        # a dead robot: its last state 0.2 m from where the world stopped it; until the world lists it, the law
+        # has it there and the rule keeps its motion bound (the speed bound over its age and this reservation:
+        # this robot's newest state of it need not be its last); then the world's place wins
         agent.table[5] = State(id=5, t=0.9, seq=45, x=0.6, y=0.1, theta=0.0, r=0.3, R=1.2, frozen=False, stop=0.3,
                                still=0.0)
         agent.dead.add(5)
-        assert bodies(1.02)[0][0] == [0.6] and bodies(1.02)[2] == [(0.6, 0.1, 0.3, 0.3 + cfg.v_bound * safety.CLOCK_SKEW_S)]
+        assert bodies(1.02)[0][0] == [0.6]
+        assert bodies(1.02)[2] == [(0.6, 0.1, 0.3, pytest.approx(cfg.v_bound * (0.1 + safety.CLOCK_SKEW_S)))]
         agent._on_bodies(Bodies(t=1.04, seq=52, bodies=(Body(5, 0.8, 0.1, 0.3, 1.2),)), key)
         assert bodies(1.04)[0][0] == [0.8] and [b[0] for b in bodies(1.04)[2]] == [0.8]
         # listed long enough ago that it may move again: the rule lets it grow

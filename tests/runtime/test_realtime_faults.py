@@ -15,7 +15,7 @@ import pytest
 from agents import robot
 from agents.guard import Guard
 from swarm.core import faults as F
-from swarm.core import kinematics, law, scenario_file
+from swarm.core import kinematics, law, safety, scenario_file
 from swarm.core.clock import FakeClock
 from swarm.net.bus import MemoryBus, MemoryNet
 from swarm.proto import keys, protocol
@@ -74,8 +74,10 @@ def law_with_ages(agent, pose, ref, t, bodies, ages, horizon):
 def test_a_neighbours_age_goes_to_the_safety_rule_and_the_law_runs_as_in_lock_step():
     """The law is lock-step's (every age 0, the governor's horizon the period); the safety rule takes the age: a
     neighbour 0.95 m ahead whose state came 0.55 s old may be anywhere within V x (its age and this robot's
-    reservation), so the robot stands although the law, with the same bodies, would drive on. 1.5 s later, never
-    heard again, that neighbour could have left the cells: it is away, and a newer state brings it back."""
+    reservation), so the robot stands although the law, with the same bodies, would drive on. PROBE_S later, never
+    heard again, it is kept (not hearing it says nothing of where it is), and the robot listens for it in every
+    cell: its state from a cell beyond those this robot hears takes it as away (and ends the listening), and a
+    newer state near brings it back."""
     rig = Rig()
     rig.put(keys.leader_ref(F_), Ref(t=2.0, seq=1, x=0.0, y=0.0, theta=0.0, v=0.5, w=0.0))
     rig.state(7, t=1.45, x=0.9, y=0.3)  # ahead, 0.95 m away; 0.55 s old when it comes
@@ -87,18 +89,28 @@ def test_a_neighbours_age_goes_to_the_safety_rule_and_the_law_runs_as_in_lock_st
     lawful = law_with_ages(rig.agent, (0.0, 0.0, 0.0), ref, 2.05, body, [0.0], CFG.dt)
     assert lawful[0] > 0.1 and rig.cmds[-1].v == 0.0 and rig.agent.held == 1
     assert rig.agent.neighbours == 1 and rig.agent.oldest_state_s == pytest.approx(0.6)
-    rig.clock.advance(1.5)
+    rig.clock.advance(robot.PROBE_S + 0.1)
     rig.pose(11)
     assert rig.agent.tick_realtime(rig.now())
-    assert rig.agent.neighbours == 0 and 7 in rig.agent.away
-    rig.state(7, t=rig.now(), x=0.9, y=0.3, seq=2)
-    rig.clock.advance(0.02)
+    assert rig.agent.neighbours == 1 and 7 not in rig.agent.away and rig.cmds[-1].v == 0.0
+    assert list(rig.agent._probes) == [7] and rig.agent.probed == 1  # listened for in every cell
+    far = 3.5 * CFG.sense  # where it went: a cell this robot does not hear (only the probe does)
+    rig.put(keys.cell(F_, *keys.cell_of(far, 0.3, CFG.sense), 7),
+            State(id=7, t=rig.now(), seq=2, x=far, y=0.3, theta=0.0, r=0.3, R=1.2, frozen=False))
+    rig.clock.advance(2 * safety.PROMISE_S)  # past its promise to stand
     rig.pose(12)
+    assert rig.agent.tick_realtime(rig.now())
+    assert rig.agent.neighbours == 0 and 7 in rig.agent.away and rig.cmds[-1].v > 0.0
+    rig.pose(13)
+    assert rig.agent.tick_realtime(rig.now()) and rig.agent._probes == {}  # away: the listening ends
+    rig.state(7, t=rig.now(), x=0.9, y=0.3, seq=3)
+    rig.clock.advance(0.02)
+    rig.pose(14)
     assert rig.agent.tick_realtime(rig.now())
     assert rig.agent.neighbours == 1 and 7 not in rig.agent.away
 
 
-def test_a_lost_token_is_logged_and_the_robot_stays_a_static_body_with_its_age_then(caplog):
+def test_a_lost_token_and_its_return_are_logged(caplog):
     rig = Rig()
     rig.put(keys.leader_ref(F_), Ref(t=2.0, seq=1, x=0.0, y=0.0, theta=0.0, v=0.0, w=0.0))
     other = MemoryBus(rig.net)
@@ -116,15 +128,16 @@ def test_a_lost_token_is_logged_and_the_robot_stays_a_static_body_with_its_age_t
     lines = [r.getMessage() for r in caplog.records]
     assert "robot 3: robot 5 lost (its liveliness token is gone)" in lines
     assert "robot 3: robot 5 back (its liveliness token is here again)" in lines
-    assert rig.agent.dead_age == {} and 5 not in rig.agent.dead
+    assert 5 not in rig.agent.dead
     other.close()
 
 
 @pytest.mark.parametrize("stop", [None, 0.25])
-def test_the_static_body_of_a_lost_robot_stands_within_what_it_announced(stop):
-    """A robot whose token goes sends no command any more: it stands within the `stop` its last state announced
-    (its commands' reach), or, from a sender that said nothing of its commands, within the speed bound over its
-    state's age at the loss and one hold; it does not grow after (a dead body does not move)."""
+def test_a_lost_robot_is_a_static_body_for_the_law_and_keeps_its_motion_bound_until_the_world_lists_it(stop):
+    """A robot whose token goes is a static body for the law at its last state; the safety rule keeps its motion
+    bound, the speed bound over its age, whatever it announced: this robot's newest state of it need not be its
+    last (a later one, and the commands after it, may not have come), and the world, which stopped it, lists
+    where (test_agent: the listing wins)."""
     rig = Rig()
     other = MemoryBus(rig.net)
     tok = other.token(keys.alive(F_, "robot", 5))
@@ -141,8 +154,7 @@ def test_the_static_body_of_a_lost_robot_stands_within_what_it_announced(stop):
         nx, ny, nr, nR, nk, na, robots, _, safe, _ = rig.agent._rt_bodies(0.0, 0.0, rig.now(), rig.now() + 0.2)
     assert (nx, nk, robots) == ([0.8], [law.KIND_OBSTACLE], 0)
     V, eps = CFG.v_bound, 0.01
-    m = stop + V * eps if stop is not None else V * (0.3 + law.hold_horizon(CFG.dt) + eps)
-    assert safe == [(0.8, 0.0, 0.3, pytest.approx(m))]
+    assert safe == [(0.8, 0.0, 0.3, pytest.approx(V * (0.2 + 0.1 + 3.2 + eps)))]
     other.close()
 
 
