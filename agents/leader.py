@@ -16,6 +16,7 @@ import logging
 import queue
 import threading
 
+from swarm.net import presence
 from swarm.proto import keys, protocol, window
 from swarm.core import kinematics
 from swarm.core.clock import WALL, said_step
@@ -52,7 +53,7 @@ class Leader:
                                                 lambda k, b: self.inbox.put((k, b))))
         self._handles.append(self.bus.watch_alive(keys.alive(self.fleet, "world"),
                                                   lambda k, up: up and self.inbox.put((_WORLD_BACK, _CLOCK0))))
-        self._handles.append(self.bus.token(keys.alive(self.fleet, "leader")))
+        self._handles.append(presence.announce(self.bus, self.fleet, "leader"))
 
     def close(self) -> None:
         for h in self._handles[::-1]:

@@ -60,6 +60,7 @@ from agents.guard import REF_TIMEOUT_S, Guard, arena_of
 from swarm.proto import window
 from swarm.proto.protocol import Cmd, Config, Limits, ProtocolError, State, Status
 from swarm.core.wake import Runner, Wake
+from swarm.net import presence
 from swarm.net.bus import drainer
 
 log = logging.getLogger("swarm.robot")
@@ -309,7 +310,7 @@ class Agent:
         self._clock_sub = self.bus.subscribe(keys.world_clock(f), self._on_clock_msg)
         self._handles.append(self.bus.watch_alive(keys.alive_any(f), self._on_alive_msg))
         self._move_cells(self.cfg.x, self.cfg.y)
-        self._handles.append(self.bus.token(keys.alive(f, "robot", self.id)))
+        self._handles.append(self.bus.token(keys.alive(f, "robot", self.id)))  # its process says who it is: run_robot
 
     def _lockstep_inputs(self) -> list:
         """Lock-step: (key, handler) of its pose, the reference and, under faults, the static bodies."""
@@ -1326,6 +1327,9 @@ class Agent:
             self.bus.put(self._cmd_key, protocol.encode(cmd), reliable=True)
         elif self.guard is not None and self.guard.check(t, until) is not None:
             cmd = Cmd(t=t, seq=seq, v=0.0, w=0.0, until=until)  # halted (the guard says why, once)
+            hold = getattr(self.drive, "hold", None)
+            if hold is not None:
+                hold(t)  # zero, at this period's time: the world's window on its commands moves on with it
         else:
             self.drive.send(cmd)
         self.last_cmd = cmd
@@ -1657,6 +1661,8 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
     runs = RunFollower(bus, fleet, on_new)
     mine = runid.canonical(scenario) if scenario is not None else None
     served: list[Agent] = []
+    # who this process is (`swarm ps`), from the start: a robot waiting for a run has no token yet
+    proc = presence.serve(bus, fleet, "robot", robot_id, run=lambda: current[0].cfg.run if current else "")
     try:
         run = runs.current(start_timeout, stop)
         while not stop.is_set():
@@ -1741,6 +1747,7 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
             run = nxt
     finally:
         runs.close()
+        proc.close()
     return served
 
 

@@ -41,8 +41,10 @@ from swarm.core.clock import WALL, said_step
 from swarm.core.safety import RAMP_S
 from swarm.core.inventory import Fleet
 from swarm.launch.child import settle_heap
+from swarm.net import presence
 from swarm.proto import keys, protocol, window
 from swarm.proto.protocol import Clock, Obstacle, Obstacles, ProtocolError, RobotSnap, Run, Snapshot
+from world.estop import EstopLog
 from world.referee import Referee, log_collisions
 
 log = logging.getLogger("swarm.referee")
@@ -131,9 +133,14 @@ class RefereeWorld:
         self._handles.append(self.bus.watch_alive(keys.alive_any(f, "robot"), self._on_robot))
         self._handles.append(self.bus.watch_alive(keys.alive_any(f, "leader"), self._on_leader))
         self.bus.wanted(keys.world_snapshot(f))  # declare the snapshot's publisher before the first one
-        self._handles.append(self.bus.token(keys.alive(f, "world")))
+        self._handles.append(presence.announce(self.bus, f, "world", run=lambda: self.run_id))
+        self.estop = EstopLog(self.bus, f, now=lambda: (self.t, self.k))  # logged, told, counted (world.estop)
+        self.estop.start()
+        self._handles.append(self.estop)
         self.bus.put(keys.world_run(f), protocol.encode(Run(self.run_id, self.digest, self.n, False, "")),
                      reliable=True)
+
+    estop = None  # the emergency stop's log (world.estop), once started
 
     def close(self) -> None:
         for h in self._handles[::-1]:
@@ -341,7 +348,8 @@ class RefereeWorld:
             steps=self.k, robots_alive_at_end=alive_end, robots_lost=self.lost_events, lost_robots=sorted(self.lost),
             run_wall_s=time.perf_counter() - run_started, failure=self.failure, run_id=self.run_id,
             scenario_digest=self.digest, stale_messages=self.bad.stale, odometry_based=True,
-            max_pose_age_s=self.max_pose_age, referee_only=True)
+            max_pose_age_s=self.max_pose_age, referee_only=True,
+            **(self.estop.metrics() if self.estop is not None else {}))
 
     def _run(self, stop: threading.Event) -> bool:
         """The loop of periods; True if stopped."""

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from swarm.net import presence
 from swarm.proto import keys, protocol, window
 from swarm.core import faultgen as fg
 from swarm.core import faults as fl
@@ -42,6 +43,7 @@ from swarm.core.geometry import pairs_within
 from swarm.core.scenario import Scenario
 from swarm.core.wake import Wake
 from swarm.core.safety import BODIES_HOLD_S, RAMP_S
+from world.estop import EstopLog
 from world.realtime_faults import RealtimeFaults
 from world.referee import Referee, log_collisions
 
@@ -226,7 +228,10 @@ class World:
         # declare the snapshot's publisher now, so zenoh knows of the viewers and recorders already
         # subscribed by tick 0 (wanted() would otherwise say no for the first snapshot)
         self.bus.wanted(keys.world_snapshot(f))
-        self._handles.append(self.bus.token(keys.alive(f, "world")))
+        self._handles.append(presence.announce(self.bus, f, "world", run=lambda: self.run_id))
+        self.estop = EstopLog(self.bus, f, now=lambda: (self.t, self.k))  # logged, told, counted (world.estop)
+        self.estop.start()
+        self._handles.append(self.estop)
         self.publish_run()
 
     def publish_run(self) -> None:
@@ -266,6 +271,7 @@ class World:
             self.wake.set()
 
     _leader_back = False  # the leader's token came back during the run (lock-step: repeat the clock for it)
+    estop = None  # the emergency stop's log (world.estop), once started
     leader_ups = 0  # times the leader's token appeared
 
     def _on_cmd(self, key: str, data: bytes) -> None:
@@ -567,6 +573,8 @@ class World:
             extra.update(self.rtf.metrics(self.t, self.cmd_held, self.watchdog_stops))
         if not self.lockstep:
             extra.update(self._realtime_metrics())
+        if self.estop is not None:
+            extra.update(self.estop.metrics())
         return self.referee.metrics(time.perf_counter() - started, interrupted,
                                     "lockstep" if self.lockstep else "realtime", **extra)
 

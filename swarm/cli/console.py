@@ -153,6 +153,9 @@ def summary(m: dict, name: str) -> str:
         rows.append(("real time", realtime_text(m)))
     for line in m.get("stranded_detail") or ():
         rows.append(("stranded", str(line)))
+    stop = estop_text(m)
+    if stop:
+        rows.append(("emergency stop", stop))
     if m.get("samples_missed"):  # real time: the world fell behind its control periods
         rows.append(("world behind", f"{m['samples_missed']} control periods not sampled (of "
                                      f"{m['samples_missed'] + m.get('samples', 0)}): the machine could not keep "
@@ -172,6 +175,23 @@ def summary(m: dict, name: str) -> str:
         wall += f"  (the host took {stolen:g} % of this machine's CPU meanwhile: a slow run may be its, not swarm's)"
     rows.append(("wall time", wall))
     return table(rows, "summary")
+
+
+def estop_text(m: dict) -> str | None:
+    """The emergency stop as the world saw it (metrics `estops`): each change with its time and reason; None when
+    it was never engaged."""
+    e = m.get("estops")
+    if not isinstance(e, dict) or not e.get("engaged"):
+        return None
+    said = []
+    for ev in e.get("events") or ():
+        if isinstance(ev, dict):
+            what = "engaged" if ev.get("engaged") else "released"
+            said.append(f"{what} at t = {fmt(ev.get('t'), 's')}" + (f" ({ev['reason']})" if ev.get("reason") else ""))
+    text = ", ".join(said[:6]) + (f", and {len(said) - 6} more" if len(said) > 6 else "")
+    if e.get("engaged", 0) > e.get("released", 0):
+        text += "; still ENGAGED at the end"
+    return text
 
 
 def realtime_text(m: dict) -> str:

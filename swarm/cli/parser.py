@@ -615,6 +615,35 @@ def _add_runtime_parsers(sub) -> None:
     _add_net_flags(stop)
     stop.set_defaults(func="swarm.cli.stop:cmd_stop")
 
+    ps = sub.add_parser("ps", help="the swarms on a router and their live processes (role, id, host, pid, age, run)",
+                        description="List every swarm process on --connect's router: one line per liveliness "
+                                    "token (router, swarm up, world, leader, robots, viewers) or robot process "
+                                    "waiting for a run, with what the process says of itself (host, pid, age, the "
+                                    "run it is in). Every fleet on the router, or only --fleet's. Under --secure it "
+                                    "uses the fleet's operator identity.",
+                        epilog="Example: swarm ps --connect tcp/192.168.1.10:7447")
+    ps.add_argument("--wait", type=_positive_float, default=2.0, metavar="S",
+                    help="wait at most S seconds for the processes to answer (default 2)")
+    ps.add_argument("--json", action="store_true", help="print the listing as JSON (one object per process)")
+    _add_net_flags(ps)
+    ps.set_defaults(func="swarm.cli.ps:cmd_ps", fleet=None)
+
+    echo = sub.add_parser("echo", help="print the swarm's messages on a key, decoded (like ros2 topic echo)",
+                          description="Subscribe to KEY (under swarm/FLEET/, or a full key expression starting with "
+                                      "swarm/) and print each message decoded, one line each: the key, the kind, "
+                                      "the fields as JSON. A message that does not decode is printed with the "
+                                      "reason. Keys that are served, not put (obstacles, config, claim, proc), are "
+                                      "asked once. Exit 1 when nothing came.",
+                          epilog="Examples: swarm echo 'cell/**' --count 5; swarm echo robot/3/pose; "
+                                 "swarm echo leader/ref --timeout 2; swarm echo 'proc/*/*'")
+    echo.add_argument("key", metavar="KEY", help="e.g. robot/3/pose, robot/*/status, cell/**, leader/ref, "
+                                                   "world/progress, estop")
+    echo.add_argument("--count", type=int, metavar="N", help="exit after N messages")
+    echo.add_argument("--timeout", type=_positive_float, metavar="S", help="exit after S seconds (exit 1 if nothing "
+                                                                            "came)")
+    _add_net_flags(echo)
+    echo.set_defaults(func="swarm.cli.echo:cmd_echo")
+
     viz = sub.add_parser("viz", help="watch a running swarm in a browser (meshcat)",
                          description="Start a meshcat web server, print its URL, and draw the swarm of --fleet "
                                      "on --connect's router: robots coloured by state, obstacles, the leader and "

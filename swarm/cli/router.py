@@ -10,7 +10,7 @@ from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, StopEvent, c
                               open_bus, setup_logging)
 from swarm.launch.child import die_with_parent
 from swarm.launch.plan import DEFAULT_LISTEN
-from swarm.proto import keys
+from swarm.net import presence
 
 log = logging.getLogger("swarm")
 
@@ -27,7 +27,7 @@ def cmd_router(args, started: float) -> int:
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, mode="router", listen=listen, role="router")
         try:
-            bus.token(keys.alive(fleet_of(args), "router"))
+            presence.announce(bus, fleet_of(args), "router")
             log.info("router listening on %s%s", ", ".join(listen or ["its identity's endpoints"]),
                      f" (mutual TLS, access control from {args.secure})" if args.secure else "")
             trim = HeapTrim()

@@ -24,6 +24,7 @@ from swarm.core.metrics import violations
 from swarm.launch.plan import DEFAULT_LISTEN, RestartPolicy, UpOptions, VizOptions, make_plan
 from swarm.launch.child import die_with_parent
 from swarm.launch.supervisor import Supervisor, compile_project, exit_text
+from swarm.net import presence
 from swarm.proto import keys
 
 log = logging.getLogger("swarm")
@@ -219,6 +220,7 @@ def cmd_up(args, started: float) -> int:
             bus = open_bus(argparse.Namespace(connect=[plan.endpoint], zenoh_config=opts.zenoh_config, secure=opts.secure,
                                               multicast=opts.multicast), timeout_s=15.0 if plan.router is not None else args.start_timeout,
                            stop=stop, role="launcher")
+            presence.announce(bus, fleet, "launcher")  # `swarm ps` lists this process too
             alive: set[str] = set()
             progress: list = [None]
             bus.watch_alive(keys.alive_any(fleet), lambda k, up: alive.add(k) if up else alive.discard(k))

@@ -36,6 +36,7 @@ from swarm.launch.child import die_with_parent
 from swarm.launch.inventory_plan import FleetUpOptions, make_fleet_plan
 from swarm.launch.plan import DEFAULT_LISTEN, VizOptions
 from swarm.launch.supervisor import Supervisor, compile_project, exit_text
+from swarm.net import presence
 from swarm.proto import keys
 
 log = logging.getLogger("swarm")
@@ -377,6 +378,7 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
                                          args.start_timeout))
             bus = open_bus(argparse.Namespace(connect=[plan.endpoint], zenoh_config=opts.zenoh_config, secure=None,
                                               multicast=opts.multicast), timeout_s=15.0, stop=stop, role="launcher")
+            presence.announce(bus, fleet, "launcher")  # `swarm ps` lists this process too
             if not args.no_preflight:
                 say("pre-flight: checking every robot's ROS 2 side and odometry ...")
                 try:

@@ -8,7 +8,7 @@ from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, Failure, Sto
                               check_viz_port, fleet_of, load_scenario, open_bus, setup_logging, viz_options)
 from swarm.launch.child import die_with_parent
 from swarm.launch.plan import DEFAULT_LISTEN
-from swarm.proto import keys
+from swarm.net import presence
 
 log = logging.getLogger("swarm")
 
@@ -39,7 +39,7 @@ def cmd_viz(args, started: float) -> int:
             try:
                 watcher = SwarmWatcher(bus, fleet, Viewer(server, scene, rings=v.rings), scene=scene)
                 watcher.start()
-                bus.token(keys.alive(fleet, "viz"))
+                presence.announce(bus, fleet, "viz")
                 while watcher.running and not stop.wait(0.5):
                     pass
                 watcher.close()

@@ -97,6 +97,13 @@ class SimDrive:
                 log.info("robot %d halted: %s", self.id, reason)
             self.halted = reason
 
+    def hold(self, t: float) -> None:
+        """Halted: zero velocity at time t (each period while halted, so the world's window on this robot's commands
+        moves on, and the first command after the halt is not a jump)."""
+        with self._lock:
+            if self.halted is not None:
+                self._put(t, 0.0, 0.0, None)
+
     def close(self) -> None:
         if self._box is None:
             return

@@ -55,7 +55,9 @@ ACTION_MESSAGES: dict[str, tuple[tuple[str, str], ...]] = {
     # a publisher learns who subscribes to what it puts: bus.wanted() asks zenoh that
     "listeners": (("declare_subscriber", "egress"),),
     "subscribe": (("declare_subscriber", "ingress"), ("put", "egress")),
-    "serve": (("declare_queryable", "ingress"), ("query", "egress"), ("reply", "ingress")),
+    "serve": (("declare_queryable", "ingress"), ("reply", "ingress")),
+    # a queryable is asked on the keys it serves, every id (a wildcard query reaches it; it replies on its own)
+    "askers": (("query", "egress"),),
     "query": (("query", "ingress"), ("reply", "egress")),
     "token": (("liveliness_token", "ingress"),),
     # the router sends the tokens as declarations (a subscriber's history too); liveliness().get()

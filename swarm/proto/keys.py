@@ -157,6 +157,17 @@ def alive_any(fleet: str, role: str | None = None) -> str:
     return f"{base(fleet)}/alive/{role or '*'}/*"
 
 
+def proc(fleet: str, role: str, i: int = 0) -> str:
+    """A process's own queryable: who it is (protocol.Proc; `swarm ps`). Role and id as in its liveliness token."""
+    if role not in ROLES:
+        raise KeyError_(f"role must be one of {', '.join(ROLES)}, got {role!r}")
+    return f"{base(fleet)}/proc/{role}/{_id(i)}"
+
+
+def proc_any(fleet: str) -> str:
+    return f"{base(fleet)}/proc/*/*"
+
+
 def robot_any(fleet: str, what: str) -> str:
     """Key expression for one kind of per-robot key of every robot, e.g. robot_any(f, "cmd")."""
     return f"{base(fleet)}/robot/*/{what}"
@@ -192,7 +203,7 @@ def cell_robot(key: str) -> int | None:
 class Key:
     fleet: str
     kind: str  # "ref", "pose", "cmd", "status", "cell", "obstacles", "snapshot", "alive", "clock", "progress",
-    #            "config", "run", "bodies", "events", "estop", "claim"
+    #            "config", "run", "bodies", "events", "estop", "claim", "proc"
     id: int | None = None
     cx: int | None = None
     cy: int | None = None
@@ -237,4 +248,6 @@ def parse(key: str) -> Key | None:
         return Key(fleet, "cell", id=int(rest[3]), cx=int(rest[1]), cy=int(rest[2]))
     if len(rest) == 3 and rest[0] == "alive" and rest[1] in ROLES and _INT.match(rest[2]):
         return Key(fleet, "alive", id=int(rest[2]), role=rest[1])
+    if len(rest) == 3 and rest[0] == "proc" and rest[1] in ROLES and _INT.match(rest[2]):
+        return Key(fleet, "proc", id=int(rest[2]), role=rest[1])
     return None

@@ -265,6 +265,21 @@ class Estop:
 
 
 @dataclass(frozen=True)
+class Proc:
+    """A process of the swarm says who it is (its proc queryable's reply: `swarm ps`): its role and id (as in its
+    liveliness token), the machine's host name, its pid, when it started (unix time [s]), the run it is in ("" for
+    none yet) and the swarm version it runs."""
+
+    role: str
+    id: int
+    host: str
+    pid: int
+    started: float
+    run: str
+    version: str
+
+
+@dataclass(frozen=True)
 class Run:
     """A run's identity (world -> everyone, and the world's run queryable): a new id at every run's
     start; digest = sha256 of the resolved scenario (faults included) as canonical TOML. The
@@ -305,7 +320,7 @@ class Progress:
     stranded: int = 0  # live robots stranded far from their slots now (docs/metrics.md)
 
 
-EVENTS = ("kill", "restart", "hang", "resume", "partition", "partition_end", "signal")
+EVENTS = ("kill", "restart", "hang", "resume", "partition", "partition_end", "signal", "estop", "estop_release")
 
 
 @dataclass(frozen=True)
@@ -337,8 +352,13 @@ class Claim:
 KINDS: dict[str, type] = {"ref": Ref, "pose": Pose, "cmd": Cmd, "state": State, "status": Status,
                           "obstacles": Obstacles, "snapshot": Snapshot, "clock": Clock, "config": Config,
                           "progress": Progress, "run": Run, "estop": Estop, "bodies": Bodies, "claim": Claim,
-                          "faultstats": FaultStats, "event": Event}
+                          "faultstats": FaultStats, "event": Event, "proc": Proc}
 _KIND_OF = {cls: kind for kind, cls in KINDS.items()}
+
+
+def kind_of(msg) -> str:
+    """The kind of a message ("state", "pose", ...), as it goes on the wire."""
+    return _KIND_OF[type(msg)]
 
 
 def _fast_init(cls: type) -> None:
@@ -492,6 +512,7 @@ _SPEC: dict[str, tuple[tuple[str, str], ...]] = {
                    ("delayed_state", "i"), ("delayed_pose", "i"), ("delayed_ref", "i"), ("max_age", "n"),
                    ("frozen", "b")),
     "claim": (("id", "id"), ("claim", "s"), ("granted", "b"), ("robots", "i"), ("reason", "s")),
+    "proc": (("role", "s"), ("id", "i"), ("host", "s"), ("pid", "i"), ("started", "n"), ("run", "s"), ("version", "s")),
 }
 # Fields a sender may leave out (the real-time safety fields: docs/protocol.md); absent, the message's field is
 # None. Encoders leave out a None one; a message that has them all takes the fast paths (generated and compiled
@@ -782,8 +803,20 @@ def _check_claim(m: Claim) -> None:
         raise ProtocolError("field 'claim' must not be empty")
 
 
+def _check_proc(m: Proc) -> None:
+    if m.role not in PROC_ROLES:
+        raise ProtocolError(f"field 'role' must be one of {', '.join(PROC_ROLES)}, got {m.role!r}")
+    if m.pid <= 0:
+        raise ProtocolError(f"field 'pid' must be a process id (> 0), got {m.pid}")
+    _within(m, 1e11, "started")
+
+
+PROC_ROLES = ("router", "world", "leader", "robot", "viz", "recorder", "launcher")  # keys.ROLES
+
+
 _CHECK = {
     "claim": _check_claim,
+    "proc": _check_proc,
     "ref": _check_ref,
     "pose": _check_pose,
     "cmd": _check_cmd,

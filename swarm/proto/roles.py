@@ -67,37 +67,41 @@ READERS = ("viz", "recorder", "operator")  # watch the run: snapshot, progress, 
 
 TABLE: dict[str, Row] = {
     # the leader's reference: the leader alone puts it
-    "leader_ref": Row(put=_all("leader"), subscribe=_all("robot", "viz", "recorder")),
+    "leader_ref": Row(put=_all("leader"), subscribe=_all("robot", "viz", "recorder", "operator")),
     # per robot: the world moves robot i (pose), robot i commands itself and reports
-    "robot_pose": Row(put=_all("world"), subscribe=_own("robot")),
-    "robot_cmd": Row(put=_own("robot"), subscribe=_all("world", "recorder")),
+    "robot_pose": Row(put=_all("world"), subscribe=_own("robot") + _all("operator")),
+    "robot_cmd": Row(put=_own("robot"), subscribe=_all("world", "recorder", "operator")),
     "robot_status": Row(put=_own("robot"), subscribe=_all("world", *READERS)),
     "robot_faults": Row(put=_own("robot"), subscribe=_all("world", *READERS)),
     # a robot's state on its cell key: only robot i puts .../cell/*/*/i
-    "cell": Row(put=_own("robot"), subscribe=_all("robot", "world")),
+    "cell": Row(put=_own("robot"), subscribe=_all("robot", "world", "operator")),
     "cell_any": Row(alias_of=("cell",)),
     "cell_all": Row(alias_of=("cell",)),
     "cell_robot_any": Row(alias_of=("cell",)),
     # the world's keys: it alone puts or serves them
     "world_obstacles": Row(serve=_all("world"), query=_all("robot", *READERS)),
     "world_snapshot": Row(put=_all("world"), subscribe=_all(*READERS)),
-    "world_clock": Row(put=_all("world"), subscribe=_all("robot", "leader", "launcher")),
+    "world_clock": Row(put=_all("world"), subscribe=_all("robot", "leader", "launcher", "operator")),
     "world_progress": Row(put=_all("world"), subscribe=_all("launcher", *READERS)),
     "world_config": Row(serve=_all("world"), query=_own("robot") + _all(*READERS)),
     "world_config_any": Row(alias_of=("world_config",)),
     # the current run: announced (put) and served; robots and the leader follow it
     "world_run": Row(put=_all("world"), serve=_all("world"), subscribe=_all("robot", "leader"),
                      query=_all("robot", "leader")),
-    "world_bodies": Row(put=_all("world"), subscribe=_all("robot")),
+    "world_bodies": Row(put=_all("world"), subscribe=_all("robot", "operator")),
     "world_events": Row(put=_all("world", "launcher"), subscribe=_all("launcher", *READERS)),
     "world_claim": Row(serve=_all("world"), query=_all("robot")),
     "world_claim_any": Row(alias_of=("world_claim",)),
     # the emergency stop: a human's operator tools put it, every robot's drive obeys it
-    "estop": Row(put=_all("operator"), subscribe=_all("robot")),
+    "estop": Row(put=_all("operator"), subscribe=_all("robot", "world", "operator")),
     # presence: each process declares its own token (keys.alive(fleet, role, id)); some watch them all
     "alive": Row(token=_own("router", "launcher", "world", "leader", "robot", "viz", "recorder"),
-                 watch=_all("world", "leader", "robot", "launcher")),
+                 watch=_all("world", "leader", "robot", "launcher", "operator")),
     "alive_any": Row(alias_of=("alive",)),
+    # who a process is (`swarm ps`): each serves its own, the operator's tools ask
+    "proc": Row(serve=_own("router", "launcher", "world", "leader", "robot", "viz", "recorder"),
+                query=_all("operator", "launcher")),
+    "proc_any": Row(alias_of=("proc",)),
     "robot_any": Row(alias_of=("robot_pose", "robot_cmd", "robot_status", "robot_faults")),
 }
 
@@ -182,6 +186,9 @@ class Grants:
     # the keys it puts, every id: where it may learn of subscribers (so a publisher knows whether
     # anyone listens; robot 3 learns that the world subscribes robot/*/cmd, and may put only robot/3/cmd)
     listeners: tuple[str, ...] = ()
+    # the keys it serves, every id: where a query may reach it (a wildcard query, proc/*/*, is in no single
+    # robot's own proc/robot/3; it still replies only on its own key)
+    askers: tuple[str, ...] = ()
 
     def of(self, action: str) -> tuple[str, ...]:
         return getattr(self, action)
@@ -202,7 +209,7 @@ def grants(fleet: str, role: str, i: int = 0, extra: tuple[str, ...] = ()) -> Gr
     if role not in ROLES:
         raise ValueError(f"role must be one of {', '.join(ROLES)}, got {role!r}")
     roles = (role, *INHERITS.get(role, ()))
-    out: dict[str, set[str]] = {a: set() for a in (*ACTIONS, "listeners")}
+    out: dict[str, set[str]] = {a: set() for a in (*ACTIONS, "listeners", "askers")}
     for builder, row in TABLE.items():
         for action in ACTIONS:
             for r, scope in row.grants(action):
@@ -212,10 +219,12 @@ def grants(fleet: str, role: str, i: int = 0, extra: tuple[str, ...] = ()) -> Gr
                 out[action].add(expression(builder, fleet, role=r if mine else None, own=i if mine else None))
                 if action == "put":
                     out["listeners"].add(expression(builder, fleet))
+                elif action == "serve":
+                    out["askers"].add(expression(builder, fleet))
     if role == "robot":
         for t in extra:
             e = extra_expression(t, i)
-            for action in (*ACTIONS, "listeners"):
+            for action in (*ACTIONS, "listeners", "askers"):
                 out[action].add(e)
     return Grants(**{a: tuple(sorted(v)) for a, v in out.items()})
 

@@ -38,6 +38,7 @@ MESSAGES = [
     p.Event(t=12.0, seq=600, event="kill", robots=(5,), detail="scheduled: restart after 2 s"),
     p.Event(t=8.0, seq=400, event="partition", robots=(3, 4, 5, 6), detail="groups [0, 1, 2] | [3, 4, 5, 6]"),
     p.Claim(id=3, claim="tb3-03", granted=True, robots=7, reason=""),
+    p.Proc(role="robot", id=3, host="tb3-03", pid=4242, started=1.7e9, run="20261205T030241-da6927", version="0.9.0"),
     p.FaultStats(t=15.0, seq=750, dropped_state=12, dropped_pose=3, dropped_ref=2, delayed_state=40, delayed_pose=0,
                  delayed_ref=1, max_age=0.12, frozen=True),
 ]

@@ -116,8 +116,13 @@ def test_every_grant_of_the_table_works_through_the_router(fleet_dir):
         for p, k in puts:
             buses[p].put(k, _payload(p, k, 2))
         seen.wait_for(lambda items: expected(2) <= set(items), "round 2 of every put")
+        served = sorted({k for c in CLIENTS for k in grants[c].serve if "*" not in k})  # a process's own (proc/robot/3)
         for c in CLIENTS:
             for e in grants[c].query:
-                k = _concrete(e)
+                k = next((s for s in served if matches(e, s)), _concrete(e))
                 assert buses[c].query(k, timeout_s=WAIT_S) == [(k, b"served by the world")], (c, k)
+            if grants[c].query and any(matches(e, keys.proc(FLEET, "robot", 3)) for e in grants[c].query):
+                # a wildcard query reaches each process's own queryable (swarm ps), which replies on its own key
+                got = sorted(buses[c].query(keys.proc_any(FLEET), timeout_s=WAIT_S))
+                assert [k for k, _ in got] == sorted(s for s in served if "/proc/" in s), (c, got)
         assert tokens_at_router(net) == set(tokens)

@@ -94,7 +94,7 @@ def test_robot_i_puts_only_its_own_keys():
     assert g.put == tuple(sorted((keys.robot_cmd(FLEET, 3), keys.robot_status(FLEET, 3), keys.robot_faults(FLEET, 3),
                                   "swarm/f/cell/*/*/3")))
     assert g.token == (keys.alive(FLEET, "robot", 3),)
-    assert g.serve == ()
+    assert g.serve == (keys.proc(FLEET, "robot", 3),)  # who it is (swarm ps), and nothing else
     assert keys.world_config(FLEET, 3) in g.query and keys.world_config(FLEET, 5) not in g.query
     assert keys.robot_pose(FLEET, 3) in g.subscribe and keys.robot_pose(FLEET, 5) not in g.subscribe
     assert keys.leader_ref(FLEET) in g.subscribe and keys.estop(FLEET) in g.subscribe
@@ -112,12 +112,16 @@ def test_what_each_role_may_put(role, puts):
     assert set(roles.grants(FLEET, role).put) == puts
 
 
-def test_only_the_world_serves():
+def test_only_the_world_serves_besides_each_process_saying_who_it_is():
     for role, i in roles.identities(4):
-        served = roles.grants(FLEET, role, i).serve
+        served = set(roles.grants(FLEET, role, i).serve)
+        assert role == "operator" and not served or keys.proc(FLEET, role, i) in served, (role, i, served)
+        served = {k for k in served if not k.startswith(f"swarm/{FLEET}/proc/")}  # the launcher: the recorder's too
         assert bool(served) == (role == "world"), (role, i, served)
     assert set(roles.grants(FLEET, "world").serve) == {
-        keys.world_obstacles(FLEET), "swarm/f/world/config/*", keys.world_run(FLEET), "swarm/f/world/claim/*"}
+        keys.world_obstacles(FLEET), "swarm/f/world/config/*", keys.world_run(FLEET), "swarm/f/world/claim/*",
+        keys.proc(FLEET, "world", 0)}
+    assert roles.grants(FLEET, "operator").serve == () and keys.proc_any(FLEET) in roles.grants(FLEET, "operator").query
 
 
 def test_the_launcher_has_the_recorders_rights():

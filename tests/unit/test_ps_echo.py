@@ -1,0 +1,128 @@
+"""`swarm ps` and `swarm echo` on an in-memory bus: a process's presence (token and proc queryable), the
+listing of every fleet, and a message decoded to one line (or refused, with the reason)."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+
+from swarm.cli import echo, ps
+from swarm.cli.common import BadInput
+from swarm.net import presence
+from swarm.net.bus import MemoryBus, MemoryNet
+from swarm.proto import keys, protocol
+from swarm.proto.protocol import Proc, ProtocolError, State
+
+pytestmark = pytest.mark.unit
+
+
+def test_a_process_announces_its_token_and_says_who_it_is_until_it_withdraws():
+    net = MemoryNet()
+    bus, asker = MemoryBus(net), MemoryBus(net)
+    run = ["r1"]
+    handle = presence.announce(bus, "lab", "robot", 3, run=lambda: run[0])
+    seen = []
+    asker.watch_alive(keys.alive_any("lab"), lambda k, up: seen.append((k, up)))
+    assert seen == [(keys.alive("lab", "robot", 3), True)]
+    (key, payload), = asker.query(keys.proc_any("lab"))
+    p = protocol.decode(payload, "proc")
+    assert key == keys.proc("lab", "robot", 3) and (p.role, p.id, p.pid, p.run) == ("robot", 3, os.getpid(), "r1")
+    run[0] = "r2"  # the run it is in now, at each question
+    assert protocol.decode(asker.query(keys.proc("lab", "robot", 3))[0][1], "proc").run == "r2"
+    handle.close()
+    assert seen[-1] == (keys.alive("lab", "robot", 3), False) and asker.query(keys.proc_any("lab")) == []
+
+
+@pytest.mark.parametrize("bad, why", [({"role": "pilot"}, "role"), ({"pid": 0}, "pid"),
+                                      ({"started": float("nan")}, "started")])
+def test_a_proc_reply_out_of_bounds_is_refused(bad, why):
+    good = dict(role="world", id=0, host="h", pid=12, started=1.7e9, run="", version="1.0")
+    assert protocol.decode(protocol.encode(Proc(**good)), "proc") == Proc(**good)
+    with pytest.raises(ProtocolError, match=why):
+        protocol.decode(protocol.encode(Proc(**{**good, **bad})), "proc")
+
+
+def test_ps_lists_every_fleet_in_order_with_what_each_process_says():
+    net = MemoryNet()
+    procs = [MemoryBus(net) for _ in range(5)]
+    presence.announce(procs[0], "b", "robot", 1)
+    presence.serve(procs[4], "b", "robot", 2)  # a robot's process waiting for a run: no token yet
+    presence.announce(procs[1], "a", "robot", 0, run=lambda: "run-a")
+    presence.announce(procs[2], "a", "world", run=lambda: "run-a")
+    procs[3].token(keys.alive("a", "leader"))  # a process that says nothing of itself (an older swarm)
+    rows = ps.collect(MemoryBus(net), None, wait_s=1.0)
+    assert [(r["fleet"], r["role"], r["id"], r["alive"]) for r in rows] == [
+        ("a", "world", 0, True), ("a", "leader", 0, True), ("a", "robot", 0, True), ("b", "robot", 1, True),
+        ("b", "robot", 2, False)]
+    assert rows[0]["pid"] == os.getpid() and rows[0]["run"] == "run-a" and rows[1]["pid"] is None
+    assert [r["id"] for r in ps.collect(MemoryBus(net), "b", wait_s=1.0)] == [1, 2]
+    text = ps.table(rows, now=rows[0]["started"] + 90)
+    head, world, leader = text.splitlines()[:3]
+    assert head.split() == ["FLEET", "ROLE", "ID", "HOST", "PID", "AGE", "RUN"]
+    assert world.split()[-2:] == ["90s", "run-a"] and leader.split()[3:] == ["-", "-", "-", "-"]
+    assert text.splitlines()[-1].endswith("(waiting for a run)")
+    json.dumps(rows)  # --json prints them as they are
+
+
+def test_echo_prints_a_message_as_key_kind_and_fields_and_a_bad_one_with_its_reason():
+    key = keys.cell("lab", 1, -2, 5)
+    s = State(id=5, t=1.5, seq=75, x=1.6, y=-2.5, theta=0.1, r=0.3, R=1.2, frozen=False)
+    text, ok = echo.line(key, protocol.encode(s))
+    assert ok and text.startswith(f"{key} state {{")
+    assert json.loads(text.split(" state ", 1)[1])["seq"] == 75
+    text, ok = echo.line(key, b"\xc1junk")
+    assert not ok and text.startswith(f"{key} ! not a state message:")
+    text, ok = echo.line(keys.robot_pose("lab", 5), protocol.encode(s))  # a state where a pose goes
+    assert not ok and "not a pose message" in text
+
+
+def test_echo_takes_a_key_under_the_fleet_or_a_full_one_and_refuses_a_malformed_one():
+    assert echo.key_expr("lab", "robot/3/pose") == "swarm/lab/robot/3/pose"
+    assert echo.key_expr("lab", "swarm/other/cell/**") == "swarm/other/cell/**"
+    for bad in ("", "/robot/3", "robot//3", "robot/3/"):
+        with pytest.raises(BadInput, match="KEY"):
+            echo.key_expr("lab", bad)
+
+
+def test_the_world_logs_each_change_of_the_emergency_stop_once_and_tells_it_on_its_events(caplog):
+    """Repeats of an engage count once; a release older than the engage in force is ignored; a newer one counts;
+    each change goes on world/events; a message that does not decode is counted bad, not obeyed."""
+    from world.estop import EstopLog
+
+    net = MemoryNet()
+    told = []
+    MemoryBus(net).subscribe(keys.world_events("lab"), lambda k, b: told.append(protocol.decode(b, "event")))
+    clock = [(1.0, 50)]
+    log = EstopLog(MemoryBus(net), "lab", now=lambda: clock[0])
+    log.start()
+    op = MemoryBus(net)
+
+    def say(engaged, seq, reason=""):
+        op.put(keys.estop("lab"), protocol.encode(protocol.Estop(t=seq / 1000, seq=seq, engaged=engaged, reason=reason)))
+
+    with caplog.at_level("WARNING", logger="swarm.world"):
+        for seq in (1000, 1100, 1200):
+            say(True, seq, "a person in the arena")
+        say(False, 900)  # older than the engage: the stop holds
+        clock[0] = (2.5, 125)
+        say(False, 1300)
+        say(False, 1400)
+        op.put(keys.estop("lab"), b"\x93junk")
+    assert log.metrics() == {"estops": {"engaged": 1, "released": 1, "events": [
+        {"t": 1.0, "engaged": True, "reason": "a person in the arena"}, {"t": 2.5, "engaged": False, "reason": ""}]}}
+    assert [(e.event, e.t, e.detail) for e in told] == [("estop", 1.0, "a person in the arena"),
+                                                        ("estop_release", 2.5, "")]
+    assert log.bad.count == 1
+    said = [r.getMessage() for r in caplog.records if "emergency stop" in r.getMessage()]
+    assert said == ["emergency stop ENGAGED at t = 1.000 s: a person in the arena", "emergency stop released at t = 2.500 s"]
+    log.close()
+
+
+def test_the_summary_says_when_the_emergency_stop_was_engaged_and_released():
+    from swarm.cli.console import estop_text
+
+    assert estop_text({"estops": {"engaged": 0, "released": 0, "events": []}}) is None and estop_text({}) is None
+    e = {"engaged": 1, "released": 0, "events": [{"t": 3.25, "engaged": True, "reason": "tests"}]}
+    assert estop_text({"estops": e}) == "engaged at t = 3.25 s (tests); still ENGAGED at the end"
