@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import shutil
 import sys
+import threading
 import time
 from typing import IO, Sequence
 
@@ -12,7 +13,8 @@ class StatusLine:
     """A single status line redrawn in place on a terminal, or plain log lines otherwise.
 
     On a terminal it redraws at most `hz` times a second; elsewhere (a pipe, a CI log)
-    it prints a plain line at most every `log_every` seconds, so logs stay readable.
+    it prints a plain line at most every `log_every` seconds, so logs stay readable. Thread-safe: a note
+    may come from a bus callback (the emergency stop) while the main thread redraws.
     """
 
     def __init__(self, stream: IO[str] | None = None, hz: float = 10.0, log_every: float = 10.0,
@@ -23,10 +25,15 @@ class StatusLine:
         self.min_gap = 1.0 / hz if self.tty else log_every
         self.last = -1e9
         self.width = 0
+        self._lock = threading.RLock()
 
     def update(self, text: str, force: bool = False) -> None:
         if not self.enabled:
             return
+        with self._lock:
+            self._update(text, force)
+
+    def _update(self, text: str, force: bool) -> None:
         now = time.monotonic()
         if not force and now - self.last < self.min_gap:
             return
@@ -45,12 +52,13 @@ class StatusLine:
         """A line of its own (an event), printed above the status line, which is redrawn next update."""
         if not self.enabled:
             return
-        if self.tty and self.width:
-            self.stream.write("\r" + " " * self.width + "\r")
-            self.width = 0
-            self.last = -1e9
-        self.stream.write(text + "\n")
-        self.stream.flush()
+        with self._lock:
+            if self.tty and self.width:
+                self.stream.write("\r" + " " * self.width + "\r")
+                self.width = 0
+                self.last = -1e9
+            self.stream.write(text + "\n")
+            self.stream.flush()
 
     def clear(self) -> None:
         """Erase the status line (on a terminal), so another stream can print a line of its own;
@@ -256,15 +264,43 @@ def fault_fields(dropped: int = 0, dead: int = 0, hung: int = 0) -> str:
     return "".join(f"  {name} {n}" for name, n in (("dropped", dropped), ("dead", dead), ("hung", hung)) if n)
 
 
-def progress_line(p) -> str:
+class EstopFollower:
+    """`swarm up`'s view of the emergency stop: the world's estop and estop_release events (world/events), each said
+    once (a line above the status line) and `engaged` (its reason) while in force, for the status line."""
+
+    def __init__(self, bus, fleet: str, say) -> None:
+        from swarm.proto import keys
+
+        self.engaged: str | None = None
+        self._say = say
+        self._handle = bus.subscribe(keys.world_events(fleet), self._on)
+
+    def _on(self, key: str, payload: bytes) -> None:
+        from swarm.proto import protocol
+
+        try:
+            e = protocol.decode(payload, "event")
+        except protocol.ProtocolError:
+            return  # the world's events are the recorder's to count; this only follows the stop
+        if e.event == "estop":
+            self.engaged = e.detail or "no reason given"
+            self._say(f"emergency stop ENGAGED at t = {e.t:.2f} s: {self.engaged}")
+        elif e.event == "estop_release":
+            self.engaged = None
+            self._say(f"emergency stop released at t = {e.t:.2f} s")
+
+
+def progress_line(p, estop: str | None = None) -> str:
     """The status line of `swarm up` from the world's progress message (swarm.proto.protocol.Progress):
     time, robots alive, then the faults' counts when there are any (dropped messages, dead and hung
-    robots: fault_fields), converged, frozen, the smallest distance, missed commands, bad messages."""
+    robots: fault_fields), converged, frozen, the smallest distance, missed commands, bad messages; and
+    E-STOP with its reason while the emergency stop is engaged."""
     dist = "-" if p.min_distance < 0 else f"{p.min_distance:.3f} m"
     faults = fault_fields(getattr(p, "dropped", 0), max(0, p.robots - p.alive), getattr(p, "hung", 0))
     held = getattr(p, "held", -1.0)
     extra = (f"  held {100 * held:.0f}%" if held >= 0 else "") + \
-        (f"  stranded {p.stranded}" if getattr(p, "stranded", 0) else "")
+        (f"  stranded {p.stranded}" if getattr(p, "stranded", 0) else "") + \
+        (f"  E-STOP ({estop})" if estop is not None else "")
     return (f"{bar(p.t / p.duration if p.duration else 1)} t {p.t:7.2f}/{p.duration:.1f} s"
             f"  alive {p.alive}/{p.robots}{faults}  converged {p.converged}  frozen {p.frozen}  min distance {dist}"
             f"  misses {p.misses}  bad {p.bad}{extra}")

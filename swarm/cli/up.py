@@ -18,7 +18,7 @@ from swarm.cli.common import (EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, Stop
                               check_listen_free, check_out_dir, check_viz_port, clear_metrics, fleet_of, load_scenario,
                               open_bus, record_rate, scenario_args, viz_options, write_metrics)
 from swarm.cli import console
-from swarm.cli.console import cpu_counters, exit_status, progress_line, steal_pct, summary
+from swarm.cli.console import EstopFollower, cpu_counters, exit_status, progress_line, steal_pct, summary
 from swarm.core.clock import WALL
 from swarm.core.metrics import violations
 from swarm.launch.plan import DEFAULT_LISTEN, RestartPolicy, UpOptions, VizOptions, make_plan
@@ -221,6 +221,7 @@ def cmd_up(args, started: float) -> int:
                                               multicast=opts.multicast), timeout_s=15.0 if plan.router is not None else args.start_timeout,
                            stop=stop, role="launcher")
             presence.announce(bus, fleet, "launcher")  # `swarm ps` lists this process too
+            estop = EstopFollower(bus, fleet, say)  # the status line says E-STOP while it is engaged
             alive: set[str] = set()
             progress: list = [None]
             bus.watch_alive(keys.alive_any(fleet), lambda k, up: alive.add(k) if up else alive.discard(k))
@@ -263,7 +264,7 @@ def cmd_up(args, started: float) -> int:
                 last = progress[0] or last
                 faults.act(last)
                 if last is not None:
-                    status.update(progress_line(last))
+                    status.update(progress_line(last, estop.engaged))
                 if plan.router is not None and sup.children["router"].proc.poll() is not None:
                     failure = f"router lost at t = {_t(last)} ({exit_text(sup.children['router'].proc.returncode)})"
                     sup.signal("world", signal.SIGTERM)  # the world writes the metrics it has

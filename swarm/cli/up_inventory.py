@@ -28,7 +28,7 @@ from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, EXIT_OK, Bad
                               check_endpoint, check_listen_free, check_out_dir, check_viz_port, clear_metrics,
                               load_scenario, open_bus, record_rate, scenario_args, setup_logging, viz_options,
                               write_json, write_metrics)
-from swarm.cli.console import exit_status, progress_line, summary
+from swarm.cli.console import EstopFollower, exit_status, progress_line, summary
 from swarm.core import inventory
 from swarm.core.clock import WALL
 from swarm.core.metrics import violations
@@ -379,6 +379,7 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
             bus = open_bus(argparse.Namespace(connect=[plan.endpoint], zenoh_config=opts.zenoh_config, secure=None,
                                               multicast=opts.multicast), timeout_s=15.0, stop=stop, role="launcher")
             presence.announce(bus, fleet, "launcher")  # `swarm ps` lists this process too
+            estop = EstopFollower(bus, fleet, say)  # the status line says E-STOP while it is engaged
             if not args.no_preflight:
                 say("pre-flight: checking every robot's ROS 2 side and odometry ...")
                 try:
@@ -430,7 +431,7 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
                 _watch_viewer(viewer, status)
                 last = _progress(progress[0]) or last
                 if last is not None:
-                    status.update(progress_line(last))
+                    status.update(progress_line(last, estop.engaged))
                 if plan.router is not None and sup.children["router"].proc.poll() is not None:
                     failure = f"router lost at t = {_t(last)} ({exit_text(sup.children['router'].proc.returncode)})"
                     sup.signal("world", signal.SIGTERM)

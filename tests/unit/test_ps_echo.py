@@ -126,3 +126,24 @@ def test_the_summary_says_when_the_emergency_stop_was_engaged_and_released():
     assert estop_text({"estops": {"engaged": 0, "released": 0, "events": []}}) is None and estop_text({}) is None
     e = {"engaged": 1, "released": 0, "events": [{"t": 3.25, "engaged": True, "reason": "tests"}]}
     assert estop_text({"estops": e}) == "engaged at t = 3.25 s (tests); still ENGAGED at the end"
+
+
+def test_swarm_up_says_the_emergency_stop_once_and_its_status_line_shows_it_while_engaged():
+    from swarm.cli.console import EstopFollower, progress_line
+
+    net = MemoryNet()
+    said: list[str] = []
+    follow = EstopFollower(MemoryBus(net), "lab", said.append)
+    world = MemoryBus(net)
+    p = protocol.Progress(t=3.0, seq=150, duration=10.0, robots=3, alive=3, converged=0, frozen=0, min_distance=1.0,
+                          misses=0, bad=0, collisions=0, overruns=0, min_obstacle=-1.0, position_error=0.5,
+                          orientation_error=0.1, converged_at=-1.0, last_freeze=-1.0, dropped=0, hung=0, held=-1.0,
+                          stranded=0)
+    assert "E-STOP" not in progress_line(p, follow.engaged)
+    world.put(keys.world_events("lab"), protocol.encode(protocol.Event(t=3.0, seq=150, event="estop", robots=(),
+                                                                       detail="tests")))
+    assert progress_line(p, follow.engaged).endswith("  E-STOP (tests)")
+    world.put(keys.world_events("lab"), protocol.encode(protocol.Event(t=5.5, seq=275, event="estop_release",
+                                                                       robots=(), detail="")))
+    assert follow.engaged is None and said == ["emergency stop ENGAGED at t = 3.00 s: tests",
+                                               "emergency stop released at t = 5.50 s"]
