@@ -153,6 +153,7 @@ def summary(m: dict, name: str) -> str:
     rows += fault_rows(m) if faults is not None else []
     for key, label in (("cmd_misses", "missed commands"), ("bad_messages", "bad messages"),
                        ("messages_dropped", "messages dropped"), ("robot_restarts", "robot restarts"),
+                       ("leader_restarts", "leader restarts"),
                        ("robots_lost", "robots lost"), ("lockstep_overruns", "lock-step overruns"),
                        ("launcher_bad_messages", "bad messages (launcher)")):
         if m.get(key) and not (faults is not None and key == "messages_dropped"):

@@ -68,8 +68,10 @@ def test_the_summary_names_the_lost_and_stranded_robots_and_how_real_time_held_u
     scn = scenario_file.load("paper-50hz", scenario_file.Overrides(robots=7), progress=scenario_file.silent)
     m = {**metrics_from_progress(scn, "realtime", None), "wall_s": 30.0, "interrupted": False,
          "round_trip_ms_p99": 41.2, "held_back": 0.027, "cmd_braked": 250, "cmd_expired": 12, "robots_lost": 3,
-         "lost_robots": [1, 3, 5], "stranded": [0], "stranded_detail": ["robot 0 stranded 21.8 m from its slot since t = 43 s"]}
+         "lost_robots": [1, 3, 5], "stranded": [0], "stranded_detail": ["robot 0 stranded 21.8 m from its slot since t = 43 s"],
+         "robot_restarts": 2, "leader_restarts": 1}
     text = summary(m, "paper-50hz")
+    assert "robot restarts   2" in text and "leader restarts  1" in text  # every supervisor action
     assert "round trip p99 41 ms: robots held back 2.7 % of the time; 250 commands ran out (braked), 12 came too late" \
         in text
     assert "robot 0 stranded 21.8 m from its slot since t = 43 s" in text
