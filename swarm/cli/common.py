@@ -21,6 +21,7 @@ from swarm.net.bus import ROUTER_RUNTIME, ZENOH_RUNTIME
 from swarm.proto import keys
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+SAY_WAIT_S = 3.0  # s: a client still without its router says why after this long (then waits on, or gives up)
 log = logging.getLogger("swarm")
 
 
@@ -185,7 +186,9 @@ def open_bus(args, mode: str = "client", listen: list[str] | None = None, timeou
         raise BadInput(f"--zenoh-config {cfg_file}: no such file")
     if secure_dir is not None:
         secure_base(secure_dir, role, robot_id, connect, listen)  # refuse a bad directory or identity now
-    end = time.monotonic() + timeout_s
+    start = time.monotonic()
+    end = start + timeout_s
+    told = False  # a client said why it still waits
     while True:
         try:
             base = secure_base(secure_dir, role, robot_id, connect, listen) if secure_dir is not None else None
@@ -199,11 +202,27 @@ def open_bus(args, mode: str = "client", listen: list[str] | None = None, timeou
         try:
             return ZenohBus(conf)
         except Exception as e:
-            if mode != "client" or time.monotonic() >= end or (stop is not None and stop.is_set()):
-                where = ", ".join(listen or []) if mode == "router" else ", ".join(connect) or "the identity's router"
-                hint = " (is a router running there? `swarm router --listen ENDPOINT` starts one)" if mode == "client" else ""
-                raise Failure(f"cannot open a zenoh {mode} session on {where} within {timeout_s:g} s: "
-                              f"{zenoh_error(e)}{hint}") from None
+            where = ", ".join(listen or []) if mode == "router" else ", ".join(connect) or "the identity's router"
+            if mode != "client":
+                raise Failure(f"cannot open a zenoh {mode} session on {where}: {zenoh_error(e)}") from None
+            now = time.monotonic()
+            if now >= end or (stop is not None and stop.is_set()) or (not told and now - start >= SAY_WAIT_S):
+                from swarm.net import reach
+
+                why = reach.explain(conf)
+                hopeless = why is not None and ("unknown" in why or "certificate" in why or "TLS" in why)
+                if hopeless:
+                    end = now  # no router will change that: say it now
+                if now < end and not (stop is not None and stop.is_set()):
+                    log.warning("still no router after %g s, waiting up to %g s more: %s", SAY_WAIT_S, end - now,
+                                why or zenoh_error(e))
+                    told = True
+                else:
+                    hint = " (is a router running there? `swarm router --listen ENDPOINT` starts one)" \
+                        if why is None or "refused" in why else ""
+                    within = "" if hopeless else f" within {timeout_s:g} s"
+                    raise Failure(f"cannot open a zenoh client session{within}: "
+                                  f"{why or f'{where}: {zenoh_error(e)}'}{hint}") from None
             time.sleep(0.1)
 
 

@@ -62,7 +62,7 @@ def cmd_echo(args, started: float) -> int:
     asked = served(expr)
     printed = bad = 0
     with StopEvent() as stop:
-        bus = open_bus(args, timeout_s=10.0, stop=stop, role="operator")
+        bus = open_bus(args, timeout_s=3.0, stop=stop, role="operator")
         try:
             if asked:  # a queryable's key: ask once, print every reply
                 for key, payload in bus.query(expr, timeout_s=args.timeout or 2.0):

@@ -94,7 +94,7 @@ def cmd_ps(args, started: float) -> int:
     with StopEvent() as stop:
         if fleet is None:
             args.fleet = "default"  # open_bus names no fleet but a secure one
-        bus = open_bus(args, timeout_s=10.0, stop=stop, role="operator")
+        bus = open_bus(args, timeout_s=3.0, stop=stop, role="operator")
         try:
             rows = collect(bus, fleet, args.wait, stop)
         finally:

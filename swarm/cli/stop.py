@@ -16,7 +16,7 @@ def cmd_stop(args, started: float) -> int:
 
         raise BadInput(f"--reason: at most {protocol.MAX_TEXT} characters, got {len(args.reason)}")
     with StopEvent() as stop:
-        bus = open_bus(args, timeout_s=10.0, stop=stop, role="operator")
+        bus = open_bus(args, timeout_s=5.0, stop=stop, role="operator")
         try:
             end = time.monotonic() + args.repeat_s
             sent = 0
