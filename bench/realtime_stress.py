@@ -43,6 +43,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from tests.integration import netns  # noqa: E402
+from swarm.launch.child import stop_group  # noqa: E402
 from tests.integration.helpers import child_of, cpu_hogs, free_port, wait_for_ticks  # noqa: E402
 
 SWARM = [sys.executable, "-m", "swarm.cli"]
@@ -205,14 +206,7 @@ def _in_namespaces(cell: str, tmp: Path, robots: int, speed: float, duration: fl
             world.wait(timeout=duration / speed + 300)
         finally:
             for p in procs:
-                if p.poll() is None:
-                    os.killpg(p.pid, signal.SIGTERM)
-            for p in procs:
-                try:
-                    p.wait(10)
-                except subprocess.TimeoutExpired:
-                    os.killpg(p.pid, signal.SIGKILL)
-                    p.wait(5)
+                stop_group(p)
     return json.loads(metrics.read_text()) if metrics.exists() else {"failure": "no metrics"}
 
 

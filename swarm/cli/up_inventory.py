@@ -378,8 +378,8 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
                                          args.start_timeout))
             bus = open_bus(argparse.Namespace(connect=[plan.endpoint], zenoh_config=opts.zenoh_config, secure=None,
                                               multicast=opts.multicast), timeout_s=15.0, stop=stop, role="launcher")
-            presence.announce(bus, fleet, "launcher")  # `swarm ps` lists this process too
-            estop = EstopFollower(bus, fleet, say)  # the status line says E-STOP while it is engaged
+            presence.announce(bus, name, "launcher")  # `swarm ps` lists this process too
+            estop = EstopFollower(bus, name, say)  # the status line says E-STOP while it is engaged
             if not args.no_preflight:
                 say("pre-flight: checking every robot's ROS 2 side and odometry ...")
                 try:

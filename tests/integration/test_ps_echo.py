@@ -12,6 +12,7 @@ import sys
 
 import pytest
 
+from swarm.launch.child import stop_group
 from tests.integration.helpers import free_port, wait_until
 
 pytestmark = pytest.mark.integration
@@ -31,14 +32,7 @@ def started():
 
     yield start
     for p in procs:
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGTERM)
-    for p in procs:
-        try:
-            p.wait(10)
-        except subprocess.TimeoutExpired:
-            os.killpg(p.pid, signal.SIGKILL)
-            p.wait(5)
+        stop_group(p)
 
 
 def _ps(*args: str) -> list[dict]:
