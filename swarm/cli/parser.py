@@ -510,7 +510,8 @@ def _add_runtime_parsers(sub) -> None:
                    help="restart a failed robot process at most N times per window (default 3)")
     g.add_argument("--restart-window", type=_positive_float, default=60.0, metavar="S",
                    help="the restart policy's window in seconds (default 60)")
-    g.add_argument("--log-dir", metavar="DIR", help="where the processes' logs go (default: a new temp dir)")
+    g.add_argument("--log-dir", metavar="DIR", help="where the processes' logs go, never pruned (default: a new folder in the temp dir; "
+                        "swarm up keeps your 10 newest of each fleet there)")
     g.add_argument("--quiet", action="store_true", help="no status line and no summary")
     _add_fleet_flags(up.add_argument_group("real robots (no simulated world: the referee watches their odometry)"))
     _add_viz_flags(up, "--no-viz")

@@ -181,6 +181,8 @@ def cmd_up(args, started: float) -> int:
     if plan.router is not None:
         check_listen_free(opts.listen or plan.endpoint)
     log_dir.mkdir(exist_ok=True)
+    if args.log_dir is None:
+        (log_dir / LOG_MARKER).write_text("made by swarm up: removed by a later one of the same user (keeps 10)\n")
     removed = prune_logs(Path(tempfile.gettempdir()), fleet, keep=KEEP_LOGS, current=log_dir) if args.log_dir is None else 0
     clear_metrics(metrics_path, log_dir)  # whatever is read back at the end must be this run's
     compile_project()
@@ -385,13 +387,15 @@ class FaultActor:
 
 
 LOG_PREFIX = "swarm-"  # swarm up's default log folders: <temp dir>/swarm-<fleet>-<pid>
+LOG_MARKER = ".swarm-up"  # the file swarm up puts in each default log folder it makes (only those are pruned)
 KEEP_LOGS = 10  # default log folders kept per fleet (the newest); older ones are removed at the next start
 
 
 def prune_logs(tmp: Path, fleet: str, keep: int, current: Path) -> int:
     """Remove the default log folders of `fleet` in `tmp` beyond the `keep` newest (by modification time;
-    `current` is never removed, nor anything not made by swarm up: only folders named swarm-<fleet>-<pid>
-    whose process is gone). Returns how many were removed."""
+    `current` is never removed, nor anything not made by swarm up for this user: only folders named
+    swarm-<fleet>-<pid> that hold swarm up's marker file, belong to this user, and whose process is gone; another
+    user's runs on a shared machine are theirs). Returns how many were removed."""
     import shutil
 
     mine = re.compile(rf"^{re.escape(LOG_PREFIX + fleet)}-(\d+)$")
@@ -400,7 +404,10 @@ def prune_logs(tmp: Path, fleet: str, keep: int, current: Path) -> int:
         m = mine.match(p.name)
         if m and p.is_dir() and not p.is_symlink() and p.resolve() != current.resolve():
             try:
-                found.append((p.stat().st_mtime, p, int(m.group(1))))
+                st = p.stat()
+                if st.st_uid != os.getuid() or not (p / LOG_MARKER).is_file():
+                    continue  # another user's, or not made by swarm up: never ours to remove
+                found.append((st.st_mtime, p, int(m.group(1))))
             except OSError:
                 continue
     found.sort(reverse=True)

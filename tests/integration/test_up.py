@@ -163,24 +163,35 @@ def test_up_against_no_router_fails_in_its_start_timeout_and_shows_no_run(tmp_pa
 
 
 @pytest.mark.unit
-def test_old_default_log_folders_are_pruned_to_the_newest(tmp_path):
-    from swarm.cli.up import prune_logs
+def test_old_default_log_folders_are_pruned_to_the_newest_of_this_users_and_no_one_elses(tmp_path):
+    """Only folders swarm up made (its marker inside) for this user go, beyond the 10 newest; another user's runs
+    (here two folders handed to uid 65534, when this test may: root) and folders without the marker stay."""
+    from swarm.cli.up import LOG_MARKER, prune_logs
 
-    made = []
-    for k in range(14):
-        d = tmp_path / f"swarm-f-{4_000_000 + k}"  # no such processes
+    def folder(name: str, age: int, marked: bool = True):
+        d = tmp_path / name
         d.mkdir()
-        os.utime(d, (1_000_000 + k, 1_000_000 + k))
-        made.append(d)
-    other = tmp_path / "swarm-g-4000001"  # another fleet's, and a file of the user's
-    other.mkdir()
+        if marked:
+            (d / LOG_MARKER).write_text("")
+        os.utime(d, (1_000_000 + age, 1_000_000 + age))
+        return d
+
+    made = [folder(f"swarm-f-{4_000_000 + k}", k) for k in range(14)]  # no such processes
+    theirs = [folder(f"swarm-f-{4_100_000 + k}", -10 + k) for k in range(2)]  # older than every one of ours
+    if os.getuid() == 0:
+        for d in theirs:
+            os.chown(d, 65534, 65534)
+    unmarked = folder("swarm-f-4200000", -20, marked=False)  # a folder of that name swarm up did not make
+    other = folder("swarm-g-4000001", 1)  # another fleet's, and a file of the user's
     (tmp_path / "swarm-f-notes").mkdir()
-    current = tmp_path / "swarm-f-3999999"
-    current.mkdir()
-    os.utime(current, (0, 0))  # the oldest, but this run's: kept
-    assert prune_logs(tmp_path, "f", keep=10, current=current) == 5
+    current = folder("swarm-f-3999999", -1000)  # the oldest, but this run's: kept
+    removed = prune_logs(tmp_path, "f", keep=10, current=current)
     assert [d.exists() for d in made] == [False] * 5 + [True] * 9
-    assert current.exists() and other.exists() and (tmp_path / "swarm-f-notes").exists()
+    assert current.exists() and other.exists() and (tmp_path / "swarm-f-notes").exists() and unmarked.exists()
+    if os.getuid() == 0:
+        assert removed == 5 and all(d.exists() for d in theirs)
+    else:  # without root the two are this user's: the oldest, they go too
+        assert removed == 7
 
 
 @pytest.mark.integration
