@@ -879,12 +879,6 @@ class Agent:
             self.dead.add(j)
             self.waiting.discard(j)
 
-    def _age(self, j: int, mono: float) -> float:
-        """Real time: the age [simulated s] of robot j's last state now (monotonic time mono): the age it
-        had when it came plus the time since, on this robot's clock."""
-        a0, m0 = self.rx.get(j, (0.0, mono))
-        return a0 + max(0.0, mono - m0) * self.speed
-
     def _on_ref(self, ref: protocol.Ref, key: str = "") -> None:
         v = self.w_ref.check(ref.t, ref.seq)
         if v == window.JUMP and self.counters is not None and self.w_ref.t is not None:
