@@ -46,7 +46,7 @@ from swarm.cli import console
 from swarm.cli.campaign_files import (SUMMARY_COLUMNS, Point, campaign_command, columns, grid, overrides,
                                       read_campaign, replay_command, run_row, summary, wall_named, write_campaign_json,
                                       write_csv)
-from swarm.cli.common import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, BadInput, StopEvent
+from swarm.cli.common import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, BadInput, StopEvent, check_writable
 
 EXIT_VIOLATIONS = 3
 
@@ -147,6 +147,7 @@ def _check_out(out: Path) -> None:
         raise BadInput(f"-o {out}: exists and is not a directory")
     if not out.exists() and not out.parent.is_dir():
         raise BadInput(f"-o {out}: directory {out.parent} does not exist")
+    check_writable("-o", out, out if out.exists() else out.parent)
 
 
 def _resolve_grid(args: argparse.Namespace, points: list[Point]):

@@ -12,6 +12,7 @@ import re
 import signal
 import socket
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -345,7 +346,8 @@ def record_rate(args) -> float:
 
 
 def check_out_dir(flag: str, path: Path | None) -> None:
-    """An output file's directory must exist (and be a directory), and the file must not be a directory."""
+    """An output file's directory must exist (and be a directory, where this user can write), and the file
+    must not be a directory: said before the run, not after it."""
     if path is None:
         return
     if not path.parent.exists():
@@ -354,6 +356,27 @@ def check_out_dir(flag: str, path: Path | None) -> None:
         raise BadInput(f"{flag} {path}: {path.parent} is not a directory")
     if path.is_dir():
         raise BadInput(f"{flag} {path}: is a directory (give a file name)")
+    check_writable(flag, path, path.parent)
+
+
+def make_log_dir(log_dir: Path, given: bool) -> None:
+    """The run's log folder (--log-dir's parents too), or BadInput saying why not, before any process starts."""
+    try:
+        log_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise BadInput(f"{'--log-dir ' if given else 'the log folder '}{log_dir}: cannot make it "
+                       f"({e.strerror or e})") from None
+    check_writable("--log-dir" if given else "the log folder", log_dir, log_dir)
+
+
+def check_writable(flag: str, given: Path, directory: Path) -> None:
+    """BadInput naming `flag given` unless a file can be made in `directory` (a read-only mount, a folder of
+    another user, a pseudo file system such as /proc: each found by making one, and removing it)."""
+    try:
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError as e:
+        raise BadInput(f"{flag} {given}: cannot write in {directory} ({e.strerror or e})") from None
 
 
 def viz_options(args, enabled: bool, otherwise: str, extra: tuple[tuple[str, object], ...] = ()) -> VizOptions | None:
@@ -369,6 +392,21 @@ def viz_options(args, enabled: bool, otherwise: str, extra: tuple[tuple[str, obj
         return None
     return VizOptions(host=args.viz_host or VIZ_HOST, port=args.viz_port or 0, rings=bool(args.viz_rings),
                       timeout=getattr(args, "viz_timeout", None) or 60.0)
+
+
+def check_viz_apart(v: VizOptions | None, router_listen: str | None) -> None:
+    """--viz-port on the port this command's router listens on: the second to bind would fail after the start
+    (the router first, so the viewer); refuse before anything starts, the dry run included."""
+    if v is None or not v.port or not router_listen:
+        return
+    proto, _, rest = router_listen.partition("/")
+    host, _, port = rest.rpartition(":")
+    if proto not in ("tcp", "tls") or not port.isdigit() or int(port) != v.port:
+        return  # the viewer is HTTP: only a TCP listener on its port can clash
+    host, wild = host.strip("[]"), ("0.0.0.0", "::", "")
+    if host in wild or v.host in wild or host == v.host or {host, v.host} <= {"127.0.0.1", "localhost"}:
+        raise BadInput(f"--viz-port {v.port}: the router listens on that port ({router_listen}); "
+                       "give the viewer another port, or leave --viz-port out for a free one")
 
 
 def check_viz_port(v: VizOptions) -> None:

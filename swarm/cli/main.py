@@ -85,8 +85,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as e:  # a runtime failure: one line, plus the traceback on request
         if os.environ.get("SWARM_DEBUG"):
             raise
-        print(f"swarm {args.command}: failed: {type(e).__name__}: {e} (set SWARM_DEBUG=1 for a traceback)",
-              file=sys.stderr)
+        if isinstance(e, OSError) and e.filename is not None:  # a file the run could not use: name it
+            what = f"{e.filename}" + (f" -> {e.filename2}" if e.filename2 is not None else "") + f": {e.strerror or e}"
+        else:
+            what = f"{type(e).__name__}: {e}"
+        print(f"swarm {args.command}: failed: {what} (set SWARM_DEBUG=1 for a traceback)", file=sys.stderr)
         return EXIT_FAILURE
 
 

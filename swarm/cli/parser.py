@@ -224,7 +224,9 @@ def _add_fault_flags(g) -> None:
     g.add_argument("--drop", type=_probability, metavar="P", action=_Once,
                    help="lose every message (state, pose, cmd, ref) with probability P: one drop rule of class all")
     g.add_argument("--kill", metavar="ID@T,...", action=_Joined,
-                   help="kill robot ID's process at T s (for example 2@15,5@15; repeatable): one kill rule a robot")
+                   help="kill robot ID's process at T s (for example 2@15,5@15; repeatable): one kill rule a robot. "
+                        "T at or after the run's end is refused here; in a --faults file it is only warned "
+                        "about, since one file may serve runs of several durations")
 
 
 def _add_optional_scenario_flags(p: argparse.ArgumentParser, otherwise: str) -> None:

@@ -27,6 +27,8 @@ def cmd_secure_init(args, started: float) -> int:
                               force=args.force, update=args.update, revoke=tuple(args.revoke))
     except (secure.SecureError, ValueError) as e:
         raise BadInput(str(e)) from None
+    except OSError as e:
+        raise BadInput(f"{d}: cannot write the fleet directory there ({e.filename}: {e.strerror or e})") from None
     m = w.manifest
     robots = [p.name for p in w.folders if p.name.startswith("robot-")]
     print(f"swarm secure: {'updated' if args.update else 'wrote'} {d} for fleet '{m['fleet']}': "

@@ -15,8 +15,9 @@ from pathlib import Path
 
 from swarm.cli.parser import given
 from swarm.cli.common import (EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent, check_endpoint,
-                              check_listen_free, check_out_dir, check_viz_port, clear_metrics, fleet_of, load_scenario,
-                              open_bus, record_rate, scenario_args, viz_options, write_metrics)
+                              check_listen_free, check_out_dir, check_viz_apart, check_viz_port, clear_metrics,
+                              fleet_of, load_scenario, make_log_dir, open_bus, record_rate, scenario_args,
+                              viz_options, write_metrics)
 from swarm.cli import console
 from swarm.cli.console import EstopFollower, cpu_counters, exit_status, progress_line, steal_pct, summary
 from swarm.core.clock import WALL
@@ -173,6 +174,7 @@ def cmd_up(args, started: float) -> int:
         restart=RestartPolicy(args.restarts, args.restart_window), viz=viz, drive=args.drive, ros_flavor=args.ros_flavor,
         twist=args.twist, domain=args.domain)
     plan = make_plan(opts)
+    check_viz_apart(viz, (opts.listen or plan.endpoint) if plan.router is not None else None)
     if args.dry_run:
         print(plan.describe())
         return EXIT_OK
@@ -180,7 +182,7 @@ def cmd_up(args, started: float) -> int:
         check_viz_port(viz)
     if plan.router is not None:
         check_listen_free(opts.listen or plan.endpoint)
-    log_dir.mkdir(exist_ok=True)
+    make_log_dir(log_dir, args.log_dir is not None)
     if args.log_dir is None:
         (log_dir / LOG_MARKER).write_text("made by swarm up: removed by a later one of the same user (keeps 10)\n")
     removed = prune_logs(Path(tempfile.gettempdir()), fleet, keep=KEEP_LOGS, current=log_dir) if args.log_dir is None else 0

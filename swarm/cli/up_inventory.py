@@ -25,9 +25,9 @@ from pathlib import Path
 from swarm.cli import console, preflight
 from swarm.cli.parser import given
 from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent,
-                              check_endpoint, check_listen_free, check_out_dir, check_viz_port, clear_metrics,
-                              load_scenario, open_bus, record_rate, scenario_args, setup_logging, viz_options,
-                              write_json, write_metrics)
+                              check_endpoint, check_listen_free, check_out_dir, check_viz_apart, check_viz_port,
+                              clear_metrics, load_scenario, make_log_dir, open_bus, record_rate, scenario_args,
+                              setup_logging, viz_options, write_json, write_metrics)
 from swarm.cli.console import EstopFollower, exit_status, progress_line, summary
 from swarm.core import inventory
 from swarm.core.clock import WALL
@@ -342,6 +342,7 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
         speed=args.speed, metrics=str(metrics_path), trace=str(Path(args.trace).absolute()) if args.trace else None,
         start_timeout=args.start_timeout, lost_timeout=args.lost_timeout, watchdog=args.watchdog, viz=viz)
     plan = make_fleet_plan(opts, module=module)
+    check_viz_apart(viz, (opts.listen or plan.endpoint) if plan.router is not None else None)
     static = preflight.static_report(fleet)
     if args.dry_run:
         print(plan.describe())
@@ -357,7 +358,7 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
         check_viz_port(viz)
     if plan.router is not None:
         check_listen_free(opts.listen or plan.endpoint)
-    log_dir.mkdir(parents=True, exist_ok=True)
+    make_log_dir(log_dir, args.log_dir is not None)
     clear_metrics(metrics_path, log_dir)  # whatever is read back at the end must be this run's
     compile_project()
     status = console.StatusLine(enabled=not args.quiet, log_every=2.0)

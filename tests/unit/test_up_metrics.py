@@ -77,3 +77,16 @@ def test_the_summary_names_the_lost_and_stranded_robots_and_how_real_time_held_u
     assert "robot 0 stranded 21.8 m from its slot since t = 43 s" in text
     assert violations(m) == ["3 robots lost (1, 3, 5)", "robot 0 stranded"] and exit_status(m) == 3
     assert violations({**m, "mode": "lockstep"}) == ["3 robots lost (1, 3, 5)"]  # (the paper jams a few seeds too)
+
+
+def test_a_collision_without_the_governor_points_to_it():
+    """The paper's law collides between control steps, not in continuous time: the summary of such a run says
+    that --governor is the cure; a run with the governor on (or without collisions) gets no hint."""
+    from swarm.cli.console import summary
+
+    scn = scenario_file.load("paper-50hz", scenario_file.Overrides(robots=3), progress=scenario_file.silent)
+    m = {**metrics_from_progress(scn, "lockstep", None), "wall_s": 3.0, "interrupted": False, "collisions": 28,
+         "governor": False}
+    assert "28  (the safety governor was off" in summary(m, "paper") and "--governor limits" in summary(m, "paper")
+    for quiet in ({**m, "governor": True}, {**m, "collisions": 0}):
+        assert "safety governor was off" not in summary(quiet, "paper")
