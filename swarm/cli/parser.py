@@ -479,7 +479,9 @@ def _add_run_flags(p: argparse.ArgumentParser, up: bool = False) -> None:
         if up:
             _add_record_flags(g)
     g.add_argument("--start-timeout", type=_positive_float, default=60.0, metavar="S",
-                   help="seconds to wait for the other processes at start (default 60)")
+                   help="seconds the start may go without one more process alive (default 60); robots start "
+                        "in waves of 8 a core" if up else "seconds to wait for the other processes at start "
+                        "(default 60)")
 
 
 def _add_violation_flag(g) -> None:

@@ -22,6 +22,7 @@ from swarm.cli import console
 from swarm.cli.console import EstopFollower, cpu_counters, exit_status, progress_line, steal_pct, summary
 from swarm.core.clock import WALL
 from swarm.core.metrics import violations
+from swarm.launch.capacity import Resources, Waves
 from swarm.launch.plan import DEFAULT_LISTEN, RestartPolicy, UpOptions, VizOptions, make_plan
 from swarm.launch.child import die_with_parent
 from swarm.launch.supervisor import Supervisor, compile_project, exit_text
@@ -175,8 +176,14 @@ def cmd_up(args, started: float) -> int:
         twist=args.twist, domain=args.domain)
     plan = make_plan(opts)
     check_viz_apart(viz, (opts.listen or plan.endpoint) if plan.router is not None else None)
+    res = Resources(scn.n, router=plan.router is not None, viewer=plan.viz is not None)
+    if res.refusal() is not None:
+        raise BadInput(res.refusal())
+    if res.warning() is not None:
+        print(f"swarm up: warning: {res.warning()}", file=sys.stderr)
     if args.dry_run:
         print(plan.describe())
+        print(res.text())
         return EXIT_OK
     if viz is not None:
         check_viz_port(viz)
@@ -234,16 +241,14 @@ def cmd_up(args, started: float) -> int:
                 recorder = _start_recorder(bus, fleet, scn, args)
             sup.start(plan.world)
             sup.start(plan.leader)
-            for spec in plan.robots:
-                sup.start(spec)
-            want = {keys.alive(fleet, "world"), keys.alive(fleet, "leader")} | \
-                   {keys.alive(fleet, "robot", i) for i in range(scn.n)}
-            end = time.monotonic() + args.start_timeout
+            robots = {keys.alive(fleet, "robot", i) for i in range(scn.n)}
+            want = {keys.alive(fleet, "world"), keys.alive(fleet, "leader")} | robots
+            waves = Waves(sup.start, plan.robots, args.start_timeout)
             while not want <= alive and not stop.is_set():
-                if time.monotonic() > end:
+                if waves.step(len(alive & want), len(alive & robots)):
                     missing = sorted(want - alive, key=lambda k: (len(k), k))
                     names = [k.split("/alive/")[1].replace("/", " ") for k in missing]
-                    raise launch_failure(f"not alive after {args.start_timeout:g} s: "
+                    raise launch_failure(f"not alive after {args.start_timeout:g} s without a new process up: "
                                          f"{', '.join(names[:12])}{' ...' if len(names) > 12 else ''}", sup)
                 if sup.children["world"].proc.poll() is not None:
                     raise launch_failure("the world process exited during start-up", sup, "world")

@@ -32,6 +32,7 @@ from swarm.cli.console import EstopFollower, exit_status, progress_line, summary
 from swarm.core import inventory
 from swarm.core.clock import WALL
 from swarm.core.metrics import violations
+from swarm.launch.capacity import Resources, Waves
 from swarm.launch.child import die_with_parent
 from swarm.launch.inventory_plan import FleetUpOptions, make_fleet_plan
 from swarm.launch.plan import DEFAULT_LISTEN, VizOptions
@@ -343,9 +344,15 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
         start_timeout=args.start_timeout, lost_timeout=args.lost_timeout, watchdog=args.watchdog, viz=viz)
     plan = make_fleet_plan(opts, module=module)
     check_viz_apart(viz, (opts.listen or plan.endpoint) if plan.router is not None else None)
+    res = Resources(len(plan.robots), router=plan.router is not None, viewer=plan.viz is not None)
+    if res.refusal() is not None:
+        raise BadInput(res.refusal())
+    if res.warning() is not None:
+        print(f"swarm up: warning: {res.warning()}", file=sys.stderr)
     static = preflight.static_report(fleet)
     if args.dry_run:
         print(plan.describe())
+        print(res.text())
         print(f"fleet '{name}' (inventory {fleet.inventory.where}):\n{inventory.describe(fleet)}")
         print(static.text() if not args.no_preflight else "pre-flight: skipped (--no-preflight)")
         if not args.no_preflight and not static.ok:  # the run would stop here: so does the dry run (exit 1)
@@ -399,18 +406,21 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
             bus.subscribe(keys.world_progress(name), lambda k, b: progress.__setitem__(0, b))
             if args.record is not None:
                 recorder = _start_recorder(bus, name, scn, args)
-            for spec in (plan.world, plan.leader, *plan.robots):
+            for spec in (plan.world, plan.leader):
                 sup.start(spec)
-            want = {keys.alive(name, "world"), keys.alive(name, "leader")} | \
-                   {keys.alive(name, "robot", i) for i in range(scn.n)}
-            end = time.monotonic() + args.start_timeout
+            robots = {keys.alive(name, "robot", i) for i in range(scn.n)}
+            want = {keys.alive(name, "world"), keys.alive(name, "leader")} | robots
+            waves = Waves(sup.start, plan.robots, args.start_timeout)
             while not want <= alive and not stop.is_set():
-                if time.monotonic() > end:
+                if waves.step(len(alive & want), len(alive & robots)):
                     missing = sorted(want - alive, key=lambda k: (len(k), k))
                     names = [k.split("/alive/")[1].replace("/", " ") for k in missing]
-                    raise Failure(f"not alive after {args.start_timeout:g} s: {', '.join(names[:12])}"
+                    raise Failure(f"not alive after {args.start_timeout:g} s without a new process up: "
+                                  f"{', '.join(names[:12])}"
                                   f"{' ...' if len(names) > 12 else ''}" + _tail(sup, _child_name(names[0])))
                 for spec in (plan.world, *plan.robots):
+                    if spec.name not in sup.children:  # a robot its wave has not started yet
+                        continue
                     rc = sup.children[spec.name].proc.poll()
                     if rc is not None:
                         raise Failure(f"{spec.name} exited during start-up ({exit_text(rc)})" + _tail(sup, spec.name))

@@ -22,3 +22,48 @@ def test_the_demand_grows_with_robots_and_speed_and_a_warning_says_what_this_mac
 
 def test_a_robots_step_is_measured_here():
     assert 1.0 < capacity.step_us(rounds=3, steps=50) < 10_000.0
+
+
+def test_the_memory_check_refuses_a_swarm_that_does_not_fit_and_says_how_many_do():
+    """2000 robot processes at about 17 MiB each do not fit in 23 GiB: refused with the figure and how many fit;
+    one that fits is not refused, and a warning comes past MEMORY_SHARE of the memory or ROBOTS_PER_CORE."""
+    from swarm.launch.capacity import ROBOTS_PER_CORE, Resources
+
+    big = Resources(2000, available=23 * 1024.0, cores=2)
+    why = big.refusal()
+    assert why is not None and "2000 robot processes need about 34.0 GiB" in why and "23.0 GiB available" in why
+    fits = int(why.split("about ")[2].split(" robots fit")[0])
+    assert Resources(fits, available=23 * 1024.0).refusal() is None
+    assert Resources(fits + 1, available=23 * 1024.0).refusal() is not None
+    assert Resources(37, available=23 * 1024.0, cores=2).warning() is None
+    assert "memory available" in Resources(fits, available=23 * 1024.0, cores=64).warning()
+    crowded = Resources(ROBOTS_PER_CORE * 2 + 1, available=23 * 1024.0, cores=2).warning()
+    assert crowded is not None and "more than 50 a core" in crowded
+    assert Resources(5, available=None).refusal() is None  # not known (off Linux): nothing refused
+    assert "about 289 MiB of memory of 23.0 GiB available, 2 cores" in Resources(5, available=23 * 1024.0,
+                                                                                 cores=2).text()
+    assert Resources(5, router=False, viewer=False).need_mib < Resources(5).need_mib
+
+
+def test_robots_start_in_waves_of_eight_a_core():
+    from swarm.launch.capacity import launch_wave
+
+    assert launch_wave(1) == 8 and launch_wave(2) == 16 and launch_wave(16) == 128 and launch_wave() >= 8
+
+
+def test_waves_start_robots_as_earlier_ones_come_alive_and_time_out_only_without_progress():
+    from swarm.launch.capacity import Waves
+
+    now = [0.0]
+    started: list[int] = []
+    waves = Waves(started.append, range(10), timeout_s=5.0, wave=3, clock=lambda: now[0])
+    assert not waves.step(0, 0) and started == [0, 1, 2]  # a wave: 3 starting at once
+    assert not waves.step(2, 0) and started == [0, 1, 2]  # the world and the leader came up, no robot yet
+    assert not waves.step(4, 2) and started == [0, 1, 2, 3, 4]  # 2 robots up: 2 more start
+    now[0] = 4.9
+    assert not waves.step(4, 2)  # no new process for 4.9 s: still waiting
+    assert not waves.step(5, 3) and started == [0, 1, 2, 3, 4, 5]
+    now[0] = 9.8
+    assert not waves.step(5, 3)  # 4.9 s after the last progress
+    now[0] = 10.0
+    assert waves.step(5, 3)  # 5.1 s without a new process: timed out
