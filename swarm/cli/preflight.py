@@ -237,13 +237,35 @@ def static_report(fleet: Fleet) -> Report:
     return Report(fleet, inventory.static_problems(fleet), inventory.notes(fleet), {})
 
 
+def unreached(fleet: Fleet) -> dict[int, str]:
+    """The robots whose own `connect` endpoint does not answer as a router would, with why ({id: "tcp/...: connection
+    refused ..."}): a network or router fault, told apart from a ROS 2 side that does not answer. Each endpoint
+    probed once, all at once (swarm.net.reach, PROBE_S each)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from swarm.net import reach
+
+    eps = list(fleet.inventory.endpoints)
+    if not eps:
+        return {}
+    with ThreadPoolExecutor(max_workers=min(32, len(eps))) as pool:
+        why = dict(zip(eps, pool.map(reach.probe, eps)))
+    return {r.id: f"{r.entry.connect}: {why[r.entry.connect]}" for r in fleet.robots
+            if r.entry.connect and why.get(r.entry.connect)}
+
+
 def check(bus, fleet: Fleet, timeout_s: float = DISCOVER_TIMEOUT_S, window_s: float = WINDOW_S,
-          max_age_s: float = POSE_TIMEOUT_S, stop: threading.Event | None = None) -> Report:
+          max_age_s: float = POSE_TIMEOUT_S, stop: threading.Event | None = None,
+          cut_off: dict[int, str] | None = None) -> Report:
     """Every check: static, then each robot's ROS 2 side and odometry on `bus` (up to timeout_s for the
-    robots to show up, then window_s of odometry)."""
+    robots to show up, then window_s of odometry). cut_off: robots whose router was not reached ({id: why},
+    unreached()): each is that problem alone, its ROS 2 side not checked."""
     stop = stop or threading.Event()
+    cut_off = cut_off or {}
     problems = inventory.static_problems(fleet)
-    probe = OdometryProbe(bus, [r.entry for r in fleet.robots])
+    problems += [Problem(i, f"cannot reach its zenoh router at {why}; the network or that router, not the robot's "
+                            "ROS 2 side (not checked)") for i, why in sorted(cut_off.items())]
+    probe = OdometryProbe(bus, [r.entry for r in fleet.robots if r.id not in cut_off])
     probe.start()
     try:
         t0 = time.monotonic()
@@ -259,7 +281,7 @@ def check(bus, fleet: Fleet, timeout_s: float = DISCOVER_TIMEOUT_S, window_s: fl
         if stop.is_set():
             raise InterruptedError
         problems += probe.verdicts(window, waited, max_age_s)
-        rates = {r.id: probe.rate(r.id, window) for r in fleet.robots}
+        rates = {r.id: probe.rate(r.id, window) for r in fleet.robots if r.id not in cut_off}
     finally:
         probe.close()
     problems.sort(key=lambda p: -1 if p.robot is None else p.robot)
@@ -307,7 +329,8 @@ def cmd_preflight(args, started: float) -> int:
                                                       "robot passed; the robots were not reached"))
             raise
         try:
-            report = check(bus, fleet, args.odom_timeout, args.odom_window, stop=stop)
+            report = check(bus, fleet, args.odom_timeout, args.odom_window, stop=stop,
+                           cut_off=unreached(fleet) if mode == "router" else None)
         except InterruptedError:
             return 130
         finally:

@@ -390,8 +390,9 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
             estop = EstopFollower(bus, name, say)  # the status line says E-STOP while it is engaged
             if not args.no_preflight:
                 say("pre-flight: checking every robot's ROS 2 side and odometry ...")
-                try:
-                    report = preflight.check(bus, fleet, stop=stop)
+                try:  # our router links every robot's: one that does not answer is a network fault, said so
+                    report = preflight.check(bus, fleet, stop=stop,
+                                             cut_off=preflight.unreached(fleet) if plan.router is not None else None)
                 except InterruptedError:
                     raise KeyboardInterrupt from None
                 status.clear()

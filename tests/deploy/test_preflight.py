@@ -184,3 +184,24 @@ def test_no_router_reached_still_prints_the_checks_that_need_no_robot(tmp_path, 
     assert rc == 1 and "cannot open a zenoh client session" in out.err, out
     assert "robot 3: leader.segments[0] moves at |v| = 0.15 m/s" in out.out
     assert "pre-flight FAILED: 1 problem" in out.out
+
+
+@pytest.mark.integration
+def test_a_robot_whose_router_does_not_answer_is_a_network_fault_not_its_ros_side(tmp_path, capsys):
+    """Robots 0-2 behind their own routers (the inventory's `connect`): one whose port is closed and one whose host
+    does not resolve are named as cut off with the cause, and their ROS 2 side is not blamed."""
+    from swarm.cli.main import main
+    from tests.deploy.helpers import inventory_text
+    from tests.integration.helpers import free_port
+
+    closed = f"tcp/127.0.0.1:{free_port()}"
+    inv = tmp_path / "fleet.toml"
+    inv.write_text(inventory_text(3, None, r0={"connect": closed}, r1={"connect": "tcp/no-such-host.invalid:7447"},
+                                  r2={"connect": closed}))
+    rc = main(["preflight", "--inventory", str(inv), "--scenario", "turtlebot3", "--robots", "3",
+               "--odom-timeout", "0.5", "--odom-window", "0.2"])
+    out = capsys.readouterr().out
+    assert rc == 1, out
+    assert f"robot 0: cannot reach its zenoh router at {closed}: connection refused" in out, out
+    assert "robot 1: cannot reach its zenoh router at tcp/no-such-host.invalid:7447: host 'no-such-host.invalid' unknown" in out, out
+    assert "RMW_IMPLEMENTATION" not in out and "no subscriber" not in out, out
