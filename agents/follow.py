@@ -14,14 +14,17 @@ of the same scenario: otherwise it refuses, naming the first difference.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 
 from swarm.core import runid
+from swarm.net import presence
 from swarm.proto import keys, protocol
 from swarm.proto.protocol import ProtocolError, Run
 
 log = logging.getLogger("swarm.follow")
+SAY_S = 3.0  # s: a process still without the world's answer says what is on the router instead
 
 
 class NoAnswer(RuntimeError):
@@ -32,11 +35,18 @@ class RunRefused(RuntimeError):
     """This process must not take part in the run (another scenario, an id outside it)."""
 
 
-def query_until(bus, key: str, kind: str, key_id, timeout_s: float, stop, what: str, accept=None):
-    """Ask a queryable until a valid reply comes (and accept(msg) holds), or raise NoAnswer after timeout_s."""
+def query_until(bus, key: str, kind: str, key_id, timeout_s: float, stop, what: str, accept=None, why=None):
+    """Ask a queryable until a valid reply comes (and accept(msg) holds), or raise NoAnswer after timeout_s.
+    why(): what is on the router instead, said once after SAY_S without an answer (and in the NoAnswer)."""
     end = time.monotonic() + timeout_s
+    say_at = time.monotonic() + SAY_S if why is not None else math.inf
     last_error = "no reply"
+    hint = "is the world running on this fleet and router?"
     while True:
+        if time.monotonic() >= say_at:
+            say_at, hint = math.inf, why()
+            log.warning("no answer for %s after %g s: %s; waiting up to %.0f s more (swarm ps lists what is on the "
+                        "router)", what, SAY_S, hint, max(0.0, end - time.monotonic()))
         left = end - time.monotonic()
         for rkey, payload in bus.query(key, timeout_s=max(0.05, min(1.0, left))):
             try:
@@ -51,8 +61,7 @@ def query_until(bus, key: str, kind: str, key_id, timeout_s: float, stop, what: 
                 return msg
             last_error = "a reply of another run"
         if time.monotonic() >= end or (stop is not None and stop.is_set()):
-            raise NoAnswer(f"no answer for {what} on {key} within {timeout_s:g} s ({last_error}); "
-                           "is the world running on this fleet and router?")
+            raise NoAnswer(f"no answer for {what} on {key} within {timeout_s:g} s ({last_error}); {hint}")
         if stop is not None:
             stop.wait(0.1)
         else:
@@ -88,9 +97,11 @@ class RunFollower:
         if self.on_new is not None:
             self.on_new(run)
 
-    def current(self, timeout_s: float, stop: threading.Event | None = None) -> Run:
-        """The run under way, with its scenario text (the world's queryable), or NoAnswer."""
-        run = query_until(self.bus, keys.world_run(self.fleet), "run", None, timeout_s, stop, what="the current run")
+    def current(self, timeout_s: float, stop: threading.Event | None = None, me: tuple[str, int] | None = None) -> Run:
+        """The run under way, with its scenario text (the world's queryable), or NoAnswer (naming what is on the
+        router instead; me: this process's role and id, left out of that)."""
+        run = query_until(self.bus, keys.world_run(self.fleet), "run", None, timeout_s, stop, what="the current run",
+                          why=lambda: presence.why_no_world(self.bus, self.fleet, me))
         self._adopt(run)
         with self.lock:
             return self.latest

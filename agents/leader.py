@@ -135,7 +135,7 @@ def run_leader(bus, clock, scn, fleet: str = "default", lockstep: bool | None = 
     mine = runid.canonical(scn)
     served: list[Leader] = []
     try:
-        run = runs.current(start_timeout, stop)
+        run = runs.current(start_timeout, stop, me=("leader", 0))
         while not stop.is_set():
             if not run.scenario:
                 run = runs.complete(run, start_timeout, stop)

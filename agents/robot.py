@@ -1658,7 +1658,7 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
     # who this process is (`swarm ps`), from the start: a robot waiting for a run has no token yet
     proc = presence.serve(bus, fleet, "robot", robot_id, run=lambda: current[0].cfg.run if current else "")
     try:
-        run = runs.current(start_timeout, stop)
+        run = runs.current(start_timeout, stop, me=("robot", robot_id))
         while not stop.is_set():
             if mine is not None and not run.scenario:
                 run = runs.complete(run, start_timeout, stop)  # to name the first difference, if any

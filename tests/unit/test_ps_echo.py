@@ -52,12 +52,12 @@ def test_ps_lists_every_fleet_in_order_with_what_each_process_says():
     presence.announce(procs[1], "a", "robot", 0, run=lambda: "run-a")
     presence.announce(procs[2], "a", "world", run=lambda: "run-a")
     procs[3].token(keys.alive("a", "leader"))  # a process that says nothing of itself (an older swarm)
-    rows = ps.collect(MemoryBus(net), None, wait_s=1.0)
+    rows = presence.collect(MemoryBus(net), None, wait_s=1.0)
     assert [(r["fleet"], r["role"], r["id"], r["alive"]) for r in rows] == [
         ("a", "world", 0, True), ("a", "leader", 0, True), ("a", "robot", 0, True), ("b", "robot", 1, True),
         ("b", "robot", 2, False)]
     assert rows[0]["pid"] == os.getpid() and rows[0]["run"] == "run-a" and rows[1]["pid"] is None
-    assert [r["id"] for r in ps.collect(MemoryBus(net), "b", wait_s=1.0)] == [1, 2]
+    assert [r["id"] for r in presence.collect(MemoryBus(net), "b", wait_s=1.0)] == [1, 2]
     text = ps.table(rows, now=rows[0]["started"] + 90)
     head, world, leader = text.splitlines()[:3]
     assert head.split() == ["FLEET", "ROLE", "ID", "HOST", "PID", "AGE", "RUN"]
@@ -147,3 +147,29 @@ def test_swarm_up_says_the_emergency_stop_once_and_its_status_line_shows_it_whil
                                                                        robots=(), detail="")))
     assert follow.engaged is None and said == ["emergency stop ENGAGED at t = 3.00 s: tests",
                                                "emergency stop released at t = 5.50 s"]
+
+
+def test_a_process_waiting_for_a_world_says_what_is_on_the_router_instead(monkeypatch, caplog):
+    """A robot of fleet 'lab' with no world: after SAY_S it says which fleets are there (a typo in --fleet), or
+    what of its own fleet is (no world started), and the NoAnswer at the end says the same."""
+    from agents import follow
+
+    net = MemoryNet()
+    other, mine, me = MemoryBus(net), MemoryBus(net), MemoryBus(net)
+    presence.announce(other, "default", "world")
+    presence.announce(other, "default", "leader")
+    presence.serve(other, "default", "robot", 0)
+    presence.announce(other, "default", "router")  # a router serves every fleet: never named as one
+    assert presence.why_no_world(me, "lab", me=("robot", 3), wait_s=0.3) == \
+        "no world of fleet 'lab' on this router; fleets there: default (world, leader, 1 robot) (--fleet NAME joins one)"
+    presence.serve(mine, "lab", "robot", 5)
+    presence.serve(me, "lab", "robot", 3)  # itself: left out
+    assert presence.why_no_world(me, "lab", me=("robot", 3), wait_s=0.3).startswith(
+        "fleet 'lab' has no world on this router (there: 1 robot); fleets there: default")
+    monkeypatch.setattr(follow, "SAY_S", 0.1)
+    runs = follow.RunFollower(me, "lab")
+    with caplog.at_level("WARNING", logger="swarm.follow"), pytest.raises(follow.NoAnswer) as e:
+        runs.current(0.8, me=("robot", 3))
+    assert "fleet 'lab' has no world on this router (there: 1 robot)" in str(e.value)
+    assert any("no answer for the current run after 0.1 s: fleet 'lab' has no world" in r.getMessage()
+               for r in caplog.records)
