@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -135,6 +135,7 @@ class Stats:
     converged: int | None = None
     frozen: int | None = None
     min_distance: float | None = None
+    estop: str | None = None  # the emergency stop's reason while it is engaged ("" when it gave none)
 
 
 def state_codes(alive: np.ndarray, stopped: np.ndarray, frozen: np.ndarray, status_age_s: np.ndarray,
@@ -500,7 +501,7 @@ class Viewer:
             eth = np.abs((leader[2] - q[:, 2] + math.pi) % (2 * math.pi) - math.pi)
             converged = int((live & (np.hypot(px, py) < CONVERGED_POSITION_M) & (eth < CONVERGED_ANGLE_RAD)).sum())
         dmin = stats.min_distance
-        if dmin is None and stats == Stats():  # nothing given: the viewer's own running minimum
+        if dmin is None and replace(stats, estop=None) == Stats():  # nothing given: the viewer's own running minimum
             pts = q[live, :2]
             if len(pts) >= 2:
                 span = float(np.ptp(pts, axis=0).max()) + 1.0
@@ -509,7 +510,8 @@ class Viewer:
                     self._min_seen = min(self._min_seen, found[2])
             dmin = self._min_seen if math.isfinite(self._min_seen) else None
         texts = {
-            "name": self.scene.name or "swarm",
+            "name": (self.scene.name or "swarm") if stats.estop is None else
+                    f"E-STOP{': ' + stats.estop if stats.estop else ''}",
             "t": f"t = {t:.2f} s",
             "min_distance": "min distance –" if dmin is None else f"min distance {dmin:.3f} m",
             "alive": f"alive {alive} of {n}",

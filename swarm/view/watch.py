@@ -32,6 +32,7 @@ import logging
 import math
 import threading
 import time
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
@@ -91,6 +92,8 @@ class SwarmWatcher:
         self._last: protocol.Snapshot | None = None
         self._last_ref: protocol.Ref | None = None
         self._stats: Stats | None = None  # from the newest progress message
+        self._estop: str | None = None  # the emergency stop's reason while engaged (world/events)
+        self._estop_drawn: str | None = None
         self._codes: np.ndarray | None = None
         self._started = wall()
         self._scene_n = -1
@@ -220,7 +223,7 @@ class SwarmWatcher:
         stale = (np.array([self._stale.get(i, 0) > 0 for i in id_list], bool) & (age <= self.stale_after_s)
                  & (codes != DEAD) & (codes != HUNG))
         if (not fresh and self.drawn and np.array_equal(codes, self._codes) and np.array_equal(cut, self._cut)
-                and np.array_equal(stale, self._stale_rings)):
+                and np.array_equal(stale, self._stale_rings) and self._estop == self._estop_drawn):
             refresh = getattr(self.viewer, "refresh_overlay", None)
             if refresh is not None:  # the overlay's last lines, held back by its pacing
                 refresh()
@@ -230,8 +233,9 @@ class SwarmWatcher:
         set_marks = getattr(self.viewer, "set_marks", None)
         if set_marks is not None:
             set_marks(cut=cut, stale_data=stale)
-        self.viewer.draw(snap.t, q, codes, self._leader(snap.t, ref), stats=self._stats)
-        self._codes, self._cut, self._stale_rings = codes, cut, stale
+        stats = self._stats if self._estop is None else replace(self._stats or Stats(), estop=self._estop)
+        self.viewer.draw(snap.t, q, codes, self._leader(snap.t, ref), stats=stats)
+        self._codes, self._cut, self._stale_rings, self._estop_drawn = codes, cut, stale, self._estop
         self.drawn += 1
         return True
 
@@ -258,6 +262,9 @@ class SwarmWatcher:
             m = self._marks = FaultMarks(n, timeline)
             m.advance(t)  # the same event from the bus later counts once
         for ev in self._held_events:
+            if ev.event in ("estop", "estop_release"):  # the whole swarm's, not a robot's: the overlay says it
+                self._estop = (ev.detail or "") if ev.event == "estop" else None
+                continue
             ignored = m.ignored
             if m.apply(ev.t, ev.event, ev.robots):
                 self.events += 1

@@ -231,6 +231,46 @@ def test_a_live_watcher_colours_and_rings_robots_from_the_worlds_fault_events():
         w.close()
 
 
+class StatsViewer(MarkingViewer):
+    """A MarkingViewer that keeps each frame's overlay stats too."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.stats: list = []
+
+    def draw(self, t, q, codes, leader=None, stats=None) -> None:
+        super().draw(t, q, codes, leader, stats)
+        self.stats.append(stats)
+
+
+def test_the_viewer_shows_the_emergency_stop_with_its_reason_while_it_is_engaged():
+    """The world's estop event puts "E-STOP: reason" in the overlay's first cell (a frame of its own: it is
+    news even when no robot changed), its release takes it away; the scene's name is back."""
+    net = MemoryNet()
+    pub = MemoryBus(net)
+    viewer = StatsViewer()
+    w = SwarmWatcher(MemoryBus(net), FLEET, viewer, scene=SceneInfo(name="paper-50hz"), wall=Clock())
+    w.start(draw_thread=False)
+    try:
+        pub.put(keys.world_snapshot(FLEET), snapshot(0, n=3))
+        assert w.step() and viewer.stats[-1] is None
+        pub.put(keys.world_events(FLEET), protocol.encode(Event(t=0.02, seq=1, event="estop", robots=(),
+                                                                detail="operator: person in the arena")))
+        assert w.step() and viewer.stats[-1].estop == "operator: person in the arena"
+        view = Viewer(CommandLog(), SceneInfo(name="paper-50hz"), clock=Clock())
+        q = np.zeros((3, 3))
+        assert view.overlay_texts(0.0, q, np.zeros(3, int), None, viewer.stats[-1])["name"] == \
+            "E-STOP: operator: person in the arena"
+        assert not w.step()  # nothing new
+        pub.put(keys.world_events(FLEET), protocol.encode(Event(t=0.04, seq=2, event="estop_release", robots=(),
+                                                                detail="")))
+        assert w.step() and viewer.stats[-1] is None
+        assert view.overlay_texts(0.0, q, np.zeros(3, int), None, viewer.stats[-1])["name"] == "paper-50hz"
+        assert w.bad.count == 0
+    finally:
+        w.close()
+
+
 def test_a_watcher_that_joins_late_starts_from_the_scenarios_schedule():
     """Given the scenario (as `swarm up` gives its viewer), a watcher whose first snapshot is at 1 s knows
     the kill at 0.5 s it never heard; the same event heard later counts once."""
