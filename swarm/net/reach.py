@@ -72,15 +72,36 @@ def _tls(sock, host: str, files: dict, timeout_s: float) -> str | None:
                 return "the router closed the link after the TLS handshake (not a router of this fleet?)"
             return None
     except ssl.SSLCertVerificationError as e:
-        why = e.verify_message or str(e)
-        return (f"the router's certificate is not trusted: {why} (a router of another fleet's CA, an expired "
-                "certificate, or one made for another host name: `swarm secure init --router-host`)")
+        return "the router's certificate is not trusted: " + _untrusted(e, host)
     except ssl.SSLError as e:
         return _refused(e)
     except (TimeoutError, socket.timeout):
         return f"no TLS answer within {timeout_s:g} s (is it a tls/ endpoint? a plain tcp/ router does not speak TLS)"
     except OSError as e:
         return f"the TLS handshake failed: {e.strerror or e}"
+
+
+# OpenSSL's X509_V_ERR_* codes (x509_vfy.h) that name a cause a user can act on
+_EXPIRED, _NOT_YET_VALID = 10, 9
+_NO_ISSUER = (2, 7, 18, 19, 20, 21)  # no issuer; signed by another key (a CA of the same name); self-signed
+_WRONG_NAME = (62, 64)  # hostname mismatch, IP address mismatch
+
+
+def _untrusted(e: ssl.SSLCertVerificationError, host: str) -> str:
+    """Why our CA file does not accept the router's certificate, in words with the fix."""
+    code, why = e.verify_code, e.verify_message or str(e)
+    if code == _EXPIRED:
+        return f"it has expired ({why}); make the router new credentials: swarm secure init DIR --update"
+    if code == _NOT_YET_VALID:
+        return f"it is not valid yet ({why}): is this machine's clock right?"
+    if code in _WRONG_NAME:
+        return (f"it was made for another host name, not {host!r} ({why}); connect to a name it was made for, or "
+                f"remake it: swarm secure init DIR --update --router-host {host}")
+    if code in _NO_ISSUER:
+        return (f"it is not signed by this fleet's CA ({why}): a router of another fleet directory, or this "
+                "process's files come from another one")
+    return (f"{why} (a router of another fleet's CA, an expired certificate, or one made for another host name: "
+            "swarm secure init --router-host)")
 
 
 def _refused(e: ssl.SSLError) -> str:

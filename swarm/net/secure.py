@@ -410,8 +410,9 @@ def init_fleet(directory: str | os.PathLike, robots: int, fleet: str = "default"
 
     A non-empty directory is refused unless `force` (everything is made anew: new CA) or `update` (of
     a directory made here: the CA and the certificates are kept, robots up to `robots` are added,
-    `revoke` ids lose their folder and get a deny rule, the router's certificate is re-issued if its
-    hosts changed, every zenoh.json5 is written again; the router must restart to apply it)."""
+    `revoke` ids lose their folder and get a deny rule, a certificate is issued anew when it expires within a
+    day (the router's also when its hosts changed), every zenoh.json5 is written again; the router must restart
+    to apply it)."""
     import zenoh
 
     d = Path(directory)
@@ -519,16 +520,19 @@ def _is_ip(h: str) -> bool:
 
 
 def _keep(folder: Path, hosts: tuple[str, ...], update: bool) -> bool:
-    """Whether an update keeps the certificate in `folder` (it exists and, for the router, names
-    exactly `hosts`)."""
+    """Whether an update keeps the certificate in `folder` (it exists, is valid for another day at least and, for
+    the router, names exactly `hosts`): an expired one is issued anew."""
     if not update or not (folder / CERT).is_file() or not (folder / KEY).is_file():
+        return False
+    from cryptography import x509
+
+    cert = _load_cert(folder / CERT)
+    if cert.not_valid_after_utc < datetime.datetime.now(datetime.timezone.utc) + datetime.timedelta(days=1):
         return False
     if not hosts:
         return True
-    from cryptography import x509
-
     try:
-        san = _load_cert(folder / CERT).extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+        san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
     except x509.ExtensionNotFound:
         return False
     have = {str(v) for v in san.get_values_for_type(x509.IPAddress)} | set(san.get_values_for_type(x509.DNSName))

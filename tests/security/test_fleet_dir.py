@@ -163,6 +163,24 @@ def test_update_adds_robots_and_revokes_with_the_same_ca(tmp_path):
         assert [k for k, _ in items if k != keys.robot_status(FLEET, 4)] == []
 
 
+@pytest.mark.unit
+def test_update_issues_anew_a_certificate_that_expires_within_a_day(tmp_path, monkeypatch):
+    """The fix the client's error names for an expired router certificate (swarm secure init DIR --update):
+    certificates valid for less than a day are issued anew with the same CA, the others are kept."""
+    from cryptography import x509
+
+    d = tmp_path / "f"
+    monkeypatch.setattr(secure, "CERT_DAYS", 0)  # every certificate ends now
+    secure.init_fleet(d, 2, FLEET)
+    monkeypatch.undo()
+    ca = (d / "ca" / "ca.pem").read_bytes()
+    w = secure.init_fleet(d, 2, FLEET, update=True)
+    assert {"router", "robot-0", "robot-1"} <= set(w.issued) and (d / "ca" / "ca.pem").read_bytes() == ca
+    cert = x509.load_pem_x509_certificate((d / "router" / "cert.pem").read_bytes())
+    assert (cert.not_valid_after_utc - cert.not_valid_before_utc).days > 800
+    assert secure.init_fleet(d, 2, FLEET, update=True).issued == ()  # valid now: kept
+
+
 @pytest.mark.integration
 def test_force_makes_a_new_ca_and_old_certificates_are_refused(tmp_path):
     d = tmp_path / "f"

@@ -68,3 +68,73 @@ def test_swarm_stop_and_ps_name_the_cause():
                         (["ps", "--connect", "tcp/no-such-host.invalid:7447"], "host 'no-such-host.invalid' unknown")):
         out = subprocess.run(CLI + args, capture_output=True, text=True, timeout=60)
         assert out.returncode == 1 and cause in out.stderr and "Unable to connect" not in out.stderr, out.stderr
+
+
+def _tls_server(tmp_path, days: float, hosts: tuple[str, ...]):
+    """A TLS listener on loopback with a certificate of its own CA (valid for `days`, negative: expired since),
+    made for `hosts`; returns (port, the CA's PEM file, the socket to close)."""
+    import datetime
+    import ipaddress
+    import ssl
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
+    now = datetime.datetime.now(datetime.timezone.utc)
+
+    def cert(subject_key, cn, issuer_key, issuer, ca, start, end):
+        b = (x509.CertificateBuilder().subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, cn)]))
+             .issuer_name(issuer).public_key(subject_key.public_key()).serial_number(x509.random_serial_number())
+             .not_valid_before(start).not_valid_after(end)
+             .add_extension(x509.BasicConstraints(ca=ca, path_length=None), critical=True))
+        if not ca:
+            b = b.add_extension(x509.SubjectAlternativeName(
+                [x509.IPAddress(ipaddress.ip_address(h)) for h in hosts]), critical=False)
+        return b.sign(issuer_key, hashes.SHA256())
+
+    ca_key, key = ec.generate_private_key(ec.SECP256R1()), ec.generate_private_key(ec.SECP256R1())
+    ca_name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "test CA")])
+    ca = cert(ca_key, "test CA", ca_key, ca_name, True, now - datetime.timedelta(days=30), now + datetime.timedelta(days=30))
+    end = now + datetime.timedelta(days=days)
+    leaf = cert(key, "router", ca_key, ca_name, False, min(now, end) - datetime.timedelta(days=2), end)
+    (tmp_path / "ca.pem").write_bytes(ca.public_bytes(serialization.Encoding.PEM))
+    (tmp_path / "cert.pem").write_bytes(leaf.public_bytes(serialization.Encoding.PEM))
+    (tmp_path / "key.pem").write_bytes(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                                                         serialization.NoEncryption()))
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+    ctx.load_cert_chain(tmp_path / "cert.pem", tmp_path / "key.pem")
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(4)
+
+    def serve():
+        while True:
+            try:
+                conn, _ = srv.accept()
+            except OSError:
+                return
+            try:
+                ctx.wrap_socket(conn, server_side=True).close()
+            except (OSError, ssl.SSLError):
+                conn.close()
+    threading.Thread(target=serve, daemon=True).start()
+    return srv.getsockname()[1], str(tmp_path / "ca.pem"), srv
+
+
+@pytest.mark.parametrize("days, hosts, said", [
+    (-3, ("127.0.0.1",), "the router's certificate is not trusted: it has expired"),
+    (30, ("10.9.9.9",), "the router's certificate is not trusted: it was made for another host name, not '127.0.0.1'"),
+])
+def test_an_expired_router_certificate_and_one_for_another_host_are_named(tmp_path, days, hosts, said):
+    port, ca, srv = _tls_server(tmp_path, days, hosts)
+    with srv:
+        why = reach.probe(f"tls/127.0.0.1:{port}", {"root_ca_certificate": ca})
+    assert why is not None and why.startswith(said), why
+    other = tmp_path / "other"
+    other.mkdir()
+    port, _, srv = _tls_server(other, 30, ("127.0.0.1",))
+    with srv:  # a router of another CA than ours
+        why = reach.probe(f"tls/127.0.0.1:{port}", {"root_ca_certificate": ca})
+    assert why.startswith("the router's certificate is not trusted: it is not signed by this fleet's CA"), why
