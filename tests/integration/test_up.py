@@ -201,10 +201,14 @@ def test_robot_without_a_world_says_what_it_waited_for(tmp_path):
                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         out = subprocess.run([sys.executable, "-m", "swarm.cli", "robot", "--id", "0", "--connect",
-                              f"tcp/127.0.0.1:{port}", "--start-timeout", "2", "--fleet", "lonely"],
+                              f"tcp/127.0.0.1:{port}", "--start-timeout", "4", "--fleet", "lonely"],
                              capture_output=True, text=True, timeout=60)
         assert out.returncode == 1
-        assert "the current run" in out.stderr and "is the world running" in out.stderr
+        # within 5 s of its start: the cause (said at 3 s), and again in the final error
+        said = [ln for ln in out.stderr.splitlines() if "no answer for the current run after 3 s" in ln]
+        assert said and "no world of fleet 'lonely' on this router" in said[0], out.stderr
+        assert "swarm robot: failed: no answer for the current run" in out.stderr
+        assert out.stderr.count("no world of fleet 'lonely' on this router") == 2, out.stderr
     finally:
         router.send_signal(signal.SIGTERM)
         try:
