@@ -342,6 +342,12 @@ def notes(fleet: Fleet) -> list[str]:
     if fleet.scenario.bounds is None:
         out.append("the scenario has no arena.bounds: no robot is stopped at a boundary (give [arena] bounds = "
                    "[xmin, xmax, ymin, ymax] in the scenario)")
+    unknown = [r.id for r in fleet.robots if r.entry.cmd_timeout is None]
+    if unknown:
+        ids = ", ".join(map(str, unknown[:12])) + (" ..." if len(unknown) > 12 else "")
+        out.append(f"no cmd_timeout for robot{'s' if len(unknown) != 1 else ''} {ids}: should its agent die, the "
+                   "safety rule cannot count how long its base goes on with the last command (give the base's own "
+                   "cmd_vel timeout, in s, as cmd_timeout in its [[robot]] table)")
     return out
 
 

@@ -174,3 +174,14 @@ def test_notes_warn_of_a_scenario_without_an_arena(tmp_path):
     assert any("no arena.bounds" in n for n in inventory.notes(fleet))
     text = inventory.describe(fleet)
     assert "robot 3: ros2 rmw_zenoh /robot3 domain 0 twist plain" in text and "from the scenario" in text
+
+
+def test_notes_name_the_robots_whose_base_timeout_is_unknown(tmp_path):
+    """The safety rule counts a base's own cmd_vel timeout (cmd_timeout) in what a robot whose agent died can still
+    reach: the robots without one are named, once."""
+    doc = {"robot": [{"id": i, "namespace": f"robot{i}", **({"cmd_timeout": 0.5} if i % 2 else {})} for i in range(7)]}
+    fleet = inventory.apply(inventory.load(write(tmp_path, doc)), TB3)
+    said = [n for n in inventory.notes(fleet) if "cmd_timeout" in n]
+    assert len(said) == 1 and said[0].startswith("no cmd_timeout for robots 0, 2, 4, 6:"), said
+    full = {"robot": [{**r, "cmd_timeout": 0.3} for r in doc["robot"]]}
+    assert not any("cmd_timeout" in n for n in inventory.notes(inventory.apply(inventory.load(write(tmp_path, full)), TB3)))
