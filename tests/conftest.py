@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 from pathlib import Path
 from typing import Any, Callable
 
@@ -99,6 +100,25 @@ def tier_error(markers: set[str]) -> str | None:
     if len(tiers - {"slow"}) > 1 or tiers == {"unit", "slow"}:
         return "more than one tier: " + ", ".join(t for t in TIERS if t in tiers)
     return None
+
+
+UNIT_WORKERS = 2  # processes `pytest -m unit` runs in (pytest-xdist): the inner loop uses both cores of a laptop
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_cmdline_main(config: pytest.Config) -> None:
+    """`pytest -m unit` alone runs on UNIT_WORKERS processes (pytest-xdist, when installed): the unit tier is CPU
+    bound and has no shared state between tests. Any other selection, an explicit -n, `-p no:xdist`, or
+    SWARM_TEST_SERIAL=1 runs in this process as usual (the integration tests start processes of their own)."""
+    opt = config.option
+    if (getattr(opt, "markexpr", "") or "").strip() != "unit" or not config.pluginmanager.hasplugin("xdist"):
+        return
+    if getattr(opt, "numprocesses", None) or os.environ.get("SWARM_TEST_SERIAL") or \
+            os.environ.get("PYTEST_XDIST_WORKER") or getattr(opt, "usepdb", False):
+        return
+    opt.numprocesses = min(UNIT_WORKERS, os.cpu_count() or 1)
+    if opt.numprocesses > 1 and getattr(opt, "dist", "no") == "no":
+        opt.dist = "load"
 
 
 @pytest.hookimpl(tryfirst=True)

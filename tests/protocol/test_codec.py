@@ -144,7 +144,7 @@ def test_scenario_limits():
     assert p.decode(p.encode(p.Pose(t=1.0, seq=1, x=10.5, y=0.0, theta=0.0)), limits=lim).x == 10.5  # the margin
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=120, deadline=None)
 @given(st.recursive(st.one_of(st.none(), st.booleans(), st.integers(-2**63, 2**64 - 1), st.floats(), st.text(max_size=4),
                               st.binary(max_size=4)),
                     lambda inner: st.one_of(st.lists(inner, max_size=3),
@@ -175,7 +175,7 @@ def test_key_id_must_match_payload_id():
         p.decode(payload, kind="state", key_id=8)
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=120, deadline=None)
 @given(st.binary(max_size=200))
 def test_fuzz_bytes_never_crash(data):
     try:
@@ -188,7 +188,7 @@ _scalars = st.one_of(st.none(), st.booleans(), st.integers(-2**63, 2**64 - 1), s
                      st.binary(max_size=5))
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=120, deadline=None)
 @given(st.dictionaries(st.sampled_from(["v", "kind", "t", "seq", "vel", "w", "x", "y", "theta", "id", "r", "R",
                                         "frozen", "robots", "obstacles"]),
                        st.one_of(_scalars, st.sampled_from(list(p.KINDS)), st.lists(_scalars, max_size=3))))
@@ -243,7 +243,7 @@ def _near_valid(kind: str):
 
 
 @pytest.mark.parametrize("kind", sorted(p._SPEC))
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(data=st.data())
 def test_fast_decoder_agrees_with_the_general_path(kind, data):
     """The generated fast decoders accept nothing the general path refuses, and decode the same."""
@@ -278,7 +278,7 @@ def _near_bounds(kind: str):
 
 
 @pytest.mark.parametrize("kind", sorted(p._HOT_BOUNDS))
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=120, deadline=None)
 @given(data=st.data())
 def test_hot_decoders_agree_with_the_general_path(kind, data):
     """decoder(kind, limits) accepts what the general path accepts (or hands it over) and refuses the

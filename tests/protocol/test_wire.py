@@ -81,7 +81,7 @@ def _payload(kind: str, fields: dict) -> bytes:
 
 
 @pytest.mark.parametrize("kind", [k for k in FLAT if k in p._HOT_BOUNDS])
-@settings(max_examples=400, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(data=st.data())
 def test_compiled_decoder_agrees_with_the_python_one(kind, data):
     """On canonical payloads with any values, and on those payloads cut short, grown or with a byte changed."""
@@ -124,7 +124,7 @@ def test_compiled_decoder_takes_only_bytes_and_hands_the_rest_over():
 
 
 @pytest.mark.parametrize("kind", FLAT)
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=120, deadline=None)
 @given(data=st.data())
 def test_compiled_encoder_writes_what_msgpack_writes(kind, data):
     """Byte for byte, for floats, ints of every width and sign, bools, float subclasses, and the types it hands
