@@ -222,15 +222,29 @@ class FaultView:
             if (x - bx) ** 2 + (y - by) ** 2 < side2:
                 age = (k - s) * self.dt
                 self.max_age = max(self.max_age, age)
-                nx.append(bx), ny.append(by), nr.append(robot_r), nR.append(robot_R), nk.append(kind_robot)
+                nx.append(bx)
+                ny.append(by)
+                nr.append(robot_r)
+                nR.append(robot_R)
+                nk.append(kind_robot)
                 na.append(age + own)
         for ox, oy, orr, oR in obstacles:
             if (x - ox) ** 2 + (y - oy) ** 2 < side2:
-                nx.append(ox), ny.append(oy), nr.append(orr), nR.append(oR), nk.append(kind_obstacle), na.append(own)
+                nx.append(ox)
+                ny.append(oy)
+                nr.append(orr)
+                nR.append(oR)
+                nk.append(kind_obstacle)
+                na.append(own)
         for j in sorted(static):
             sx, sy, sr, sR = static[j]
             if j != self.id and (x - sx) ** 2 + (y - sy) ** 2 < side2:
-                nx.append(sx), ny.append(sy), nr.append(sr), nR.append(sR), nk.append(kind_obstacle), na.append(own)
+                nx.append(sx)
+                ny.append(sy)
+                nr.append(sr)
+                nR.append(sR)
+                nk.append(kind_obstacle)
+                na.append(own)
         return nx, ny, nr, nR, nk, na
 
     def _shown(self, j: int, k: int) -> bool:

@@ -17,6 +17,7 @@ import logging
 import math
 import threading
 import time
+from typing import cast
 
 from swarm.core import runid
 from swarm.net import presence
@@ -104,7 +105,7 @@ class RunFollower:
                           why=lambda: presence.why_no_world(self.bus, self.fleet, me))
         self._adopt(run)
         with self.lock:
-            return self.latest
+            return cast(Run, self.latest)  # _adopt set it
 
     def next(self, after: str, stop: threading.Event) -> Run | None:
         """Block until a run other than `after` is announced; None if stop is set first."""

@@ -123,7 +123,8 @@ class Guard:
             return "the world is lost"
         if self.last_pose is not None and self.clock.monotonic() - self.last_pose > self.pose_timeout_s:
             return f"no pose for more than {self.pose_timeout_s:g} s"
-        if self.left_at is not None:  # one reason for the whole time outside: the halt is latched once
+        # one reason for the whole time outside: the halt is latched once (left_at is set with an arena only)
+        if self.left_at is not None and self.arena is not None:
             (x, y), (xmin, xmax, ymin, ymax) = self.left_at, self.arena
             return f"outside the arena: at ({x:.3f}, {y:.3f}), beyond [{xmin:g}, {xmax:g}] x [{ymin:g}, {ymax:g}]"
         if t is not None and self.ref_t is not None and t - self.ref_t > self.ref_timeout_s:

@@ -52,7 +52,7 @@ class Leader:
         self._handles.append(self.bus.subscribe(keys.world_clock(self.fleet),
                                                 lambda k, b: self.inbox.put((k, b))))
         self._handles.append(self.bus.watch_alive(keys.alive(self.fleet, "world"),
-                                                  lambda k, up: up and self.inbox.put((_WORLD_BACK, _CLOCK0))))
+                                                  lambda k, up: self.inbox.put((_WORLD_BACK, _CLOCK0)) if up else None))
         self._handles.append(presence.announce(self.bus, self.fleet, "leader"))
 
     def close(self) -> None:

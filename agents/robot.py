@@ -49,6 +49,7 @@ import math
 import threading
 import time
 from collections import deque
+from typing import TYPE_CHECKING
 
 from swarm.proto import keys, protocol
 from swarm.core import fastlaw, kinematics, law, safety
@@ -62,6 +63,12 @@ from swarm.proto.protocol import Cmd, Config, Limits, ProtocolError, State, Stat
 from swarm.core.wake import Runner, Wake
 from swarm.net import presence
 from swarm.net.bus import drainer
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from agents.faultview import FaultView
+    from swarm.net.bus import Closable, Inbox
 
 log = logging.getLogger("swarm.robot")
 
@@ -145,7 +152,7 @@ class Agent:
         self.p[law.P_V_MAX], self.p[law.P_W_MAX] = cfg.v_max, cfg.w_max
         # lock-step under faults: the receiving side's fault layer decides what the law is given
         # (agents.faultview, the simulator's rules); the governor's horizon covers a held command
-        self.view = None
+        self.view: FaultView | None = None
         self.static_by_seq: dict[int, dict[int, tuple[float, float, float, float]]] = {}
         if faults and cfg.lockstep:
             from agents.faultview import FaultView
@@ -159,11 +166,13 @@ class Agent:
         self._wait_reach = keys.lockstep_wait_reach(cfg.reach, cfg.sense)
         self._cmd_key, self._status_key = keys.robot_cmd(fleet, self.id), keys.robot_status(fleet, self.id)
         self._ref_key = keys.leader_ref(fleet)
+        self._ref_inbox: Inbox  # real time: the reference's inbox (start)
         self._faults_key = keys.robot_faults(fleet, self.id)
         self.lock = threading.Lock()
         self.wake = Wake()  # the loop thread's
-        self.kick = self.wake  # what a callback sets when the loop has work (or, inline, runs that work: __init__)
-        self._closing: dict[object, object] = {}  # inline: subscriptions the loop thread is to close (_release)
+        # what a callback sets when the loop has work (or, inline, runs that work: __init__)
+        self.kick: Wake | Runner = self.wake
+        self._closing: dict[object, Closable] = {}  # inline: subscriptions the loop thread is to close (_release)
         self._closing_lock = threading.Lock()
         self.table: dict[int, State] = {}  # the last state of every robot heard (alive: not in self.dead)
         self.dead: set[int] = set()
@@ -229,7 +238,7 @@ class Agent:
         self.stale_total = 0
         self.seq = 0
         self._last_status_t = -math.inf
-        self._cells: dict[tuple[int, int], object] = {}
+        self._cells: dict[tuple[int, int], Closable] = {}
         self._state_keys: dict[tuple[int, int], str] = {}  # this robot's state key in each cell it has been in
         self._block_prev: set[tuple[int, int]] = set()
         self._cell: tuple[int, int] | None = None
@@ -435,8 +444,10 @@ class Agent:
     rt_static: dict = {}  # real time: id -> (x, y, r, R) of the robots the world lists as standing still (_on_bodies)
     rt_static_t = 0.0  # the simulated time of that list
     _poses_by_callback = False  # real time inline: the drive's callback hands over every pose (drive.drain() has none)
-    _drain_cells = None  # real time: drains the reference's and every cell's inbox in one call (swarm.net.bus.drainer)
-    _batch = (None, math.inf, 0.0)  # real time, under the lock: _on_states's (now, ahead, mono) for _take_one
+    # real time: drains the reference's and every cell's inbox in one call (swarm.net.bus.drainer)
+    _drain_cells: Callable[[], list[tuple[str, bytes]]] | None = None
+    # real time, under the lock: _on_states's (now, ahead, mono) for _take_one
+    _batch: tuple[float | None, float, float] = (None, math.inf, 0.0)
     _hinted_n = 0  # how many of _key_ids (insertion-ordered; only added to, or cleared) went to bus.hint
 
     def _hint_keys(self) -> None:
@@ -652,7 +663,7 @@ class Agent:
         of the world, the leader or a robot restarts that sender's windows (a restarted process counts
         from 0 again)."""
         parsed = keys.parse(key)
-        if parsed is None or parsed.kind != "alive" or self.ended:
+        if parsed is None or parsed.kind != "alive" or parsed.id is None or self.ended:
             return
         with self.lock:
             if parsed.role == "robot":
@@ -721,6 +732,7 @@ class Agent:
         in one batch under one lock (no per-message wake-up: the loop is already running)."""
         if not self._poses_by_callback:  # inline, the drive's callback hands every pose to the step: none here
             self.take_poses(self.drive.drain())  # one that came since the loop woke (the newest wins)
+        states: list[tuple[State, str]]
         bad, refs, states = [], [], []
         if self._drain_cells is None:  # the reference's inbox and every cell's in one call (swarm.net.bus.drainer),
             self._drain_cells = drainer([self._ref_inbox, *self._cells.values(), *self._probes.values()])  # remade
@@ -730,10 +742,10 @@ class Agent:
             n = 1
             while n < len(items) and items[n][0] == self._ref_key:
                 n += 1
-            dec = self._dec_ref
+            dec_ref = self._dec_ref
             for key, data in items[:n]:
                 try:
-                    refs.append((dec(data), key))
+                    refs.append((dec_ref(data), key))
                 except ProtocolError as e:
                     bad.append((key, e))
             items = items[n:]
@@ -761,8 +773,8 @@ class Agent:
                 self._on_ref(ref, key)
             if states:
                 self._on_states(states)
-            for key, e in bad:
-                self.bad.reject(key, e)
+            for key, err in bad:
+                self.bad.reject(key, err)
 
     def _on_states(self, states: list[tuple[State, str]]) -> None:
         """Real time (under the lock): _on_state for a batch of (state, key), with one reading of the clocks."""
@@ -1061,7 +1073,11 @@ class Agent:
             dx = x - nb.x
             dy = y - nb.y
             if dx * dx + dy * dy < r2:
-                nx.append(nb.x), ny.append(nb.y), nr.append(nb.r), nR.append(nb.R), nk.append(law.KIND_ROBOT)
+                nx.append(nb.x)
+                ny.append(nb.y)
+                nr.append(nb.r)
+                nR.append(nb.R)
+                nk.append(law.KIND_ROBOT)
                 na.append(0.0)
                 robots += 1
                 stale += nb.seq != seq
@@ -1146,7 +1162,11 @@ class Agent:
                     m = promised
             safe.append((nb.x, nb.y, contact, m))
             if not gone and d2 < r2:
-                nx.append(nb.x), ny.append(nb.y), nr.append(nb.r), nR.append(nb.R), nk.append(law.KIND_ROBOT)
+                nx.append(nb.x)
+                ny.append(nb.y)
+                nr.append(nb.r)
+                nR.append(nb.R)
+                nk.append(law.KIND_ROBOT)
                 na.append(0.0)
                 robots += 1
                 stale += age > STALE_AFTER_S
@@ -1198,20 +1218,32 @@ class Agent:
             dx = x - ox
             dy = y - oy
             if dx * dx + dy * dy < r2:
-                nx.append(ox), ny.append(oy), nr.append(orr), nR.append(oR), nk.append(law.KIND_OBSTACLE)
+                nx.append(ox)
+                ny.append(oy)
+                nr.append(orr)
+                nR.append(oR)
+                nk.append(law.KIND_OBSTACLE)
                 na.append(0.0)
         for nb in dead_near:
             dx = x - nb.x
             dy = y - nb.y
             if dx * dx + dy * dy < r2:
-                nx.append(nb.x), ny.append(nb.y), nr.append(nb.r), nR.append(nb.R), nk.append(law.KIND_OBSTACLE)
+                nx.append(nb.x)
+                ny.append(nb.y)
+                nr.append(nb.r)
+                nR.append(nb.R)
+                nk.append(law.KIND_OBSTACLE)
                 na.append(0.0)
         if self.rt_static and not self.cfg.lockstep:
             for sx, sy, sr, sR in self._listed_now().values():
                 dx = x - sx
                 dy = y - sy
                 if dx * dx + dy * dy < r2:
-                    nx.append(sx), ny.append(sy), nr.append(sr), nR.append(sR), nk.append(law.KIND_OBSTACLE)
+                    nx.append(sx)
+                    ny.append(sy)
+                    nr.append(sr)
+                    nR.append(sR)
+                    nk.append(law.KIND_OBSTACLE)
                     na.append(0.0)
 
     def command(self, t: float, x: float, y: float, th: float, ref: tuple, seq: int) -> tuple[float, float]:
@@ -1426,7 +1458,8 @@ class Agent:
                 self.drop_clock()  # past the start barrier: the clock is not needed any more
         with self.lock:
             k = self.k_started
-            pose = self.pose if self.pose.seq == k else pose
+            newest: protocol.Pose = self.pose  # type: ignore[assignment]  # not None: a pose came (above)
+            pose = newest if newest.seq == k else pose
             overdue = self.clock.monotonic() >= self.deadline
             if overdue and k not in self.refs and (not self.leader_alive or self.leader_ups != self._leader_ups_seen):
                 # no reference because the leader is away, or came back during the tick and is catching up:
@@ -1456,7 +1489,8 @@ class Agent:
             if self.view is not None:
                 if self._idle != k:
                     v, w, r = self._command_under_faults(k, ref)
-                    pose = self.belief
+                    belief: protocol.Pose = self.belief  # type: ignore[assignment]  # _start_tick set it: k is not idle
+                    pose = belief
             elif ref is None:
                 self.skipped += 1  # no reference for this tick (a restart mid-run): no command, the world holds
                 log.warning("robot %d: no reference for tick %d, no command", self.id, k)
@@ -1479,14 +1513,14 @@ class Agent:
     def _command_under_faults(self, k: int, ref) -> tuple[float, float, tuple]:
         """Lock-step under faults (under the lock): the law given what the fault layer delivered; returns
         (v, w, the reference the law used, or the raw one for the status)."""
-        view = self.view
+        view: FaultView = self.view  # type: ignore[assignment]  # tick_lockstep calls this under faults only
         view.reference(k, None if ref is None else (ref.x, ref.y, ref.theta, ref.v, ref.w))
         fresh = {j: (nb.x, nb.y) for j, nb in self.table.items() if nb.seq == k}
         for j in sorted(set(fresh) | set(view.tk) | set(view.ring_state)):
             if j != self.id:
                 view.neighbour(k, j, fresh.get(j))
         listen, r = view.law_inputs(k)
-        b = self.belief
+        b: protocol.Pose = self.belief  # type: ignore[assignment]  # _start_tick set it: tick k is not idle
         if listen or r is None:
             v = w = 0.0  # listening (just restarted or resumed), or no reference yet: it holds still
             r = r or (b.x - self.cfg.dx, b.y - self.cfg.dy, b.theta, 0.0, 0.0)

@@ -144,12 +144,12 @@ class ClaimServer:
 
     def _on_alive(self, key: str, up: bool) -> None:
         k = keys.parse(key)
-        if k is not None and k.kind == "alive" and k.role == "robot":
+        if k is not None and k.kind == "alive" and k.role == "robot" and k.id is not None:
             self.table.alive(k.id, up)
 
     def _answer(self, key: str) -> bytes | None:
         k = keys.parse(key)
-        if k is None or k.kind != "claim" or k.fleet != self.fleet:
+        if k is None or k.kind != "claim" or k.claim is None or k.fleet != self.fleet:
             self.bad.reject(key, ProtocolError("not a claim key of this fleet"))
             return None
         c = self.table.claim(k.claim, self.clock.monotonic())

@@ -171,7 +171,8 @@ class WorldFaults:
         """(dropped, delayed) by class (faultgen.CLS_* order) over the world and every robot's reports."""
         dropped, delayed = list(self.dropped), list(self.delayed)
         for i in range(self.n):
-            rows = [self.stats_before[i]] + ([list(self.stats_now[i])] if self.stats_now[i] is not None else [])
+            now = self.stats_now[i]
+            rows = [self.stats_before[i]] + ([list(now)] if now is not None else [])
             for row in rows:
                 for c, a, b in ((fg.CLS_STATE, 0, 3), (fg.CLS_POSE, 1, 4), (fg.CLS_REF, 2, 5)):
                     dropped[c] += int(row[a])

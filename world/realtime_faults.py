@@ -60,7 +60,8 @@ class RealtimeFaults:
         """(dropped, delayed) by class (faultgen.CLS_* order): the world's commands and every robot's reports."""
         dropped, delayed = list(self.fbus.dropped), list(self.fbus.delayed)
         for i in range(self.n):
-            rows = [self.before[i]] + ([list(self.now[i])] if self.now[i] is not None else [])
+            now = self.now[i]
+            rows = [self.before[i]] + ([list(now)] if now is not None else [])
             for row in rows:
                 for c, a, b in ((0, 0, 3), (1, 1, 4), (3, 2, 5)):  # state, pose, ref
                     dropped[c] += int(row[a])

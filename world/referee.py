@@ -51,7 +51,7 @@ class Referee:
         self.strands = metrics.Strands(self.n)  # robots stranded far from their slots (docs/metrics.md)
 
     def sample(self, t: float, q: np.ndarray, alive: np.ndarray, leader: tuple[float, float, float],
-               frozen_by_law: np.ndarray | None = None) -> None:
+               frozen_by_law: np.ndarray | list[bool] | None = None) -> None:
         """Account for the state at time t: q (N, 3) true poses, alive (N,) bool, leader (x, y, theta);
         frozen_by_law (N,) bool: which robots their laws froze (under faults, where a law's view is not the
         truth; None: frozen is inside R_j of another live robot, which is what the law sees otherwise)."""

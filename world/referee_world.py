@@ -140,7 +140,7 @@ class RefereeWorld:
         self.bus.put(keys.world_run(f), protocol.encode(Run(self.run_id, self.digest, self.n, False, "")),
                      reliable=True)
 
-    estop = None  # the emergency stop's log (world.estop), once started
+    estop: EstopLog | None = None  # the emergency stop's log (world.estop), once started
 
     def close(self) -> None:
         for h in self._handles[::-1]:
@@ -154,13 +154,13 @@ class RefereeWorld:
 
     def _config(self, key: str) -> bytes | None:
         parsed = keys.parse(key)
-        if parsed is None or parsed.kind != "config" or parsed.id >= self.n:
+        if parsed is None or parsed.kind != "config" or parsed.id is None or parsed.id >= self.n:
             return None
         return protocol.encode(self.config(parsed.id))
 
     def _on_robot(self, key: str, up: bool) -> None:
         parsed = keys.parse(key)
-        if parsed is None or parsed.kind != "alive":
+        if parsed is None or parsed.kind != "alive" or parsed.id is None:
             return
         i = parsed.id
         with self.lock:
@@ -230,7 +230,7 @@ class RefereeWorld:
         for key, data in self._statuses.drain():
             parsed = keys.parse(key)
             try:
-                if parsed is None or parsed.kind != "status" or parsed.id >= self.n:
+                if parsed is None or parsed.kind != "status" or parsed.id is None or parsed.id >= self.n:
                     raise ProtocolError(f"not a robot of this run: {key!r}")
                 st = protocol.decode(data, "status", None, self.limits)
             except ProtocolError as e:

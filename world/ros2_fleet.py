@@ -32,10 +32,14 @@ import os
 import threading
 import time
 from collections import deque
-from typing import Callable
+from typing import TYPE_CHECKING, Callable, cast
 
 from swarm.proto import protocol, ros2
 from swarm.proto.ros2 import Entity, Odometry, Ros2Error
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from typing import Any
 
 log = logging.getLogger("swarm.world.ros2")
 
@@ -49,7 +53,7 @@ def default_namespace(i: int) -> str:
 
 
 class Ros2Fleet:
-    def __init__(self, bus, starts: list[tuple[float, float, float]], flavor: str, twist: str, domain: int = 0,
+    def __init__(self, bus, starts: Sequence[Sequence[float]], flavor: str, twist: str, domain: int = 0,
                  namespace: Callable[[int], str] = default_namespace, distro: str = "jazzy",
                  queue_depth: int | None = None, wall_ns: Callable[[], int] = time.time_ns) -> None:
         """starts: (N, 3) each robot's start pose in the world [m, m, rad] (its odom frame's origin);
@@ -69,7 +73,8 @@ class Ros2Fleet:
         self.namespaces = [ros2.check_namespace(namespace(i)) for i in range(self.n)]
         if len(set(self.namespaces)) != self.n:
             raise ValueError(f"robots need distinct namespaces, got {self.namespaces}")
-        self._from_world = [ros2.se2_inverse(s) for s in self.starts]  # world frame -> robot i's odom frame
+        triples = cast("list[tuple[float, float, float]]", self.starts)  # each of length 3 (checked above)
+        self._from_world = [ros2.se2_inverse(s) for s in triples]  # world frame -> robot i's odom frame
         ros2.typestore()  # fail now, naming the extra, if rosbags is missing
         self.cmd_keys = [self._key(ns, ros2.CMD_VEL, self.cmd_type) for ns in self.namespaces]
         self.odom_keys = [self._key(ns, ros2.ODOM, ros2.ODOMETRY) for ns in self.namespaces]
@@ -94,7 +99,8 @@ class Ros2Fleet:
         """Robot i's rmw_zenoh graph: its node, its cmd_vel subscription, its odom publication."""
         ns = "/" + self.namespaces[i] if self.namespaces[i] else "/"
         qos = ros2.qos_string(QOS_DEPTH)
-        common = dict(domain=self.domain, zid=self._zids[i], nid="0", enclave="/", namespace=ns, node=NODE)
+        common: dict[str, Any] = dict(domain=self.domain, zid=self._zids[i], nid="0", enclave="/", namespace=ns,
+                                      node=NODE)
         cmd, odom = self.cmd_keys[i].split("/"), self.odom_keys[i].split("/")
         return [Entity(eid="0", kind="NN", **common),
                 Entity(eid="1", kind="MS", topic=ros2.topic_name(self.namespaces[i], ros2.CMD_VEL),

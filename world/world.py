@@ -28,6 +28,7 @@ import math
 import threading
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -46,6 +47,10 @@ from swarm.core.safety import BODIES_HOLD_S, RAMP_S
 from world.estop import EstopLog
 from world.realtime_faults import RealtimeFaults
 from world.referee import Referee, log_collisions
+
+if TYPE_CHECKING:
+    from world.faultworld import WorldFaults
+    from world.ros2_fleet import Ros2Fleet
 
 log = logging.getLogger("swarm.world")
 
@@ -83,7 +88,7 @@ class World:
         if ros2 is not None and lockstep:
             raise ValueError("a simulated ROS 2 fleet runs in real time only (odometry carries no tick)")
         self.ros2 = ros2
-        self.fleet_ros2 = None
+        self.fleet_ros2: Ros2Fleet | None = None
         # lock-step under faults: membership, commands and static bodies by the shared schedule
         # (world.faultworld); process_faults "signals": a supervisor really kills and stops the robots'
         # processes (the world waits for a restarted or resumed one before its return tick), "played":
@@ -91,7 +96,7 @@ class World:
         if process_faults not in ("signals", "played"):
             raise ValueError(f"process_faults must be 'signals' or 'played', got {process_faults!r}")
         self.process_faults = process_faults
-        self.wf = None
+        self.wf: WorldFaults | None = None
         if scn.faults and lockstep:
             from world.faultworld import WorldFaults
 
@@ -255,7 +260,7 @@ class World:
 
     def _config(self, key: str) -> bytes | None:
         parsed = keys.parse(key)
-        if parsed is None or parsed.kind != "config" or parsed.id >= self.n:
+        if parsed is None or parsed.kind != "config" or parsed.id is None or parsed.id >= self.n:
             return None
         return protocol.encode(runid.robot_config(self.scn, parsed.id, self.lockstep, self.run_id, self.digest))
 
@@ -271,7 +276,7 @@ class World:
             self.wake.set()
 
     _leader_back = False  # the leader's token came back during the run (lock-step: repeat the clock for it)
-    estop = None  # the emergency stop's log (world.estop), once started
+    estop: EstopLog | None = None  # the emergency stop's log (world.estop), once started
     leader_ups = 0  # times the leader's token appeared
 
     def _on_cmd(self, key: str, data: bytes) -> None:
@@ -334,18 +339,19 @@ class World:
             if tag == "cmd":  # lock-step (real time takes its commands in _take_commands)
                 self._take_cmd(i, protocol.decode(data, "cmd", None, self.limits))
             elif tag == "status":
-                s = protocol.decode(data, "status", None, self.limits)
-                if self.bad.verdict(key, self._after_return(i, self.w_status[i], s.t, int(round(s.t / self.scn.dt))),
+                st = protocol.decode(data, "status", None, self.limits)
+                if self.bad.verdict(key, self._after_return(i, self.w_status[i], st.t, int(round(st.t / self.scn.dt))),
                                     "the status's t"):
-                    self.robot_bad.take(i, s.bad, self.clock.monotonic())
-                    if s.held is not None:
-                        self.held_by_robot[i] = s.held
+                    self.robot_bad.take(i, st.bad, self.clock.monotonic())
+                    if st.held is not None:
+                        self.held_by_robot[i] = st.held
             elif tag == "state":
                 if protocol.decode(data, "state", i, self.limits).seq == 0:
                     self._state0.add(i)
             elif tag == "faults":
                 s = protocol.decode(data, "faultstats", None, self.limits)
-                if s.seq > self.k or not self.wf.running(i, s.seq):
+                # faults come only when self.wf is set (start subscribes them then)
+                if s.seq > self.k or not self.wf.running(i, s.seq):  # type: ignore[union-attr]
                     # a process stopped before its first tick (hung at tick 0) says it is back with tick 0's
                     # counters, all zero: taken as its word only
                     zero = not any((s.dropped_state, s.dropped_pose, s.dropped_ref, s.delayed_state, s.delayed_pose,
@@ -354,7 +360,7 @@ class World:
                         raise ProtocolError(f"fault counters of tick {s.seq}, when robot {i} is not running then "
                                             f"(the world is at tick {self.k})")
                 else:
-                    self.wf.take_stats(i, s)
+                    self.wf.take_stats(i, s)  # type: ignore[union-attr]  # as above: self.wf is set
                 if i in self.lapsed and self.alive[i]:
                     self.announced.add(i)  # a robot back from a hang past its lease: its subscriptions are back
         except ProtocolError as e:
@@ -364,7 +370,7 @@ class World:
         """Liveliness (under the lock): robots and the leader come and go. A robot id outside the
         scenario is named once in the log; a robot lost during the run is counted."""
         parsed = keys.parse(key)
-        if parsed is None or parsed.kind != "alive":
+        if parsed is None or parsed.kind != "alive" or parsed.id is None:
             return
         if tag == "leader":
             self.leader_alive = up
@@ -390,7 +396,7 @@ class World:
                          self.t, "dead" if self.wf.dead(i, self.k) else "hung")  # follows the schedule
             elif self.rtf is not None and self.rtf.away(i, self._now_rt()):  # real time: as scheduled
                 log.info("robot %d's token is gone at t = %g s (its process is %s by the fault schedule)", i,
-                         self._now_rt(), fl.process_state(self.scn.faults, i, self._now_rt()))
+                         self._now_rt(), fl.process_state(cast(fl.Faults, self.scn.faults), i, self._now_rt()))
             else:
                 self.lost.add(i)
                 self.lost_events += 1
@@ -496,7 +502,7 @@ class World:
             if self.rtf is None:
                 return int(self.alive.sum())
             # real time under faults: a hung robot's token lapses after the lease, but its process is not dead
-            now, faults = self._now_rt(), self.scn.faults
+            now, faults = self._now_rt(), cast(fl.Faults, self.scn.faults)  # the faults self.rtf plays
             return sum(1 for i in range(self.n) if self.alive[i] or fl.process_state(faults, i, now) == "hung")
         return sum(1 for i in range(self.n) if not wf.dead(i, self.k))
 
@@ -514,7 +520,8 @@ class World:
                                  converged_at=-1.0 if conv is None else conv,
                                  last_freeze=-1.0 if ref.last_frozen_t is None else ref.last_frozen_t,
                                  dropped=self._dropped(), hung=self._hung_now(),
-                                 held=-1.0 if self.lockstep or self.held_back() is None else self.held_back(),
+                                 held=-1.0 if self.lockstep or self.held_back() is None
+                                 else cast(float, self.held_back()),
                                  stranded=ref.stranded_now)
 
     def _dropped(self) -> int:
@@ -779,7 +786,7 @@ class World:
         _await_returns (the token count when a robot's kill or hang began); every event at k told on
         world/events."""
         self._tell_events(k * self.scn.dt, k, lambda t: fl.first_tick(t, self.scn.dt) <= k)
-        for i, kind in self.wf.begin(k):
+        for i, kind in self.wf.begin(k):  # type: ignore[union-attr]  # the run loop calls this under faults only
             log.info("world: fault at tick %d (t = %g s): robot %d %s", k, k * self.scn.dt, i,
                      {"kill": "killed", "restart": "restarted", "hang": "hung", "resume": "resumed"}[kind])
             with self.lock:
@@ -808,7 +815,7 @@ class World:
 
     def _signal_due(self, k: int) -> bool:
         """A supervisor acts at tick k (a kill or hang begins, or a resume is next): report progress now."""
-        wf = self.wf
+        wf: WorldFaults = self.wf  # type: ignore[assignment]  # the run loop calls this under faults only
         return any(wf.returning(i, k + 1) == "resume" or (wf.running(i, k - 1) and not wf.running(i, k))
                    for i in range(self.n)) if k > 0 else False
 
@@ -821,7 +828,7 @@ class World:
         subscriptions are back). False (self.failure says who) if one did not come."""
         if self.process_faults != "signals":
             return True
-        wf = self.wf
+        wf: WorldFaults = self.wf  # type: ignore[assignment]  # the run loop calls this under faults only
         back = [(i, wf.returning(i, k)) for i in range(self.n) if wf.returning(i, k) is not None]
         if not back:
             return True
@@ -866,7 +873,9 @@ class World:
                      reliable=True)
 
     def _publish_bodies(self, k: int) -> None:
-        self.bus.put(keys.world_bodies(self.fleet), protocol.encode(self.wf.bodies(k, self.q)), reliable=True)
+        # the run loop calls this under faults only: self.wf is set
+        self.bus.put(keys.world_bodies(self.fleet),
+                     protocol.encode(self.wf.bodies(k, self.q)), reliable=True)  # type: ignore[union-attr]
 
     def _check_wait_rule(self, t: float, before: np.ndarray, alive: np.ndarray | None = None) -> None:
         """Lock-step: count the pairs of live robots the agents' wait rule did not cover this tick.
@@ -979,7 +988,8 @@ class World:
                     _, i = heapq.heappop(poses)
                     advance(i, t)
                     if self.fleet_ros2 is not None:
-                        self.fleet_ros2.publish_odom(i, t, *q[i], *cmd[i])
+                        # q[i] is [x, y, theta]: mypy takes a list's star for every argument left
+                        self.fleet_ros2.publish_odom(i, t, *q[i], *cmd[i])  # type: ignore[call-arg]
                     else:
                         self._publish_pose(i, t, pose_seq[i])
                     pose_seq[i] += 1
@@ -1170,7 +1180,7 @@ class World:
         for key, data in self._faults_inbox.drain():
             parsed = keys.parse(key)
             try:
-                if parsed is None or parsed.kind != "faults" or parsed.id >= self.n:
+                if parsed is None or parsed.kind != "faults" or parsed.id is None or parsed.id >= self.n:
                     raise ProtocolError(f"not a robot of this world: {key!r}")
                 m = protocol.decode(data, "faultstats", None, self.limits)
             except ProtocolError as e:
@@ -1178,14 +1188,16 @@ class World:
                 continue
             with self.lock:
                 gen = self.token_gen[parsed.id]
-            if not self.rtf.take(parsed.id, m, gen):
+            if not self.rtf.take(parsed.id, m, gen):  # type: ignore[union-attr]  # the loop calls this with self.rtf
                 self.bad.stale += 1
 
     def _take_ros2_commands(self, mono: float, t: float, advance) -> None:
         """Real time, ROS 2 robots: the cmd_vel each robot got since the last fine step (in order)."""
-        for i, v, w in self.fleet_ros2.take_commands():
+        # the loop calls this with self.fleet_ros2 set
+        for i, v, w in self.fleet_ros2.take_commands():  # type: ignore[union-attr]
             if not (abs(v) <= self.limits.v_max and abs(w) <= self.limits.w_max):
-                self.bad.reject(self.fleet_ros2.cmd_keys[i], ProtocolError(f"cmd_vel ({v:g}, {w:g}) beyond the bounds"))
+                self.bad.reject(self.fleet_ros2.cmd_keys[i],  # type: ignore[union-attr]
+                                ProtocolError(f"cmd_vel ({v:g}, {w:g}) beyond the bounds"))
                 continue
             with self.lock:
                 alive = i not in self._gone

@@ -41,6 +41,7 @@ import signal
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 from swarm.cli import console
 from swarm.cli.campaign_files import (SUMMARY_COLUMNS, Point, campaign_command, columns, grid, overrides,
@@ -48,16 +49,20 @@ from swarm.cli.campaign_files import (SUMMARY_COLUMNS, Point, campaign_command, 
                                       write_csv)
 from swarm.cli.common import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, BadInput, StopEvent, check_writable
 
+if TYPE_CHECKING:
+    from swarm.core.scenario import Scenario
+    from swarm.core.scenario_file import Overrides
+
 EXIT_VIOLATIONS = 3
 
 
 # --------------------------------------------------------------------------- the workers
 
 
-def run_point(task: tuple[int, str, object]) -> tuple[int, dict | None, str | None]:
+def run_point(task: tuple[int, str, Overrides]) -> tuple[int, dict | None, str | None]:
     """One run: (index, metrics, None), or (index, None, why) when it could not finish."""
     from swarm.core import scenario_file
-    from swarm.core.scenario import ScenarioError
+    from swarm.core.errors import ScenarioError
     from swarm.core.sim import Simulation, SimulationError
 
     index, source, ov = task
@@ -113,7 +118,7 @@ def _run_all(tasks: list, jobs: int, results: dict, stop, show) -> bool:
                 for p in list(procs):
                     if p.exitcode not in (None, 0):
                         procs.remove(p)
-                        index = running.pop(p.pid, None)
+                        index = running.pop(cast(int, p.pid), None)  # a process with an exit code has started
                         if index is not None:
                             results[index] = (None, f"its worker process died (exit code {p.exitcode})")
                         start()
@@ -175,7 +180,7 @@ def _warm_kernels(scns, quiet: bool) -> None:
     cache = jit.cache_dir()
     if not quiet and not (cache.is_dir() and any(cache.rglob("*.nbi"))):
         print("compiling the simulation kernel (first run after install only, ~5-10 s)...", file=sys.stderr)
-    kinds = {}
+    kinds: dict[bool, Scenario] = {}
     for scn in scns:
         kinds.setdefault(bool(scn.faults), scn)
     for scn in kinds.values():

@@ -44,6 +44,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -221,7 +222,7 @@ class Check:
 
 def check_row(args, out: Path, index: int, row: dict, stop, status, total: int) -> Check:
     from swarm.core import scenario_file
-    from swarm.core.scenario import ScenarioError
+    from swarm.core.errors import ScenarioError
     from swarm.core.sim import Simulation, SimulationError
 
     seed, drop = int(row["seed"]), float(row["drop"])
@@ -306,7 +307,7 @@ def line(c: Check, total: int, dt: float) -> str:
     if c.result == "identical":
         return f"{head}OK, identical to swarm sim: every tick of every robot and the metrics{walls}"
     if c.result == "differs":
-        t = c.trace
+        t = cast(TraceDiff, c.trace)  # a run that differs was compared
         if t.shape is not None:
             where = t.shape
         elif t.first_tick is not None:
@@ -317,8 +318,8 @@ def line(c: Check, total: int, dt: float) -> str:
         metrics = f"; metrics: {'; '.join(c.metrics)}" if c.metrics else ""
         from swarm.core.metrics import nondeterminism
 
-        said = nondeterminism(c.up or {})
-        said = f"; swarm up says: {', '.join(said)}" if said else ""
+        causes = nondeterminism(c.up or {})
+        said = f"; swarm up says: {', '.join(causes)}" if causes else ""
         return f"{head}DIFFERS {where}{metrics}{said}{walls}; its files: {c.out}/"
     if c.result == "stale":
         return f"{head}STALE: {c.why} ({'; '.join(c.metrics[:3])}{' ...' if len(c.metrics) > 3 else ''})"

@@ -16,6 +16,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Literal, overload
 
 from swarm.launch.plan import DEFAULT_LISTEN, VIZ_HOST, VizOptions
 from swarm.net.bus import ROUTER_RUNTIME, ZENOH_RUNTIME
@@ -377,6 +378,16 @@ def check_writable(flag: str, given: Path, directory: Path) -> None:
             pass
     except OSError as e:
         raise BadInput(f"{flag} {given}: cannot write in {directory} ({e.strerror or e})") from None
+
+
+@overload
+def viz_options(args, enabled: Literal[True], otherwise: str, extra: tuple[tuple[str, object], ...] = ()) -> VizOptions:
+    ...
+
+
+@overload
+def viz_options(args, enabled: bool, otherwise: str, extra: tuple[tuple[str, object], ...] = ()) -> VizOptions | None:
+    ...
 
 
 def viz_options(args, enabled: bool, otherwise: str, extra: tuple[tuple[str, object], ...] = ()) -> VizOptions | None:

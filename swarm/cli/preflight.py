@@ -22,6 +22,7 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import cast
 
 from agents.guard import POSE_TIMEOUT_S
 from swarm.cli.common import BadInput, Failure, StopEvent, load_scenario, open_bus, setup_logging
@@ -216,7 +217,7 @@ class Report:
         lines = [f"pre-flight: scenario {scn.name}, {scn.n} robots, inventory {self.fleet.inventory.where}"]
         lines += [f"  warning: {n}" for n in self.notes]
         bad = {p.robot for p in self.problems}
-        named = sorted(bad - {None})
+        named = sorted(cast("set[int]", bad - {None}))
         for r in self.fleet.robots:
             if r.id in bad:
                 lines += [f"  {p}" for p in self.problems if p.robot == r.id]

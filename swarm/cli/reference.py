@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import re
 import sys
-from typing import Iterator
+from typing import Iterator, cast
 
 from swarm.cli.parser import build_parser
 
@@ -75,7 +75,7 @@ def _value(action: argparse.Action) -> str:
         return f"{m} [{m} ...]"
     if action.nargs == argparse.REMAINDER:
         return "..."
-    return " ".join([m] * action.nargs)
+    return " ".join([m] * cast(int, action.nargs))
 
 
 def _usage_form(action: argparse.Action) -> str:
@@ -212,7 +212,7 @@ def _section(parser: argparse.ArgumentParser, summary: str) -> list[str]:
         if not actions:
             continue
         title = ("Arguments" if group is parser._positionals else "Options" if group is parser._optionals
-                 else group.title)
+                 else cast(str, group.title))
         lines += [f"**{_md(title[0].upper() + title[1:])}**", ""]
         if group.description:
             lines += [_md(group.description), ""]

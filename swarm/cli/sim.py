@@ -6,11 +6,15 @@ import argparse
 import json
 import sys
 import time
+from typing import TYPE_CHECKING, cast
 
 from swarm.cli.common import (EXIT_OK, BadInput, Failure, StopEvent, check_out_dir, check_viz_port, check_writable,
                               overrides, record_rate, viz_options)
 from swarm.cli import console
 from swarm.cli.console import exit_status, summary
+
+if TYPE_CHECKING:
+    from pathlib import Path
 
 
 def cmd_sim(args: argparse.Namespace, started: float) -> int:
@@ -30,7 +34,7 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
         raise BadInput(f"--plots {args.plots}: {parent} " + ("is not a directory" if parent.exists() else
                        "does not exist (the plots' folder itself is made if missing)"))
     if args.plots is not None:
-        check_writable("--plots", args.plots, args.plots if args.plots.exists() else parent)
+        check_writable("--plots", args.plots, args.plots if args.plots.exists() else cast("Path", parent))
     viz = viz_options(args, args.viz, "needs --viz", extra=(("--speed", args.speed),))
     if viz is not None:
         check_viz_port(viz)

@@ -12,6 +12,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import cast
 
 from swarm.cli.parser import given
 from swarm.cli.common import (EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent, check_endpoint,
@@ -115,8 +116,8 @@ def cmd_up(args, started: float) -> int:
     cpu0 = cpu_counters()
     from swarm.core.scenario_file import advisories
 
-    for note in advisories(scn):
-        print(f"swarm up: warning: {note}", file=sys.stderr)
+    for advice in advisories(scn):
+        print(f"swarm up: warning: {advice}", file=sys.stderr)
     fleet = fleet_of(args)
     if args.connect and args.listen:
         raise BadInput("give --listen (start a router) or --connect (join one), not both")
@@ -226,7 +227,8 @@ def cmd_up(args, started: float) -> int:
             if plan.viz is not None:
                 viz_log = sup.log_of(plan.viz)
                 offset = viz_log.stat().st_size if viz_log.exists() else 0
-                viewer.append(ViewerUrl(sup.start(plan.viz), viz.timeout + 5.0, offset,
+                viz_timeout = cast(VizOptions, viz).timeout  # plan.viz is the viewer of these options
+                viewer.append(ViewerUrl(sup.start(plan.viz), viz_timeout + 5.0, offset,
                                         f"swarm viz --connect {plan.endpoint} --fleet {fleet}"))
             bus = open_bus(argparse.Namespace(connect=[plan.endpoint], zenoh_config=opts.zenoh_config, secure=opts.secure,
                                               multicast=opts.multicast), timeout_s=15.0 if plan.router is not None else args.start_timeout,
@@ -367,14 +369,14 @@ class FaultActor:
         if not self.pf:
             return
         now = self.now(last)
-        due = self.pf.due(tick=now) if self.lockstep else self.pf.due(t=now)
+        due = self.pf.due(tick=cast("int | None", now)) if self.lockstep else self.pf.due(t=now)  # lock-step: a tick
         for robot, action in due:
             done = self.sup.fault(f"robot {robot}", action)
             when = f"tick {now}" if self.lockstep else f"t = {now:.3f} s"
             self.say(f"fault: {done} at {when}")
             with open(self.path, "a") as f:
                 f.write(f"{time.time():.6f} {when}: {done}\n")
-            self._tell(now, robot, done)
+            self._tell(cast(float, now), robot, done)  # due() returns nothing while now is None
 
     def _tell(self, now: float, robot: int, done: str) -> None:
         """The signal, on world/events (viewers and the recording show it)."""

@@ -21,6 +21,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import cast
 
 from swarm.cli import console, preflight
 from swarm.cli.parser import given
@@ -118,7 +119,7 @@ def cmd_robot_fleet(args, started: float) -> int:
         rid = args.id
         try:
             if auto:
-                rid = claims.request_id(bus, fleet, key, args.start_timeout, stop)
+                rid = claims.request_id(bus, fleet, cast(str, key), args.start_timeout, stop)  # set above when auto
                 log.info("robot: claimed id %d (claim key %s)", rid, key)
                 if scn is not None and rid >= scn.n:
                     raise BadInput(f"the world gave id {rid}, but this robot's scenario has {scn.n} robots")
@@ -479,12 +480,12 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
     metrics["launch_s"] = launched_s
     metrics["processes"] = len(plan.processes)
     write_metrics(metrics_path, log_dir, metrics)
-    note = _close_recorder(recorder, metrics, args.record)
+    record_note = _close_recorder(recorder, metrics, args.record)
     if not args.quiet:
         print(summary(metrics, scn.name))
         print(f"metrics: {metrics_path} (odometry-based; largest pose age {metrics.get('max_pose_age_s')} s)")
-        if note:
-            print(note)
+        if record_note:
+            print(record_note)
     code = exit_status(metrics, args.allow_violations)
     if metrics.get("failure") and not metrics["interrupted"]:
         print(f"swarm up: failed: {metrics['failure']}", file=sys.stderr)

@@ -24,7 +24,10 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
+
+if TYPE_CHECKING:
+    import logging
 
 STEP_WARN_S = 0.1  # a step of the system clock larger than this during a run is said in the process's log
 
@@ -93,7 +96,7 @@ class FakeClock:
         return 0.0
 
 
-def said_step(clock, log, who: str, run: str) -> float:
+def said_step(clock: WallClock | FakeClock, log: logging.Logger, who: str, run: str) -> float:
     """At a run's end: log a warning if the system clock stepped during it (see the module's docstring);
     returns the step [s]."""
     step = clock.step_s()

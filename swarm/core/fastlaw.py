@@ -8,9 +8,11 @@ compiles with numba. A robot logs which one it runs."""
 from __future__ import annotations
 
 import os
+from types import ModuleType
 
 from swarm.core import law
 
+_law: ModuleType | None
 try:
     from swarm.core import _law
 except ImportError:  # not built here: the Python law

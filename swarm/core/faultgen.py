@@ -20,7 +20,21 @@ under numba), and right shifts are logical (_srl masks off the bits an arithmeti
 from the sign). Both executions give the same words bit for bit (tests/unit/test_faults.py).
 """
 
-_jit = globals().get("__swarm_jit__", lambda f: f)
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
+
+    from swarm.core.jit import Jit
+
+    _Floats = npt.NDArray[np.float64]
+    _Ints = npt.NDArray[np.int64]
+    _Mask = npt.NDArray[np.bool_]
+
+_jit: Jit = globals().get("__swarm_jit__", lambda f: f)
 
 # 64-bit words as signed int64 (numba types an integer literal above 2^63 - 1 as uint64, and mixed
 # int64/uint64 arithmetic goes through float64: never write one).
@@ -94,13 +108,13 @@ C_SIZE = 2
 
 
 @_jit
-def _wrap(x):
+def _wrap(x: int) -> int:
     """The signed 64-bit word of integer x (x mod 2^64 in [-2^63, 2^63)); the identity under numba."""
     return (x & LOW63) + ((x >> 63) & 1) * INT64_MIN
 
 
 @_jit
-def _fmix(z):
+def _fmix(z: int) -> int:
     """SplitMix64's finaliser on a 64-bit word: a bijection with full avalanche."""
     z = _wrap((z ^ ((z >> 30) & 0x3FFFFFFFF)) * MUL1)
     z = _wrap((z ^ ((z >> 27) & 0x1FFFFFFFFF)) * MUL2)
@@ -108,13 +122,13 @@ def _fmix(z):
 
 
 @_jit
-def absorb(h, v):
+def absorb(h: int, v: int) -> int:
     """The sponge step: the word after word h takes in integer v (any v in the int64 range)."""
     return _fmix(_wrap(int(h) + _wrap(int(v) * GAMMA)))
 
 
 @_jit
-def stream(seed, rule, cls, sender, receiver):
+def stream(seed: int, rule: int, cls: int, sender: int, receiver: int) -> int:
     """The key of one stream: mix(...) without its counter. draw(stream(s, a, b, c, d), k) == uniform(s, a, b, c, d, k)."""
     h = absorb(INIT, seed)
     h = absorb(h, rule)
@@ -124,19 +138,19 @@ def stream(seed, rule, cls, sender, receiver):
 
 
 @_jit
-def mix(seed, a, b, c, d, e):
+def mix(seed: int, a: int, b: int, c: int, d: int, e: int) -> int:
     """A 64-bit hash of six integers, as a signed int64 (the same word compiled and plain)."""
     return absorb(stream(seed, a, b, c, d), e)
 
 
 @_jit
-def draw(key, k):
+def draw(key: int, k: int) -> float:
     """Counter k of the stream with key `key`: a float in [0, 1) with 53 random bits."""
     return ((absorb(key, k) >> 11) & MASK53) * TWO_M53
 
 
 @_jit
-def uniform(seed, rule, cls, sender, receiver, k):
+def uniform(seed: int, rule: int, cls: int, sender: int, receiver: int, k: int) -> float:
     """The uniform number in [0, 1) of message k on link (sender, receiver) of class cls, for one rule."""
     return draw(stream(seed, rule, cls, sender, receiver), k)
 
@@ -145,7 +159,7 @@ def uniform(seed, rule, cls, sender, receiver, k):
 
 
 @_jit
-def chain_next(key, k, state, stay, enter):
+def chain_next(key: int, k: int, state: int, stay: float, enter: float) -> int:
     """The burst chain's state at k (1 lost, 0 delivered) after `state` at k - 1."""
     u = draw(key, k)
     if state == 1:
@@ -154,7 +168,7 @@ def chain_next(key, k, state, stay, enter):
 
 
 @_jit
-def chain_state(key, k, p, stay, enter):
+def chain_state(key: int, k: int, p: float, stay: float, enter: float) -> int:
     """The burst chain's state at k >= 0, from scratch (O(k)): state 0 is drawn from the stationary
     distribution with counter START_K, then each step reads counter k."""
     state = 1 if draw(key, START_K) < p else 0
@@ -164,7 +178,7 @@ def chain_state(key, k, p, stay, enter):
 
 
 @_jit
-def burst_params(p, burst):
+def burst_params(p: float, burst: float) -> tuple[float, float]:
     """(stay, enter) of the Gilbert chain with stationary loss p and mean burst length burst > 1.
 
     A run of losses ends with probability 1 / burst each message (mean length burst); a delivered
@@ -176,7 +190,7 @@ def burst_params(p, burst):
 
 
 @_jit
-def lost_at(key, k, p, burst, stay, enter, chains, row):
+def lost_at(key: int, k: int, p: float, burst: float, stay: float, enter: float, chains: _Ints, row: int) -> bool:
     """Whether message k is lost under one drop rule (stream `key`), with the chain cache chains[row].
 
     p == 0 never loses, p == 1 always; burst == 1: independent losses, draw(key, k) < p. Otherwise
@@ -203,7 +217,8 @@ def lost_at(key, k, p, burst, stay, enter, chains, row):
 
 
 @_jit
-def lost_plain(seed, rule, cls, sender, receiver, k, p, burst):
+def lost_plain(seed: int, rule: int, cls: int, sender: int, receiver: int, k: int, p: float,
+               burst: float) -> bool:
     """lost_at for one message from scratch (no cache): the pure function itself."""
     if p <= 0.0:
         return False
@@ -217,7 +232,7 @@ def lost_plain(seed, rule, cls, sender, receiver, k, p, burst):
 
 
 @_jit
-def jittered(key, k, ticks, jitter):
+def jittered(key: int, k: int, ticks: int, jitter: int) -> int:
     """ticks plus a whole number uniform in 0..jitter drawn at counter k of stream `key`."""
     if jitter <= 0:
         return ticks
@@ -227,7 +242,8 @@ def jittered(key, k, ticks, jitter):
 
 
 @_jit
-def delay_ticks(seed, rule, cls, sender, receiver, k, ticks, jitter):
+def delay_ticks(seed: int, rule: int, cls: int, sender: int, receiver: int, k: int, ticks: int,
+                jitter: int) -> int:
     """ticks plus a whole number uniform in 0..jitter, for message k under delay rule `rule`."""
     if jitter <= 0:
         return ticks
@@ -238,19 +254,20 @@ def delay_ticks(seed, rule, cls, sender, receiver, k, ticks, jitter):
 
 
 @_jit
-def group_of(part_win, part_group, robot, t):
+def group_of(part_win: _Floats, part_group: _Ints, robot: int, t: float) -> int:
     """The partition group of `robot` at time t [s] (0: the first group, the world's and the
     leader's); 0 outside every partition's window. Windows never overlap (faults.py refuses it)."""
     if robot < 0:
         return 0
     for w in range(part_win.shape[0]):
         if part_win[w, W_START] <= t < part_win[w, W_END]:
-            return part_group[w, robot]
+            group: int = part_group[w, robot]
+            return group
     return 0
 
 
 @_jit
-def is_cut(part_win, part_group, sender, receiver, t):
+def is_cut(part_win: _Floats, part_group: _Ints, sender: int, receiver: int, t: float) -> bool:
     """Whether a partition separates sender from receiver at time t: state links (j, i) and reference
     links (LEADER, i); a link with the world (a pose or a command) is a robot's own body: never."""
     if sender == WORLD or receiver == WORLD:
@@ -264,7 +281,7 @@ def is_cut(part_win, part_group, sender, receiver, t):
 
 
 @_jit
-def process_code(proc, robot, t):
+def process_code(proc: _Floats, robot: int, t: float) -> int:
     """PROC_ALIVE, PROC_DEAD or PROC_HUNG: robot's process at time t [s]."""
     for f in range(proc.shape[0]):
         if int(proc[f, F_ROBOT]) == robot and proc[f, F_START] <= t < proc[f, F_END]:
@@ -276,8 +293,9 @@ def process_code(proc, robot, t):
 
 
 @_jit
-def decide(seed, drop, drop_from, drop_to, delay, delay_from, delay_to, part_win, part_group,
-           cls, sender, receiver, k, t, chains):
+def decide(seed: int, drop: _Floats, drop_from: _Mask, drop_to: _Mask, delay: _Floats, delay_from: _Mask,
+           delay_to: _Mask, part_win: _Floats, part_group: _Ints,
+           cls: int, sender: int, receiver: int, k: int, t: float, chains: _Ints) -> tuple[bool, int]:
     """(lost, delay_ticks) of message k of class cls on link (sender, receiver), sent at t [s].
 
     Lost when a partition cuts the link at t, or when any drop rule that matches it (its class or

@@ -37,10 +37,18 @@ once, at its send tick, and kept in a ring of the last H ticks until it arrives.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from swarm.core import jit
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    _Floats = npt.NDArray[np.float64]
+    _Ints = npt.NDArray[np.int64]
+    _Bools = npt.NDArray[np.bool_]
 
 law = jit.compiled("swarm.core.law")
 kin = jit.compiled("swarm.core.kinematics")
@@ -80,7 +88,7 @@ F_SIZE = 14
 
 
 @jit.njit
-def brake_factor(since, dt, brake_s):
+def brake_factor(since: int, dt: float, brake_s: float) -> float:
     """The share of its last command a world applies `since` ticks after that command came: 1 for the
     tick it came and the one after (the one-period hold), then down to 0 along a straight ramp that
     reaches it brake_s after the hold (a robot brakes to a stop; it does not halt at once)."""
@@ -90,7 +98,7 @@ def brake_factor(since, dt, brake_s):
 
 
 @jit.njit
-def _ring_delivery(ring, i, j, k, dmax, newest):
+def _ring_delivery(ring: _Ints, i: int, j: int, k: int, dmax: int, newest: int) -> int:
     """The send tick of the newest message on ring[i, j, :] that arrives at tick k and is newer than
     `newest` (-1: none)."""
     h = ring.shape[2]
@@ -104,13 +112,20 @@ def _ring_delivery(ring, i, j, k, dmax, newest):
 
 
 @jit.njit
-def run_fault_steps(k0, k1, n_steps, dt, q, comp, mem, offsets, radius, obstacles, table, p, watchdog_ticks,
-                    seed, drop, drop_from, drop_to, delay, delay_from, delay_to, part_win, part_group, ev, dmax,
-                    ch_state, ch_pose, ch_ref, ch_cmd, ring_state, ring_pose, ring_ref, ring_cmd,
-                    proc, proch, listen, qh, bel, belh, belv, kb, kp, pbase, cmdh, lastc, kr,
-                    tk, tx, ty, wcmd, wnew, wsrc, wlast, stopped, alive_end, brake_s,
-                    acc, iacc, facc, fmax, inside, last_frozen, nx, ny, nr, nR, nk, na,
-                    rec_every, rec_t, rec_q, rec_err, rec_cmd, rec_frozen, rec_leader):
+def run_fault_steps(k0: int, k1: int, n_steps: int, dt: float, q: _Floats, comp: _Floats, mem: _Floats,
+                    offsets: _Floats, radius: _Floats, obstacles: _Floats, table: _Floats, p: _Floats,
+                    watchdog_ticks: float, seed: int | np.int64, drop: _Floats, drop_from: _Bools, drop_to: _Bools,
+                    delay: _Floats, delay_from: _Bools, delay_to: _Bools, part_win: _Floats, part_group: _Ints,
+                    ev: _Ints, dmax: int, ch_state: _Ints, ch_pose: _Ints, ch_ref: _Ints, ch_cmd: _Ints,
+                    ring_state: _Ints, ring_pose: _Ints, ring_ref: _Ints, ring_cmd: _Ints,
+                    proc: _Ints, proch: _Ints, listen: _Ints, qh: _Floats, bel: _Floats, belh: _Floats,
+                    belv: _Bools, kb: _Ints, kp: _Ints, pbase: _Floats, cmdh: _Floats, lastc: _Floats, kr: _Ints,
+                    tk: _Ints, tx: _Floats, ty: _Floats, wcmd: _Floats, wnew: _Floats, wsrc: _Ints, wlast: _Ints,
+                    stopped: _Bools, alive_end: _Bools, brake_s: float,
+                    acc: _Floats, iacc: _Ints, facc: _Ints, fmax: _Floats, inside: _Bools, last_frozen: _Ints,
+                    nx: _Floats, ny: _Floats, nr: _Floats, nR: _Floats, nk: _Ints, na: _Floats,
+                    rec_every: int, rec_t: _Floats, rec_q: _Floats, rec_err: _Floats, rec_cmd: _Floats,
+                    rec_frozen: _Bools, rec_leader: _Floats) -> int:
     """Evaluate ticks k0 <= k < k1 (k1 <= n_steps + 1) of dt [s] under faults; returns the next k.
     (p[P_DT] is the governor's horizon: dt, or longer when commands may be lost: faultsim.horizon.)
 
@@ -137,6 +152,7 @@ def run_fault_steps(k0, k1, n_steps, dt, q, comp, mem, offsets, radius, obstacle
     reach = p[P_REACH]
     offer = reach + (sense - reach) / 3.0  # reach + L: what an agent surely receives (docs/runtime.md)
     merge_steps = 0.1 / dt
+    d: float  # a count of ticks back on a restart, a distance [m] in the collision count
     for k in range(k0, k1):
         t = k * dt
         r = k % h

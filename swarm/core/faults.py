@@ -29,7 +29,7 @@ import tomllib
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from itertools import pairwise
-from typing import Any
+from typing import Any, Callable, TypeVar, cast
 
 import numpy as np
 
@@ -49,6 +49,8 @@ MAX_PARTITIONS = 16
 MAX_PROCESS_FAULTS = 10_000  # kills and hangs together
 MAX_DELAY_TICKS = 1_000_000  # ticks + jitter of one rule
 SEED_LIMIT = 1 << 63  # a seed is a non-negative int64
+
+_T = TypeVar("_T")
 
 
 class FaultError(ValueError):
@@ -90,12 +92,12 @@ def _ids(value: tuple[int, ...] | None, field: str) -> tuple[int, ...] | None:
     return tuple(sorted(seen))
 
 
-def _class_ends(cls: str, senders, receivers) -> None:
+def _class_ends(cls: str, senders: tuple[int, ...] | None, receivers: tuple[int, ...] | None) -> None:
     if not isinstance(cls, str) or cls not in CLASSES:
         raise FaultError("class", f"must be one of {', '.join(repr(c) for c in CLASSES)}, got {cls!r}")
 
 
-def _matches_nothing(cls: str, senders, receivers) -> str | None:
+def _matches_nothing(cls: str, senders: tuple[int, ...] | None, receivers: tuple[int, ...] | None) -> str | None:
     """Why a rule's links are none (a pose or ref has no robot sender, a cmd no robot receiver), or None."""
     if senders is not None and cls in ("pose", "ref"):
         return f"a {cls} is sent by the {'world' if cls == 'pose' else 'leader'}, never by a robot, and it names 'from'"
@@ -311,7 +313,8 @@ def _check_partitions(partitions: tuple[Partition, ...]) -> None:
 
 def _describe(kind: str, f: Kill | Hang) -> str:
     if kind == "kill":
-        return (f"a kill at {f.at:g} s" + ("" if f.restart is None else f" with a restart at {f.end:g} s"))
+        restart = cast(Kill, f).restart
+        return (f"a kill at {f.at:g} s" + ("" if restart is None else f" with a restart at {f.end:g} s"))
     return f"a hang from {f.at:g} s to {f.end:g} s"
 
 
@@ -319,7 +322,8 @@ def _check_process_faults(kills: tuple[Kill, ...], hangs: tuple[Hang, ...]) -> N
     """One process fault of a robot at a time: a hang of a dead robot, a second kill before the restart,
     anything after a kill without restart are refused; the later one is named."""
     by_robot: dict[int, list[tuple[float, int, str, int, Kill | Hang]]] = {}
-    for kind, faults in (("kill", kills), ("hang", hangs)):
+    sources: tuple[tuple[str, tuple[Kill | Hang, ...]], ...] = (("kill", kills), ("hang", hangs))
+    for kind, faults in sources:
         for k, f in enumerate(faults):
             by_robot.setdefault(f.robot, []).append((f.at, 0 if kind == "kill" else 1, kind, k, f))
     for robot in sorted(by_robot):
@@ -344,7 +348,7 @@ class _Reader:
     def fail(self, key: str, reason: str) -> ScenarioError:
         return ScenarioError(self.where, key, reason)
 
-    def table(self, value: Any, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> dict:
+    def table(self, value: Any, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> dict[str, Any]:
         if not isinstance(value, dict):
             raise self.fail(key, f"must be a table, got {_kind(value)}")
         for k in value:
@@ -355,7 +359,7 @@ class _Reader:
                 raise self.fail(f"{key}.{k}", "missing required key")
         return value
 
-    def tables(self, value: Any, key: str, most: int) -> list:
+    def tables(self, value: Any, key: str, most: int) -> list[dict[str, Any]]:
         if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
             raise self.fail(key, f"must be an array of tables ([[{key}]]), got {_kind(value)}")
         if len(value) > most:
@@ -405,7 +409,7 @@ def _kind(value: Any) -> str:
 _RULE_KEYS = ("from", "to", "start", "end")
 
 
-def _build(rd: _Reader, key: str, make, **kw):
+def _build(rd: _Reader, key: str, make: Callable[..., _T], **kw: Any) -> _T:
     """make(**kw) builds a rule (or the Faults); its FaultError becomes a ScenarioError at key.field."""
     try:
         return make(**kw)
@@ -413,7 +417,7 @@ def _build(rd: _Reader, key: str, make, **kw):
         raise rd.fail(f"{key}.{e.field}", e.reason) from None
 
 
-def _span(rd: _Reader, rule: dict, key: str, duration: float) -> dict:
+def _span(rd: _Reader, rule: dict[str, Any], key: str, duration: float) -> dict[str, Any]:
     out: dict[str, Any] = {}
     if "start" in rule:
         out["start"] = rd.time(rule["start"], f"{key}.start", duration)
@@ -422,7 +426,7 @@ def _span(rd: _Reader, rule: dict, key: str, duration: float) -> dict:
     return out
 
 
-def _selection(rd: _Reader, rule: dict, key: str, robots: int, duration: float) -> dict:
+def _selection(rd: _Reader, rule: dict[str, Any], key: str, robots: int, duration: float) -> dict[str, Any]:
     out = _span(rd, rule, key, duration)
     if "from" in rule:
         out["senders"] = rd.robots(rule["from"], f"{key}.from", robots)
@@ -563,6 +567,7 @@ def advisories(faults: Faults, duration: float, robots: int | None = None) -> li
     it. duration [s]: the time of the run's last step (steps x dt: a fault at it still acts there)."""
     out = []
     end = duration + fg.TIME_EPS
+    d: DropRule | DelayRule
     for i, d in enumerate(faults.drops):
         if d.p == 0.0:
             out.append(f"faults.drop[{i}] has p = 0: it never loses a message")
@@ -573,9 +578,12 @@ def advisories(faults: Faults, duration: float, robots: int | None = None) -> li
     for i, d in enumerate(faults.delays):
         if d.ticks == 0 and d.jitter == 0:
             out.append(f"faults.delay[{i}] has ticks = 0 and jitter = 0: it never delays a message")
-    for name, rules in (("drop", faults.drops), ("delay", faults.delays), ("partition", faults.partitions)):
+    windows: tuple[tuple[str, tuple[DropRule | DelayRule | Partition, ...]], ...] = (
+        ("drop", faults.drops), ("delay", faults.delays), ("partition", faults.partitions))
+    for name, rules in windows:
         for i, r in enumerate(rules):
-            why = None if name == "partition" else _matches_nothing(r.cls, r.senders, r.receivers)
+            links = cast("DropRule | DelayRule", r)  # read only when name != "partition"
+            why = None if name == "partition" else _matches_nothing(links.cls, links.senders, links.receivers)
             if why is not None:
                 out.append(f"faults.{name}[{i}] matches no message: {why}")
             elif r.start > end:
@@ -587,7 +595,8 @@ def advisories(faults: Faults, duration: float, robots: int | None = None) -> li
         if robots is not None and len(pt.groups) + (sum(len(g) for g in pt.groups) < robots) < 2:
             out.append(f"faults.partition[{i}] puts all {robots} robots in one group (the robots in no group form one "
                        "more group): it separates nothing")
-    for name, events in (("kill", faults.kills), ("hang", faults.hangs)):
+    process: tuple[tuple[str, tuple[Kill | Hang, ...]], ...] = (("kill", faults.kills), ("hang", faults.hangs))
+    for name, events in process:
         for i, e in enumerate(events):
             if e.at > end:
                 out.append(f"faults.{name}[{i}] is at {e.at:g} s, after the run's last step ({duration:g} s): it "
@@ -622,10 +631,10 @@ def to_toml(faults: Faults) -> str:
     def num(x: float) -> str:
         return repr(float(x))
 
-    def ids(v) -> str:
+    def ids(v: Iterable[int]) -> str:
         return "[" + ", ".join(str(i) for i in v) + "]"
 
-    def sel(rule) -> list[str]:
+    def sel(rule: DropRule | DelayRule) -> list[str]:
         out = []
         if rule.senders is not None:
             out.append(f"from = {ids(rule.senders)}")
@@ -637,6 +646,7 @@ def to_toml(faults: Faults) -> str:
         return out
 
     lines = ["[faults]", f"seed = {faults.seed}"]
+    d: DropRule | DelayRule
     for d in faults.drops:
         lines += ["", "[[faults.drop]]", f'class = "{d.cls}"', f"p = {num(d.p)}", f"burst = {num(d.burst)}", *sel(d)]
     for d in faults.delays:
@@ -800,6 +810,7 @@ class FaultTable:
         D, Y = len(faults.drops), len(faults.delays)
         drop = np.zeros((D, fg.D_SIZE))
         drop_from, drop_to = np.zeros((D, cols), bool), np.zeros((D, cols), bool)
+        d: DropRule | DelayRule
         for r, d in enumerate(faults.drops):
             drop[r, fg.D_CLS], drop[r, fg.D_P], drop[r, fg.D_BURST] = CLASSES[d.cls], d.p, d.burst
             drop[r, fg.D_START], drop[r, fg.D_END] = low(d.start), low(d.end)
@@ -834,7 +845,8 @@ class FaultTable:
         return cls(faults.seed, robots, float(dt), drop, drop_from, drop_to, delay, delay_from, delay_to,
                    part_win, part_group, proc, ev)
 
-    def arrays(self) -> tuple:
+    def arrays(self) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                              np.ndarray]:
         """(seed, drop, drop_from, drop_to, delay, delay_from, delay_to, part_win, part_group): the leading
         arguments of faultgen.decide, in order."""
         return (self.seed, self.drop, self.drop_from, self.drop_to, self.delay, self.delay_from, self.delay_to,
@@ -876,14 +888,14 @@ class Link:
             return int(row[col]) in (cls, fg.CLS_ALL) and bool(senders[cs]) and bool(receivers[cr])
 
         # drop rules: (row in the chain cache, key, p, burst, stay, enter, lo, hi); p = 0 rules never lose
-        self.drops = []
+        self.drops: list[tuple[int, int, float, float, float, float, float, float]] = []
         for r in range(table.drop.shape[0]):
             d = table.drop[r]
             if matches(d, table.drop_from[r], table.drop_to[r], fg.D_CLS) and d[fg.D_P] > 0.0:
                 self.drops.append((len(self.drops), fg.stream(table.seed, r, cls, sender, receiver), float(d[fg.D_P]),
                                    float(d[fg.D_BURST]), float(d[fg.D_STAY]), float(d[fg.D_ENTER]),
                                    float(d[fg.D_START]), float(d[fg.D_END])))
-        self.delays = []
+        self.delays: list[tuple[int, int, int, float, float]] = []
         for r in range(table.delay.shape[0]):
             d = table.delay[r]
             if matches(d, table.delay_from[r], table.delay_to[r], fg.Y_CLS):

@@ -9,25 +9,30 @@ swarm.core.sim.Simulation holds one when its scenario has faults and calls the f
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any, cast
+
 import numpy as np
 
 from swarm.core import faultgen as fg
 from swarm.core import faults as fl
 from swarm.core import law
 
+if TYPE_CHECKING:
+    from swarm.core.scenario import Scenario
+
 WATCHDOG_S = 0.5  # the world's watchdog: no new command for longer than this stops a robot
 BRAKE_S = law.BRAKE_S  # after the one-period hold, a robot without a new command brakes to a stop over this long
 CLASSES = ("state", "pose", "cmd", "ref")  # faultgen.CLS_* order
 
 
-def commands_may_miss(faults) -> bool:
+def commands_may_miss(faults: fl.Faults) -> bool:
     """Whether a robot's command may not reach the world at some tick: a drop or delay rule of class
     cmd (or all), or a hang (a hung robot sends nothing)."""
     return bool(faults) and (any(r.cls in ("cmd", "all") for r in faults.drops + faults.delays)
                              or bool(faults.hangs))
 
 
-def horizon(faults, dt: float, brake_s: float = BRAKE_S) -> float:
+def horizon(faults: fl.Faults, dt: float, brake_s: float = BRAKE_S) -> float:
     """The safety governor's horizon [s]: how long one command may act. dt without faults on commands;
     when a command may be missing, the world holds the last one a period and then brakes along a ramp,
     so the last command acts for dt times (1 + the hold + the ramp's steps): the governor keeps every
@@ -38,11 +43,11 @@ def horizon(faults, dt: float, brake_s: float = BRAKE_S) -> float:
 
 
 class FaultState:
-    def __init__(self, scn, watchdog_s: float = WATCHDOG_S) -> None:
+    def __init__(self, scn: Scenario, watchdog_s: float = WATCHDOG_S) -> None:
         from swarm.core import faultkernel as fk
 
         self.fk = fk
-        f = scn.faults
+        f = cast(fl.Faults, scn.faults)  # a FaultState is made for a scenario with faults only
         n, m = scn.n, len(scn.obstacles)
         self.faults = f
         self.table = fl.FaultTable.of(f, n, scn.dt)
@@ -53,7 +58,7 @@ class FaultState:
         h = self.dmax + 2
         rules = tab.drop.shape[0]
 
-        def chains(*shape):
+        def chains(*shape: int) -> np.ndarray:
             c = np.zeros((*shape, rules, fg.C_SIZE), np.int64)
             c[..., fg.C_K] = -1
             return c
@@ -89,7 +94,7 @@ class FaultState:
         self.inside = np.zeros((n + m, n + m), np.bool_)
         self.watchdog_ticks = float(watchdog_s / scn.dt)
 
-    def arguments(self) -> tuple:
+    def arguments(self) -> tuple[Any, ...]:
         """The fault kernel's arguments after the shared ones (q ... p), up to the accumulators."""
         t = self.table
         return (self.watchdog_ticks, np.int64(t.seed), t.drop, t.drop_from, t.drop_to, t.delay, t.delay_from,
@@ -100,7 +105,7 @@ class FaultState:
                 self.pbase, self.cmdh, self.lastc, self.kr, self.tk, self.tx, self.ty, self.wcmd, self.wnew,
                 self.wsrc, self.wlast, self.stopped, self.alive_end, BRAKE_S)
 
-    def metrics(self, t_end: float) -> dict:
+    def metrics(self, t_end: float) -> dict[str, Any]:
         """The fault keys of the metrics contract; t_end [s]: the time of the run's last step."""
         fk, a = self.fk, self.facc
         dropped = {c: int(a[fk.F_DROPPED + i]) for i, c in enumerate(CLASSES)}

@@ -5,11 +5,14 @@ rows of obstacles. Pure functions; randomness comes from the `rng` passed in.
 from __future__ import annotations
 
 import math
-from typing import Callable
+from typing import TYPE_CHECKING, Callable, cast
 
 import numpy as np
 
 from swarm.core.geometry import Counter, Grid
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
 
 
 class GeneratorError(ValueError):
@@ -46,7 +49,7 @@ def hex_patch(count: int, spacing: float) -> np.ndarray:
     return out
 
 
-def obstacle_row(start: tuple[float, float], end: tuple[float, float], pitch: float) -> np.ndarray:
+def obstacle_row(start: Sequence[float], end: Sequence[float], pitch: float) -> np.ndarray:
     """Centres of obstacles from `start` to `end` (both included), about `pitch` [m] apart: (K, 2)."""
     start_a, end_a = np.asarray(start, float), np.asarray(end, float)
     length = float(np.linalg.norm(end_a - start_a))
@@ -56,7 +59,7 @@ def obstacle_row(start: tuple[float, float], end: tuple[float, float], pitch: fl
     if length == 0.0:
         return start_a[None, :].copy()
     s = np.linspace(0.0, 1.0, intervals + 1)
-    return start_a[None, :] + s[:, None] * (end_a - start_a)[None, :]
+    return cast(np.ndarray, start_a[None, :] + s[:, None] * (end_a - start_a)[None, :])
 
 
 def random_poses(

@@ -40,7 +40,9 @@ def pairs_within(x: np.ndarray, y: np.ndarray, within: float,
         d = np.hypot(dx[near], sy[k:][near] - sy[:-k][near])
         hit = near[d < within]
         a, b = order[hit], order[hit + k]
-        ii.append(np.minimum(a, b)), jj.append(np.maximum(a, b)), dd.append(d[d < within])
+        ii.append(np.minimum(a, b))
+        jj.append(np.maximum(a, b))
+        dd.append(d[d < within])
     if not ii:
         e = np.zeros(0, np.int64)
         return e, e, np.zeros(0)
@@ -147,7 +149,9 @@ class Grid:
                     dy = a[ii, 1] - b[jj, 1]
                     d2 = dx * dx + dy * dy
                     hit = d2 <= w2
-                    out_i.append(ii[hit]), out_j.append(jj[hit]), out_d.append(d2[hit])
+                    out_i.append(ii[hit])
+                    out_j.append(jj[hit])
+                    out_d.append(d2[hit])
                     start = stop
         if not out_i:
             return empty, empty, np.zeros(0)
@@ -206,10 +210,10 @@ def closest_pair(points: np.ndarray, within: float, counter: Counter | None = No
         if not bound < side:
             break
         side = bound
-    i, j, d2 = grid.pairs(p, min(side, grid.side), counter, same=True)
-    if not len(i):
+    ii, jj, d2 = grid.pairs(p, min(side, grid.side), counter, same=True)
+    if not len(ii):
         return None
-    a, b, best = first_pair(i, j, d2)
+    a, b, best = first_pair(ii, jj, d2)
     d = math.sqrt(best)
     return (a, b, d) if d <= within else None
 

@@ -11,12 +11,21 @@ A grid is three arrays: cells (n, 2) int64, head (H + 1) int64 (bucket b holds
 order[head[b]:head[b + 1]]), order (n) int64 (ids in ascending order within a bucket).
 """
 
+from __future__ import annotations
+
 import math
+from typing import TYPE_CHECKING
 
-_jit = globals().get("__swarm_jit__", lambda f: f)
+if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
+
+    from swarm.core.jit import Jit
+
+_jit: Jit = globals().get("__swarm_jit__", lambda f: f)
 
 
-def table_size(n):
+def table_size(n: int) -> int:
     """Number of hash buckets for n bodies: a power of two >= 2 n (at least 16)."""
     h = 16
     while h < 2 * n:
@@ -25,17 +34,18 @@ def table_size(n):
 
 
 @_jit
-def cell_index(v, side):
+def cell_index(v: float, side: float) -> int:
     return int(math.floor(v / side))
 
 
 @_jit
-def bucket(cx, cy, mask):
+def bucket(cx: int, cy: int, mask: int) -> int:
     return ((cx * 73856093) ^ (cy * 19349663)) & mask
 
 
 @_jit
-def build(xs, ys, n, side, cells, head, order):
+def build(xs: npt.NDArray[np.float64], ys: npt.NDArray[np.float64], n: int, side: float,
+          cells: npt.NDArray[np.int64], head: npt.NDArray[np.int64], order: npt.NDArray[np.int64]) -> None:
     """Fill cells, head and order for the first n bodies at (xs, ys): a counting sort by bucket."""
     nb = head.shape[0] - 1
     mask = nb - 1
@@ -59,7 +69,9 @@ def build(xs, ys, n, side, cells, head, order):
 
 
 @_jit
-def near(x, y, side, xs, ys, cells, head, order, radius, skip, out):
+def near(x: float, y: float, side: float, xs: npt.NDArray[np.float64], ys: npt.NDArray[np.float64],
+         cells: npt.NDArray[np.int64], head: npt.NDArray[np.int64], order: npt.NDArray[np.int64], radius: float,
+         skip: int, out: npt.NDArray[np.int64]) -> int:
     """Write into `out` the ids of bodies closer than `radius` to (x, y), ascending; return the count.
 
     `skip` is an id to leave out (the querying robot), or -1. radius must be <= side.

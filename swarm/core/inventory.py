@@ -42,12 +42,17 @@ import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
+
 import numpy as np
 
 from swarm.core.geometry import pairs_within
 from swarm.core.scenario import Scenario, ScenarioError
 from swarm.core.scenario_file import MAX_COORD, MAX_ROBOTS, _Reader
 from swarm.proto import ros2
+
+if TYPE_CHECKING:
+    _Pose = tuple[float, float, float]
 
 DRIVES = ("ros2",)
 FLAVORS = ("rmw_zenoh", "bridge")
@@ -163,7 +168,7 @@ def load(path: str | Path) -> Inventory:
     return parse(doc, where)
 
 
-def parse(doc: dict, where: str) -> Inventory:
+def parse(doc: dict[str, Any], where: str) -> Inventory:
     """Check a parsed inventory document."""
     rd = _Reader(where)
     try:
@@ -177,8 +182,8 @@ def parse(doc: dict, where: str) -> Inventory:
         if len(rows) > MAX_ROBOTS:
             raise rd.fail("robot", f"lists {len(rows)} robots; a fleet has at most {MAX_ROBOTS}")
         robots = [_robot(rd, row, f"robot[{k}]") for k, row in enumerate(rows)]
-    except ScenarioError as e:
-        raise InventoryError(e.where, e.key, e.reason) from None
+    except ScenarioError as err:
+        raise InventoryError(err.where, err.key, err.reason) from None
     seen: dict[int, str] = {}
     names: dict[tuple[int, str], str] = {}
     for e in robots:
@@ -193,7 +198,7 @@ def parse(doc: dict, where: str) -> Inventory:
     return Inventory(where, fleet, tuple(sorted(robots, key=lambda e: e.id)))
 
 
-def _robot(rd: _Reader, row: dict, key: str) -> RobotEntry:
+def _robot(rd: _Reader, row: dict[str, Any], key: str) -> RobotEntry:
     rd.table(row, key, ROBOT_KEYS, ("id",))
     i = rd.integer(row["id"], f"{key}.id")
     if i >= MAX_ROBOTS:
@@ -214,7 +219,7 @@ def _robot(rd: _Reader, row: dict, key: str) -> RobotEntry:
         raise rd.fail(f"{key}.connect", f"must be a zenoh endpoint like tcp/192.168.1.20:7447, got {connect!r}")
     pose = None
     if "initial_pose" in row:
-        pose = tuple(rd.vector(row["initial_pose"], f"{key}.initial_pose", 3, "x, y, theta"))
+        pose = cast("_Pose", tuple(rd.vector(row["initial_pose"], f"{key}.initial_pose", 3, "x, y, theta")))
         for c in range(2):
             rd.number(pose[c], f"{key}.initial_pose[{c}]", bound=MAX_COORD)
     v_max = rd.number(row["v_max"], f"{key}.v_max", gt=0) if "v_max" in row else None
@@ -259,11 +264,11 @@ def apply(inv: Inventory, scn: Scenario, poses: dict[int, tuple[float, float, fl
         v_max, v_from = _tighter(inv, e, "v_max", c.v_max, "m/s")
         w_max, w_from = _tighter(inv, e, "w_max", c.w_max, "rad/s")
         if e.id in poses:
-            start, start_from = tuple(map(float, poses[e.id])), "--initial-pose"
+            start, start_from = cast("_Pose", tuple(map(float, poses[e.id]))), "--initial-pose"
         elif e.initial_pose is not None:
             start, start_from = e.initial_pose, f"the inventory ({e.key}.initial_pose)"
         else:
-            start, start_from = tuple(map(float, scn.poses[e.id])), "the scenario"
+            start, start_from = cast("_Pose", tuple(map(float, scn.poses[e.id]))), "the scenario"
         starts[e.id] = start
         robots.append(FleetRobot(e, start, start_from, v_max, w_max, v_from, w_from))
     return Fleet(inv, scn, scn.replace(poses=np.ascontiguousarray(starts)), tuple(robots))
@@ -322,8 +327,8 @@ def _start_problems(fleet: Fleet) -> list[Problem]:
         for i in np.flatnonzero((x < xmin) | (x > xmax) | (y < ymin) | (y > ymax)).tolist():
             out.append(Problem(i, f"starts at ({x[i]:g}, {y[i]:g}) (from {where[i]}), outside arena.bounds "
                                   f"[{xmin:g}, {xmax:g}, {ymin:g}, {ymax:g}]"))
-    i, j, d = pairs_within(x, y, float(scn.r))
-    for a, b, dist in sorted(zip(i.tolist(), j.tolist(), d.tolist())):
+    ii, jj, dd = pairs_within(x, y, float(scn.r))
+    for a, b, dist in sorted(zip(ii.tolist(), jj.tolist(), dd.tolist())):
         text = (f"starts {dist:.3g} m from robot {{other}}, closer than r = {scn.r:g} m (starts from {where[a]} "
                 f"and {where[b]})")
         out.append(Problem(a, text.format(other=b)))

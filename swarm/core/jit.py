@@ -22,6 +22,16 @@ import os
 import sys
 from pathlib import Path
 from types import ModuleType
+from typing import Any, Callable, Protocol, TypeVar, cast
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+class Jit(Protocol):
+    """The type of `_jit` in a scalar-style module: the identity in plain Python, `njit` in its compiled twin."""
+
+    def __call__(self, fn: _F, /) -> _F: ...
+
 
 # Every module whose source ends up inside a compiled kernel.
 KERNEL_SOURCES = ("swarm.core.law", "swarm.core.kinematics", "swarm.core.grid", "swarm.core.kernel", "swarm.core.metrics",
@@ -59,18 +69,18 @@ def _setup_numba() -> None:
         d = cache_dir()
         try:
             d.mkdir(parents=True, exist_ok=True)
-            numba.config.CACHE_DIR = str(d)
+            cast(Any, numba.config).CACHE_DIR = str(d)  # numba sets its config names through globals()
         except OSError:
             pass  # read-only home: numba falls back to compiling in memory each run
     _numba_ready = True
 
 
-def njit(fn):
+def njit(fn: _F) -> _F:
     """numba.njit with the on-disk cache (the kernel's own decorator)."""
     _setup_numba()
     import numba
 
-    return numba.njit(cache=True, error_model="numpy")(fn)
+    return cast(_F, numba.njit(cache=True, error_model="numpy")(fn))
 
 
 def compiled(name: str) -> ModuleType:

@@ -17,11 +17,19 @@ State arrays are updated in place, so the loop can run in chunks (progress bars)
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from swarm.core import jit
 from swarm.core.metrics import CONVERGED_ANGLE_RAD, CONVERGED_POSITION_M
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    _Floats = npt.NDArray[np.float64]
+    _Ints = npt.NDArray[np.int64]
+    _Bools = npt.NDArray[np.bool_]
 
 law = jit.compiled("swarm.core.law")
 kin = jit.compiled("swarm.core.kinematics")
@@ -69,9 +77,12 @@ FREEZE_MERGE_S = 0.1
 
 
 @jit.njit
-def run_steps(k0, k1, n_steps, q, comp, mem, cmd, offsets, radius, obstacles,
-              ocells, ohead, oorder, cells, head, order, table, p, acc, iacc, pairs, last_frozen,
-              buf, nx, ny, nr, nR, nk, na, rec_every, rec_t, rec_q, rec_err, rec_cmd, rec_frozen, rec_leader):
+def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _Floats, cmd: _Floats, offsets: _Floats,
+              radius: _Floats, obstacles: _Floats, ocells: _Ints, ohead: _Ints, oorder: _Ints, cells: _Ints,
+              head: _Ints, order: _Ints, table: _Floats, p: _Floats, acc: _Floats, iacc: _Ints, pairs: _Ints,
+              last_frozen: _Ints, buf: _Ints, nx: _Floats, ny: _Floats, nr: _Floats, nR: _Floats, nk: _Ints,
+              na: _Floats, rec_every: int, rec_t: _Floats, rec_q: _Floats, rec_err: _Floats, rec_cmd: _Floats,
+              rec_frozen: _Bools, rec_leader: _Floats) -> int:
     """Evaluate steps k0 <= k < k1 (k1 <= n_steps + 1); see the module docstring. Returns the next k.
 
     q (N, 3) poses, comp (N, 3) their Kahan compensations, mem (N, M_SIZE) law memory,

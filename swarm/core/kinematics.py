@@ -7,13 +7,26 @@ Positions are accumulated with compensated (Kahan) summation: at |x| ~ 50 m plai
 `x += dx` alone floors the tracking error near 1e-12 m after 1e5 steps.
 """
 
-import math
+from __future__ import annotations
 
-_jit = globals().get("__swarm_jit__", lambda f: f)
+import math
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import MutableSequence
+
+    import numpy as np
+    import numpy.typing as npt
+
+    from swarm.core.jit import Jit
+
+    _Pose = MutableSequence[float] | npt.NDArray[np.float64]
+
+_jit: Jit = globals().get("__swarm_jit__", lambda f: f)
 
 
 @_jit
-def sinc(a):
+def sinc(a: float) -> float:
     """sin(a)/a, with its Taylor series near 0 (no cancellation, no division by zero)."""
     if abs(a) < 1e-3:
         a2 = a * a
@@ -22,7 +35,7 @@ def sinc(a):
 
 
 @_jit
-def arc_displacement(th, v, w, dt):
+def arc_displacement(th: float, v: float, w: float, dt: float) -> tuple[float, float, float]:
     """(dx, dy, dth) of a unicycle at heading th [rad] driven at (v, w) for dt [s]."""
     half = 0.5 * w * dt
     d = v * dt * sinc(half)
@@ -31,7 +44,7 @@ def arc_displacement(th, v, w, dt):
 
 
 @_jit
-def kahan_add(s, c, x):
+def kahan_add(s: float, c: float, x: float) -> tuple[float, float]:
     """Compensated s + x: returns the new (sum, compensation)."""
     y = x - c
     t = s + y
@@ -39,7 +52,7 @@ def kahan_add(s, c, x):
 
 
 @_jit
-def step_pose(q, c, v, w, dt):
+def step_pose(q: _Pose, c: _Pose, v: float, w: float, dt: float) -> None:
     """Advance pose q = [x, y, th] in place by one exact arc step; c holds the compensations."""
     dx, dy, dth = arc_displacement(q[2], v, w, dt)
     q[0], c[0] = kahan_add(q[0], c[0], dx)
@@ -61,7 +74,7 @@ SEG_W = 5
 
 
 @_jit
-def segment_at(table, t):
+def segment_at(table: npt.NDArray[np.float64], t: float) -> int:
     """Index of the segment that holds time t [s] (the first one for t < 0)."""
     k = 0
     n = table.shape[0]
@@ -71,7 +84,7 @@ def segment_at(table, t):
 
 
 @_jit
-def leader_state(table, t):
+def leader_state(table: npt.NDArray[np.float64], t: float) -> tuple[float, float, float, float, float]:
     """(x, y, th, v, w) of the leader at time t [s]; th is not wrapped."""
     k = segment_at(table, t)
     dx, dy, dth = arc_displacement(table[k, SEG_TH0], table[k, SEG_V], table[k, SEG_W], t - table[k, SEG_T0])

@@ -11,9 +11,24 @@ ascending id, then obstacles by ascending index (the same order everywhere, so a
 distributed run adds the same floats in the same order as the simulator).
 """
 
-import math
+from __future__ import annotations
 
-_jit = globals().get("__swarm_jit__", lambda f: f)
+import math
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import MutableSequence, Sequence
+
+    import numpy as np
+    import numpy.typing as npt
+
+    from swarm.core.jit import Jit
+
+    _Floats = Sequence[float] | npt.NDArray[np.float64]
+    _Kinds = Sequence[int] | npt.NDArray[np.int64]
+    _Memory = MutableSequence[float] | npt.NDArray[np.float64]
+
+_jit: Jit = globals().get("__swarm_jit__", lambda f: f)
 
 PI = math.pi
 TWO_PI = 2.0 * math.pi
@@ -73,7 +88,7 @@ KIND_ROBOT = 1
 
 
 @_jit
-def wrap_angle(a):
+def wrap_angle(a: float) -> float:
     """Wrap an angle [rad] into (-pi, pi]."""
     if -PI < a <= PI:
         return a  # exact: no rounding for angles already in range
@@ -84,7 +99,7 @@ def wrap_angle(a):
 
 
 @_jit
-def potential(l, r, R):
+def potential(l: float, r: float, R: float) -> float:
     """V(l) = B/(1-B) of a body with radii r < R at centre distance l [m] (>= 0, 0 beyond R)."""
     if l >= R:
         return 0.0
@@ -95,7 +110,7 @@ def potential(l, r, R):
 
 
 @_jit
-def potential_slope(l, r, R):
+def potential_slope(l: float, r: float, R: float) -> float:
     """dV/dl [1/m] (<= 0): B (r - R) / ((l - R)^2 (1 - B)^2), clamped at r + eps."""
     if l >= R:
         return 0.0
@@ -111,7 +126,7 @@ def potential_slope(l, r, R):
 
 
 @_jit
-def repulsion_gradient(xi, yi, xj, yj, r, R):
+def repulsion_gradient(xi: float, yi: float, xj: float, yj: float, r: float, R: float) -> tuple[float, float]:
     """(dV/dx_i, dV/dy_i) of body j (radii r, R) at robot i's position.
 
     Coincident centres have no direction; the gradient then points along -x, so the
@@ -129,7 +144,7 @@ def repulsion_gradient(xi, yi, xj, yj, r, R):
 
 
 @_jit
-def sgn_gain(vl):
+def sgn_gain(vl: float) -> float:
     """The factor of k2 E_y: sgn(v_l), but +1 when v_l = 0 (the paper keeps k2 E_y there)."""
     if vl > 0.0:
         return 1.0
@@ -139,7 +154,8 @@ def sgn_gain(vl):
 
 
 @_jit
-def tracking_command(x, y, th, xd, yd, thd, vl, wl, gx, gy, k1, k2, k3):
+def tracking_command(x: float, y: float, th: float, xd: float, yd: float, thd: float, vl: float, wl: float,
+                     gx: float, gy: float, k1: float, k2: float, k3: float) -> tuple[float, float, float, float, float]:
     """Eq. (16) with the corrections of Eq. (8).
 
     (x, y, th): robot pose; (xd, yd, thd): its desired pose (leader + offset);
@@ -161,7 +177,7 @@ def tracking_command(x, y, th, xd, yd, thd, vl, wl, gx, gy, k1, k2, k3):
 
 
 @_jit
-def apply_threshold(v, vt, mode, frozen):
+def apply_threshold(v: float, vt: float, mode: int, frozen: bool) -> float:
     """Assumption 3: |v| < vt becomes S(v) vt (S(0) = +1) when the mode says it applies."""
     if mode == THRESHOLD_OFF or (mode == THRESHOLD_FROZEN and not frozen):
         return v
@@ -171,7 +187,7 @@ def apply_threshold(v, vt, mode, frozen):
 
 
 @_jit
-def freeze_update(mem, inside, t, xl, yl, thl, tu):
+def freeze_update(mem: _Memory, inside: bool, t: float, xl: float, yl: float, thl: float, tu: float) -> bool:
     """Assumption 2, the freeze state machine of one robot; updates `mem` in place.
 
     inside: the robot is within R_j of some other robot j at time t [s].
@@ -191,7 +207,7 @@ def freeze_update(mem, inside, t, xl, yl, thl, tu):
 
 
 @_jit
-def speed_bound_scale(v, w, v_max, w_max):
+def speed_bound_scale(v: float, w: float, v_max: float, w_max: float) -> float:
     """The factor in (0, 1] that brings |v| under v_max and |w| under w_max together (0 bound: the
     physical one), keeping the curvature w / v; 1.0 when (v, w) is within both."""
     vb = v_max if v_max > 0.0 else MAX_SPEED
@@ -205,7 +221,7 @@ def speed_bound_scale(v, w, v_max, w_max):
 
 
 @_jit
-def clip(x, b):
+def clip(x: float, b: float) -> float:
     """x held within [-b, b] by comparisons, not min/max: a NaN stays NaN (min(b, nan) is b and would hide
     it: a law that overflows must be refused, never driven at the bound)."""
     if x > b:
@@ -216,7 +232,9 @@ def clip(x, b):
 
 
 @_jit
-def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, na, n, dt, reach, sense, obstacle_r, v_max, hx, hy):
+def governor_speed_limit(x: float, y: float, r_self: float, nx: _Floats, ny: _Floats, nr: _Floats, nk: _Kinds,
+                         na: _Floats, n: int, dt: float, reach: float, sense: float, obstacle_r: float, v_max: float,
+                         hx: float, hy: float) -> tuple[float, float]:
     """Largest |v| [m/s] with which one step of length dt keeps every body safe, and whether the
     robot must not move toward some body at all (1.0) or may (0.0).
 
@@ -267,7 +285,9 @@ def governor_speed_limit(x, y, r_self, nx, ny, nr, nk, na, n, dt, reach, sense, 
 
 
 @_jit
-def robot_command(x, y, th, ox, oy, r_self, t, xl, yl, thl, vl, wl, nx, ny, nr, nR, nk, na, n, mem, p):
+def robot_command(x: float, y: float, th: float, ox: float, oy: float, r_self: float, t: float, xl: float, yl: float,
+                  thl: float, vl: float, wl: float, nx: _Floats, ny: _Floats, nr: _Floats, nR: _Floats, nk: _Kinds,
+                  na: _Floats, n: int, mem: _Memory, p: _Floats) -> tuple[float, float]:
     """One control step of one robot: freeze rule, law, threshold, speed bound, governor.
 
     x, y, th: the robot's pose; (ox, oy): its formation offset d_i; r_self: its radius;
@@ -332,7 +352,7 @@ def robot_command(x, y, th, ox, oy, r_self, t, xl, yl, thl, vl, wl, nx, ny, nr, 
     return v, w
 
 
-def hold_horizon(dt, brake_s=BRAKE_S):
+def hold_horizon(dt: float, brake_s: float = BRAKE_S) -> float:
     """How long one command may act [s] when the next may be missing: its period, the world's one-period
     hold, then the brake ramp (swarm.core.faultkernel.brake_factor), as whole periods' shares of dt."""
     steps, since = 1.0, 1

@@ -8,8 +8,12 @@ order, rounding or the rule for null values.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from swarm.core.scenario import Scenario
 
 # A robot is converged while its position error is below this and its heading error below that
 # (errors against the live leader reference): the convergence of the metrics contract.
@@ -22,10 +26,10 @@ def step_time(t: float) -> float:
     return round(t, 9)
 
 
-def record(scn, *, duration_s: float, converged_at_s: float | None, position_error_max: float | None,
+def record(scn: Scenario, *, duration_s: float, converged_at_s: float | None, position_error_max: float | None,
            orientation_error_max: float | None, min_robot_distance: float, min_obstacle_distance: float,
            collisions: int, last_freeze_end_s: float | None, wall_s: float, interrupted: bool, mode: str,
-           **extra) -> dict:
+           **extra: Any) -> dict[str, Any]:
     """The contract's keys in the contract's order, then the extra keys (scenario, mode, governor, ...).
     A smallest distance is null when there is no such pair (fewer than two robots, no obstacle) or
     when it was never measured (infinite); the final errors are null when no step was run (a run
@@ -91,14 +95,14 @@ class Strands:
             self.stranded[int(i)] = (float(since[i]), float(pe[i]))
             self.now += 1
 
-    def keys(self) -> dict:
+    def keys(self) -> dict[str, Any]:
         """The metrics' keys: `stranded` (ids) and `stranded_detail` (a line each)."""
         return {"stranded": sorted(self.stranded),
                 "stranded_detail": [f"robot {i} stranded {d:.1f} m from its slot since t = {since:g} s"
                                     for i, (since, d) in sorted(self.stranded.items())]}
 
 
-def in_contract_order(m: dict) -> dict:
+def in_contract_order(m: dict[str, Any]) -> dict[str, Any]:
     """m with `failure` right after `interrupted`, the contract's last two keys (docs/metrics.md), wherever it was
     added (swarm up adds it to metrics it had to rebuild from the world's last progress)."""
     if "failure" not in m or "interrupted" not in m:
@@ -112,7 +116,7 @@ def in_contract_order(m: dict) -> dict:
     return out
 
 
-def violations(m: dict) -> list[str]:
+def violations(m: dict[str, Any]) -> list[str]:
     """The checks a finished run failed (exit code 3 unless --allow-violations): collisions, command
     misses no fault scheduled, lock-step overruns, robots lost that no fault scheduled. [] if none."""
     out = []
@@ -132,7 +136,7 @@ def violations(m: dict) -> list[str]:
     return out
 
 
-def nondeterminism(m: dict) -> list[str]:
+def nondeterminism(m: dict[str, Any]) -> list[str]:
     """Why a lock-step run may differ from `swarm sim` (what happened outside the schedule). [] if
     nothing did (or the run was not lock-step)."""
     if m.get("mode") != "lockstep":

@@ -15,24 +15,30 @@ from __future__ import annotations
 import time
 import tomllib
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
+
+if TYPE_CHECKING:
+    from swarm.core.clock import FakeClock, WallClock
+    from swarm.core.faults import Faults
+    from swarm.core.scenario import Scenario
+    from swarm.proto.protocol import Config
 
 
-def canonical(scn) -> str:
+def canonical(scn: Scenario) -> str:
     """The resolved scenario as canonical TOML (explicit lists, every setting): what the digest hashes."""
     from swarm.core.scenario_file import to_toml
 
     return to_toml(scn)
 
 
-def digest(scn) -> str:
+def digest(scn: Scenario) -> str:
     """Hex sha256 of the canonical scenario."""
     import hashlib  # here: a robot process never needs it (libcrypto is ~3 MiB of its memory)
 
     return hashlib.sha256(canonical(scn).encode("utf-8")).hexdigest()
 
 
-def new_run_id(clock=None) -> str:
+def new_run_id(clock: WallClock | FakeClock | None = None) -> str:
     """A run id: the wall-clock start (UTC, to the second) and 6 random hex digits."""
     now = clock.time() if clock is not None else time.time()
     import secrets  # here: a robot process never makes a run id (secrets loads libcrypto)
@@ -40,11 +46,12 @@ def new_run_id(clock=None) -> str:
     return time.strftime("%Y%m%dT%H%M%S", time.gmtime(now)) + "-" + secrets.token_hex(3)
 
 
-def robot_config(scn, i: int, lockstep: bool, run: str = "", digest_: str = ""):
+def robot_config(scn: Scenario, i: int, lockstep: bool, run: str = "", digest_: str = "") -> Config:
     """Robot i's slice of the scenario, with the run it belongs to (raises ScenarioError for an id
     outside the scenario)."""
     c = scn.control
-    arena = {} if scn.bounds is None else dict(zip(("xmin", "xmax", "ymin", "ymax"), map(float, scn.bounds)), arena=True)
+    arena: dict[str, Any] = {} if scn.bounds is None else dict(zip(("xmin", "xmax", "ymin", "ymax"),
+                                                                   map(float, scn.bounds)), arena=True)
     return replace(scn.robot_config(i, lockstep=lockstep), robots=scn.n, v_max=float(c.v_max or 0.0),
                    w_max=float(c.w_max or 0.0), run=run, digest=digest_, **arena)
 
@@ -87,7 +94,7 @@ def _diff(a: Any, b: Any, path: str) -> str | None:
     return None if a == b else f"{path}: {_show(a)} here, {_show(b)} in the run"
 
 
-def faults_of(text: str, robots: int, where: str):
+def faults_of(text: str, robots: int, where: str) -> Faults | None:
     """The faults of a run's scenario, from its canonical TOML (Run.scenario); None when it has none.
     Raises ScenarioError (where, key, reason) for a table that does not check (a hostile run message)."""
     import tomllib
@@ -102,7 +109,7 @@ def faults_of(text: str, robots: int, where: str):
     if table is None:
         return None
     from swarm.core import faults as fl  # numpy: only a robot of a run with faults needs it (~8 MiB)
-    run = doc.get("run") if isinstance(doc.get("run"), dict) else {}
+    run = cast("dict[str, Any]", doc.get("run")) if isinstance(doc.get("run"), dict) else {}
     duration, seed = run.get("duration"), run.get("seed", 0)
     if not isinstance(duration, (int, float)) or isinstance(duration, bool) or not isinstance(seed, int):
         raise ScenarioError(where, "run", "needs a number duration and an integer seed")

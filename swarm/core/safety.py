@@ -22,6 +22,10 @@ swarm's clock [simulated s], distances in m, speeds in m/s.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
 
 RAMP_S = 0.1  # s: the simulated drive brakes from a command's `until` to a stop along this (docs/runtime.md)
 CLOCK_SKEW_S = 0.01  # s: how far two processes' swarm clocks may differ (NTP on a LAN: a few ms)
@@ -118,7 +122,8 @@ class Plan:
             out = max(out, p + u * q)
         return out
 
-    def limit(self, x: float, y: float, hx: float, hy: float, w: float, bodies, V: float,
+    def limit(self, x: float, y: float, hx: float, hy: float, w: float,
+              bodies: Iterable[tuple[float, float, float, float]], V: float,
               unknown: float = math.inf) -> tuple[float, int]:
         """The largest |v| [m/s] the invariant allows (0: stand), and why (FREE, or the kind of what held it).
 

@@ -11,12 +11,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from swarm.core import kinematics, law
-from swarm.core.errors import ScenarioError  # noqa: F401  (re-exported: swarm.core.scenario.ScenarioError)
+from swarm.core.errors import ScenarioError as ScenarioError  # noqa: F401  (re-exported)
 from swarm.core.faults import Faults
+
+if TYPE_CHECKING:
+    from swarm.proto.protocol import Config
 
 THRESHOLDS = {"off": law.THRESHOLD_OFF, "frozen": law.THRESHOLD_FROZEN, "always": law.THRESHOLD_ALWAYS}
 
@@ -149,7 +153,7 @@ class Scenario:
         obstacle_r = float(self.obstacles[:, 2].max()) if len(self.obstacles) else 0.0
         return self.control.vector(self.dt, self.cell_side, self.reach, obstacle_r)
 
-    def robot_config(self, i: int, lockstep: bool = True):
+    def robot_config(self, i: int, lockstep: bool = True) -> Config:
         """Robot i's slice of the scenario (what its agent is given; never the others' state)."""
         from swarm.proto.protocol import Config
 
@@ -163,7 +167,7 @@ class Scenario:
                       v_max=0.0 if c.v_max is None else c.v_max, w_max=0.0 if c.w_max is None else c.w_max,
                       v_bound=self.speed_bound)
 
-    def replace(self, **changes) -> "Scenario":
+    def replace(self, **changes: Any) -> "Scenario":
         from dataclasses import replace
 
         return replace(self, **changes)

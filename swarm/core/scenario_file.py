@@ -30,7 +30,7 @@ import time
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, TextIO
+from typing import TYPE_CHECKING, Any, Callable, TextIO, cast
 
 import numpy as np
 
@@ -38,6 +38,11 @@ from swarm.core import generators, kinematics, law
 from swarm.core.errors import not_utf8
 from swarm.core.geometry import Counter, Grid, closest_pair
 from swarm.core.scenario import THRESHOLDS, Control, Leader, Scenario, ScenarioError, Segment
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
+
+    from swarm.core.faults import Faults
 
 BUILTINS = ("paper", "paper-50hz", "turtlebot3")
 
@@ -151,7 +156,7 @@ class _Reader:
     def fail(self, key: str, reason: str) -> ScenarioError:
         return ScenarioError(self.where, key, reason)
 
-    def table(self, value: Any, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> dict:
+    def table(self, value: Any, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> dict[str, Any]:
         if not isinstance(value, dict):
             raise self.fail(key, f"must be a table, got {_kind(value)}")
         for k in value:
@@ -237,7 +242,7 @@ def _join(key: str, sub: str) -> str:
     return f"{key}.{sub}" if key else sub
 
 
-def parse(doc: dict, where: str, name: str, builtin: str | None = None) -> Spec:
+def parse(doc: dict[str, Any], where: str, name: str, builtin: str | None = None) -> Spec:
     """Check a parsed TOML document (docs/scenarios.md) and return its Spec."""
     rd = _Reader(where)
     rd.table(doc, "", ("run", "control", "bodies", "arena", "leader", "formation", "robots", "obstacles", "faults"),
@@ -275,7 +280,7 @@ def parse(doc: dict, where: str, name: str, builtin: str | None = None) -> Spec:
         box = rd.vector(arena["bounds"], "arena.bounds", 4, "xmin, xmax, ymin, ymax", bound=MAX_COORD)
         if not (box[0] < box[1] and box[2] < box[3]):
             raise rd.fail("arena.bounds", f"must have xmin < xmax and ymin < ymax, got {box}")
-        bounds = tuple(box)
+        bounds = cast("tuple[float, float, float, float]", tuple(box))
 
     ld = rd.table(doc["leader"], "leader", ("start", "segments"), ("start", "segments"))
     start = rd.vector(ld["start"], "leader.start", 3, "x, y, theta")
@@ -291,7 +296,7 @@ def parse(doc: dict, where: str, name: str, builtin: str | None = None) -> Spec:
         segments.append(Segment(rd.number(seg["duration"], f"{key}.duration", gt=0),
                                 rd.number(seg["v"], f"{key}.v", bound=MAX_SPEED, why=WIRE),
                                 rd.number(seg["w"], f"{key}.w", bound=MAX_TURN, why=WIRE)))
-    leader = Leader(tuple(start), tuple(segments))
+    leader = Leader(cast("tuple[float, float, float]", tuple(start)), tuple(segments))
 
     fm = rd.table(doc["formation"], "formation", ("offsets", "hex", "assignment"))
     offsets = hex_ = None
@@ -403,7 +408,7 @@ def resolve(spec: Spec, ov: Overrides = Overrides(), progress: Progress = silent
         control = Control(**{**control.__dict__, "governor": ov.governor})
     rng = np.random.default_rng(seed)
 
-    offsets = spec.offsets
+    offsets = cast(np.ndarray, spec.offsets)  # None only with spec.hex, which replaces it
     if spec.hex is not None:
         count = spec.hex[0] if ov.robots is None else ov.robots
         offsets = generators.hex_patch(count, spec.hex[1])
@@ -411,7 +416,7 @@ def resolve(spec: Spec, ov: Overrides = Overrides(), progress: Progress = silent
         raise rd.fail("formation.offsets", f"lists {len(offsets)} offsets explicitly; --robots {ov.robots} only "
                       "resizes scenarios made by generators (formation.hex, robots.random)")
 
-    poses = spec.poses
+    poses = cast(np.ndarray, spec.poses)  # None only with spec.random, which replaces it
     if spec.random is not None:
         g = spec.random
         count = g["count"] if ov.robots is None else ov.robots
@@ -440,7 +445,7 @@ def resolve(spec: Spec, ov: Overrides = Overrides(), progress: Progress = silent
     return scn.replace(faults=_resolve_faults(spec, ov, scn))
 
 
-def _resolve_faults(spec: Spec, ov: Overrides, scn: Scenario):
+def _resolve_faults(spec: Spec, ov: Overrides, scn: Scenario) -> Faults | None:
     """The run's faults: the file's [faults] table (or --faults FILE instead), plus the --drop and --kill
     shorthands; None when there is no fault at all (the simulator then runs its fault-free kernel)."""
     from swarm.core import faults as fl
@@ -553,8 +558,8 @@ def _obstacles_within(scn: Scenario, limit: np.ndarray, counter: Counter | None)
     if not found:
         return None
     i, o, d = (np.concatenate(parts) for parts in zip(*found))
-    k = int(np.lexsort((o, i))[0])
-    return int(i[k]), int(o[k]), float(d[k])
+    first = int(np.lexsort((o, i))[0])
+    return int(i[first]), int(o[first]), float(d[first])
 
 
 def _check_first_commands(scn: Scenario, where: str, progress: Progress, counter: Counter | None) -> None:
@@ -600,7 +605,7 @@ def first_commands(scn: Scenario, progress: Progress = silent, counter: Counter 
         oi, oo = oi[near][order], oo[near][order]
     obstacle_start = np.searchsorted(oi, np.arange(n + 1))
     q, off, obs = scn.poses.tolist(), scn.offsets.tolist(), scn.obstacles.tolist()
-    dst, oo = dst.tolist(), oo.tolist()
+    dst, near_obstacles = dst.tolist(), oo.tolist()
     rs, ro = robot_start.tolist(), obstacle_start.tolist()
     r, R = float(scn.r), float(scn.R)
     params = p.tolist()
@@ -610,10 +615,18 @@ def first_commands(scn: Scenario, progress: Progress = silent, counter: Counter 
             progress("evaluating the law at t = 0", k, n)
         nx, ny, nr, nR, nk = [], [], [], [], []
         for j in dst[rs[k]:rs[k + 1]]:
-            nx.append(q[j][0]), ny.append(q[j][1]), nr.append(r), nR.append(R), nk.append(law.KIND_ROBOT)
-        for o in oo[ro[k]:ro[k + 1]]:
+            nx.append(q[j][0])
+            ny.append(q[j][1])
+            nr.append(r)
+            nR.append(R)
+            nk.append(law.KIND_ROBOT)
+        for o in near_obstacles[ro[k]:ro[k + 1]]:
             ob = obs[o]
-            nx.append(ob[0]), ny.append(ob[1]), nr.append(ob[2]), nR.append(ob[3]), nk.append(law.KIND_OBSTACLE)
+            nx.append(ob[0])
+            ny.append(ob[1])
+            nr.append(ob[2])
+            nR.append(ob[3])
+            nk.append(law.KIND_OBSTACLE)
         mem = [0.0] * law.M_SIZE
         mem[law.M_SCALE] = 1.0
         x, y, th = q[k]
@@ -692,7 +705,7 @@ def _leader_travel(scn: Scenario) -> float:
 
 def _arena_advisories(scn: Scenario) -> list[str]:
     """The formation's slots leaving the arena, sampled along the leader's path (at most 2001 times)."""
-    xmin, xmax, ymin, ymax = scn.bounds
+    xmin, xmax, ymin, ymax = cast("tuple[float, float, float, float]", scn.bounds)  # advisories() checks it
     lo, hi = scn.offsets.min(axis=0), scn.offsets.max(axis=0)
     table = scn.leader.table()
     for t in np.linspace(0.0, scn.duration, int(min(2001, scn.steps + 1))):
@@ -707,7 +720,7 @@ def _arena_advisories(scn: Scenario) -> list[str]:
 # --------------------------------------------------------------------------- built-ins
 
 
-def builtin_document(name: str, robots: int | None = None) -> dict:
+def builtin_document(name: str, robots: int | None = None) -> dict[str, Any]:
     """The built-in scenario `name` as the dictionary its TOML file would parse into.
 
     `paper` models the paper's Section 7 experiment: 37 robots, a 1.5 m hexagonal patch,
@@ -839,7 +852,7 @@ def to_toml(scn: Scenario) -> str:
     def num(x: float) -> str:
         return repr(float(x))
 
-    def vec(v) -> str:
+    def vec(v: Iterable[float]) -> str:
         return "[" + ", ".join(num(x) for x in v) + "]"
 
     c = scn.control

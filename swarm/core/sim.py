@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -52,7 +52,7 @@ class Progress:
 
 @dataclass
 class Result:
-    metrics: dict
+    metrics: dict[str, Any]
     recording: Recording
 
 
@@ -180,7 +180,7 @@ class Simulation:
         r = self.rec
         return Recording(r.t[:s], r.q[:s], r.err[:s], r.cmd[:s], r.frozen[:s], r.leader[:s])
 
-    def metrics(self, wall_s: float, interrupted: bool = False) -> dict:
+    def metrics(self, wall_s: float, interrupted: bool = False) -> dict[str, Any]:
         """The metrics of docs/metrics.md (plus a few extra keys) for the steps run so far."""
         scn, k = self.scn, self.k
         last = self.next_k - 1  # the last evaluated step
@@ -210,7 +210,7 @@ class Simulation:
             governed_robot_steps=int(self.iacc[k.I_GOVERNED]), steps=max(last, 0), **self._strands(),
             **(self.faults.metrics(_step_time(max(last, 0), scn.dt)) if self.faults is not None else {}))
 
-    def _strands(self) -> dict:
+    def _strands(self) -> dict[str, Any]:
         """The metrics' `stranded` keys over the recorded samples (docs/metrics.md; every robot counts as live)."""
         rec = self.recording()
         strands = metrics.Strands(self.scn.n)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import _thread
 from time import thread_time
+from typing import Callable
 
 
 class Wake:
@@ -74,7 +75,7 @@ class Runner:
 
     __slots__ = ("wake", "_busy", "_again", "_work", "error", "cpu_s")
 
-    def __init__(self, work, wake: Wake) -> None:
+    def __init__(self, work: Callable[[], object], wake: Wake) -> None:
         self.wake = wake
         self._busy = _thread.allocate_lock()
         self._again = False

@@ -31,12 +31,15 @@ import math
 import os
 import threading
 import time
-from typing import Callable
+from typing import TYPE_CHECKING, Any, Callable, cast
 
 from swarm.core.safety import RAMP_S
 from swarm.proto import protocol, ros2
 from swarm.proto.protocol import Cmd, Pose
 from swarm.proto.ros2 import Entity, Ros2Error
+
+if TYPE_CHECKING:
+    from swarm.net.bus import Closable, Inbox
 
 log = logging.getLogger("swarm.drive.ros2")
 
@@ -76,7 +79,7 @@ class Ros2Drive:
         self.domain = ros2.check_domain(domain)
         if len(initial_pose) != 3 or not all(isinstance(a, (int, float)) and math.isfinite(a) for a in initial_pose):
             raise ValueError(f"initial_pose must be three finite numbers (x, y, theta), got {initial_pose!r}")
-        self.initial_pose = tuple(float(a) for a in initial_pose)
+        self.initial_pose = cast("tuple[float, float, float]", tuple(float(a) for a in initial_pose))
         if not discover_timeout_s > 0:
             raise ValueError(f"discover_timeout_s must be > 0, got {discover_timeout_s}")
         self.discover_timeout_s = discover_timeout_s
@@ -99,8 +102,8 @@ class Ros2Drive:
         self._att_seq = 0
         self._send_lock = threading.Lock()
         self._pose_lock = threading.Lock()
-        self._box = None
-        self._handles: list = []
+        self._box: Inbox | None = None  # start() sets it
+        self._handles: list[Closable] = []
         self._closed = False
 
     def __repr__(self) -> str:
@@ -197,12 +200,13 @@ class Ros2Drive:
         zid = self.gid.hex()
         ns = "/" + self.namespace if self.namespace else "/"
         qos = ros2.qos_string(QOS_DEPTH)
-        common = dict(domain=self.domain, zid=zid, nid="0", enclave="/", namespace=ns, node=NODE)
+        cmd_key, odom_key = cast(str, self.cmd_key), cast(str, self.odom_key)  # start() found them
+        common: dict[str, Any] = dict(domain=self.domain, zid=zid, nid="0", enclave="/", namespace=ns, node=NODE)
         return [Entity(eid="0", kind="NN", **common),
-                Entity(eid="1", kind="MP", topic=self.cmd_topic, dds_type=self.cmd_key.split("/")[-2],
-                       type_hash=self.cmd_key.split("/")[-1], qos=qos, **common),
-                Entity(eid="2", kind="MS", topic=self.odom_topic, dds_type=self.odom_key.split("/")[-2],
-                       type_hash=self.odom_key.split("/")[-1], qos=qos, **common)]
+                Entity(eid="1", kind="MP", topic=self.cmd_topic, dds_type=cmd_key.split("/")[-2],
+                       type_hash=cmd_key.split("/")[-1], qos=qos, **common),
+                Entity(eid="2", kind="MS", topic=self.odom_topic, dds_type=odom_key.split("/")[-2],
+                       type_hash=odom_key.split("/")[-1], qos=qos, **common)]
 
     def close(self) -> None:
         """Halt, then release the subscription and the tokens (from the loop thread, after wait() returned)."""
@@ -220,14 +224,15 @@ class Ros2Drive:
     def wait(self) -> list[Pose]:
         """Block until odometry comes (or wake()); the poses of all that came (maybe []: a wake, or
         odometry that was bad or came before the clock)."""
-        items = self._box.wait()  # zenoh's inbox hands the first sample here and keeps the rest for drain()
-        return self._poses(items + self._box.drain())
+        box = cast("Inbox", self._box)
+        items = box.wait()  # zenoh's inbox hands the first sample here and keeps the rest for drain()
+        return self._poses(items + box.drain())
 
     def drain(self) -> list[Pose]:
-        return self._poses(self._box.drain())
+        return self._poses(cast("Inbox", self._box).drain())
 
     def wake(self) -> None:
-        self._box.wake()
+        cast("Inbox", self._box).wake()
 
     def _poses(self, items: list[tuple[str, bytes]]) -> list[Pose]:
         out = []

@@ -10,10 +10,14 @@ from __future__ import annotations
 
 import logging
 import threading
+from typing import TYPE_CHECKING, cast
 
 from swarm.core.safety import RAMP_S
 from swarm.proto import keys, protocol
 from swarm.proto.protocol import Cmd, Limits, Pose, ProtocolError
+
+if TYPE_CHECKING:
+    from swarm.net.bus import Inbox
 
 log = logging.getLogger("swarm.drive")
 
@@ -37,7 +41,7 @@ class SimDrive:
         self.sent = 0
         self._lock = threading.Lock()
         self._t = 0.0  # the time of the last command's pose
-        self._box = None
+        self._box: Inbox | None = None  # start() sets it
         self._enc = protocol.encoder("cmd")
 
     def start(self, on_poses=None) -> None:
@@ -61,13 +65,13 @@ class SimDrive:
 
     def wait(self) -> list[Pose]:
         """Block until a pose came (or wake()): the poses that came, decoded (bad ones counted)."""
-        return self._poses(self._box.wait())  # a pose that comes later: the agent's drain() takes it
+        return self._poses(cast("Inbox", self._box).wait())  # a pose that comes later: the agent's drain() takes it
 
     def drain(self) -> list[Pose]:
-        return self._poses(self._box.drain())
+        return self._poses(cast("Inbox", self._box).drain())
 
     def wake(self) -> None:
-        self._box.wake()
+        cast("Inbox", self._box).wake()
 
     def _poses(self, items: list[tuple[str, bytes]]) -> list[Pose]:
         out = []

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 import time
+from typing import cast
 
 from swarm.core import faults as fl
 
@@ -51,8 +52,8 @@ class ProcessFaults:
                 todo.append((k if lockstep else t, then, robot, "kill"))
             elif kind == "restart":
                 # lock-step: at once after the kill (the world waits for it); real time: at its time
-                todo.append((self._kill_tick(faults, robot, t, dt) if lockstep else t, 1 if lockstep else first, robot,
-                             "start"))
+                todo.append((self._kill_tick(cast(fl.Faults, faults), robot, t, dt) if lockstep else t,
+                             1 if lockstep else first, robot, "start"))
             elif kind == "hang":
                 todo.append((k if lockstep else t, then, robot, "stop"))
             else:

@@ -28,9 +28,12 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict, deque
-from typing import Callable, Protocol
+from typing import TYPE_CHECKING, Callable, Protocol, final
 
 from swarm.proto import protocol as _protocol
+
+if TYPE_CHECKING:
+    import zenoh
 
 Handler = Callable[[str, bytes], None]
 AliveHandler = Callable[[str, bool], None]
@@ -150,6 +153,7 @@ class _MemoryInbox:
             self.handle.close()
 
 
+@final
 class _Raw:
     """A subscribe_raw() handler on a MemoryNet: put() hands it the attachment too."""
 
@@ -164,10 +168,10 @@ class MemoryNet:
 
     def __init__(self) -> None:
         self.lock = threading.RLock()
-        self.subs: list[tuple[str, Handler]] = []
+        self.subs: list[tuple[str, Handler | _Raw, MemoryBus]] = []  # (key expression, handler, the bus it is on)
         self.tokens: dict[str, int] = {}
         self.watchers: list[tuple[str, AliveHandler]] = []
-        self.queryables: list[tuple[str, Callable[[str], bytes]]] = []
+        self.queryables: list[tuple[str, Callable[[str], bytes | None]]] = []
         self.delivered = 0  # messages handed to subscribers (for traffic assertions)
 
 
@@ -260,7 +264,7 @@ class MemoryBus:
             fn(k, True)
         return self._keep(self.net.watchers, (key_expr, fn))
 
-    def serve(self, key_expr: str, fn: Callable[[str], bytes]) -> Closable:
+    def serve(self, key_expr: str, fn: Callable[[str], bytes | None]) -> Closable:
         return self._keep(self.net.queryables, (key_expr, guarded(fn, self.errors, "a queryable")))
 
     def query(self, key_expr: str, timeout_s: float = 2.0) -> list[tuple[str, bytes]]:
@@ -432,9 +436,9 @@ class ZenohBus:
         self.session = zenoh.open(conf)
         self._handles: list[Closable] = []
         self._closed = False
-        self._pubs: OrderedDict[tuple[str, bool, bool], object] = OrderedDict()
+        self._pubs: OrderedDict[tuple[str, bool, bool], zenoh.Publisher] = OrderedDict()
         self._pub_lock = threading.Lock()
-        self._hints: dict[str, object] = {}
+        self._hints: dict[str, zenoh.KeyExpr] = {}
         self.errors = _errors()  # exceptions of this bus's callbacks, counted (see guarded)
 
     def __enter__(self) -> "ZenohBus":
@@ -551,7 +555,7 @@ class ZenohBus:
         return self._keep(_Undeclare(self.session.liveliness().declare_subscriber(key_expr, self._handler(cb),
                                                                                   history=True)))
 
-    def serve(self, key_expr: str, fn: Callable[[str], bytes]) -> Closable:
+    def serve(self, key_expr: str, fn: Callable[[str], bytes | None]) -> Closable:
         fn = guarded(fn, self.errors, "a queryable")
 
         def answer(asked: str, query) -> None:

@@ -48,6 +48,7 @@ import logging
 import math
 import threading
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from swarm.core import faultgen as fg
 from swarm.core.clock import WALL
@@ -55,12 +56,16 @@ from swarm.net.bus import Closable, guarded
 from swarm.proto import keys, protocol
 from swarm.proto.protocol import ProtocolError
 
+if TYPE_CHECKING:
+    from typing import Literal
+
 log = logging.getLogger("swarm.faultbus")
 
 HELD_MAX = 4096  # messages held at once per inbox or subscription
 MAX_CHAIN_STEPS = 200_000  # burst-chain steps one decision may take (pure Python: about 0.2 s at most)
 CLASS_NAMES = ("state", "pose", "cmd", "ref")  # faultgen.CLS_* order
-_KIND = {fg.CLS_STATE: "state", fg.CLS_POSE: "pose", fg.CLS_CMD: "cmd", fg.CLS_REF: "ref"}
+_KIND: dict[int, Literal["state", "pose", "cmd", "ref"]] = {
+    fg.CLS_STATE: "state", fg.CLS_POSE: "pose", fg.CLS_CMD: "cmd", fg.CLS_REF: "ref"}
 
 
 def intersects(a: str, b: str) -> bool:
@@ -121,15 +126,15 @@ class FaultBus:
         if p is None:
             return None
         n = self.table.robots
-        if p.kind == "pose" and p.id < n:
+        if p.kind == "pose" and p.id is not None and p.id < n:
             return fg.CLS_POSE, fg.WORLD, p.id
-        if p.kind == "cmd" and p.id < n:
+        if p.kind == "cmd" and p.id is not None and p.id < n:
             return fg.CLS_CMD, p.id, fg.WORLD
         if self.me < 0:
             return None
         if p.kind == "ref":
             return fg.CLS_REF, fg.LEADER, self.me
-        if p.kind == "cell" and p.id < n and p.id != self.me:
+        if p.kind == "cell" and p.id is not None and p.id < n and p.id != self.me:
             return fg.CLS_STATE, p.id, self.me
         return None
 

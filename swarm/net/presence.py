@@ -15,7 +15,7 @@ import os
 import queue
 import socket
 import time
-from typing import Callable
+from typing import Any, Callable
 
 from swarm.proto import keys, protocol
 from swarm.proto.protocol import ProtocolError
@@ -76,7 +76,7 @@ def _expr(fleet: str | None, what: str) -> str:
     return keys.alive_any(fleet) if what == "alive" else keys.proc_any(fleet)
 
 
-def collect(bus, fleet: str | None, wait_s: float, stop=None) -> list[dict]:
+def collect(bus, fleet: str | None, wait_s: float, stop=None) -> list[dict[str, Any]]:
     """Every live process of `fleet` (None: of every fleet) on bus: its liveliness token (`alive`: a robot's
     process waiting for a run has none yet), with what its proc queryable says (host, pid, started, run, version;
     None where it did not answer: a process without one). Sorted by fleet, role, id."""
@@ -96,11 +96,12 @@ def collect(bus, fleet: str | None, wait_s: float, stop=None) -> list[dict]:
                     break  # nothing new for a while: every token there was has come
                 continue
             parsed = keys.parse(key)
-            if parsed is not None and parsed.kind == "alive":
+            if parsed is not None and parsed.kind == "alive" and parsed.role is not None and parsed.id is not None:
                 found[(parsed.fleet, parsed.role, parsed.id)] = up
     finally:
         handle.close()
     procs: dict[tuple[str, str, int], protocol.Proc] = {}
+    p: protocol.Proc | None
     for key, payload in bus.query(_expr(fleet, "proc"), timeout_s=max(0.5, wait_s)):
         parsed = keys.parse(key)
         try:
@@ -109,7 +110,7 @@ def collect(bus, fleet: str | None, wait_s: float, stop=None) -> list[dict]:
             continue  # a reply that does not decode says nothing
         if parsed is not None and parsed.kind == "proc" and (p.role, p.id) == (parsed.role, parsed.id):
             procs[(parsed.fleet, p.role, p.id)] = p
-    rows = []
+    rows: list[dict[str, Any]] = []
     for who in {k for k, up in found.items() if up} | set(procs):
         f, role, i = who
         p = procs.get(who)

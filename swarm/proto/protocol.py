@@ -21,11 +21,16 @@ import math
 import os
 import time
 from dataclasses import MISSING, dataclass, fields
+from typing import TYPE_CHECKING, overload
 
 import msgpack
 
+if TYPE_CHECKING:
+    from collections.abc import Callable, ValuesView
+    from typing import Any, Literal, Protocol, TypeAlias, TypeVar
+
 try:  # the compiled wire codec of the kinds of every period (setup.py builds it where a C compiler is found)
-    from swarm.proto import _wire
+    from swarm.proto import _wire as _wire  # re-exported: other modules read protocol._wire
 except ImportError:
     _wire = None
 
@@ -349,28 +354,40 @@ class Claim:
     reason: str  # why not granted ("" when granted)
 
 
-KINDS: dict[str, type] = {"ref": Ref, "pose": Pose, "cmd": Cmd, "state": State, "status": Status,
-                          "obstacles": Obstacles, "snapshot": Snapshot, "clock": Clock, "config": Config,
-                          "progress": Progress, "run": Run, "estop": Estop, "bodies": Bodies, "claim": Claim,
-                          "faultstats": FaultStats, "event": Event, "proc": Proc}
+if TYPE_CHECKING:
+    Message: TypeAlias = (Ref | Pose | Cmd | State | Status | Obstacles | Snapshot | Clock | Config | Progress | Run
+                          | Estop | Bodies | Claim | FaultStats | Event | Proc)
+    HotMessage: TypeAlias = State | Pose | Ref | Cmd  # the kinds of every control period (decoder())
+    _M_co = TypeVar("_M_co", covariant=True)
+
+    class Decoder(Protocol[_M_co]):
+        """What decoder() returns: f(payload, key_id=None) -> the message (ProtocolError if anything is off)."""
+
+        def __call__(self, payload: bytes, key_id: int | None = None, /) -> _M_co: ...
+
+
+KINDS: dict[str, type[Message]] = {"ref": Ref, "pose": Pose, "cmd": Cmd, "state": State, "status": Status,
+                                   "obstacles": Obstacles, "snapshot": Snapshot, "clock": Clock, "config": Config,
+                                   "progress": Progress, "run": Run, "estop": Estop, "bodies": Bodies, "claim": Claim,
+                                   "faultstats": FaultStats, "event": Event, "proc": Proc}
 _KIND_OF = {cls: kind for kind, cls in KINDS.items()}
 
 
-def kind_of(msg) -> str:
+def kind_of(msg: Message) -> str:
     """The kind of a message ("state", "pose", ...), as it goes on the wire."""
     return _KIND_OF[type(msg)]
 
 
-def _fast_init(cls: type) -> None:
+def _fast_init(cls: type[Any]) -> None:
     """Give a frozen dataclass an __init__ that fills its __dict__ directly (or, with __slots__, each slot
     through its descriptor): the same signature and defaults, the same object (fields, eq, hash, repr, frozen
     after it), built in a third of the time (a frozen dataclass's own __init__ calls object.__setattr__ once
     per field: about 2 us for a state, and a robot builds several messages every control period)."""
-    ns: dict = {}
+    ns: dict[str, Any] = {}
     params, stores = [], []
     slotted = "__slots__" in cls.__dict__
     for f in fields(cls):
-        if f.default_factory is not MISSING:  # type: ignore[misc]
+        if f.default_factory is not MISSING:
             raise TypeError(f"{cls.__name__}.{f.name}: a default factory is not supported here")
         if f.default is MISSING:
             params.append(f.name)
@@ -400,7 +417,7 @@ for _cls in (*KINDS.values(), Obstacle, RobotSnap, Body):
 # --------------------------------------------------------------------------- encoding
 
 
-def encode(msg) -> bytes:
+def encode(msg: Any) -> bytes:
     """msgpack bytes of a message (no validation: messages are built by this process)."""
     cls = type(msg)
     fast = _FAST_ENCODE.get(cls)
@@ -412,7 +429,7 @@ def encode(msg) -> bytes:
     if kind in _SPEC:  # a flat kind's first message: generate its encoder (kept for the next ones)
         fast = _FAST_ENCODE[cls] = _compile_encode(kind)
         return fast(msg)
-    d: dict = {"v": VERSION, "kind": kind}
+    d: dict[str, Any] = {"v": VERSION, "kind": kind}
     if kind == "obstacles":
         d["obstacles"] = [{"x": o.x, "y": o.y, "r": o.r, "R": o.R} for o in msg.obstacles]
     elif kind == "event":
@@ -426,13 +443,14 @@ def encode(msg) -> bytes:
     else:
         for name, wire in _WIRE_NAMES[kind]:
             d[wire] = getattr(msg, name)
-    return msgpack.packb(d, use_bin_type=True)
+    payload: bytes = msgpack.packb(d, use_bin_type=True)
+    return payload
 
 
 # --------------------------------------------------------------------------- decoding
 
 
-def _num(d: dict, name: str) -> float:
+def _num(d: dict[str, Any], name: str) -> float:
     x = d[name]
     if isinstance(x, bool) or not isinstance(x, (int, float)):
         raise ProtocolError(f"field {name!r} must be a number, got {type(x).__name__}")
@@ -442,7 +460,7 @@ def _num(d: dict, name: str) -> float:
     return x
 
 
-def _int(d: dict, name: str, limit: int = 2**53) -> int:
+def _int(d: dict[str, Any], name: str, limit: int = 2**53) -> int:
     x = d[name]
     if isinstance(x, bool) or not isinstance(x, int):
         raise ProtocolError(f"field {name!r} must be an integer, got {type(x).__name__}")
@@ -451,7 +469,7 @@ def _int(d: dict, name: str, limit: int = 2**53) -> int:
     return x
 
 
-def _text(d: dict, name: str, limit: int = MAX_TEXT) -> str:
+def _text(d: dict[str, Any], name: str, limit: int = MAX_TEXT) -> str:
     x = d[name]
     if not isinstance(x, str):
         raise ProtocolError(f"field {name!r} must be a string, got {type(x).__name__}")
@@ -460,7 +478,7 @@ def _text(d: dict, name: str, limit: int = MAX_TEXT) -> str:
     return x
 
 
-def _bool(d: dict, name: str) -> bool:
+def _bool(d: dict[str, Any], name: str) -> bool:
     x = d[name]
     if not isinstance(x, bool):
         raise ProtocolError(f"field {name!r} must be true or false, got {type(x).__name__}")
@@ -472,7 +490,7 @@ def _radii(r: float, R: float) -> None:
         raise ProtocolError(f"radii must satisfy 0 < r < R, got r = {r}, R = {R}")
 
 
-def _fields(d: dict, names: tuple[str, ...]) -> None:
+def _fields(d: dict[str, Any], names: tuple[str, ...]) -> None:
     missing = [n for n in names if n not in d]
     if missing:
         raise ProtocolError(f"missing field(s) {', '.join(missing)}")
@@ -481,7 +499,7 @@ def _fields(d: dict, names: tuple[str, ...]) -> None:
         raise ProtocolError(f"unknown field(s) {', '.join(sorted(extra))[:80]}")
 
 
-def _spec_fields(d: dict, kind: str) -> None:
+def _spec_fields(d: dict[str, Any], kind: str) -> None:
     """_fields for a flat kind: every field of its spec but its optional ones (_OPTIONAL), nothing else."""
     optional = _OPTIONAL.get(kind, ())
     _fields(d, tuple(n for n, _ in _SPEC[kind] if n not in optional or n in d))
@@ -525,11 +543,12 @@ _OPTIONAL: dict[str, tuple[str, ...]] = {"pose": ("cmd",), "cmd": ("until",), "s
 _WIRE = {"v": "vel"}
 _FIELD = {"vel": "v"}
 _WIRE_NAMES = {k: tuple((f.name, _WIRE.get(f.name, f.name)) for f in fields(cls)) for k, cls in KINDS.items()}
-_READ = {"n": _num, "i": _int, "b": _bool, "id": lambda d, n: _int(d, n, MAX_ROBOTS - 1), "s": _text,
-         "S": lambda d, n: _text(d, n, MAX_LARGE_PAYLOAD)}
+_READ: dict[str, Callable[[dict[str, Any], str], Any]] = {
+    "n": _num, "i": _int, "b": _bool, "id": lambda d, n: _int(d, n, MAX_ROBOTS - 1), "s": _text,
+    "S": lambda d, n: _text(d, n, MAX_LARGE_PAYLOAD)}
 
 
-def _compile_fast(kind: str):
+def _compile_fast(kind: str) -> Callable[[dict[str, Any]], Any]:
     """A decoder for the common case of a flat kind: exactly the fields of the spec, floats that are
     floats and finite, ints in range, bools. It returns the message, or None for anything else, and
     decode() then takes the general path, which accepts ints for numbers and names what is wrong.
@@ -563,32 +582,35 @@ def _compile_fast(kind: str):
         body += [f"    s = {' + '.join(floats)}", "    if s - s != 0.0: return None"]
     args = ", ".join(var[wire[f.name]] for f in fields(KINDS[kind]))
     body.append(f"    return cls({args})")
-    ns = {"cls": KINDS[kind]}
+    ns: dict[str, Any] = {"cls": KINDS[kind]}
     exec(compile("\n".join(body), f"<protocol fast decoder for {kind}>", "exec"), ns)
-    return ns["fast"]
+    fast: Callable[[dict[str, Any]], Any] = ns["fast"]
+    return fast
 
 
 # Generated on first use of each kind (a process uses a few; compiling all at import cost ~15 ms of
 # every process's start, 40 times over at `swarm up`).
-_FAST: dict[str, object] = {}
+_FAST: dict[str, Callable[[dict[str, Any]], Any]] = {}
 
 
-def _compile_encode(kind: str):
+def _compile_encode(kind: str) -> Callable[[Message], bytes]:
     """encode() for a flat kind as one dict display (the general loop costs 3x as much)."""
     items = ", ".join(f"{wire!r}: m.{name}" for name, wire in _WIRE_NAMES[kind])
     optional = _OPTIONAL.get(kind, ())
     src = f"def enc(m):\n    d = {{'v': {VERSION}, 'kind': {kind!r}, {items}}}\n"
     src += "".join(f"    if m.{_FIELD.get(n, n)} is None:\n        del d[{n!r}]\n" for n in optional)
     src += "    return packb(d, use_bin_type=True)"
-    ns = {"packb": msgpack.packb}
+    ns: dict[str, Any] = {"packb": msgpack.packb}
     exec(compile(src, f"<protocol fast encoder for {kind}>", "exec"), ns)
+    enc: Callable[[Message], bytes] = ns["enc"]
     order = _wire_order(kind)
     if _wire is None or any(t not in ("n", "i", "id", "b") for _, t, _ in order):
-        return ns["enc"]
-    return _wire.Encoder(kind, VERSION, order, ns["enc"], KINDS[kind])
+        return enc
+    compiled: Callable[[Message], bytes] = _wire.Encoder(kind, VERSION, order, enc, KINDS[kind])
+    return compiled
 
 
-def encoder(kind: str):
+def encoder(kind: str) -> Callable[..., bytes]:
     """f(*fields) -> bytes: encode(cls(*fields)) for a flat kind, its fields given in the dataclass's order,
     without building the message where the compiled codec is (a robot's own state and command, every period)."""
     if kind not in _SPEC:
@@ -598,7 +620,8 @@ def encoder(kind: str):
     if fast is None:  # generated once, as encode() would
         fast = _FAST_ENCODE[cls] = _compile_encode(kind)
     if _wire is not None and isinstance(fast, _wire.Encoder):
-        return fast
+        compiled: Callable[..., bytes] = fast
+        return compiled
     return lambda *fields: fast(cls(*fields))
 
 
@@ -609,11 +632,63 @@ def _wire_order(kind: str) -> list[tuple[str, str, str]]:
     return [(wire, types[wire], name) for name, wire in _WIRE_NAMES[kind]]
 
 
-_FAST_ENCODE: dict[type, object] = {}
+_FAST_ENCODE: dict[type[Message], Callable[[Message], bytes]] = {}
 _unpackb = msgpack.unpackb
 
 
-def decode(payload: bytes, kind: str | None = None, key_id: int | None = None, limits: "Limits | None" = None):
+@overload
+def decode(payload: bytes, kind: Literal["ref"], key_id: int | None = None, limits: Limits | None = None) -> Ref: ...
+@overload
+def decode(payload: bytes, kind: Literal["pose"], key_id: int | None = None, limits: Limits | None = None) -> Pose: ...
+@overload
+def decode(payload: bytes, kind: Literal["cmd"], key_id: int | None = None, limits: Limits | None = None) -> Cmd: ...
+@overload
+def decode(payload: bytes, kind: Literal["state"], key_id: int | None = None,
+           limits: Limits | None = None) -> State: ...
+@overload
+def decode(payload: bytes, kind: Literal["status"], key_id: int | None = None,
+           limits: Limits | None = None) -> Status: ...
+@overload
+def decode(payload: bytes, kind: Literal["obstacles"], key_id: int | None = None,
+           limits: Limits | None = None) -> Obstacles: ...
+@overload
+def decode(payload: bytes, kind: Literal["snapshot"], key_id: int | None = None,
+           limits: Limits | None = None) -> Snapshot: ...
+@overload
+def decode(payload: bytes, kind: Literal["clock"], key_id: int | None = None,
+           limits: Limits | None = None) -> Clock: ...
+@overload
+def decode(payload: bytes, kind: Literal["config"], key_id: int | None = None,
+           limits: Limits | None = None) -> Config: ...
+@overload
+def decode(payload: bytes, kind: Literal["progress"], key_id: int | None = None,
+           limits: Limits | None = None) -> Progress: ...
+@overload
+def decode(payload: bytes, kind: Literal["run"], key_id: int | None = None, limits: Limits | None = None) -> Run: ...
+@overload
+def decode(payload: bytes, kind: Literal["estop"], key_id: int | None = None,
+           limits: Limits | None = None) -> Estop: ...
+@overload
+def decode(payload: bytes, kind: Literal["bodies"], key_id: int | None = None,
+           limits: Limits | None = None) -> Bodies: ...
+@overload
+def decode(payload: bytes, kind: Literal["claim"], key_id: int | None = None,
+           limits: Limits | None = None) -> Claim: ...
+@overload
+def decode(payload: bytes, kind: Literal["faultstats"], key_id: int | None = None,
+           limits: Limits | None = None) -> FaultStats: ...
+@overload
+def decode(payload: bytes, kind: Literal["event"], key_id: int | None = None,
+           limits: Limits | None = None) -> Event: ...
+@overload
+def decode(payload: bytes, kind: Literal["proc"], key_id: int | None = None, limits: Limits | None = None) -> Proc: ...
+@overload
+def decode(payload: bytes, kind: str | None = None, key_id: int | None = None,
+           limits: Limits | None = None) -> Message: ...
+
+
+def decode(payload: bytes, kind: str | None = None, key_id: int | None = None,
+           limits: Limits | None = None) -> Message:
     """Validate and decode a payload; `kind` is the expected kind, `key_id` the id in its key, `limits`
     the scenario's bounds (ids, radii, speeds, arena) on top of the physical ones. Raises only
     ProtocolError. The kinds of every control period (state, pose, ref, cmd) go through decoder()."""
@@ -625,10 +700,10 @@ def decode(payload: bytes, kind: str | None = None, key_id: int | None = None, l
     return _decode_checked(payload, kind, key_id, limits)
 
 
-def _decode_checked(payload, kind: str | None, key_id: int | None, limits: "Limits | None"):
+def _decode_checked(payload: object, kind: str | None, key_id: int | None, limits: Limits | None) -> Message:
     """decode() the general way: every check in turn, with the reason of the first that fails."""
     try:
-        msg = _decode(payload, kind, key_id)
+        msg: Message = _decode(payload, kind, key_id)
         if limits is not None:
             limits.check(msg)
         return msg
@@ -638,7 +713,7 @@ def _decode_checked(payload, kind: str | None, key_id: int | None, limits: "Limi
         raise ProtocolError(f"malformed payload ({type(e).__name__})") from None
 
 
-def _decode(payload, kind: str | None, key_id: int | None):
+def _decode(payload: object, kind: str | None, key_id: int | None) -> Any:
     if not isinstance(payload, (bytes, bytearray, memoryview)):
         raise ProtocolError(f"payload must be bytes, got {type(payload).__name__}")
     limit = MAX_LARGE_PAYLOAD if kind is None or kind in LARGE_KINDS else MAX_PAYLOAD
@@ -665,8 +740,9 @@ def _decode(payload, kind: str | None, key_id: int | None):
     return _decode_map(d, kind, key_id)
 
 
-def _decode_map(d: dict, kind: str | None, key_id: int | None):
+def _decode_map(d: dict[str, Any], kind: str | None, key_id: int | None) -> Any:
     """The general path: every check in turn, with a reason for the first that fails."""
+    msg: Any
     if type(d.get("v")) is not int or d.get("v") != VERSION:
         raise ProtocolError(f"unsupported protocol version {str(d.get('v'))[:20]} (this side speaks {VERSION})")
     k = d.get("kind")
@@ -692,13 +768,13 @@ def _decode_map(d: dict, kind: str | None, key_id: int | None):
     return msg
 
 
-def _positive(msg, *names: str) -> None:
+def _positive(msg: object, *names: str) -> None:
     for name in names:
         if not getattr(msg, name) > 0:
             raise ProtocolError(f"field {name!r} must be > 0, got {getattr(msg, name)}")
 
 
-def _nonnegative(msg, *names: str) -> None:
+def _nonnegative(msg: object, *names: str) -> None:
     for name in names:
         if not getattr(msg, name) >= 0:
             raise ProtocolError(f"field {name!r} must be >= 0, got {getattr(msg, name)}")
@@ -714,7 +790,7 @@ def _check_config(c: Config) -> None:
         raise ProtocolError(f"fields must hold R <= reach < sense, got R {c.R}, reach {c.reach}, sense {c.sense}")
 
 
-def _within(msg, limit: float, *names: str) -> None:
+def _within(msg: object, limit: float, *names: str) -> None:
     """|field| <= limit for each named field (physical bounds: a finite but absurd value is refused)."""
     for name in names:
         x = getattr(msg, name)
@@ -730,7 +806,7 @@ def _check_ref(m: Ref) -> None:
     _within(m, MAX_TURN, "w")
 
 
-def _check_pose(m: Pose) -> None:
+def _check_pose(m: Pose | State) -> None:
     _within(m, MAX_TIME, "t")
     _within(m, MAX_COORD, "x", "y")
     _within(m, MAX_ANGLE, "theta")
@@ -803,6 +879,11 @@ def _check_claim(m: Claim) -> None:
         raise ProtocolError("field 'claim' must not be empty")
 
 
+def _check_faultstats(m: FaultStats) -> None:
+    _within(m, MAX_TIME, "t", "max_age")
+    _nonnegative(m, "max_age")
+
+
 def _check_proc(m: Proc) -> None:
     if m.role not in PROC_ROLES:
         raise ProtocolError(f"field 'role' must be one of {', '.join(PROC_ROLES)}, got {m.role!r}")
@@ -814,7 +895,7 @@ def _check_proc(m: Proc) -> None:
 PROC_ROLES = ("router", "world", "leader", "robot", "viz", "recorder", "launcher")  # keys.ROLES
 
 
-_CHECK = {
+_CHECK: dict[str | None, Callable[[Any], None]] = {  # looked up with an expected kind, which may be None
     "claim": _check_claim,
     "proc": _check_proc,
     "ref": _check_ref,
@@ -827,7 +908,7 @@ _CHECK = {
     "progress": lambda m: _within(m, MAX_TIME, "t", "duration"),
     "run": _check_run,
     "estop": lambda m: _within(m, 1e11, "t"),
-    "faultstats": lambda m: (_within(m, MAX_TIME, "t", "max_age"), _nonnegative(m, "max_age")),
+    "faultstats": _check_faultstats,
 }
 
 
@@ -853,7 +934,7 @@ class Limits:
             bounds = (xmin - margin, xmax + margin, ymin - margin, ymax + margin)
         return cls(robots, radius, v_max or MAX_SPEED, w_max or MAX_TURN, bounds)
 
-    def check(self, msg) -> None:
+    def check(self, msg: object) -> None:
         tol = 1 + 1e-9
         if isinstance(msg, (State, RobotSnap)) and msg.id >= self.robots:
             raise ProtocolError(f"robot id {msg.id} is not in the scenario ({self.robots} robots)")
@@ -886,10 +967,22 @@ _HOT_BOUNDS: dict[str, tuple[tuple[str, float], ...]] = {
     "cmd": (("t", MAX_TIME), ("v", MAX_SPEED), ("w", MAX_TURN), ("until", MAX_TIME)),
 }
 _ABSENT = object()  # an optional field the map leaves out (an explicit nil is a wrong type, refused)
-_HOT: dict[tuple[str, int], tuple["Limits | None", object]] = {}  # (kind, id(limits)) -> (limits, decoder)
+_HOT: dict[tuple[str, int], tuple[Limits | None, Decoder[HotMessage]]] = {}  # (kind, id(limits)) -> (limits, decoder)
 
 
-def decoder(kind: str, limits: Limits | None = None):
+@overload
+def decoder(kind: Literal["state"], limits: Limits | None = None) -> Decoder[State]: ...
+@overload
+def decoder(kind: Literal["pose"], limits: Limits | None = None) -> Decoder[Pose]: ...
+@overload
+def decoder(kind: Literal["ref"], limits: Limits | None = None) -> Decoder[Ref]: ...
+@overload
+def decoder(kind: Literal["cmd"], limits: Limits | None = None) -> Decoder[Cmd]: ...
+@overload
+def decoder(kind: str, limits: Limits | None = None) -> Decoder[HotMessage]: ...
+
+
+def decoder(kind: str, limits: Limits | None = None) -> Decoder[HotMessage]:
     """f(payload, key_id=None): decode(payload, kind, key_id, limits) for a kind of every control period
     (state, pose, ref, cmd), as one generated function: the payload unpacked once, every field's type,
     bound and limit checked in one expression, the message built without a dataclass __init__. It
@@ -905,14 +998,14 @@ def decoder(kind: str, limits: Limits | None = None):
     return f[1]
 
 
-def _compile_hot(kind: str, limits: Limits | None):
+def _compile_hot(kind: str, limits: Limits | None) -> Decoder[HotMessage]:
     spec = _SPEC[kind]
     cls = KINDS[kind]
     optional = _OPTIONAL.get(kind, ())
     var = {_FIELD.get(n, n): f"a{i}" for i, (n, _) in enumerate(spec)}  # python name -> local
     types = {"n": "float", "i": "int", "id": "int", "b": "bool"}
-    ns: dict = {"unpackb": _unpackb, "slow": _decode_checked, "new": object.__new__, "setattr": object.__setattr__,
-                "cls": cls, "limits": limits, "ABSENT": _ABSENT}
+    ns: dict[str, Any] = {"unpackb": _unpackb, "slow": _decode_checked, "new": object.__new__,
+                          "setattr": object.__setattr__, "cls": cls, "limits": limits, "ABSENT": _ABSENT}
 
     def may_lack(name: str, test: str) -> str:  # an optional field may be absent: its test then holds
         return f"({var[name]} is ABSENT or {test})" if _WIRE.get(name, name) in optional else test
@@ -966,10 +1059,11 @@ def _compile_hot(kind: str, limits: Limits | None):
             "                return m",
             f"    return slow(payload, {kind!r}, key_id, limits)"]
     exec(compile("\n".join(body), f"<protocol hot decoder for {kind}>", "exec"), ns)
-    return ns["dec"] if _wire is None else _compile_wire(kind, limits, ns["dec"])
+    dec: Decoder[HotMessage] = ns["dec"]
+    return dec if _wire is None else _compile_wire(kind, limits, dec)
 
 
-def _compile_wire(kind: str, limits: Limits | None, fallback):
+def _compile_wire(kind: str, limits: Limits | None, fallback: Decoder[HotMessage]) -> Decoder[HotMessage]:
     """The compiled decoder (swarm/proto/_wire.c) of the same conditions as _compile_hot's, on the canonical
     layout only (the encoder's keys in its order, float64 numbers): anything else goes to fallback."""
     order = _wire_order(kind)
@@ -999,11 +1093,12 @@ def _compile_wire(kind: str, limits: Limits | None, fallback):
             xmin, xmax, ymin, ymax = limits.bounds
             rng("x", xmin, xmax)
             rng("y", ymin, ymax)
-    return _wire.Decoder(kind, VERSION, order, conds, at["id"] if kind == "state" else -1, MAX_PAYLOAD, KINDS[kind],
-                         fallback)
+    dec: Decoder[HotMessage] = _wire.Decoder(kind, VERSION, order, conds, at["id"] if kind == "state" else -1,
+                                             MAX_PAYLOAD, KINDS[kind], fallback)
+    return dec
 
 
-def _item(row, where: str, names: tuple[str, ...]) -> dict:
+def _item(row: object, where: str, names: tuple[str, ...]) -> dict[str, Any]:
     if not isinstance(row, dict):
         raise ProtocolError(f"{where} must be a map of {', '.join(names)}")
     try:
@@ -1013,7 +1108,7 @@ def _item(row, where: str, names: tuple[str, ...]) -> dict:
     return row
 
 
-def _obstacles(d: dict) -> Obstacles:
+def _obstacles(d: dict[str, Any]) -> Obstacles:
     _fields(d, ("obstacles",))
     rows = d["obstacles"]
     if not isinstance(rows, list) or len(rows) > MAX_ROBOTS:
@@ -1028,7 +1123,7 @@ def _obstacles(d: dict) -> Obstacles:
     return Obstacles(tuple(out))
 
 
-def _event(d: dict) -> Event:
+def _event(d: dict[str, Any]) -> Event:
     _fields(d, ("t", "seq", "event", "robots", "detail"))
     rows = d["robots"]
     if not isinstance(rows, list) or len(rows) > MAX_ROBOTS:
@@ -1041,7 +1136,7 @@ def _event(d: dict) -> Event:
     return msg
 
 
-def _bodies(d: dict) -> Bodies:
+def _bodies(d: dict[str, Any]) -> Bodies:
     _fields(d, ("t", "seq", "bodies", "returning"))
 
     def rows_of(name: str) -> tuple[Body, ...]:
@@ -1062,7 +1157,7 @@ def _bodies(d: dict) -> Bodies:
     return msg
 
 
-def _snapshot(d: dict) -> Snapshot:
+def _snapshot(d: dict[str, Any]) -> Snapshot:
     _fields(d, ("t", "seq", "robots"))
     rows = d["robots"]
     if not isinstance(rows, list) or len(rows) > MAX_ROBOTS:
@@ -1105,7 +1200,7 @@ class Claims:
             bad = bound
         self.by_robot[i], self._mono[i] = bad, mono
 
-    def values(self):
+    def values(self) -> ValuesView[int]:
         return self.by_robot.values()
 
     @property

@@ -52,7 +52,8 @@ class Row:
     alias_of: tuple[str, ...] = field(default=())  # a wildcard builder: the rows whose keys it matches
 
     def grants(self, action: str) -> tuple[Grant, ...]:
-        return getattr(self, action)
+        grants: tuple[Grant, ...] = getattr(self, action)
+        return grants
 
 
 def _all(*roles: str) -> tuple[Grant, ...]:
@@ -191,7 +192,8 @@ class Grants:
     askers: tuple[str, ...] = ()
 
     def of(self, action: str) -> tuple[str, ...]:
-        return getattr(self, action)
+        exprs: tuple[str, ...] = getattr(self, action)
+        return exprs
 
 
 def extra_expression(template: str, i: int) -> str:

@@ -30,6 +30,12 @@ import math
 import re
 import struct
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from typing import Any
+
+    from rosbags.typesys.store import Typestore
 
 TWIST = "geometry_msgs/msg/Twist"
 TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
@@ -62,7 +68,7 @@ class Ros2Error(ValueError):
 
 
 @functools.cache
-def typestore():
+def typestore() -> Typestore:
     """rosbags' Jazzy type store (loaded once); ImportError naming the extra if rosbags is missing."""
     try:
         from rosbags.typesys import Stores, get_typestore
@@ -72,7 +78,7 @@ def typestore():
 
 
 @functools.cache
-def _types():
+def _types() -> dict[str, Any]:
     """The message classes this module builds, looked up once, and a zero covariance."""
     import numpy as np
 
@@ -82,7 +88,7 @@ def _types():
              "Point": "geometry_msgs/msg/Point", "Quaternion": "geometry_msgs/msg/Quaternion",
              "Pose": "geometry_msgs/msg/Pose", "PoseWithCovariance": "geometry_msgs/msg/PoseWithCovariance",
              "TwistWithCovariance": "geometry_msgs/msg/TwistWithCovariance", "Odometry": ODOMETRY}
-    out = {short: t[full] for short, full in names.items()}
+    out: dict[str, Any] = {short: t[full] for short, full in names.items()}
     zero = np.zeros(36, dtype=np.float64)
     zero.flags.writeable = False
     out["zero36"] = zero
@@ -326,7 +332,7 @@ def seconds_to_ns(seconds: float) -> int:
     return round(seconds * 1e9)
 
 
-def _time(ns: int):
+def _time(ns: int) -> object:
     if isinstance(ns, bool) or not isinstance(ns, int) or not 0 <= ns <= _STAMP_MAX_NS:
         raise Ros2Error(f"a stamp is an int of ns in [0, {_STAMP_MAX_NS}], got {ns!r}")
     sec, nanosec = divmod(ns, 1_000_000_000)
@@ -339,11 +345,11 @@ def _finite(**values: float) -> None:
             raise Ros2Error(f"{name} must be a finite number, got {x!r}")
 
 
-def _serialize(msg, typename: str) -> bytes:
+def _serialize(msg: object, typename: str) -> bytes:
     return bytes(typestore().serialize_cdr(msg, typename, little_endian=True))
 
 
-def _twist(v: float, w: float):
+def _twist(v: float, w: float) -> object:
     T = _types()
     return T["Twist"](linear=T["Vector3"](x=float(v), y=0.0, z=0.0), angular=T["Vector3"](x=0.0, y=0.0, z=float(w)))
 
@@ -377,7 +383,7 @@ def encode_odometry(o: Odometry) -> bytes:
     return _serialize(msg, ODOMETRY)
 
 
-def _deserialize(payload: bytes, typename: str):
+def _deserialize(payload: bytes, typename: str) -> Any:
     if not isinstance(payload, (bytes, bytearray, memoryview)):
         raise Ros2Error(f"a payload is bytes, got {type(payload).__name__}")
     if len(payload) > MAX_PAYLOAD:
@@ -398,7 +404,7 @@ def _deserialize(payload: bytes, typename: str):
     return msg
 
 
-def _vw(twist) -> tuple[float, float]:
+def _vw(twist: Any) -> tuple[float, float]:
     v, w = float(twist.linear.x), float(twist.angular.z)
     _finite(v=v, w=w)
     return v, w

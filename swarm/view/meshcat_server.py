@@ -26,6 +26,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import BinaryIO, cast
 
 LOOPBACK = "127.0.0.1"
 START_TIMEOUT_S = 20.0
@@ -48,7 +49,7 @@ class MeshcatClient:
 
         self._zmq = zmq
         self.zmq_url, self.timeout_s = zmq_url, timeout_s
-        self.socket = zmq.Context.instance().socket(zmq.REQ)
+        self.socket: zmq.Socket | None = zmq.Context.instance().socket(zmq.REQ)
         ms = int(timeout_s * 1000)
         for opt, value in ((zmq.LINGER, 0), (zmq.RCVTIMEO, ms), (zmq.SNDTIMEO, ms)):
             self.socket.setsockopt(opt, value)
@@ -129,7 +130,7 @@ class MeshcatServer:
                                          env=_child_env({PARENT_ENV: str(os.getpid())}))
         finally:
             if self.log is not None:
-                err.close()
+                cast(BinaryIO, err).close()  # the log file opened above
         try:
             found = self._read_urls()
             self.zmq_url, self.web_url = found["zmq_url"], found["web_url"]

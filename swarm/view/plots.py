@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 from matplotlib import colormaps
@@ -23,6 +24,9 @@ from matplotlib.patches import Circle
 
 from swarm.core.scenario import Scenario
 from swarm.core.sim import Recording
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
 
 LW = 0.6  # line width of per-robot lines
 ERR_FLOOR = 1e-16  # floor for the log plot (l)
@@ -56,14 +60,15 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return np.pi - np.mod(np.pi - a, 2 * np.pi)
 
 
-def _lines(ax, t: np.ndarray, y: np.ndarray, colors: np.ndarray, break_jumps: bool = False) -> None:
+def _lines(ax, t: np.ndarray, y: np.ndarray, colors: np.ndarray | list[tuple[float, float, float, float]],
+           break_jumps: bool = False) -> None:
     """One thin line per robot: t (S,) [s], y (S, N); with break_jumps, gaps at 2*pi wraps."""
     y = np.array(y, float)
     if break_jumps and len(t) > 1:
         jump = np.abs(np.diff(y, axis=0)) > np.pi
         y[1:][jump] = np.nan  # a NaN vertex breaks the path
     seg = np.stack([np.broadcast_to(t[:, None], y.shape), y], axis=-1).transpose(1, 0, 2)  # (N, S, 2)
-    ax.add_collection(LineCollection(seg, colors=colors, linewidths=LW))
+    ax.add_collection(LineCollection(cast("Sequence[np.ndarray]", seg), colors=colors, linewidths=LW))  # N paths
     if len(t) == 1:
         ax.scatter(np.repeat(t, y.shape[1]), y[0], s=6, c=colors)
     ax.autoscale_view()
@@ -87,7 +92,8 @@ def _panel_paths(ax, rec: Recording, scn: Scenario, colors: np.ndarray) -> None:
     for x, y, r, big in scn.obstacles:
         ax.add_patch(Circle((x, y), r, fc="0.6", ec="0.4", lw=0.5))
         ax.add_patch(Circle((x, y), big, fill=False, ec="0.5", ls="--", lw=0.5))
-    ax.add_collection(LineCollection(q[:, :, :2].transpose(1, 0, 2), colors=colors, linewidths=LW))
+    ax.add_collection(LineCollection(cast("Sequence[np.ndarray]", q[:, :, :2].transpose(1, 0, 2)), colors=colors,
+                                     linewidths=LW))
     ax.plot(rec.leader[:, 0], rec.leader[:, 1], "k--", lw=1.2, label="leader", zorder=3)
     xy = np.concatenate([q[:, :, :2].reshape(-1, 2), rec.leader[:, :2]])
     tick = max(2.0 * scn.r, 0.025 * float(np.ptp(xy, axis=0).max()))  # heading tick length [m]

@@ -823,9 +823,9 @@ def record_simulation(path, scenario: Scenario, result, record_hz: float | None 
                 out.event(ev)
             fl = frozen.tolist()
             for i, f in enumerate(fl):
-                ev = deriver.frozen(t, i, f)
-                if ev is not None:
-                    out.event(ev)
+                change = deriver.frozen(t, i, f)
+                if change is not None:
+                    out.event(change)
             out.snapshot(t, k, ids, q[:, 0], q[:, 1], q[:, 2], cmd[:, 0], cmd[:, 1], not_stopped, alive, fl)
             _x, _y, _th, vl, wl = kinematics.leader_state(table, t)
             lx, ly, lth = map(float, rec.leader[s])

@@ -24,7 +24,7 @@ import tomllib
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable, Iterator, cast
 
 import numpy as np
 
@@ -32,7 +32,8 @@ from swarm.core import kinematics, law
 from swarm.view.faultmarks import FaultMarks, robot_list
 from swarm.view.record import (METRIC_KEYS, TOPIC_CMD, TOPIC_EVENTS, TOPIC_FAULTS, TOPIC_METRICS, TOPIC_SCENARIO,
                                TOPIC_SNAPSHOT, TOPIC_STATUS)
-from swarm.core.scenario import Scenario, ScenarioError
+from swarm.core.errors import ScenarioError
+from swarm.core.scenario import Scenario
 from swarm.core.sim import Recording
 
 FIRST_EVENTS = 50  # events listed one by one in index.html
@@ -222,8 +223,10 @@ def read_scenario(path) -> tuple[Scenario, dict]:
     return _scenario(path, None)
 
 
-def _columns(path: Path, d: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                    np.ndarray, np.ndarray]:
+_Columns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def _columns(path: Path, d: dict, n: int) -> _Columns:
     """Rows by robot id of one snapshot message: x, y, theta, v, w (N,) floats, stopped, alive, frozen bools."""
     try:
         ids = np.asarray(d["id"], np.int64)
@@ -238,7 +241,7 @@ def _columns(path: Path, d: dict, n: int) -> tuple[np.ndarray, np.ndarray, np.nd
             c[ids] = np.asarray(d[name], bool)
     except (KeyError, TypeError, ValueError, IndexError) as e:
         raise ReportError(f"{path}: bad {TOPIC_SNAPSHOT} message at t = {d.get('t')!r}: {e}") from None
-    return (*cols, *flags)
+    return cast(_Columns, (*cols, *flags))  # 5 columns, 3 flags
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
@@ -530,8 +533,9 @@ def _html(run: Run, panels: list[Path], extra: list[Path]) -> str:
     if m is None:
         parts.append("<p>No metrics: the run ended before it wrote them.</p>")
     else:
-        rows = [(esc(k), f"<span title='{esc(json.dumps(v))}'>{esc(_fmt(v))}</span>", esc(json.dumps(v)))
-                for k, v in m.items()]
+        rows: list[tuple[str, ...]] = [
+            (esc(k), f"<span title='{esc(json.dumps(v))}'>{esc(_fmt(v))}</span>", esc(json.dumps(v)))
+            for k, v in m.items()]
         parts.append(_table(rows, ("metric", "value", "exact")))
         missing = [k for k in METRIC_KEYS if k not in m]
         if missing:
@@ -583,6 +587,7 @@ def fault_counter_rows(metrics: dict | None) -> list[tuple[str, str, str]]:
     counters = (metrics or {}).get("faults")
     if not isinstance(counters, dict):
         return []
+    metrics = cast(dict, metrics)  # counters came from it
     rows = []
     for label, key in FAULT_COUNTERS:
         if key not in counters:

@@ -184,7 +184,7 @@ class SceneInfo:
 
     @classmethod
     def from_scenario(cls, scn) -> "SceneInfo":
-        timeline = ()
+        timeline: tuple = ()
         if getattr(scn, "faults", None):
             from swarm.core.faults import timeline as fault_timeline
 
@@ -393,7 +393,7 @@ class Viewer:
         if show != self._formation_shown:
             self._send({"type": "set_property", "path": f"{ROOT}/formation", "property": "visible", "value": show})
             self._formation_shown = show
-        if show:
+        if leader is not None:
             self._set_transform(f"{ROOT}/formation", mo.translation(leader[0], leader[1]))
             self._set_transform(f"{ROOT}/formation/leader", mo.translation(0.0, 0.0, 0.0, leader[2]))
         if self.trails:

@@ -33,7 +33,7 @@ import math
 import threading
 import time
 from dataclasses import replace
-from typing import Callable
+from typing import Callable, cast
 
 import numpy as np
 
@@ -195,16 +195,16 @@ class SwarmWatcher:
         fresh = False
         if payload is not None:
             try:
-                snap = protocol.decode(payload, "snapshot")
+                decoded = protocol.decode(payload, "snapshot")
             except ProtocolError as e:
                 self.bad.reject(keys.world_snapshot(self.fleet), e)
             else:
-                if self._last is not None and snap.seq < self._last.seq:  # a new run: new scene, new trails
+                if self._last is not None and decoded.seq < self._last.seq:  # a new run: new scene, new trails
                     self._scene_n = -1
                     self._scene_tried = -math.inf
                     self._stats = None
                     self._marks = None
-                self._last = snap
+                self._last = decoded
                 fresh = True
         snap = self._last
         if snap is None:
@@ -222,8 +222,10 @@ class SwarmWatcher:
         # a robot's stale count says something only while its status is fresh, and of a robot that computes
         stale = (np.array([self._stale.get(i, 0) > 0 for i in id_list], bool) & (age <= self.stale_after_s)
                  & (codes != DEAD) & (codes != HUNG))
-        if (not fresh and self.drawn and np.array_equal(codes, self._codes) and np.array_equal(cut, self._cut)
-                and np.array_equal(stale, self._stale_rings) and self._estop == self._estop_drawn):
+        # a frame drawn (self.drawn) has set _codes, _cut and _stale_rings
+        if (not fresh and self.drawn and np.array_equal(codes, cast(np.ndarray, self._codes))
+                and np.array_equal(cut, cast(np.ndarray, self._cut))
+                and np.array_equal(stale, cast(np.ndarray, self._stale_rings)) and self._estop == self._estop_drawn):
             refresh = getattr(self.viewer, "refresh_overlay", None)
             if refresh is not None:  # the overlay's last lines, held back by its pacing
                 refresh()
@@ -285,9 +287,10 @@ class SwarmWatcher:
             except ProtocolError as e:
                 self.bad.reject(key, e)
                 continue
-            self._frozen[k.id] = st.frozen
-            self._stale[k.id] = st.stale
-            self._status_at[k.id] = at
+            i = cast(int, k.id)  # a status key names its robot
+            self._frozen[i] = st.frozen
+            self._stale[i] = st.stale
+            self._status_at[i] = at
 
     def _take_progress(self, payload: bytes) -> None:
         try:
@@ -428,7 +431,8 @@ def play_simulation(sim, viewer: Viewer, speed: float = 1.0, should_stop: Callab
             if set_marks is not None:
                 set_marks(cut=cut, stale_data=stale)
             stats = Stats(alive=alive, converged=p.converged, frozen=p.frozen, min_distance=p.min_distance)
-            viewer.draw(t, rec.q[-1], codes, tuple(map(float, rec.leader[-1])), stats=stats)
+            leader = cast("tuple[float, float, float]", tuple(map(float, rec.leader[-1])))  # a row is (x, y, theta)
+            viewer.draw(t, rec.q[-1], codes, leader, stats=stats)
         if progress is not None:
             progress(p)
         if sim.done:
