@@ -55,11 +55,15 @@ def default_namespace(i: int) -> str:
 class Ros2Fleet:
     def __init__(self, bus, starts: Sequence[Sequence[float]], flavor: str, twist: str, domain: int = 0,
                  namespace: Callable[[int], str] = default_namespace, distro: str = "jazzy",
-                 queue_depth: int | None = None, wall_ns: Callable[[], int] = time.time_ns) -> None:
+                 queue_depth: int | None = None, wall_ns: Callable[[], int] = time.time_ns,
+                 attachment: str = "v2") -> None:
         """starts: (N, 3) each robot's start pose in the world [m, m, rad] (its odom frame's origin);
         distro "humble" writes TypeHashNotSupported in keys and tokens instead of RIHS01 hashes;
-        wall_ns: the publishers' clock for the attachments' source time [ns since the epoch]."""
+        wall_ns: the publishers' clock for the attachments' source time [ns since the epoch];
+        attachment: the rmw_zenoh release's attachment form (ros2.ATTACHMENT_FORMS): its odometry carries it, and a
+        command with the other form is dropped, as that release's subscriber does."""
         self.bus, self.wall_ns = bus, wall_ns
+        self.attachment = ros2.check_attachment_form(attachment)
         self.flavor = ros2.check_flavor(flavor)
         self.cmd_type = ros2.twist_type(twist)
         self.domain = ros2.check_domain(domain)
@@ -117,8 +121,9 @@ class Ros2Fleet:
             if self.flavor == "rmw_zenoh":
                 for e in self.entities(i):
                     self._handles.append(self.bus.token(e.key))
-        log.info("simulated ROS 2 fleet: %d robots, %s, cmd_vel as %s, first keys %s and %s", self.n, self.flavor,
-                 self.cmd_type, self.cmd_keys[0] if self.n else "-", self.odom_keys[0] if self.n else "-")
+        log.info("simulated ROS 2 fleet: %d robots, %s (%s attachments), cmd_vel as %s, first keys %s and %s", self.n,
+                 self.flavor, self.attachment, self.cmd_type, self.cmd_keys[0] if self.n else "-",
+                 self.odom_keys[0] if self.n else "-")
 
     def take_commands(self) -> list[tuple[int, float, float]]:
         """(robot, v [m/s], w [rad/s]) of every command received since the last call, in arrival order.
@@ -130,7 +135,7 @@ class Ros2Fleet:
             i, key, payload, att = q.popleft()
             if self.flavor == "rmw_zenoh":
                 try:
-                    ros2.decode_attachment(att)
+                    ros2.decode_attachment(att, self.attachment)
                 except Ros2Error as e:
                     self.dropped_no_attachment += 1
                     if self.dropped_no_attachment == 1:
@@ -163,7 +168,7 @@ class Ros2Fleet:
         with self._lock:
             self._odom_seq[i] += 1
             seq = self._odom_seq[i]
-        att = ros2.encode_attachment(seq, self.wall_ns(), self._gids[i])
+        att = ros2.encode_attachment(seq, self.wall_ns(), self._gids[i], self.attachment)
         self.bus.put(self.odom_keys[i], payload, reliable=False, attachment=att)
 
     def close(self) -> None:

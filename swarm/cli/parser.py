@@ -414,9 +414,10 @@ def _domain(text: str) -> int:
     return value
 
 
-def _add_ros2_flags(g, world: bool = False) -> None:
-    """The ROS 2 wire's flags (robot drive, simulated fleet)."""
-    if not world:
+def _add_ros2_flags(g, world: bool | str = False) -> None:
+    """The ROS 2 wire's flags (world=True: the simulated fleet of swarm world; "up": swarm up's, which also starts
+    the robots; "robot": a robot's drive)."""
+    if world is not True:
         g.add_argument("--ros-flavor", choices=("rmw_zenoh", "bridge"), default="rmw_zenoh",
                        help="how the robot speaks ROS 2 over zenoh: rmw_zenoh (ROS 2 nodes on rmw_zenoh_cpp, keys "
                             "found from their liveliness tokens) or bridge (zenoh-bridge-ros2dds); default rmw_zenoh")
@@ -424,6 +425,17 @@ def _add_ros2_flags(g, world: bool = False) -> None:
                    help="cmd_vel as geometry_msgs/Twist (plain: TurtleBot3 on Humble) or TwistStamped (stamped: "
                         "TurtleBot3 on Jazzy); default plain")
     g.add_argument("--domain", type=_domain, default=0, metavar="D", help="the ROS domain id (default 0)")
+    if world == "robot":
+        g.add_argument("--rmw-zenoh-attachment", choices=("auto", "v1", "v2"), default="auto",
+                       help="rmw_zenoh flavour: the form of the attachment commands carry: v2 (33 bytes: rmw_zenoh "
+                            "Rolling >= 0.6.0, Jazzy >= 0.2.4, Humble >= 0.1.2), v1 (named fields: the releases "
+                            "before), or auto (default): the form of the robot's own odometry")
+    else:
+        g.add_argument("--rmw-zenoh-attachment", choices=("v1", "v2"), default="v2",
+                       help="the simulated robots' rmw_zenoh release: v2 (the 33-byte attachment, default) or v1 (named "
+                            "fields, releases before Rolling 0.6.0, Jazzy 0.2.4, Humble 0.1.2); a command in the other "
+                            "form is dropped, as that release does" + ("; the robots find the form by themselves"
+                                                                      if world == "up" else ""))
 
 
 def _add_net_flags(p: argparse.ArgumentParser, listen: bool = False, connect_help: str | None = None) -> None:
@@ -507,7 +519,7 @@ def _add_runtime_parsers(sub) -> None:
     g.add_argument("--drive", choices=("sim", "ros2"), default="sim",
                    help="ros2: the world simulates a ROS 2 fleet (cmd_vel and odometry in CDR on ROS 2 keys) and every "
                         "agent drives its robot through them, as on real robots; needs --mode realtime")
-    _add_ros2_flags(g)
+    _add_ros2_flags(g, world="up")
     g = up.add_argument_group("launcher")
     g.add_argument("--dry-run", action="store_true", help="print the launch plan and exit")
     g.add_argument("--restarts", type=_int_at_least(0), default=3, metavar="N",
@@ -571,7 +583,7 @@ def _add_runtime_parsers(sub) -> None:
     g.add_argument("--drive", choices=("sim", "ros2"), default="sim",
                    help="sim: the simulated world's pose and cmd keys (default); ros2: a ROS 2 robot (odometry in, "
                         "cmd_vel out), needs --mode realtime")
-    _add_ros2_flags(g)
+    _add_ros2_flags(g, world="robot")
     g.add_argument("--namespace", metavar="NS", help="with --drive ros2: the robot's ROS namespace (default robot<ID>)")
     g.add_argument("--initial-pose", type=_initial_pose, metavar="X,Y,THETA",
                    help="with --drive ros2: the robot's start in the swarm's frame (default: the scenario's start); "

@@ -28,6 +28,7 @@ from agents.guard import POSE_TIMEOUT_S
 from swarm.cli.common import BadInput, Failure, StopEvent, load_scenario, open_bus, setup_logging
 from swarm.core import inventory
 from swarm.core.inventory import Fleet, Problem, RobotEntry
+from swarm.drives.ros2 import RELEASES
 from swarm.proto import ros2
 from swarm.proto.ros2 import Ros2Error
 
@@ -48,6 +49,7 @@ class _Robot:
     arrivals: list[float] = field(default_factory=list)  # monotonic times of readable odometry
     bad: str | None = None  # the last unreadable odometry's reason
     bad_count: int = 0
+    attachment: str | None = None  # rmw_zenoh: the form of its odometry's attachments ("v1", "v2", "none")
 
 
 class OdometryProbe:
@@ -103,10 +105,12 @@ class OdometryProbe:
                 r.cmd_ok = self.bus.wanted(ros2.bridge_key(e.namespace, ros2.CMD_VEL))
             if r.odom_key is not None and e.id not in self._subscribed:
                 self._subscribed.add(e.id)
-                self._handles.append(self.bus.subscribe_raw(r.odom_key, lambda k, p, a, r=r: self._on_odom(r, p)))
+                self._handles.append(self.bus.subscribe_raw(r.odom_key, lambda k, p, a, r=r: self._on_odom(r, p, a)))
 
-    def _on_odom(self, r: _Robot, payload: bytes) -> None:
+    def _on_odom(self, r: _Robot, payload: bytes, attachment: bytes | None = None) -> None:
         now = self.clock()
+        if r.entry.flavor == "rmw_zenoh" and r.attachment is None:
+            r.attachment = ros2.attachment_form(attachment) or "none"
         try:
             ros2.decode_odometry(payload)
         except Ros2Error as e:
@@ -207,6 +211,7 @@ class Report:
     problems: list[Problem]
     notes: list[str]
     rates: dict[int, float]  # odometry messages a second per robot (network part only)
+    attachments: dict[int, str] = field(default_factory=dict)  # rmw_zenoh robots: their odometry's attachment form
 
     @property
     def ok(self) -> bool:
@@ -223,6 +228,8 @@ class Report:
                 lines += [f"  {p}" for p in self.problems if p.robot == r.id]
             else:
                 rate = f", odometry {self.rates[r.id]:.3g} Hz" if r.id in self.rates else ""
+                form = self.attachments.get(r.id)
+                rate += f", rmw_zenoh attachments {form} ({RELEASES.get(form, 'neither form')})" if form else ""
                 lines.append(f"  robot {r.id}: ok (start ({r.start[0]:g}, {r.start[1]:g}) from {r.start_from}{rate})")
         lines += [f"  {p}" for p in self.problems if p.robot is None]
         if self.problems:
@@ -283,10 +290,11 @@ def check(bus, fleet: Fleet, timeout_s: float = DISCOVER_TIMEOUT_S, window_s: fl
             raise InterruptedError
         problems += probe.verdicts(window, waited, max_age_s)
         rates = {r.id: probe.rate(r.id, window) for r in fleet.robots if r.id not in cut_off}
+        forms = {i: r.attachment for i, r in probe.robots.items() if r.attachment is not None}
     finally:
         probe.close()
     problems.sort(key=lambda p: -1 if p.robot is None else p.robot)
-    return Report(fleet, problems, inventory.notes(fleet), rates)
+    return Report(fleet, problems, inventory.notes(fleet), rates, forms)
 
 
 # --------------------------------------------------------------------------- the command

@@ -33,7 +33,7 @@ def cmd_robot(args, started: float) -> int:
         for flag, value in (("--namespace", args.namespace), ("--initial-pose", args.initial_pose)):
             if value is not None:
                 raise BadInput(f"{flag} needs --drive ros2")
-        for flag in given(args, "ros_flavor", "twist", "domain"):
+        for flag in given(args, "ros_flavor", "twist", "domain", "rmw_zenoh_attachment"):
             raise BadInput(f"{flag} needs --drive ros2")
     elif args.mode == "lockstep":
         raise BadInput("--drive ros2 with --mode lockstep: a ROS 2 robot runs in real time only (odometry carries no "
@@ -83,7 +83,8 @@ def _ros2_drive(args):
                                    "lock-step; start the world with --mode realtime")
             pose = args.initial_pose or (cfg.x, cfg.y, cfg.theta)
             return Ros2Drive(bus, namespace=args.namespace or f"robot{cfg.id}", now=now, flavor=args.ros_flavor,
-                             twist=args.twist, domain=args.domain, initial_pose=pose)
+                             twist=args.twist, domain=args.domain, initial_pose=pose,
+                             attachment=args.rmw_zenoh_attachment)
 
         return make
 

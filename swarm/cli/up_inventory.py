@@ -165,10 +165,12 @@ def _row_drive(entry: inventory.RobotEntry):
 
 def _flag_drive(args):
     _ros2_available("--drive ros2")
-    return _drive_factory(args.namespace, args.ros_flavor, args.twist, args.domain, args.initial_pose)
+    return _drive_factory(args.namespace, args.ros_flavor, args.twist, args.domain, args.initial_pose,
+                          attachment=getattr(args, "rmw_zenoh_attachment", "auto"))
 
 
-def _drive_factory(namespace: str | None, flavor: str, twist: str, domain: int, pose, cmd_timeout=None):
+def _drive_factory(namespace: str | None, flavor: str, twist: str, domain: int, pose, cmd_timeout=None,
+                   attachment: str = "auto"):
     def factory(bus):
         def make(cfg, now):
             from agents.robot import DriveRefused
@@ -179,7 +181,7 @@ def _drive_factory(namespace: str | None, flavor: str, twist: str, domain: int, 
                                    "lock-step; start the world with --mode realtime (or --referee-only)")
             return Ros2Drive(bus, namespace=f"robot{cfg.id}" if namespace is None else namespace, now=now,
                              flavor=flavor, twist=twist, domain=domain, initial_pose=pose or (cfg.x, cfg.y, cfg.theta),
-                             base_timeout_s=cmd_timeout)
+                             base_timeout_s=cmd_timeout, attachment=attachment)
 
         return make
 

@@ -49,6 +49,10 @@ HALT_REPEATS = 3  # zero commands sent by halt() (reliable already; a few more c
 NODE = "swarm_drive"  # the ROS 2 node name the drive announces in the robot's namespace
 FRAME_ID = "base_link"  # TwistStamped's header frame
 QOS_DEPTH = 10
+STILL_SAY_S = 2.0  # s of commands that move with odometry that does not: said once (the robot drops them?)
+STILL_EPS = (1e-3, 1e-3)  # m, rad: odometry that moved less than this has not moved
+RELEASES = {"v1": "rmw_zenoh Rolling before 0.6.0, Jazzy 0.2.0-0.2.3 or Humble 0.1.0-0.1.1",
+            "v2": "rmw_zenoh Rolling 0.6.0 or later, Jazzy 0.2.4 or later or Humble 0.1.2 or later"}
 
 
 class DiscoveryError(RuntimeError):
@@ -65,13 +69,20 @@ class Ros2Drive:
                  twist: str = "plain", domain: int = 0, initial_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
                  discover_timeout_s: float = DISCOVER_TIMEOUT_S, odom_depth: int = ODOM_DEPTH,
                  wall_ns: Callable[[], int] = time.time_ns, announce: bool = True,
-                 base_timeout_s: float | None = None) -> None:
+                 base_timeout_s: float | None = None, attachment: str = "auto") -> None:
         """now(): the swarm's clock [s] (None until it is known: poses are not reported before);
         wall_ns(): the wall clock [ns since the epoch] for TwistStamped headers and attachments;
         base_timeout_s: how long the robot's base executes a cmd_vel with no newer one (the inventory's
         cmd_timeout; None: not known): should the agent die, its last command acts that long, and real time's
-        safety rule counts it in the robot's reach."""
+        safety rule counts it in the robot's reach; attachment: the form of rmw_zenoh's attachment the commands
+        carry (ros2.ATTACHMENT_FORMS: v1 for the releases before the 33-byte form, v2 after), or "auto": the form of
+        the robot's own odometry (v2 until its first sample says)."""
         self.bus, self.now, self.wall_ns = bus, now, wall_ns
+        if attachment != "auto":
+            ros2.check_attachment_form(attachment)
+        self.attachment_given = attachment
+        self.attachment: str = "v2" if attachment == "auto" else attachment  # the form commands carry
+        self.robot_attachment: str | None = None  # the form the robot's odometry carries, once seen
         self.namespace = ros2.check_namespace(namespace)
         self.flavor = ros2.check_flavor(flavor)
         self.twist = twist
@@ -96,10 +107,15 @@ class Ros2Drive:
         self.seq = 0  # poses reported
         self.sent = 0  # commands sent (halts included)
         self.unclocked = 0  # odometry received while now() was None (anchors, but no pose reported)
+        self.untold = 0  # odometry received before its attachment said the robot's release (auto: no pose reported)
         self.halted: str | None = "not started"  # the reason of the latched halt; None while commanded
         self._anchor: tuple[float, float, float] | None = None
         self._theta: float = self.initial_pose[2]
         self._att_seq = 0
+        self._moving_since: float | None = None  # monotonic: commands that move went out from then, odometry still
+        self._odom_at_move: tuple[float, float, float] | None = None
+        self._odom_last: tuple[float, float, float] | None = None
+        self.still_said = False  # the "commands but no motion" warning was given
         self._send_lock = threading.Lock()
         self._pose_lock = threading.Lock()
         self._box: Inbox | None = None  # start() sets it
@@ -127,6 +143,8 @@ class Ros2Drive:
                                 ros2.type_hash(what))
         self._box = self.bus.inbox(self.odom_key, depth=self.odom_depth)
         self._handles.append(self._box)
+        if self.flavor == "rmw_zenoh":  # the attachment of the robot's own samples says its release
+            self._handles.append(self.bus.subscribe_raw(self.odom_key, self._on_odom_attachment))
         if self.flavor == "rmw_zenoh" and self.announce:
             for e in self._entities():
                 self._handles.append(self.bus.token(e.key))
@@ -194,6 +212,28 @@ class Ros2Drive:
                          f"{self.domain}? (With zenoh-bridge-ros2dds on the robot, use --ros-flavor bridge.)")
         return " ".join(lines)
 
+    def _on_odom_attachment(self, key: str, payload: bytes, attachment: bytes | None) -> None:
+        """The first odometry sample's attachment form: auto takes it for the commands; a given form that differs
+        is said once (that robot's rmw_zenoh drops every command)."""
+        if self.robot_attachment is not None:
+            return
+        form = ros2.attachment_form(attachment)
+        if form is None:
+            log.warning("%s: odometry on %s carries %s, neither rmw_zenoh attachment form: commands go out as %s",
+                        self.namespace, key, "no attachment" if attachment is None else f"{len(attachment)} bytes",
+                        self.attachment)
+            self.robot_attachment = "unknown"
+            return
+        self.robot_attachment = form
+        if self.attachment_given == "auto":
+            self.attachment = form
+            log.info("%s: the robot's attachments are %s (%s): commands carry the same", self.namespace, form,
+                     RELEASES[form])
+        elif form != self.attachment:
+            log.error("%s: the robot's odometry carries %s attachments (%s) and --rmw-zenoh-attachment is %s: its "
+                      "rmw_zenoh drops every command. Give --rmw-zenoh-attachment %s, or auto", self.namespace, form,
+                      RELEASES[form], self.attachment, form)
+
     def _entities(self) -> list[Entity]:
         """The drive as a ROS 2 node would appear: node swarm_drive in the robot's namespace, publishing
         cmd_vel and subscribing odom (what a teleop or Nav2 controller would show)."""
@@ -243,7 +283,11 @@ class Ros2Drive:
                 except Ros2Error as e:
                     self.bad.reject(key, e)
                     continue
+                if self.robot_attachment is None and self.attachment_given == "auto" and self.flavor == "rmw_zenoh":
+                    self.untold += 1  # its form not known yet (the raw subscription's callback is on its way): no
+                    continue  # pose, so no command goes out in a form the robot may drop
                 odom = (o.x, o.y, o.yaw)
+                self._watch_motion(odom)
                 if self._anchor is None:  # the odom frame's origin in the swarm's frame
                     self._anchor = ros2.se2_compose(self.initial_pose, ros2.se2_inverse(odom))
                 t = self.now()
@@ -255,6 +299,27 @@ class Ros2Drive:
                 out.append(Pose(t=t, seq=self.seq, x=x, y=y, theta=self._theta))
                 self.seq += 1
         return out
+
+    def _watch_motion(self, odom: tuple[float, float, float]) -> None:
+        """Say once when commands that move have gone out for STILL_SAY_S and the odometry has not moved: the
+        robot takes no command (the attachment form, the twist type, a namespace), or something holds it."""
+        self._odom_last = odom
+        if self._moving_since is None:
+            return
+        if self._odom_at_move is None:
+            self._odom_at_move = odom
+        ref = self._odom_at_move
+        moved = abs(odom[0] - ref[0]) + abs(odom[1] - ref[1]) > STILL_EPS[0]
+        if moved or abs(ros2.wrap(odom[2] - ref[2])) > STILL_EPS[1]:
+            self._moving_since, self._odom_at_move = None, None  # it moves: commands arrive
+            return
+        if not self.still_said and time.monotonic() - self._moving_since >= STILL_SAY_S:
+            self.still_said = True
+            log.warning("%s: commands that move have gone out on %s for %.0f s and the odometry did not move: the "
+                        "robot takes none of them (%s; its twist type, here %s; its namespace), or something holds it",
+                        self.namespace, self.cmd_key, STILL_SAY_S,
+                        f"the attachment form, here {self.attachment}" if self.flavor == "rmw_zenoh" else
+                        "the bridge's namespace", self.cmd_type)
 
     # ------------------------------------------------------------------ commands
 
@@ -282,13 +347,17 @@ class Ros2Drive:
         if self.cmd_key is None:
             raise RuntimeError("Ros2Drive.send() before start()")
         now_ns = self.wall_ns()
+        if v == 0.0 and w == 0.0:
+            self._moving_since, self._odom_at_move = None, None
+        elif self._moving_since is None:
+            self._moving_since, self._odom_at_move = time.monotonic(), self._odom_last
         if self.cmd_type == ros2.TWIST:
             payload = ros2.encode_twist(v, w)
         else:
             payload = ros2.encode_twist_stamped(v, w, now_ns, FRAME_ID)
         if self.flavor == "rmw_zenoh":
             self._att_seq += 1
-            att = ros2.encode_attachment(self._att_seq, now_ns, self.gid)
+            att = ros2.encode_attachment(self._att_seq, now_ns, self.gid, self.attachment)
             self.bus.put(self.cmd_key, payload, reliable=True, attachment=att)
         else:
             self.bus.put(self.cmd_key, payload, reliable=True)

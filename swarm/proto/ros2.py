@@ -56,6 +56,14 @@ _TOPIC = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
 _TYPENAME = re.compile(r"^([A-Za-z][A-Za-z0-9_]*)/msg/([A-Za-z][A-Za-z0-9_]*)$")
 _DDS = re.compile(r"^([A-Za-z][A-Za-z0-9_]*)::msg::dds_::([A-Za-z][A-Za-z0-9_]*)_$")
 _ATTACHMENT = struct.Struct("<qqB16s")  # int64 seq, int64 source time [ns], sequence length 16, 16 gid bytes
+# The attachment's two forms in the field (docs/ros2.md, Releases): "v2", the 33 bytes above (rmw_zenoh Rolling
+# >= 0.6.0, Jazzy >= 0.2.4, Humble >= 0.1.2); "v1", each value after its name as a zenoh-ext string (rmw_zenoh
+# Rolling before 0.6.0, Jazzy 0.2.0-0.2.3, Humble 0.1.0-0.1.1), 77 bytes. A subscriber of one form throws on the
+# other's and drops the sample.
+ATTACHMENT_FORMS = ("v1", "v2")
+_V1_NAMES = (b"\x0fsequence_number", b"\x10source_timestamp", b"\x0asource_gid")  # LEB128 length, UTF-8
+_V1 = struct.Struct(f"<{len(_V1_NAMES[0])}sq{len(_V1_NAMES[1])}sq{len(_V1_NAMES[2])}sB16s")
+ATTACHMENT_SIZE_V1 = _V1.size
 _INT64 = (-(1 << 63), (1 << 63) - 1)
 _STAMP_MAX_NS = ((1 << 31) - 1) * 1_000_000_000 + 999_999_999  # builtin_interfaces/Time: int32 sec, uint32 nanosec
 
@@ -282,28 +290,57 @@ class Attachment:
     gid: bytes
 
 
-def encode_attachment(seq: int, timestamp_ns: int, gid: bytes) -> bytes:
-    """The 33 bytes in zenoh-ext serializer form: int64 LE seq, int64 LE time [ns], then the gid as a
-    sequence: its length 16 (one LEB128 byte, 0x10) and the 16 bytes."""
+def check_attachment_form(form: str) -> str:
+    if form not in ATTACHMENT_FORMS:
+        raise ValueError(f"an attachment form is one of {', '.join(ATTACHMENT_FORMS)}, got {form!r}")
+    return form
+
+
+def encode_attachment(seq: int, timestamp_ns: int, gid: bytes, form: str = "v2") -> bytes:
+    """v2: the 33 bytes in zenoh-ext serializer form: int64 LE seq, int64 LE time [ns], then the gid as a
+    sequence: its length 16 (one LEB128 byte, 0x10) and the 16 bytes. v1: the same values, each after its name
+    as a zenoh-ext string ("sequence_number", "source_timestamp", "source_gid"), 77 bytes."""
     for name, x in (("seq", seq), ("timestamp_ns", timestamp_ns)):
         if isinstance(x, bool) or not isinstance(x, int) or not _INT64[0] <= x <= _INT64[1]:
             raise Ros2Error(f"{name} must be an int64, got {x!r}")
     if not isinstance(gid, (bytes, bytearray)) or len(gid) != GID_SIZE:
         raise Ros2Error(f"a gid is {GID_SIZE} bytes, got {gid!r}")
+    if check_attachment_form(form) == "v1":
+        return _V1.pack(_V1_NAMES[0], seq, _V1_NAMES[1], timestamp_ns, _V1_NAMES[2], GID_SIZE, bytes(gid))
     return _ATTACHMENT.pack(seq, timestamp_ns, GID_SIZE, bytes(gid))
 
 
-def decode_attachment(data: bytes | None) -> Attachment:
-    """The inverse of encode_attachment; Ros2Error for anything but those 33 bytes."""
+def decode_attachment(data: bytes | None, form: str = "v2") -> Attachment:
+    """The inverse of encode_attachment for that form; Ros2Error for anything else (as that form's rmw_zenoh
+    subscriber throws and drops the sample)."""
     if data is None:
         raise Ros2Error("no attachment (rmw_zenoh drops such a sample)")
-    if not isinstance(data, (bytes, bytearray, memoryview)) or len(data) != ATTACHMENT_SIZE:
-        size = len(data) if isinstance(data, (bytes, bytearray, memoryview)) else type(data).__name__
-        raise Ros2Error(f"an attachment is {ATTACHMENT_SIZE} bytes, got {size}")
-    seq, ts, n, gid = _ATTACHMENT.unpack(bytes(data))
+    size = ATTACHMENT_SIZE_V1 if check_attachment_form(form) == "v1" else ATTACHMENT_SIZE
+    if not isinstance(data, (bytes, bytearray, memoryview)) or len(data) != size:
+        got = len(data) if isinstance(data, (bytes, bytearray, memoryview)) else type(data).__name__
+        raise Ros2Error(f"a {form} attachment is {size} bytes, got {got}")
+    if form == "v1":
+        k1, seq, k2, ts, k3, n, gid = _V1.unpack(bytes(data))
+        for got_name, want in ((k1, _V1_NAMES[0]), (k2, _V1_NAMES[1]), (k3, _V1_NAMES[2])):
+            if got_name != want:
+                raise Ros2Error(f"a v1 attachment names {want[1:].decode()} there, got {got_name[1:]!r}")
+    else:
+        seq, ts, n, gid = _ATTACHMENT.unpack(bytes(data))
     if n != GID_SIZE:
         raise Ros2Error(f"the attachment's gid must be a sequence of {GID_SIZE} bytes, its length says {n}")
     return Attachment(seq, ts, gid)
+
+
+def attachment_form(data: bytes | None) -> str | None:
+    """The form of an rmw_zenoh attachment ("v1" or "v2", ATTACHMENT_FORMS), None when it is neither: what a
+    robot's own samples say of its rmw_zenoh release."""
+    for form in ATTACHMENT_FORMS:
+        try:
+            decode_attachment(data, form)
+        except Ros2Error:
+            continue
+        return form
+    return None
 
 
 # --------------------------------------------------------------------------- messages

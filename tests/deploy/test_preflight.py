@@ -38,11 +38,11 @@ class Fleet:
     """A Ros2Fleet publishing odometry on a thread: each robot at its own rate (0: never)."""
 
     def __init__(self, net, fleet: inventory.Fleet, rates: dict[int, float], flavor="rmw_zenoh", twist="plain",
-                 namespaces=None, tokens=True):
+                 namespaces=None, tokens=True, attachment="v2"):
         self.bus = MemoryBus(net)
         names = namespaces or {r.id: r.entry.namespace for r in fleet.robots}
         self.ros = Ros2Fleet(self.bus, [tuple(map(float, q)) for q in fleet.scenario.poses], flavor, twist,
-                             namespace=lambda i: names[i])
+                             namespace=lambda i: names[i], attachment=attachment)
         if tokens:  # the robots' side is up (cmd_vel subscribed; rmw_zenoh: the graph's tokens)
             self.ros.start()
         self.fleet, self.rates, self.stop = fleet, rates, threading.Event()
@@ -95,6 +95,16 @@ def test_a_good_fleet_passes_and_nothing_is_sent_to_a_robot():
     assert all(15 <= r <= 25 for r in report.rates.values()), report.rates
     assert sim.cmds == []
     assert report.text().splitlines()[-1] == "pre-flight passed" and "robot 2: ok" in report.text()
+    assert report.attachments == {0: "v2", 1: "v2", 2: "v2"} and "rmw_zenoh attachments v2 (rmw_zenoh Rolling 0.6.0" \
+        in report.text()
+
+
+@pytest.mark.unit
+def test_the_robots_rmw_zenoh_release_is_named_by_its_attachments():
+    report, _ = run_check(fleet_of(), {0: 20, 1: 20, 2: 20}, attachment="v1")
+    assert report.ok and report.attachments == {0: "v1", 1: "v1", 2: "v1"}, report.text()
+    assert "robot 1: ok" in report.text() and "rmw_zenoh attachments v1 (rmw_zenoh Rolling before 0.6.0, Jazzy " \
+        "0.2.0-0.2.3 or Humble 0.1.0-0.1.1)" in report.text()
 
 
 @pytest.mark.unit

@@ -233,3 +233,79 @@ def test_discovery_with_no_robot_says_what_to_check():
     Ros2Fleet(MemoryBus(net), [(0.0, 0.0, 0.0)] * 2, "rmw_zenoh", "plain").start()
     with pytest.raises(DiscoveryError, match=r"/robot9/cmd_vel.*/robot9/odom.*Seen 2 node\(s\): /robot0/turtlebot3_node"):
         d.start()
+
+
+# --------------------------------------------------------------------------- the rmw_zenoh releases
+
+
+@pytest.mark.parametrize("release", ["v1", "v2"])
+@pytest.mark.parametrize("given", ["auto", "v1", "v2"])
+def test_commands_carry_the_attachment_of_the_robots_release(release, given, caplog):
+    """A fleet of one rmw_zenoh release (its odometry carries that form, and it drops a command in the other): the
+    drive in auto takes the form of the first odometry and every command arrives; a form given that differs is
+    said, as an error, and the robot takes nothing."""
+    net = MemoryNet()
+    fleet = Ros2Fleet(MemoryBus(net), [(0.0, 0.0, 0.0), (0.0, 0.0, 0.0)], "rmw_zenoh", "plain", attachment=release)
+    fleet.start()
+    d, bus = make_drive(net, "rmw_zenoh", attachment=given)
+    d.start()
+    fleet.publish_odom(1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    assert len(d.drain()) == 1 and d.robot_attachment == release
+    d.send(Cmd(t=1.0, seq=1, v=0.15, w=-0.4))
+    fits = given in ("auto", release)
+    assert fleet.take_commands() == ([(1, 0.15, -0.4)] if fits else [])
+    assert fleet.dropped_no_attachment == (0 if fits else 1)
+    assert ros2.attachment_form(bus.puts[-1][3]) == (release if fits else given)
+    said = [r.getMessage() for r in caplog.records if "rmw_zenoh drops every command" in r.getMessage()]
+    assert bool(said) == (not fits)
+
+
+def test_the_attachment_forms_are_zenoh_ext_serializations():
+    """v1: each value after its name as a zenoh-ext string (77 bytes); v2: the 33 bytes. Checked against zenoh-ext's
+    own serializer, and each form refuses the other."""
+    ext = pytest.importorskip("zenoh.ext")
+    gid = bytes(range(16))
+    v1 = ros2.encode_attachment(7, WALL_NS, gid, "v1")
+    assert v1 == bytes(ext.z_serialize(("sequence_number", ext.Int64(7), "source_timestamp", ext.Int64(WALL_NS),
+                                        "source_gid", gid)))
+    assert ros2.encode_attachment(7, WALL_NS, gid) == bytes(ext.z_serialize((ext.Int64(7), ext.Int64(WALL_NS), gid)))
+    assert len(v1) == ros2.ATTACHMENT_SIZE_V1 == 77
+    assert ros2.decode_attachment(v1, "v1") == ros2.Attachment(7, WALL_NS, gid)
+    with pytest.raises(ros2.Ros2Error, match="a v2 attachment is 33 bytes, got 77"):
+        ros2.decode_attachment(v1)
+    renamed = v1.replace(b"source_gid", b"source_gix")
+    with pytest.raises(ros2.Ros2Error, match="names source_gid there"):
+        ros2.decode_attachment(renamed, "v1")
+    assert [ros2.attachment_form(a) for a in (v1, ros2.encode_attachment(7, 0, gid), renamed, None, b"")] == \
+        ["v1", "v2", None, None, None]
+
+
+def test_commands_that_do_not_move_the_robot_are_said_within_two_seconds(monkeypatch, caplog):
+    """Commands that move go out and the odometry stays where it was (here: the robot's release drops them): said
+    once, after STILL_SAY_S, naming what to check; odometry that moves, or a stop, says nothing."""
+    import swarm.drives.ros2 as drive_mod
+
+    now = [100.0]
+    monkeypatch.setattr(drive_mod.time, "monotonic", lambda: now[0])
+    net = MemoryNet()
+    fleet = Ros2Fleet(MemoryBus(net), [(0.0, 0.0, 0.0), (0.0, 0.0, 0.0)], "rmw_zenoh", "plain", attachment="v1")
+    fleet.start()
+    d, _ = make_drive(net, "rmw_zenoh", attachment="v2")  # forced to the wrong form: the robot takes nothing
+    d.start()
+    for k in range(30):  # 3 s of commands at 10 Hz, and odometry at the same place
+        fleet.publish_odom(1, 0.1 * k, 0.0, 0.0, 0.0, 0.0, 0.0)
+        d.drain()
+        d.send(Cmd(t=0.1 * k, seq=k, v=0.2, w=0.0))
+        now[0] += 0.1
+        if now[0] - 100.0 < drive_mod.STILL_SAY_S - 0.15:
+            assert not d.still_said
+    assert d.still_said and fleet.take_commands() == []
+    said = [r.getMessage() for r in caplog.records if "did not move" in r.getMessage()]
+    assert len(said) == 1 and "the attachment form, here v2" in said[0]
+    moving, _ = make_drive(MemoryNet(), "bridge")
+    moving.cmd_key = "robot1/cmd_vel"
+    for k in range(30):  # odometry that follows the commands
+        moving.send(Cmd(t=0.1 * k, seq=k, v=0.2, w=0.0))
+        moving._watch_motion((0.02 * k, 0.0, 0.0))
+        now[0] += 0.1
+    assert not moving.still_said

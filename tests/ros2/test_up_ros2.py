@@ -79,16 +79,24 @@ def test_five_ros2_robots_converge_on_rmw_zenoh(tmp_path):
     assert m["converged_at_s"] is not None and m["collisions"] == 0 and m["bad_messages"] == 0, m
 
 
-@pytest.mark.parametrize("flavor, twist", [("bridge", "plain"), ("bridge", "stamped"), ("rmw_zenoh", "stamped")])
-def test_commands_reach_the_robots_and_odometry_is_used(tmp_path, flavor, twist):
+@pytest.mark.parametrize("flavor, twist, release", [("bridge", "plain", "v2"), ("bridge", "stamped", "v2"),
+                                                    ("rmw_zenoh", "stamped", "v2"), ("rmw_zenoh", "plain", "v1")])
+def test_commands_reach_the_robots_and_odometry_is_used(tmp_path, flavor, twist, release):
+    """Each family: bridge, current rmw_zenoh (Jazzy, stamped), an older rmw_zenoh release (the named-field
+    attachment, Humble's plain Twist) that drops a command of the other form: the robots find its form from its
+    odometry, every command is taken (a dropped one would count as a bad message)."""
     cmd, metrics = up(tmp_path, "--robots", "3", "--mode", "realtime", "--drive", "ros2", "--ros-flavor", flavor,
-                      "--twist", twist, "--duration", "10", "--speed", "2", "--quiet")
+                      "--twist", twist, "--duration", "10", "--speed", "2", "--quiet",
+                      *(["--rmw-zenoh-attachment", release] if flavor == "rmw_zenoh" else []))
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
     assert out.returncode == 0, out.stderr + "".join(p.read_text()[-2000:] for p in (tmp_path / "logs").glob("*.log"))
     m = json.loads(metrics.read_text())
     # the robots moved (commands delivered) toward their slots (their odometry closed the loop)
     assert m["collisions"] == 0 and m["bad_messages"] == 0 and m["robots_alive_at_end"] == 3
     assert m["final_position_error_max_m"] < 10.0 and m["steps"] >= 400
+    if flavor == "rmw_zenoh":
+        said = (tmp_path / "logs" / "robot-0.log").read_text()
+        assert f"the robot's attachments are {release}" in said and "did not move" not in said, said[-3000:]
 
 
 def test_watchdog_estop_and_ctrl_c_put_zero_velocity_on_cmd_vel(tmp_path):
