@@ -50,6 +50,7 @@ class _Robot:
     bad: str | None = None  # the last unreadable odometry's reason
     bad_count: int = 0
     attachment: str | None = None  # rmw_zenoh: the form of its odometry's attachments ("v1", "v2", "none")
+    doubled: bool = False  # bridge: nothing on <ns>/cmd_vel, something on <ns>/<ns>/cmd_vel (a doubled namespace)
 
 
 class OdometryProbe:
@@ -103,6 +104,8 @@ class OdometryProbe:
                             r.cmd_other = t.dds_type
             elif not r.cmd_ok:
                 r.cmd_ok = self.bus.wanted(ros2.bridge_key(e.namespace, ros2.CMD_VEL))
+                doubled = ros2.doubled_bridge_key(e.namespace, ros2.CMD_VEL)
+                r.doubled = not r.cmd_ok and doubled is not None and self.bus.wanted(doubled)
             if r.odom_key is not None and e.id not in self._subscribed:
                 self._subscribed.add(e.id)
                 self._handles.append(self.bus.subscribe_raw(r.odom_key, lambda k, p, a, r=r: self._on_odom(r, p, a)))
@@ -165,6 +168,11 @@ def _robot_problems(r: _Robot, seen: list, window: tuple[float, float], waited_s
                                      f"({ros2.ODOMETRY}) in the ROS 2 graph of domain {e.domain} within "
                                      f"{waited_s:.3g} s"))
             return out
+    elif not r.cmd_ok and r.doubled:
+        out.append(Problem(e.id, f"nothing subscribes {ros2.bridge_key(e.namespace, ros2.CMD_VEL)}, but something "
+                                 f"subscribes {ros2.doubled_bridge_key(e.namespace, ros2.CMD_VEL)}: the namespace is "
+                                 f"given twice (the robot's nodes in {where} and its bridge started with -n {where}); "
+                                 "start the bridge without -n, or the robot without its namespace"))
     elif not r.cmd_ok:
         out.append(Problem(e.id, f"nothing subscribes {ros2.bridge_key(e.namespace, ros2.CMD_VEL)} (is the robot's "
                                  f"zenoh-bridge-ros2dds up with namespace {where}, and linked to this router?)"))

@@ -193,6 +193,13 @@ def bridge_key(namespace: str, topic: str) -> str:
     return topic_name(namespace, topic)[1:]
 
 
+def doubled_bridge_key(namespace: str, topic: str) -> str | None:
+    """Where a topic of a robot in `namespace` lands behind a bridge started with that namespace too (`-n /robot1`
+    in front of the robot's own /robot1/cmd_vel: "robot1/robot1/cmd_vel"); None without a namespace."""
+    ns = check_namespace(namespace)
+    return f"{ns}/{bridge_key(ns, topic)}" if ns else None
+
+
 def liveliness_any(domain: int) -> str:
     """Every liveliness token of a domain. `@ros2_lv` is a verbatim chunk in zenoh: `**` alone never
     matches it, so a watcher must name it."""

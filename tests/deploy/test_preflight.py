@@ -155,6 +155,27 @@ def test_bridge_flavour():
 
 
 @pytest.mark.unit
+def test_a_namespace_given_twice_behind_a_bridge_is_named():
+    """A robot in namespace robot1 behind a bridge started with -n /robot1: its cmd_vel is on robot1/robot1/cmd_vel.
+    Nothing on the expected key and something on the doubled one: said so, with the fix."""
+    fleet = fleet_of(r0={"flavor": "bridge"}, r1={"flavor": "bridge"}, r2={"flavor": "bridge"})
+    net = MemoryNet()
+    b = MemoryBus(net)
+    for i in (0, 2):
+        b.subscribe(ros2.bridge_key(f"robot{i}", ros2.CMD_VEL), lambda k, p: None)
+    b.subscribe("robot1/robot1/cmd_vel", lambda k, p: None)
+    sim = Fleet(net, fleet, {0: 20, 1: 20, 2: 20}, flavor="bridge", tokens=False)
+    try:
+        report = preflight.check(MemoryBus(net), fleet, timeout_s=1.0, window_s=0.6)
+    finally:
+        sim.close()
+    assert [p.robot for p in report.problems] == [1], report.text()
+    assert str(report.problems[0]).startswith("robot 1: nothing subscribes robot1/cmd_vel, but something subscribes "
+                                              "robot1/robot1/cmd_vel: the namespace is given twice")
+    assert ros2.doubled_bridge_key("", ros2.CMD_VEL) is None
+
+
+@pytest.mark.unit
 def test_unreadable_odometry():
     fleet = fleet_of(r0={"flavor": "bridge"}, r1={"flavor": "bridge"}, r2={"flavor": "bridge"})
     net = MemoryNet()
