@@ -49,10 +49,20 @@ HALT_REPEATS = 3  # zero commands sent by halt() (reliable already; a few more c
 NODE = "swarm_drive"  # the ROS 2 node name the drive announces in the robot's namespace
 FRAME_ID = "base_link"  # TwistStamped's header frame
 QOS_DEPTH = 10
+ODOM_JUMP_M, ODOM_JUMP_RAD = 0.5, 0.5  # odometry back at its origin from this far in one sample has restarted
+ODOM_ORIGIN = 1e-3  # m and rad: a restarted odometry's first samples are at (0, 0, 0)
 STILL_SAY_S = 2.0  # s of commands that move with odometry that does not: said once (the robot drops them?)
 STILL_EPS = (1e-3, 1e-3)  # m, rad: odometry that moved less than this has not moved
 RELEASES = {"v1": "rmw_zenoh Rolling before 0.6.0, Jazzy 0.2.0-0.2.3 or Humble 0.1.0-0.1.1",
             "v2": "rmw_zenoh Rolling 0.6.0 or later, Jazzy 0.2.4 or later or Humble 0.1.2 or later"}
+
+
+def _restarted(prev: tuple[float, float, float], odom: tuple[float, float, float]) -> bool:
+    """Odometry back at its origin (0, 0, 0) from ODOM_JUMP_M or ODOM_JUMP_RAD away in one sample: the robot's node
+    restarted (a base cannot drive that far in one sample period, and a long gap between samples does not bring it
+    back to exactly its origin)."""
+    at_origin = abs(odom[0]) < ODOM_ORIGIN and abs(odom[1]) < ODOM_ORIGIN and abs(odom[2]) < ODOM_ORIGIN
+    return at_origin and (math.hypot(prev[0], prev[1]) > ODOM_JUMP_M or abs(ros2.wrap(prev[2])) > ODOM_JUMP_RAD)
 
 
 class DiscoveryError(RuntimeError):
@@ -108,6 +118,7 @@ class Ros2Drive:
         self.sent = 0  # commands sent (halts included)
         self.unclocked = 0  # odometry received while now() was None (anchors, but no pose reported)
         self.untold = 0  # odometry received before its attachment said the robot's release (auto: no pose reported)
+        self.resets = 0  # odometry frames re-anchored after a jump (the robot's node restarted)
         self.halted: str | None = "not started"  # the reason of the latched halt; None while commanded
         self._anchor: tuple[float, float, float] | None = None
         self._theta: float = self.initial_pose[2]
@@ -287,9 +298,12 @@ class Ros2Drive:
                     self.untold += 1  # its form not known yet (the raw subscription's callback is on its way): no
                     continue  # pose, so no command goes out in a form the robot may drop
                 odom = (o.x, o.y, o.yaw)
+                prev = self._odom_last
                 self._watch_motion(odom)
                 if self._anchor is None:  # the odom frame's origin in the swarm's frame
                     self._anchor = ros2.se2_compose(self.initial_pose, ros2.se2_inverse(odom))
+                elif prev is not None and _restarted(prev, odom):
+                    self._reanchor(prev, odom)
                 t = self.now()
                 if t is None:
                     self.unclocked += 1
@@ -299,6 +313,17 @@ class Ros2Drive:
                 out.append(Pose(t=t, seq=self.seq, x=x, y=y, theta=self._theta))
                 self.seq += 1
         return out
+
+    def _reanchor(self, prev: tuple[float, float, float], odom: tuple[float, float, float]) -> None:
+        """The robot's odometry jumped between two samples (its node restarted and its odom frame with it): anchor the
+        new frame so that the robot is where the last sample put it, and say so."""
+        assert self._anchor is not None
+        where = ros2.se2_compose(self._anchor, prev)  # the robot in the swarm's frame, before the jump
+        self._anchor = ros2.se2_compose(where, ros2.se2_inverse(odom))
+        self.resets += 1
+        log.warning("%s: odometry on %s jumped from (%.3f, %.3f, %.3f) to (%.3f, %.3f, %.3f) between two samples (its "
+                    "node restarted?): re-anchored, the robot stays at (%.3f, %.3f) in the swarm's frame",
+                    self.namespace, self.odom_key, *prev, *odom, where[0], where[1])
 
     def _watch_motion(self, odom: tuple[float, float, float]) -> None:
         """Say once when commands that move have gone out for STILL_SAY_S and the odometry has not moved: the

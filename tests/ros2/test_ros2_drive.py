@@ -309,3 +309,29 @@ def test_commands_that_do_not_move_the_robot_are_said_within_two_seconds(monkeyp
         moving._watch_motion((0.02 * k, 0.0, 0.0))
         now[0] += 0.1
     assert not moving.still_said
+
+
+def test_an_odometry_reset_is_re_anchored_where_the_robot_was(caplog):
+    """The robot's node restarts and its odometry starts again at (0, 0, 0): the drive re-anchors the new frame at the
+    robot's last pose (no jump in the swarm's frame), counts it and says so. A big step elsewhere (samples lost in
+    between) is motion, and so is a return near the origin."""
+    net = MemoryNet()
+    pub = MemoryBus(net)
+    d, _ = make_drive(net, "bridge", initial=(5.0, 2.0, 0.0))
+    d.start()
+    for x in (0.0, 0.4, 1.6, 1.61):  # 1.2 m between two samples: a gap, not a reset
+        pub.put(d.odom_key, odom(x, 0.0, 0.0))
+    assert [round(p.x, 6) for p in d.drain()] == [5.0, 5.4, 6.6, 6.61] and d.resets == 0
+    pub.put(d.odom_key, odom(0.0, 0.0, 0.0))  # restarted
+    pub.put(d.odom_key, odom(0.01, 0.0, 0.0))
+    after = d.drain()
+    assert d.resets == 1 and [round(p.x, 6) for p in after] == [6.61, 6.62] and {p.y for p in after} == {2.0}
+    assert any("jumped from (1.610, 0.000, 0.000) to (0.000, 0.000, 0.000)" in r.getMessage() for r in caplog.records)
+    pub.put(d.odom_key, odom(0.01, 0.0, 1.2))
+    pub.put(d.odom_key, odom(0.0, 0.0, 0.0))  # back at the origin from a heading 1.2 rad away: restarted again
+    turned = d.drain()
+    assert d.resets == 2 and turned[1].theta == pytest.approx(turned[0].theta) == pytest.approx(1.2)
+    pub.put(d.odom_key, odom(0.3, 0.0, 0.0))
+    pub.put(d.odom_key, odom(0.0, 0.0, 0.0))  # 0.3 m back to the origin: motion
+    d.drain()
+    assert d.resets == 2
