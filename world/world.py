@@ -77,7 +77,7 @@ class World:
     def __init__(self, bus, scn: Scenario, fleet: str = "default", lockstep: bool = True, speed: float = 1.0,
                  watchdog: float = WATCHDOG_S, tick_timeout: float = TICK_TIMEOUT_S, fine_dt: float = FINE_DT_S,
                  trace: bool = False, progress=None, clock=WALL, lost_timeout: float = LOST_TIMEOUT_S,
-                 ros2: tuple[str, str, int, str] | None = None, process_faults: str = "played"):
+                 ros2: tuple[str, str, int, str, str] | None = None, process_faults: str = "played"):
         self.bus, self.scn, self.fleet = bus, scn, fleet
         self.clock = clock
         self.lockstep, self.speed = lockstep, speed
@@ -211,9 +211,9 @@ class World:
         elif self.ros2 is not None:  # real time, ROS 2 robots: cmd_vel in, odometry out (world.ros2_fleet)
             from world.ros2_fleet import Ros2Fleet
 
-            flavor, twist, domain, attachment = self.ros2
+            flavor, twist, domain, attachment, distro = self.ros2
             self.fleet_ros2 = Ros2Fleet(self.bus, [tuple(map(float, p)) for p in self.scn.poses], flavor, twist, domain,
-                                        attachment=attachment)
+                                        attachment=attachment, distro=distro)
             self.fleet_ros2.start()
             self._status_inbox = self.bus.inbox(keys.robot_any(f, "status"), depth=8 * self.n + 64)
             self._handles.append(self._status_inbox)
@@ -1220,7 +1220,8 @@ class WorldOptions:
     watchdog: float = WATCHDOG_S
     tick_timeout: float = TICK_TIMEOUT_S
     lost_timeout: float = LOST_TIMEOUT_S
-    ros2: tuple[str, str, int, str] | None = None  # real time: a simulated ROS 2 fleet (flavor, twist, domain, attachment)
+    ros2: tuple[str, str, int, str, str] | None = None  # real time, a simulated ROS 2 fleet: flavor, twist, domain,
+    # attachment form, distro
     start_timeout: float = 60.0
     trace: bool = False
     process_faults: str = "played"  # lock-step kills and hangs: "signals" when a supervisor really does them

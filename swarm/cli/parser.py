@@ -431,6 +431,9 @@ def _add_ros2_flags(g, world: bool | str = False) -> None:
                             "Rolling >= 0.6.0, Jazzy >= 0.2.4, Humble >= 0.1.2), v1 (named fields: the releases "
                             "before), or auto (default): the form of the robot's own odometry")
     else:
+        g.add_argument("--distro", choices=("jazzy", "humble"), default="jazzy",
+                       help="the simulated robots' ROS 2 distribution: jazzy (RIHS01 type hashes in keys and tokens, "
+                            "default) or humble (TypeHashNotSupported)")
         g.add_argument("--rmw-zenoh-attachment", choices=("v1", "v2"), default="v2",
                        help="the simulated robots' rmw_zenoh release: v2 (the 33-byte attachment, default) or v1 (named "
                             "fields, releases before Rolling 0.6.0, Jazzy 0.2.4, Humble 0.1.2); a command in the other "

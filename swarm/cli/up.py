@@ -101,7 +101,7 @@ def refuse_unused_flags(args) -> None:
         if value is not None:
             raise BadInput(f"{flag} needs --inventory (real robots; a simulated swarm starts where the scenario says)")
     if args.drive != "ros2":
-        for flag in given(args, "ros_flavor", "twist", "domain", "rmw_zenoh_attachment"):
+        for flag in given(args, "ros_flavor", "twist", "domain", "rmw_zenoh_attachment", "distro"):
             raise BadInput(f"{flag} needs --drive ros2 (the simulated ROS 2 robots' wire)")
 
 
@@ -174,7 +174,7 @@ def cmd_up(args, started: float) -> int:
         trace=str(Path(args.trace).absolute()) if args.trace else None, start_timeout=args.start_timeout,
         tick_timeout=args.tick_timeout, lost_timeout=args.lost_timeout, watchdog=args.watchdog,
         restart=RestartPolicy(args.restarts, args.restart_window), viz=viz, drive=args.drive, ros_flavor=args.ros_flavor,
-        attachment=args.rmw_zenoh_attachment,
+        attachment=args.rmw_zenoh_attachment, distro=args.distro,
         twist=args.twist, domain=args.domain)
     plan = make_plan(opts)
     check_viz_apart(viz, (opts.listen or plan.endpoint) if plan.router is not None else None)

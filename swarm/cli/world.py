@@ -27,7 +27,7 @@ def cmd_world(args, started: float) -> int:
             raise BadInput(f"{flag} needs --inventory (real robots; a simulated world starts its robots where the "
                            "scenario says)")
     if args.ros2_sim is None:
-        for flag in given(args, "twist", "domain", "rmw_zenoh_attachment"):
+        for flag in given(args, "twist", "domain", "rmw_zenoh_attachment", "distro"):
             raise BadInput(f"{flag} needs --ros2-sim (it sets the simulated ROS 2 robots' {flag[2:]})")
     die_with_parent()
     setup_logging()
@@ -47,8 +47,8 @@ def cmd_world(args, started: float) -> int:
     opts = WorldOptions(lockstep=args.mode == "lockstep", speed=args.speed, watchdog=args.watchdog,
                         tick_timeout=args.tick_timeout, lost_timeout=args.lost_timeout,
                         start_timeout=args.start_timeout,
-                        ros2=(args.ros2_sim, args.twist, args.domain, args.rmw_zenoh_attachment) if args.ros2_sim
-                        else None, trace=args.trace is not None,
+                        ros2=(args.ros2_sim, args.twist, args.domain, args.rmw_zenoh_attachment, args.distro)
+                        if args.ros2_sim else None, trace=args.trace is not None,
                         process_faults=args.process_faults)
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, role="world")

@@ -54,6 +54,7 @@ class UpOptions:
     drive: str = "sim"  # ros2: the world simulates a ROS 2 fleet and every robot drives through it
     ros_flavor: str = "rmw_zenoh"
     attachment: str = "v2"  # the simulated fleet's rmw_zenoh attachment form (the robots find it themselves)
+    distro: str = "jazzy"  # the simulated fleet's ROS 2 distribution (humble: no type hashes)
     twist: str = "plain"
     domain: int = 0
     multicast: bool = False
@@ -140,7 +141,7 @@ def make_plan(o: UpOptions, python: str = sys.executable) -> Plan:
     ros = []
     if o.drive == "ros2":
         ros = ["--twist", o.twist, "--domain", str(o.domain)]
-        w_argv += ["--ros2-sim", o.ros_flavor, *ros, "--rmw-zenoh-attachment", o.attachment]
+        w_argv += ["--ros2-sim", o.ros_flavor, *ros, "--rmw-zenoh-attachment", o.attachment, "--distro", o.distro]
         ros = ["--drive", "ros2", "--ros-flavor", o.ros_flavor, *ros]
     world = ProcSpec("world", "world", 0, tuple(w_argv))
     leader = ProcSpec("leader", "leader", 0, (*base, "leader", *o.scenario_args, "--mode", o.mode, *net))

@@ -83,11 +83,12 @@ def test_five_ros2_robots_converge_on_rmw_zenoh(tmp_path):
                                                     ("rmw_zenoh", "stamped", "v2"), ("rmw_zenoh", "plain", "v1")])
 def test_commands_reach_the_robots_and_odometry_is_used(tmp_path, flavor, twist, release):
     """Each family: bridge, current rmw_zenoh (Jazzy, stamped), an older rmw_zenoh release (the named-field
-    attachment, Humble's plain Twist) that drops a command of the other form: the robots find its form from its
-    odometry, every command is taken (a dropped one would count as a bad message)."""
+    attachment, Humble's plain Twist and keys without type hashes) that drops a command of the other form: the
+    robots find its form from its odometry, every command is taken (a dropped one would count as a bad message)."""
     cmd, metrics = up(tmp_path, "--robots", "3", "--mode", "realtime", "--drive", "ros2", "--ros-flavor", flavor,
                       "--twist", twist, "--duration", "10", "--speed", "2", "--quiet",
-                      *(["--rmw-zenoh-attachment", release] if flavor == "rmw_zenoh" else []))
+                      *(["--rmw-zenoh-attachment", release] if flavor == "rmw_zenoh" else []),
+                      *(["--distro", "humble"] if twist == "plain" else []))
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
     assert out.returncode == 0, out.stderr + "".join(p.read_text()[-2000:] for p in (tmp_path / "logs").glob("*.log"))
     m = json.loads(metrics.read_text())
