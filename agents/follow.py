@@ -45,7 +45,7 @@ def query_until(bus, key: str, kind: str, key_id, timeout_s: float, stop, what: 
     hint = "is the world running on this fleet and router?"
     while True:
         if time.monotonic() >= say_at:
-            say_at, hint = math.inf, why()
+            say_at, hint = math.inf, _hint(why, hint)
             log.warning("no answer for %s after %g s: %s; waiting up to %.0f s more (swarm ps lists what is on the "
                         "router)", what, SAY_S, hint, max(0.0, end - time.monotonic()))
         left = end - time.monotonic()
@@ -62,11 +62,22 @@ def query_until(bus, key: str, kind: str, key_id, timeout_s: float, stop, what: 
                 return msg
             last_error = "a reply of another run"
         if time.monotonic() >= end or (stop is not None and stop.is_set()):
+            if why is not None and say_at == math.inf:  # said before: what is there now
+                hint = _hint(why, hint)
             raise NoAnswer(f"no answer for {what} on {key} within {timeout_s:g} s ({last_error}); {hint}")
         if stop is not None:
             stop.wait(0.1)
         else:
             time.sleep(0.1)
+
+
+def _hint(why, otherwise: str) -> str:
+    """why(), or `otherwise` when it cannot say (the session went, a reply that does not decode)."""
+    try:
+        return why()
+    except Exception as e:  # a hint must never hide the error it explains
+        log.debug("what is on the router: %s", e)
+        return otherwise
 
 
 class RunFollower:

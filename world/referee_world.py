@@ -36,6 +36,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from world.ready import NotReady, wait_ready
 from swarm.core import kinematics, runid
 from swarm.core.clock import WALL, said_step
 from swarm.core.safety import RAMP_S
@@ -53,15 +54,6 @@ WATCHDOG_S = 0.5  # s: a robot whose newest state is older than this is shown st
 LOST_TIMEOUT_S = 10.0
 PROGRESS_PERIOD_S = 0.25  # wall seconds between progress messages
 LEAD_S = 0.2  # the epoch is this far in the future when announced, so every process hears it before t = 0
-
-
-class NotReady(RuntimeError):
-    """Some processes did not come up in time; `missing` names them."""
-
-    def __init__(self, missing: list[str], timeout_s: float):
-        self.missing = missing
-        shown = ", ".join(missing[:12]) + (f" and {len(missing) - 12} more" if len(missing) > 12 else "")
-        super().__init__(f"not alive after {timeout_s:g} s: {shown}")
 
 
 @dataclass(frozen=True)
@@ -186,21 +178,16 @@ class RefereeWorld:
         self.wake.set()
 
     def wait_ready(self, timeout_s: float, stop: threading.Event | None = None) -> None:
-        """Wait until every robot and the leader are alive; NotReady names the missing ones."""
-        end = self.clock.monotonic() + timeout_s
-        while True:
+        """Wait until every robot and the leader are alive, timeout_s after the last one that came (world.ready);
+        NotReady names the missing ones."""
+        def missing() -> list[str]:
             with self.lock:
-                if self.alive.all() and self.leader_alive:
-                    return
-                missing = ([] if self.leader_alive else ["leader"]) + \
-                          [f"robot {i}" for i in np.flatnonzero(~self.alive)]
-            if stop is not None and stop.is_set():
-                raise InterruptedError
-            left = end - self.clock.monotonic()
-            if left <= 0:
-                raise NotReady(missing, timeout_s)
-            self.clock.wait(self.wake, min(left, 0.2))
+                return ([] if self.leader_alive else ["leader"]) + [f"robot {i}" for i in np.flatnonzero(~self.alive)]
+
+        def wake(s: float) -> None:
+            self.clock.wait(self.wake, s)
             self.wake.clear()
+        wait_ready(missing, wake, self.clock.monotonic, timeout_s, stop)
 
     # ------------------------------------------------------------------ what came
 

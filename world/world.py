@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
+from world.ready import NotReady, wait_ready
 from swarm.net import presence
 from swarm.proto import keys, protocol, window
 from swarm.core import faultgen as fg
@@ -62,15 +63,6 @@ PROGRESS_PERIOD_S = 0.25  # wall seconds between progress messages
 BODIES_EVERY_S = 0.2  # real time: the bodies message goes out every period while it lists a robot, else this often
 BODIES_SILENT_S = 0.25  # real time: a robot stopped after commanding is listed once no command came for this long
 ROUND_TRIP_HISTORY_S = 5.0  # real time: poses remembered for round trips (simulated s; far past the watchdog)
-
-
-class NotReady(RuntimeError):
-    """Some processes did not come up in time; `missing` names them."""
-
-    def __init__(self, missing: list[str], timeout_s: float):
-        self.missing = missing
-        shown = ", ".join(missing[:12]) + (f" and {len(missing) - 12} more" if len(missing) > 12 else "")
-        super().__init__(f"not alive after {timeout_s:g} s: {shown}")
 
 
 class World:
@@ -428,21 +420,16 @@ class World:
         return self.t if epoch is None else max(self.t, (self.clock.time() - epoch) * self.speed)
 
     def wait_ready(self, timeout_s: float, stop: threading.Event | None = None) -> None:
-        """Wait until every robot and the leader are alive; NotReady names the missing ones."""
-        end = self.clock.monotonic() + timeout_s
-        while True:
+        """Wait until every robot and the leader are alive, timeout_s after the last one that came (world.ready);
+        NotReady names the missing ones."""
+        def missing() -> list[str]:
             with self.lock:
-                if self.alive.all() and self.leader_alive:
-                    return
-                missing = ([] if self.leader_alive else ["leader"]) + \
-                          [f"robot {i}" for i in np.flatnonzero(~self.alive)]
-            if stop is not None and stop.is_set():
-                raise InterruptedError
-            left = end - self.clock.monotonic()
-            if left <= 0:
-                raise NotReady(missing, timeout_s)
-            self.wake.wait(min(left, 0.2))
+                return ([] if self.leader_alive else ["leader"]) + [f"robot {i}" for i in np.flatnonzero(~self.alive)]
+
+        def wake(s: float) -> None:
+            self.wake.wait(s)
             self.wake.clear()
+        wait_ready(missing, wake, self.clock.monotonic, timeout_s, stop)
 
     # ------------------------------------------------------------------ publishing
 

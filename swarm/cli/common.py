@@ -405,6 +405,20 @@ def viz_options(args, enabled: bool, otherwise: str, extra: tuple[tuple[str, obj
                       timeout=getattr(args, "viz_timeout", None) or 60.0)
 
 
+def check_resources(robots: int, plan, dry_run: bool):
+    """This machine's memory and cores for `robots` robot processes and the plan's router and viewer
+    (swarm.launch.capacity.Resources): the warning on stderr, BadInput when they do not fit (a dry run prints its
+    plan first, then refuses as the run would). Returns the Resources, for the dry run's line."""
+    from swarm.launch.capacity import Resources
+
+    res = Resources(robots, router=plan.router is not None, viewer=plan.viz is not None)
+    if res.refusal() is not None and not dry_run:
+        raise BadInput(res.refusal())
+    if res.warning() is not None:
+        print(f"swarm up: warning: {res.warning()}", file=sys.stderr)
+    return res
+
+
 def check_viz_apart(v: VizOptions | None, router_listen: str | None) -> None:
     """--viz-port on the port this command's router listens on: the second to bind would fail after the start
     (the router first, so the viewer); refuse before anything starts, the dry run included."""

@@ -190,7 +190,7 @@ def collisions_text(m: dict) -> str:
     """The collision count, with the hint a collision of the paper's law without the governor calls for: its
     guarantee is for continuous time, and a robot can cross a neighbour's ring between two control steps."""
     n = m["collisions"]
-    if not n or m.get("governor") or m.get("law", "paper") != "paper":
+    if not n or m.get("governor"):
         return str(n)
     return (f"{n}  (the safety governor was off, as in the paper: its law keeps robots apart in continuous time, "
             "and a control step can jump a robot through a neighbour's stiff wall; --governor limits each step's "

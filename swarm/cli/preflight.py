@@ -28,7 +28,6 @@ from agents.guard import POSE_TIMEOUT_S
 from swarm.cli.common import BadInput, Failure, StopEvent, load_scenario, open_bus, setup_logging
 from swarm.core import inventory
 from swarm.core.inventory import Fleet, Problem, RobotEntry
-from swarm.drives.ros2 import RELEASES
 from swarm.proto import ros2
 from swarm.proto.ros2 import Ros2Error
 
@@ -237,7 +236,7 @@ class Report:
             else:
                 rate = f", odometry {self.rates[r.id]:.3g} Hz" if r.id in self.rates else ""
                 form = self.attachments.get(r.id)
-                rate += f", rmw_zenoh attachments {form} ({RELEASES.get(form, 'neither form')})" if form else ""
+                rate += f", rmw_zenoh attachments {form} ({ros2.RELEASES.get(form, 'neither form')})" if form else ""
                 lines.append(f"  robot {r.id}: ok (start ({r.start[0]:g}, {r.start[1]:g}) from {r.start_from}{rate})")
         lines += [f"  {p}" for p in self.problems if p.robot is None]
         if self.problems:
@@ -264,8 +263,11 @@ def unreached(fleet: Fleet) -> dict[int, str]:
     eps = list(fleet.inventory.endpoints)
     if not eps:
         return {}
+    def probe(ep: str) -> str | None:  # without --secure no TLS files are here: a tls/ endpoint's TCP is checked
+        return reach.probe("tcp/" + ep[4:] if ep.startswith("tls/") else ep)
+
     with ThreadPoolExecutor(max_workers=min(32, len(eps))) as pool:
-        why = dict(zip(eps, pool.map(reach.probe, eps)))
+        why = dict(zip(eps, pool.map(probe, eps)))
     return {r.id: f"{r.entry.connect}: {why[r.entry.connect]}" for r in fleet.robots
             if r.entry.connect and why.get(r.entry.connect)}
 

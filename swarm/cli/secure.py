@@ -28,7 +28,8 @@ def cmd_secure_init(args, started: float) -> int:
     except (secure.SecureError, ValueError) as e:
         raise BadInput(str(e)) from None
     except OSError as e:
-        raise BadInput(f"{d}: cannot write the fleet directory there ({e.filename}: {e.strerror or e})") from None
+        where = f"{e.filename}: " if e.filename else ""
+        raise BadInput(f"{d}: cannot make or read the fleet directory there ({where}{e.strerror or e})") from None
     m = w.manifest
     robots = [p.name for p in w.folders if p.name.startswith("robot-")]
     print(f"swarm secure: {'updated' if args.update else 'wrote'} {d} for fleet '{m['fleet']}': "

@@ -16,14 +16,14 @@ from typing import cast
 
 from swarm.cli.parser import given
 from swarm.cli.common import (EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent, check_endpoint,
-                              check_listen_free, check_out_dir, check_viz_apart, check_viz_port, clear_metrics,
-                              fleet_of, load_scenario, make_log_dir, open_bus, record_rate, scenario_args,
-                              viz_options, write_metrics)
+                              check_listen_free, check_out_dir, check_resources, check_viz_apart, check_viz_port,
+                              clear_metrics, fleet_of, load_scenario, make_log_dir, open_bus, record_rate,
+                              scenario_args, viz_options, write_metrics)
 from swarm.cli import console
 from swarm.cli.console import EstopFollower, cpu_counters, exit_status, progress_line, steal_pct, summary
 from swarm.core.clock import WALL
 from swarm.core.metrics import violations
-from swarm.launch.capacity import Resources, Waves
+from swarm.launch.capacity import Waves
 from swarm.launch.plan import DEFAULT_LISTEN, RestartPolicy, UpOptions, VizOptions, make_plan
 from swarm.launch.child import die_with_parent
 from swarm.launch.supervisor import Supervisor, compile_project, exit_text
@@ -178,14 +178,12 @@ def cmd_up(args, started: float) -> int:
         twist=args.twist, domain=args.domain)
     plan = make_plan(opts)
     check_viz_apart(viz, (opts.listen or plan.endpoint) if plan.router is not None else None)
-    res = Resources(scn.n, router=plan.router is not None, viewer=plan.viz is not None)
-    if res.refusal() is not None:
-        raise BadInput(res.refusal())
-    if res.warning() is not None:
-        print(f"swarm up: warning: {res.warning()}", file=sys.stderr)
+    res = check_resources(scn.n, plan, args.dry_run)
     if args.dry_run:
         print(plan.describe())
         print(res.text())
+        if res.refusal() is not None:  # the run would stop here: so does the dry run, after the plan
+            raise BadInput(res.refusal())
         return EXIT_OK
     if viz is not None:
         check_viz_port(viz)
@@ -251,8 +249,9 @@ def cmd_up(args, started: float) -> int:
                 if waves.step(len(alive & want), len(alive & robots)):
                     missing = sorted(want - alive, key=lambda k: (len(k), k))
                     names = [k.split("/alive/")[1].replace("/", " ") for k in missing]
+                    queued = f" ({len(waves.waiting)} of them not started yet, behind these)" if waves.waiting else ""
                     raise launch_failure(f"not alive after {args.start_timeout:g} s without a new process up: "
-                                         f"{', '.join(names[:12])}{' ...' if len(names) > 12 else ''}", sup)
+                                         f"{', '.join(names[:12])}{' ...' if len(names) > 12 else ''}{queued}", sup)
                 if sup.children["world"].proc.poll() is not None:
                     raise launch_failure("the world process exited during start-up", sup, "world")
                 status.update(f"starting: {len(alive & want)}/{len(want)} processes alive", force=False)

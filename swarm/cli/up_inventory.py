@@ -26,14 +26,14 @@ from typing import cast
 from swarm.cli import console, preflight
 from swarm.cli.parser import given
 from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent,
-                              check_endpoint, check_listen_free, check_out_dir, check_viz_apart, check_viz_port,
-                              clear_metrics, load_scenario, make_log_dir, open_bus, record_rate, scenario_args,
-                              setup_logging, viz_options, write_json, write_metrics)
+                              check_endpoint, check_listen_free, check_out_dir, check_resources, check_viz_apart,
+                              check_viz_port, clear_metrics, load_scenario, make_log_dir, open_bus, record_rate,
+                              scenario_args, setup_logging, viz_options, write_json, write_metrics)
 from swarm.cli.console import EstopFollower, exit_status, progress_line, summary
 from swarm.core import inventory
 from swarm.core.clock import WALL
 from swarm.core.metrics import violations
-from swarm.launch.capacity import Resources, Waves
+from swarm.launch.capacity import Waves
 from swarm.launch.child import die_with_parent
 from swarm.launch.inventory_plan import FleetUpOptions, make_fleet_plan
 from swarm.launch.plan import DEFAULT_LISTEN, VizOptions
@@ -81,6 +81,9 @@ def cmd_robot_fleet(args, started: float) -> int:
             raise BadInput("--id auto with --inventory: a real robot's id is its inventory row's (hardware has fixed "
                            "ids); give --id I")
         entry = inv.entry(args.id)
+        for flag in given(args, "ros_flavor", "twist", "domain", "rmw_zenoh_attachment"):
+            raise BadInput(f"{flag} with --inventory: the robot's drive comes from its inventory row "
+                           f"({entry.key}: flavor, twist, domain, attachment)")
         for flag, value in (("--scenario", args.scenario), ("--initial-pose", args.initial_pose),
                             ("--namespace", args.namespace)):
             if value is not None:
@@ -160,7 +163,8 @@ def _ros2_available(flag: str) -> None:
 def _row_drive(entry: inventory.RobotEntry):
     """make_drive for an inventory row (its ROS 2 topics), anchored at the start the world gives."""
     _ros2_available(f"the inventory's {entry.key}.drive = {entry.drive!r}")
-    return _drive_factory(entry.namespace, entry.flavor, entry.twist, entry.domain, None, entry.cmd_timeout)
+    return _drive_factory(entry.namespace, entry.flavor, entry.twist, entry.domain, None, entry.cmd_timeout,
+                          attachment=entry.attachment)
 
 
 def _flag_drive(args):
@@ -283,6 +287,8 @@ IGNORED_WITH_INVENTORY = {
     "ros_flavor": "each robot's ROS 2 flavor comes from its inventory row (flavor)",
     "twist": "each robot's cmd_vel type comes from its inventory row (twist)",
     "domain": "each robot's ROS domain comes from its inventory row (domain)",
+    "rmw_zenoh_attachment": "each robot's attachment form comes from its inventory row (attachment, auto by default)",
+    "distro": "the robots are real: their ROS 2 distribution is theirs",
     "restarts": "a real fleet's processes are never restarted (a robot whose agent died stands still)",
     "restart_window": "a real fleet's processes are never restarted (a robot whose agent died stands still)",
     "tick_timeout": "real robots run in real time; a tick's timeout is lock-step's",
@@ -347,15 +353,13 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
         start_timeout=args.start_timeout, lost_timeout=args.lost_timeout, watchdog=args.watchdog, viz=viz)
     plan = make_fleet_plan(opts, module=module)
     check_viz_apart(viz, (opts.listen or plan.endpoint) if plan.router is not None else None)
-    res = Resources(len(plan.robots), router=plan.router is not None, viewer=plan.viz is not None)
-    if res.refusal() is not None:
-        raise BadInput(res.refusal())
-    if res.warning() is not None:
-        print(f"swarm up: warning: {res.warning()}", file=sys.stderr)
+    res = check_resources(len(plan.robots), plan, args.dry_run)
     static = preflight.static_report(fleet)
     if args.dry_run:
         print(plan.describe())
         print(res.text())
+        if res.refusal() is not None:  # the run would stop here: so does the dry run, after the plan
+            raise BadInput(res.refusal())
         print(f"fleet '{name}' (inventory {fleet.inventory.where}):\n{inventory.describe(fleet)}")
         print(static.text() if not args.no_preflight else "pre-flight: skipped (--no-preflight)")
         if not args.no_preflight and not static.ok:  # the run would stop here: so does the dry run (exit 1)

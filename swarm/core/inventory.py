@@ -16,6 +16,7 @@ The file:
     namespace = "robot0"                   # its ROS namespace (default robot<id>)
     domain = 0                             # its ROS_DOMAIN_ID (default 0)
     twist = "plain"                        # cmd_vel as Twist, or "stamped" (TwistStamped: TurtleBot3 on Jazzy)
+    attachment = "auto"                    # rmw_zenoh's attachment form: auto (its odometry's), v1 or v2
     connect = "tcp/192.168.1.20:7447"      # its zenoh router or bridge (optional)
     initial_pose = [-1.0, -2.5, 0.0]       # where it stands, x [m], y [m], theta [rad] (default: the scenario's start)
     v_max = 0.2                            # [m/s], may only tighten the scenario's control.v_max
@@ -57,9 +58,10 @@ if TYPE_CHECKING:
 DRIVES = ("ros2",)
 FLAVORS = ("rmw_zenoh", "bridge")
 TWISTS = ("plain", "stamped")
+ATTACHMENTS = ("auto", "v1", "v2")  # swarm.proto.ros2.ATTACHMENT_FORMS, or the robot's own
 PREFLIGHT_SHARE = 0.8  # a leader segment may use this share of a robot's speed limits
-ROBOT_KEYS = ("id", "drive", "flavor", "namespace", "domain", "twist", "connect", "initial_pose", "v_max", "w_max",
-              "cmd_timeout")
+ROBOT_KEYS = ("id", "drive", "flavor", "namespace", "domain", "twist", "attachment", "connect", "initial_pose",
+              "v_max", "w_max", "cmd_timeout")
 _FLEET = re.compile(r"^[A-Za-z0-9_\-]{1,64}$")  # swarm.proto.keys' fleet names
 _ENDPOINT = re.compile(r"^(tcp|tls|udp|quic|ws|unixsock-stream)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+):([0-9]{1,5})$")
 
@@ -84,6 +86,7 @@ class RobotEntry:
     v_max: float | None = None  # m/s
     w_max: float | None = None  # rad/s
     cmd_timeout: float | None = None  # s: the base's own cmd_vel timeout (None: not known)
+    attachment: str = "auto"  # rmw_zenoh's attachment form: auto (the robot's odometry says), v1 or v2
 
 
 @dataclass(frozen=True)
@@ -228,7 +231,8 @@ def _robot(rd: _Reader, row: dict[str, Any], key: str) -> RobotEntry:
     if timeout is not None and timeout > 60.0:
         raise rd.fail(f"{key}.cmd_timeout", f"must be at most 60 s (a base that keeps a command longer is not "
                                             f"stopped by anything swarm can do), got {timeout:g}")
-    return RobotEntry(i, key, drive, flavor, namespace, domain, twist, connect, pose, v_max, w_max, timeout)
+    attachment = rd.choice(row.get("attachment", "auto"), f"{key}.attachment", ATTACHMENTS)
+    return RobotEntry(i, key, drive, flavor, namespace, domain, twist, connect, pose, v_max, w_max, timeout, attachment)
 
 
 # --------------------------------------------------------------------------- applying to a scenario

@@ -53,8 +53,6 @@ ODOM_JUMP_M, ODOM_JUMP_RAD = 0.5, 0.5  # odometry back at its origin from this f
 ODOM_ORIGIN = 1e-3  # m and rad: a restarted odometry's first samples are at (0, 0, 0)
 STILL_SAY_S = 2.0  # s of commands that move with odometry that does not: said once (the robot drops them?)
 STILL_EPS = (1e-3, 1e-3)  # m, rad: odometry that moved less than this has not moved
-RELEASES = {"v1": "rmw_zenoh Rolling before 0.6.0, Jazzy 0.2.0-0.2.3 or Humble 0.1.0-0.1.1",
-            "v2": "rmw_zenoh Rolling 0.6.0 or later, Jazzy 0.2.4 or later or Humble 0.1.2 or later"}
 
 
 def _restarted(prev: tuple[float, float, float], odom: tuple[float, float, float]) -> bool:
@@ -79,7 +77,8 @@ class Ros2Drive:
                  twist: str = "plain", domain: int = 0, initial_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
                  discover_timeout_s: float = DISCOVER_TIMEOUT_S, odom_depth: int = ODOM_DEPTH,
                  wall_ns: Callable[[], int] = time.time_ns, announce: bool = True,
-                 base_timeout_s: float | None = None, attachment: str = "auto") -> None:
+                 base_timeout_s: float | None = None, attachment: str = "auto",
+                 monotonic: Callable[[], float] = time.monotonic) -> None:
         """now(): the swarm's clock [s] (None until it is known: poses are not reported before);
         wall_ns(): the wall clock [ns since the epoch] for TwistStamped headers and attachments;
         base_timeout_s: how long the robot's base executes a cmd_vel with no newer one (the inventory's
@@ -87,7 +86,7 @@ class Ros2Drive:
         safety rule counts it in the robot's reach; attachment: the form of rmw_zenoh's attachment the commands
         carry (ros2.ATTACHMENT_FORMS: v1 for the releases before the 33-byte form, v2 after), or "auto": the form of
         the robot's own odometry (v2 until its first sample says)."""
-        self.bus, self.now, self.wall_ns = bus, now, wall_ns
+        self.bus, self.now, self.wall_ns, self.monotonic = bus, now, wall_ns, monotonic
         if attachment != "auto":
             ros2.check_attachment_form(attachment)
         self.attachment_given = attachment
@@ -239,11 +238,11 @@ class Ros2Drive:
         if self.attachment_given == "auto":
             self.attachment = form
             log.info("%s: the robot's attachments are %s (%s): commands carry the same", self.namespace, form,
-                     RELEASES[form])
+                     ros2.RELEASES[form])
         elif form != self.attachment:
             log.error("%s: the robot's odometry carries %s attachments (%s) and --rmw-zenoh-attachment is %s: its "
                       "rmw_zenoh drops every command. Give --rmw-zenoh-attachment %s, or auto", self.namespace, form,
-                      RELEASES[form], self.attachment, form)
+                      ros2.RELEASES[form], self.attachment, form)
 
     def _entities(self) -> list[Entity]:
         """The drive as a ROS 2 node would appear: node swarm_drive in the robot's namespace, publishing
@@ -338,7 +337,7 @@ class Ros2Drive:
         if moved or abs(ros2.wrap(odom[2] - ref[2])) > STILL_EPS[1]:
             self._moving_since, self._odom_at_move = None, None  # it moves: commands arrive
             return
-        if not self.still_said and time.monotonic() - self._moving_since >= STILL_SAY_S:
+        if not self.still_said and self.monotonic() - self._moving_since >= STILL_SAY_S:
             self.still_said = True
             log.warning("%s: commands that move have gone out on %s for %.0f s and the odometry did not move: the "
                         "robot takes none of them (%s; its twist type, here %s; its namespace), or something holds it",
@@ -375,7 +374,7 @@ class Ros2Drive:
         if v == 0.0 and w == 0.0:
             self._moving_since, self._odom_at_move = None, None
         elif self._moving_since is None:
-            self._moving_since, self._odom_at_move = time.monotonic(), self._odom_last
+            self._moving_since, self._odom_at_move = self.monotonic(), self._odom_last
         if self.cmd_type == ros2.TWIST:
             payload = ros2.encode_twist(v, w)
         else:

@@ -1,8 +1,9 @@
 """Whether this machine can hold a swarm: its memory and cores before `swarm up` starts N processes, and a
 real-time swarm's control period (measured before `swarm up --mode realtime`).
 
-    r = resources(robots, router=True, viewer=True)  # memory the processes take, against what is available
+    r = Resources(robots, router=True, viewer=True)  # memory the processes take, against what is available
     r.refusal()  /  r.warning()                      # None, or what to say before anything starts
+    waves = Waves(sup.start, plan.robots, timeout_s) # robots started a few cores' worth at a time
 
     need = demand(robots, dt, speed, step_us())   # cores the swarm needs
     note = verdict(robots, dt, speed)              # None, or a warning naming what this machine can hold
@@ -75,7 +76,7 @@ def demand(robots: int, dt: float, speed: float, step: float) -> float:
 def verdict(robots: int, dt: float, speed: float, cores: int | None = None, step: float | None = None) -> str | None:
     """None when this machine holds the control period for `robots` at `speed`; else a warning that says how many
     it holds and what happens past that."""
-    cores = cores or os.cpu_count() or 1
+    cores = cores or usable_cores()
     step = step_us() if step is None else step
     need = demand(robots, dt, speed, step)
     if need <= HEADROOM * cores:
@@ -88,13 +89,16 @@ def verdict(robots: int, dt: float, speed: float, cores: int | None = None, step
             f"Try fewer robots, a lower --speed, or lock-step")
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the OS says, else every core)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def launch_wave(cores: int | None = None) -> int:
     """How many robot processes `swarm up` lets start at once: a Python process takes about half a second of CPU
     to start, and 300 started together on 2 cores starved zenoh's threads until the handshakes timed out and the
     leases lapsed. LAUNCH_WAVE_PER_CORE a core (at least 8) keeps start-up as fast and never so."""
-    if cores is None:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(8, LAUNCH_WAVE_PER_CORE * cores)
+    return max(8, LAUNCH_WAVE_PER_CORE * (cores or usable_cores()))
 
 
 # What one process of `swarm up` takes, measured on the 2-core development machine (`free` before and during
@@ -137,9 +141,7 @@ class Resources:
             (VIEWER_MIB if viewer else 0.0)
         self.need_mib = self.fixed_mib + robots * self.per_robot_mib
         self.available_mib = available_mib() if available is None else available
-        if cores is None:
-            cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        self.cores = cores
+        self.cores = cores or usable_cores()
 
     def text(self) -> str:
         """One line for the dry run."""
@@ -161,7 +163,7 @@ class Resources:
     def warning(self) -> str | None:
         """What will be slow or tight here (a swarm that still starts), or None."""
         notes = []
-        if self.available_mib is not None and self.need_mib > MEMORY_SHARE * self.available_mib:
+        if self.available_mib is not None and MEMORY_SHARE * self.available_mib < self.need_mib <= self.available_mib:
             notes.append(f"it takes about {_gib(self.need_mib)} of the {_gib(self.available_mib)} of memory available")
         if self.robots > ROBOTS_PER_CORE * self.cores:
             notes.append(f"{self.robots} robot processes on {self.cores} cores is more than {ROBOTS_PER_CORE} a core: "
@@ -180,9 +182,9 @@ class Waves:
     alive), and a wait that ends timeout_s after the last process came alive, not after the first was started
     (a big swarm takes longer than a minute to start, and a stuck one is still found in timeout_s).
 
-        waves = Waves(sup.start, plan.robots, robot_keys, args.start_timeout)
+        waves = Waves(sup.start, plan.robots, args.start_timeout)
         while not want <= alive:
-            if waves.step(alive & want, alive & robot_keys): ...  # True: timed out
+            if waves.step(len(alive & want), len(alive & robot_keys)): ...  # True: timed out
     """
 
     def __init__(self, start, specs, timeout_s: float, wave: int | None = None, clock=time.monotonic):

@@ -137,6 +137,9 @@ def why_no_world(bus, fleet: str, me: tuple[str, int] | None = None, wait_s: flo
         return ", ".join(named + ([f"{robots} robot{'s' if robots != 1 else ''}"] if robots else []))
     others = sorted({r["fleet"] for r in rows} - {fleet})
     there = f"; fleets there: {'; '.join(f'{f} ({roles(f)})' for f in others)} (--fleet NAME joins one)" if others else ""
+    if any(r["fleet"] == fleet and r["role"] == "world" for r in rows):
+        return (f"fleet '{fleet}' has a world on this router that did not answer (busy, still starting, or an access "
+                "rule: its configuration and run keys)")
     if any(r["fleet"] == fleet for r in rows):
         return f"fleet '{fleet}' has no world on this router (there: {roles(fleet)}){there}"
     return f"no world of fleet '{fleet}' on this router{there}"

@@ -61,6 +61,8 @@ _ATTACHMENT = struct.Struct("<qqB16s")  # int64 seq, int64 source time [ns], seq
 # Rolling before 0.6.0, Jazzy 0.2.0-0.2.3, Humble 0.1.0-0.1.1), 77 bytes. A subscriber of one form throws on the
 # other's and drops the sample.
 ATTACHMENT_FORMS = ("v1", "v2")
+RELEASES = {"v1": "rmw_zenoh Rolling before 0.6.0, Jazzy 0.2.0-0.2.3 or Humble 0.1.0-0.1.1",
+            "v2": "rmw_zenoh Rolling 0.6.0 or later, Jazzy 0.2.4 or later or Humble 0.1.2 or later"}
 _V1_NAMES = (b"\x0fsequence_number", b"\x10source_timestamp", b"\x0asource_gid")  # LEB128 length, UTF-8
 _V1 = struct.Struct(f"<{len(_V1_NAMES[0])}sq{len(_V1_NAMES[1])}sq{len(_V1_NAMES[2])}sB16s")
 ATTACHMENT_SIZE_V1 = _V1.size

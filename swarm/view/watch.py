@@ -92,7 +92,8 @@ class SwarmWatcher:
         self._last: protocol.Snapshot | None = None
         self._last_ref: protocol.Ref | None = None
         self._stats: Stats | None = None  # from the newest progress message
-        self._estop: str | None = None  # the emergency stop's reason while engaged (world/events)
+        self._estop: str | None = None  # the emergency stop's reason while engaged (world/events); kept across runs:
+        # the robots keep an engaged stop latched until its release, whatever run comes
         self._estop_drawn: str | None = None
         self._codes: np.ndarray | None = None
         self._started = wall()

@@ -185,3 +185,11 @@ def test_notes_name_the_robots_whose_base_timeout_is_unknown(tmp_path):
     assert len(said) == 1 and said[0].startswith("no cmd_timeout for robots 0, 2, 4, 6:"), said
     full = {"robot": [{**r, "cmd_timeout": 0.3} for r in doc["robot"]]}
     assert not any("cmd_timeout" in n for n in inventory.notes(inventory.apply(inventory.load(write(tmp_path, full)), TB3)))
+
+
+def test_an_inventory_row_gives_its_robots_attachment_form(tmp_path):
+    doc = {"robot": [{"id": 0, "attachment": "v1"}, {"id": 1}]}
+    inv = inventory.load(write(tmp_path, doc))
+    assert [e.attachment for e in inv.robots] == ["v1", "auto"]
+    with pytest.raises(inventory.InventoryError, match=r"robot\[0\]\.attachment"):
+        inventory.load(write(tmp_path, {"robot": [{"id": 0, "attachment": "v3"}]}))

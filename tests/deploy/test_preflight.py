@@ -228,11 +228,12 @@ def test_a_robot_whose_router_does_not_answer_is_a_network_fault_not_its_ros_sid
     closed = f"tcp/127.0.0.1:{free_port()}"
     inv = tmp_path / "fleet.toml"
     inv.write_text(inventory_text(3, None, r0={"connect": closed}, r1={"connect": "tcp/no-such-host.invalid:7447"},
-                                  r2={"connect": closed}))
+                                  r2={"connect": closed.replace("tcp/", "tls/")}))  # no TLS files here: TCP checked
     rc = main(["preflight", "--inventory", str(inv), "--scenario", "turtlebot3", "--robots", "3",
                "--odom-timeout", "0.5", "--odom-window", "0.2"])
     out = capsys.readouterr().out
     assert rc == 1, out
     assert f"robot 0: cannot reach its zenoh router at {closed}: connection refused" in out, out
     assert "robot 1: cannot reach its zenoh router at tcp/no-such-host.invalid:7447: host 'no-such-host.invalid' unknown" in out, out
-    assert "RMW_IMPLEMENTATION" not in out and "no subscriber" not in out, out
+    assert f"robot 2: cannot reach its zenoh router at {closed.replace('tcp/', 'tls/')}: connection refused" in out, out
+    assert "RMW_IMPLEMENTATION" not in out and "no subscriber" not in out and "CA" not in out, out

@@ -72,7 +72,7 @@ def test_paper_seed_through_cli_writes_contract_metrics(tmp_path):
         (["sim", "--duration", "1", "--plots", "/proc/fig2"], "--plots /proc/fig2: cannot write in /proc"),
         (["sim", "--duration", "1", "--metrics", "/proc/m.json"], "--metrics /proc/m.json: cannot write in /proc"),
         (["campaign", "--seeds", "0-1", "-o", "/proc/c"], "-o /proc/c: cannot write in /proc"),
-        (["secure", "init", "/proc/fleet", "--robots", "2"], "/proc/fleet: cannot write the fleet directory"),
+        (["secure", "init", "/proc/fleet", "--robots", "2"], "/proc/fleet: cannot make or read the fleet directory"),
         (["up", "--robots", "2", "--no-viz", "--log-dir", "/proc/logs"], "--log-dir /proc/logs: cannot make it"),
         (["up", "--robots", "2", "--viz-port", "7447", "--dry-run"], "--viz-port 7447: the router listens on"),
         (["up", "--robots", "2", "--listen", "tcp/0.0.0.0:7500", "--viz-port", "7500", "--dry-run"],

@@ -280,17 +280,16 @@ def test_the_attachment_forms_are_zenoh_ext_serializations():
         ["v1", "v2", None, None, None]
 
 
-def test_commands_that_do_not_move_the_robot_are_said_within_two_seconds(monkeypatch, caplog):
+def test_commands_that_do_not_move_the_robot_are_said_within_two_seconds(caplog):
     """Commands that move go out and the odometry stays where it was (here: the robot's release drops them): said
     once, after STILL_SAY_S, naming what to check; odometry that moves, or a stop, says nothing."""
     import swarm.drives.ros2 as drive_mod
 
     now = [100.0]
-    monkeypatch.setattr(drive_mod.time, "monotonic", lambda: now[0])
     net = MemoryNet()
     fleet = Ros2Fleet(MemoryBus(net), [(0.0, 0.0, 0.0), (0.0, 0.0, 0.0)], "rmw_zenoh", "plain", attachment="v1")
     fleet.start()
-    d, _ = make_drive(net, "rmw_zenoh", attachment="v2")  # forced to the wrong form: the robot takes nothing
+    d, _ = make_drive(net, "rmw_zenoh", attachment="v2", monotonic=lambda: now[0])  # the wrong form: nothing taken
     d.start()
     for k in range(30):  # 3 s of commands at 10 Hz, and odometry at the same place
         fleet.publish_odom(1, 0.1 * k, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -302,7 +301,7 @@ def test_commands_that_do_not_move_the_robot_are_said_within_two_seconds(monkeyp
     assert d.still_said and fleet.take_commands() == []
     said = [r.getMessage() for r in caplog.records if "did not move" in r.getMessage()]
     assert len(said) == 1 and "the attachment form, here v2" in said[0]
-    moving, _ = make_drive(MemoryNet(), "bridge")
+    moving, _ = make_drive(MemoryNet(), "bridge", monotonic=lambda: now[0])
     moving.cmd_key = "robot1/cmd_vel"
     for k in range(30):  # odometry that follows the commands
         moving.send(Cmd(t=0.1 * k, seq=k, v=0.2, w=0.0))

@@ -24,7 +24,7 @@ def test_a_robots_step_is_measured_here():
     assert 1.0 < capacity.step_us(rounds=3, steps=50) < 10_000.0
 
 
-def test_the_memory_check_refuses_a_swarm_that_does_not_fit_and_says_how_many_do():
+def test_the_memory_check_refuses_a_swarm_that_does_not_fit_and_says_how_many_do(monkeypatch):
     """2000 robot processes at about 17 MiB each do not fit in 23 GiB: refused with the figure and how many fit;
     one that fits is not refused, and a warning comes past MEMORY_SHARE of the memory or ROBOTS_PER_CORE."""
     from swarm.launch.capacity import ROBOTS_PER_CORE, Resources
@@ -39,7 +39,8 @@ def test_the_memory_check_refuses_a_swarm_that_does_not_fit_and_says_how_many_do
     assert "memory available" in Resources(fits, available=23 * 1024.0, cores=64).warning()
     crowded = Resources(ROBOTS_PER_CORE * 2 + 1, available=23 * 1024.0, cores=2).warning()
     assert crowded is not None and "more than 50 a core" in crowded
-    assert Resources(5, available=None).refusal() is None  # not known (off Linux): nothing refused
+    monkeypatch.setattr(capacity, "available_mib", lambda: None)  # not known (off Linux): nothing refused
+    assert Resources(5000).refusal() is None and "of memory," in Resources(5000, cores=2).text()
     assert "about 289 MiB of memory of 23.0 GiB available, 2 cores" in Resources(5, available=23 * 1024.0,
                                                                                  cores=2).text()
     assert Resources(5, router=False, viewer=False).need_mib < Resources(5).need_mib
@@ -67,3 +68,29 @@ def test_waves_start_robots_as_earlier_ones_come_alive_and_time_out_only_without
     assert not waves.step(5, 3)  # 4.9 s after the last progress
     now[0] = 10.0
     assert waves.step(5, 3)  # 5.1 s without a new process: timed out
+
+
+def test_the_world_waits_timeout_s_after_the_last_process_that_came_alive():
+    """world.ready.wait_ready: a swarm that keeps coming up (robots started in waves) is waited for; one that stops
+    coming is refused timeout_s after the last arrival, naming who is missing; stop interrupts."""
+    import threading
+
+    from world.ready import NotReady, wait_ready
+
+    now = [0.0]
+    missing = [f"robot {i}" for i in range(6)]
+
+    def wake(s: float) -> None:  # 2 s pass; every 2 s one robot comes, until robot 2
+        now[0] += 2.0
+        if len(missing) > 3:
+            missing.pop(0)
+    with pytest.raises(NotReady, match=r"not alive after 5 s: robot 3, robot 4, robot 5") as e:
+        wait_ready(lambda: list(missing), wake, lambda: now[0], 5.0)
+    assert now[0] == pytest.approx(12.0)  # the last one came at 6 s: refused at 12 s (> 6 + 5), not at 5 s
+    assert e.value.missing == ["robot 3", "robot 4", "robot 5"]
+    missing[:] = []
+    wait_ready(lambda: list(missing), wake, lambda: now[0], 5.0)  # all there: at once
+    stop = threading.Event()
+    stop.set()
+    with pytest.raises(InterruptedError):
+        wait_ready(lambda: ["leader"], wake, lambda: now[0], 5.0, stop)

@@ -166,6 +166,11 @@ def test_a_process_waiting_for_a_world_says_what_is_on_the_router_instead(monkey
     presence.serve(me, "lab", "robot", 3)  # itself: left out
     assert presence.why_no_world(me, "lab", me=("robot", 3), wait_s=0.3).startswith(
         "fleet 'lab' has no world on this router (there: 1 robot); fleets there: default")
+    world = MemoryBus(net)
+    presence.announce(world, "lab", "world")  # there, but not answering
+    assert presence.why_no_world(me, "lab", me=("robot", 3), wait_s=0.3).startswith(
+        "fleet 'lab' has a world on this router that did not answer")
+    world.close()
     monkeypatch.setattr(follow, "SAY_S", 0.1)
     runs = follow.RunFollower(me, "lab")
     with caplog.at_level("WARNING", logger="swarm.follow"), pytest.raises(follow.NoAnswer) as e:
