@@ -5,6 +5,7 @@
               [--viz [--speed X] [--viz-host H] [--viz-port P] [--viz-rings]]
     swarm campaign [--scenario NAME|FILE] --seeds A-B [--drop P1,P2,...] [--faults FILE] [-j JOBS] -o DIR
     swarm scenario show NAME|FILE [--robots N] [--seed S]
+    swarm scenario scale NAME|FILE --v-max V [--w-max W]
     swarm scenario check FILE...
     swarm up [--robots N] [--scenario ...] [--mode lockstep|realtime] [--rate HZ] [--metrics out.json] [--dry-run]
              [--no-viz | --viz-host H --viz-port P --viz-rings]
@@ -322,6 +323,21 @@ def build_parser() -> argparse.ArgumentParser:
     show.add_argument("--seed", type=_seed, metavar="S", help="the random seed (starts, slot assignment)")
     _add_fault_flags(show)
     show.set_defaults(func="swarm.cli.sim:cmd_scenario_show")
+    scale = scn_sub.add_parser("scale", help="a scenario slowed down to fit a robot's speed limits, as TOML",
+                               description="Print the scenario with the leader slowed down so that its every segment "
+                                           "is within 0.8 of the robot's limits (the pre-flight's share): the same "
+                                           "path, each segment's v and w times k and its duration over k, the run "
+                                           "over k; control.v_max and w_max become the limits. k is said on stderr.",
+                               epilog="example: swarm scenario scale paper-50hz --robots 7 --v-max 0.22 --w-max 2.84 "
+                                      "> burger.toml")
+    scale.add_argument("source", metavar="NAME|FILE")
+    scale.add_argument("--v-max", type=_positive_float, required=True, metavar="V",
+                       help="the robot's top speed [m/s] (a TurtleBot3 Burger: 0.22, Waffle: 0.26)")
+    scale.add_argument("--w-max", type=_positive_float, metavar="W",
+                       help="the robot's top turn rate [rad/s] (a TurtleBot3 Burger: 2.84, Waffle: 1.82)")
+    scale.add_argument("--robots", type=_count, metavar="N", help="resize a scenario made by generators")
+    scale.add_argument("--seed", type=_seed, metavar="S", help="the random seed (starts, slot assignment)")
+    scale.set_defaults(func="swarm.cli.sim:cmd_scenario_scale")
     check = scn_sub.add_parser("check", help="check scenario files; exit 2 at the first bad one")
     check.add_argument("files", nargs="+", metavar="FILE")
     check.set_defaults(func="swarm.cli.sim:cmd_scenario_check")

@@ -125,6 +125,19 @@ def cmd_scenario_show(args: argparse.Namespace, started: float) -> int:
     return EXIT_OK
 
 
+def cmd_scenario_scale(args: argparse.Namespace, started: float) -> int:
+    """The scenario slowed down to fit the limits given (swarm.core.scenario_file.scaled), as TOML; k on stderr."""
+    from swarm.core import scenario_file
+
+    scn = scenario_file.load(args.source, overrides(args), progress=scenario_file.silent)
+    out, k = scenario_file.scaled(scn, args.v_max, args.w_max)
+    sys.stdout.write(scenario_file.to_toml(out))
+    said = "fits as it is" if k == 1.0 else f"{1 / k:.4g} times slower: the same path in {out.duration:g} s"
+    print(f"swarm scenario scale: time scale k = {k:.4g} ({said}; v_max {out.control.v_max:g} m/s"
+          f"{'' if out.control.w_max is None else f', w_max {out.control.w_max:g} rad/s'})", file=sys.stderr)
+    return EXIT_OK
+
+
 def cmd_scenario_check(args: argparse.Namespace, started: float) -> int:
     from swarm.core import scenario_file
 

@@ -846,6 +846,36 @@ def load(source: str, overrides: Overrides = Overrides(), progress: Progress | N
     return scn
 
 
+SCALE_SHARE = 0.8  # a scaled leader uses this share of the robot's limits (the pre-flight's, inventory.PREFLIGHT_SHARE)
+
+
+def scaled(scn: Scenario, v_max: float, w_max: float | None = None) -> tuple[Scenario, float]:
+    """`scn` with its leader slowed down by k <= 1 so that in every segment the formation's slots move at most
+    SCALE_SHARE v_max (|v| + |w| times the farthest slot's offset, as advisories() bounds them) and turn at most
+    SCALE_SHARE w_max: each segment's v and w times k (its arc keeps its curvature, so the path is the same) and
+    its duration over k, the run's duration over k; control.v_max and w_max become the limits given (never
+    looser than the scenario's). Returns (the scenario, k)."""
+    import dataclasses
+
+    segs = scn.leader.segments
+    k = 1.0
+    reach = float(np.max(np.hypot(scn.offsets[:, 0], scn.offsets[:, 1]))) if scn.n else 0.0
+    top_v = max((abs(g.v) + abs(g.w) * reach for g in segs), default=0.0)
+    if top_v > SCALE_SHARE * v_max:
+        k = min(k, SCALE_SHARE * v_max / top_v)
+    top_w = max((abs(g.w) for g in segs), default=0.0)
+    if w_max is not None and top_w > SCALE_SHARE * w_max:
+        k = min(k, SCALE_SHARE * w_max / top_w)
+    leader = dataclasses.replace(scn.leader, segments=tuple(
+        dataclasses.replace(g, duration=g.duration / k, v=g.v * k, w=g.w * k) for g in segs))
+    c = scn.control
+    control = dataclasses.replace(c, v_max=v_max if c.v_max is None else min(c.v_max, v_max),
+                                  w_max=w_max if c.w_max is None or w_max is None else min(c.w_max, w_max))
+    if w_max is None:
+        control = dataclasses.replace(control, w_max=c.w_max)
+    return dataclasses.replace(scn, duration=scn.duration / k, leader=leader, control=control), k
+
+
 def to_toml(scn: Scenario) -> str:
     """The resolved scenario as a TOML file with explicit lists (loads back to the same numbers)."""
 

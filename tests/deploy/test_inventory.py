@@ -193,3 +193,27 @@ def test_an_inventory_row_gives_its_robots_attachment_form(tmp_path):
     assert [e.attachment for e in inv.robots] == ["v1", "auto"]
     with pytest.raises(inventory.InventoryError, match=r"robot\[0\]\.attachment"):
         inventory.load(write(tmp_path, {"robot": [{"id": 0, "attachment": "v3"}]}))
+
+
+def test_a_burger_fleet_refuses_the_default_scenario_and_passes_it_scaled(tmp_path):
+    """TurtleBot3 Burgers (v_max 0.22 m/s, w_max 2.84 rad/s in the inventory) under paper-50hz: the pre-flight refuses
+    the leader's segments, naming the speeds; `swarm scenario scale` slows the leader down by k to fit, the same path
+    (the leader's pose at t / k is the original's at t), and the pre-flight passes."""
+    from swarm.core import kinematics
+
+    scn = scenario_file.load("paper-50hz", scenario_file.Overrides(robots=7), progress=scenario_file.silent)
+    doc = {"robot": [{"id": i, "v_max": 0.22, "w_max": 2.84} for i in range(7)]}
+    probs = _problems(tmp_path, doc, scn)
+    assert probs[0].startswith("robot 0: leader.segments[0] moves at |v| = 0.5 m/s, more than 0.8 x v_max = 0.176 m/s")
+    out, k = scenario_file.scaled(scn, 0.22, 2.84)
+    assert 0.0 < k < 1.0 and out.duration == pytest.approx(scn.duration / k)
+    assert out.control.v_max == 0.22 and out.control.w_max == 2.84
+    reach = float(np.max(np.hypot(scn.offsets[:, 0], scn.offsets[:, 1])))
+    assert max(abs(g.v) + abs(g.w) * reach for g in out.leader.segments) <= 0.8 * 0.22 + 1e-12
+    a, b = scn.leader.table(), out.leader.table()
+    for t in np.linspace(0.0, scn.duration, 37):
+        assert kinematics.leader_state(b, t / k)[:3] == pytest.approx(kinematics.leader_state(a, t)[:3], abs=1e-9)
+    again = scenario_file.load(write(tmp_path, scenario_file.to_toml(out), "burger.toml"), progress=scenario_file.silent)
+    assert _problems(tmp_path, doc, again) == []
+    same, one = scenario_file.scaled(again, 0.22, 2.84)
+    assert one == pytest.approx(1.0, abs=1e-9) and same.duration == pytest.approx(again.duration)

@@ -75,6 +75,8 @@ def test_paper_seed_through_cli_writes_contract_metrics(tmp_path):
         (["secure", "init", "/proc/fleet", "--robots", "2"], "/proc/fleet: cannot make or read the fleet directory"),
         (["up", "--robots", "2", "--no-viz", "--log-dir", "/proc/logs"], "--log-dir /proc/logs: cannot make it"),
         (["up", "--robots", "2", "--viz-port", "7447", "--dry-run"], "--viz-port 7447: the router listens on"),
+        (["scenario", "scale", "paper-50hz", "--v-max", "0"], "--v-max"),
+        (["scenario", "scale", "paper-50hz"], "--v-max"),
         (["up", "--robots", "2", "--listen", "tcp/0.0.0.0:7500", "--viz-port", "7500", "--dry-run"],
          "--viz-port 7500: the router listens on"),
     ],
@@ -180,3 +182,13 @@ def test_a_start_just_outside_r_is_accepted_with_a_warning(write_scenario):
                           "--quiet"], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert "swarm sim: warning: robot 1 starts 0.31 m from obstacle 0, just outside its r = 0.3 m" in out.stderr
+
+
+def test_scenario_scale_writes_a_scenario_that_fits_and_says_its_time_scale(tmp_path):
+    p = run(["scenario", "scale", "paper-50hz", "--robots", "7", "--v-max", "0.22", "--w-max", "2.84"])
+    assert p.returncode == 0, p.stderr
+    assert "time scale k = 0.2719 (3.678 times slower: the same path in 441.315 s" in p.stderr
+    f = tmp_path / "burger.toml"
+    f.write_text(p.stdout)
+    check = run(["scenario", "check", str(f)])
+    assert check.returncode == 0 and "warning" not in check.stdout, check.stdout
