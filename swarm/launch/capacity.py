@@ -101,11 +101,10 @@ def launch_wave(cores: int | None = None) -> int:
     return max(8, LAUNCH_WAVE_PER_CORE * (cores or usable_cores()))
 
 
-# What one process of `swarm up` takes, measured on the 2-core development machine (`free` before and during
-# `swarm up --robots N --no-viz`, N = 7, 100, 200; each process's Private_Dirty in /proc/PID/smaps_rollup): a
-# robot process 13-16 MiB of its own plus its page tables, about 17 MiB all told whatever N (its tables are a few
-# numbers a neighbour); the router 14 MiB plus 0.25 MiB a robot (its routes), the world 22 plus 0.07 a robot, the
-# leader and the launcher about 23 each, the viewer (its process and the meshcat server) about 120.
+# What one process of `swarm up` takes (`python bench/launch_scale.py --robots 7,100,200` on the 2-core development
+# VM, docs/runtime.md): a robot process 13.5-15.7 MiB of its own whatever N, 14.5-15.8 MiB of available memory a
+# process all told (17 here: a margin); the router 14 MiB plus 0.25 MiB a robot (its routes), the world 22 plus 0.07
+# a robot, the leader and the launcher about 23 each, the viewer (its process and the meshcat server) about 120.
 ROBOT_MIB = 17.0
 ROUTER_MIB, ROUTER_MIB_PER_ROBOT = 14.0, 0.25
 WORLD_MIB, WORLD_MIB_PER_ROBOT = 22.0, 0.07
