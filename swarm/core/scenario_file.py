@@ -869,10 +869,9 @@ def scaled(scn: Scenario, v_max: float, w_max: float | None = None) -> tuple[Sce
     leader = dataclasses.replace(scn.leader, segments=tuple(
         dataclasses.replace(g, duration=g.duration / k, v=g.v * k, w=g.w * k) for g in segs))
     c = scn.control
-    control = dataclasses.replace(c, v_max=v_max if c.v_max is None else min(c.v_max, v_max),
-                                  w_max=w_max if c.w_max is None or w_max is None else min(c.w_max, w_max))
-    if w_max is None:
-        control = dataclasses.replace(control, w_max=c.w_max)
+    def tighter(old: float | None, new: float | None) -> float | None:
+        return old if new is None else new if old is None else min(old, new)
+    control = dataclasses.replace(c, v_max=tighter(c.v_max, v_max), w_max=tighter(c.w_max, w_max))
     return dataclasses.replace(scn, duration=scn.duration / k, leader=leader, control=control), k
 
 
