@@ -15,7 +15,9 @@ paper-50hz, nothing else running) and runs it --runs times:
     delay01  every message 0.1-0.2 s late (a fault-bus delay rule: 5 periods plus 0-5 of jitter, class all)
     delay1   every message 1.0-1.2 s late (50 periods plus 0-10)
     loss10   10 % of every packet on the robots' links lost, each way (network namespaces, nftables or iptables;
-             root): zenoh's TCP sends them again, so it is delay too
+             root), TCP's minimum retransmission timeout at 10 ms in every namespace (docs/deploy.md, Lossy links):
+             zenoh's TCP sends them again, so it is delay too
+    loss10d  the same with Linux's default minimum retransmission timeout (200 ms)
     kill3    robots 1, 3 and 5 get SIGKILL at t = 20 s (no fault table, no restart)
     cut      the even robots' namespace loses the router for 2 s at t = 20 s (root)
 
@@ -47,7 +49,9 @@ from swarm.launch.child import stop_group  # noqa: E402
 from tests.integration.helpers import child_of, cpu_hogs, free_port, wait_for_ticks  # noqa: E402
 
 SWARM = [sys.executable, "-m", "swarm.cli"]
-CELLS = ("base", "n37", "speed2", "hog1", "hog2", "delay01", "delay1", "loss10", "kill3", "cut")
+CELLS = ("base", "n37", "speed2", "hog1", "hog2", "delay01", "delay1", "loss10", "loss10d", "kill3", "cut")
+NAMESPACED = ("loss10", "loss10d", "cut")
+RTO_MIN_MS = 10.0  # loss10's TCP minimum retransmission timeout, as docs/deploy.md asks of a lossy fleet
 DELAYS = {"delay01": (5, 5), "delay1": (50, 10)}  # (periods, jitter)
 KILLED = (1, 3, 5)
 EVENT_AT_S = 20.0
@@ -110,8 +114,8 @@ def _pct(x) -> str:
 
 
 def _unavailable(cell: str, args) -> str | None:
-    if cell in ("loss10", "cut") or args.quota:
-        if cell in ("loss10", "cut"):
+    if cell in NAMESPACED or args.quota:
+        if cell in NAMESPACED:
             why = netns.unavailable()
             if why:
                 return why
@@ -130,7 +134,7 @@ def run_cell(cell: str, args) -> tuple[dict, int]:
     metrics = tmp / "metrics.json"
     common = ["--robots", str(robots), "--mode", "realtime", "--speed", f"{speed:g}", "--duration", f"{args.duration:g}",
               "--allow-violations"]
-    if cell in ("loss10", "cut"):
+    if cell in NAMESPACED:
         return _in_namespaces(cell, tmp, robots, speed, args.duration), 0
     extra: list[str] = []
     if cell in DELAYS:
@@ -169,8 +173,9 @@ def _quota_prefix(quota: float | None) -> list[str]:
 
 
 def _in_namespaces(cell: str, tmp: Path, robots: int, speed: float, duration: float) -> dict:
-    """loss10 and cut: router, world and leader in a hub namespace, the robots in two others (even and odd ids),
-    as tests/integration/test_netns.py runs them; loss10 makes both robot links lose 10 % of their packets for
+    """loss10, loss10d and cut: router, world and leader in a hub namespace, the robots in two others (even and odd ids),
+    as tests/integration/test_netns.py runs them; loss10 (TCP's minimum retransmission timeout at RTO_MIN_MS) and
+    loss10d (Linux's default) make both robot links lose 10 % of their packets for
     the whole run, cut drops everything on the even robots' link for 2 s at EVENT_AT_S."""
     tool = netns.firewall()
     metrics = tmp / "metrics.json"
@@ -178,14 +183,15 @@ def _in_namespaces(cell: str, tmp: Path, robots: int, speed: float, duration: fl
     scn = ["--scenario", "paper-50hz", "--robots", str(robots), "--duration", f"{duration:g}", "--mode", "realtime"]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
     procs: list[subprocess.Popen] = []
-    with netns.namespaces(watch=cell == "cut") as (hub, a, b, a_if, b_if):
+    rto = RTO_MIN_MS if cell == "loss10" else None
+    with netns.namespaces(watch=cell == "cut", rto_min_ms=rto) as (hub, a, b, a_if, b_if):
         def start(ns: str, *argv: str) -> subprocess.Popen:
             p = subprocess.Popen(["ip", "netns", "exec", ns, *SWARM, *argv], stdout=subprocess.DEVNULL,
                                  stderr=subprocess.DEVNULL, env=env, process_group=0)
             procs.append(p)
             return p
 
-        if cell == "loss10":
+        if cell in ("loss10", "loss10d"):
             for ns, ifname in ((a, a_if), (b, b_if)):
                 netns.lossy(ns, ifname, tool, 0.1, True)
         try:

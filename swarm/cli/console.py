@@ -214,9 +214,13 @@ def estop_text(m: dict) -> str | None:
     return text
 
 
+SLOW_ROUND_TRIP_MS = 100.0  # a real-time round trip p99 from which the summary names the likely cause
+
+
 def realtime_text(m: dict) -> str:
     """How a real-time run held up: the control round trip's p99 and how often the robots' safety rule held them
-    back, then the commands the world braked (they ran out) or refused (they came after their validity)."""
+    back, then the commands the world braked (they ran out) or refused (they came after their validity); with a
+    p99 of SLOW_ROUND_TRIP_MS or more that the run's faults did not delay on purpose, the usual cause."""
     parts = []
     p99, held = m.get("round_trip_ms_p99"), m.get("held_back")
     if isinstance(p99, (int, float)):
@@ -226,7 +230,15 @@ def realtime_text(m: dict) -> str:
     text = ": ".join(parts)
     late = [f"{m[k]} {what}" for k, what in (("cmd_braked", "commands ran out (braked)"),
                                              ("cmd_expired", "came too late")) if m.get(k)]
-    return text + (f"; {', '.join(late)}" if late else "")
+    text += f"; {', '.join(late)}" if late else ""
+    faults = m.get("faults") if isinstance(m.get("faults"), dict) else {}
+    delayed = faults.get("delayed")
+    if isinstance(p99, (int, float)) and p99 >= SLOW_ROUND_TRIP_MS and not (isinstance(delayed, dict)
+                                                                           and any(delayed.values())):
+        text += ("  (a slow round trip: if a link loses packets, TCP holds every message behind a lost one until "
+                 "it sends it again, 200 ms at least with Linux's default; lower that minimum on every machine: "
+                 "docs/deploy.md, Lossy links)")
+    return text
 
 
 def _by_class(counts: object) -> str:

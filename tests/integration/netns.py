@@ -92,11 +92,28 @@ def lossy(ns: str, ifname: str, tool: str, p: float, on: bool) -> None:
            (ifname, "-m", "statistic", "--mode", "random", "--probability", f"{p:g}", "-j", "DROP"))
 
 
+RTO_MIN_SYSCTL = "/proc/sys/net/ipv4/tcp_rto_min_us"  # Linux 6.11 and later, one per network namespace
+
+
+def rto_min(ns: str, ms: float) -> None:
+    """TCP's minimum retransmission timeout in namespace `ns` (Linux's default 200 ms), as docs/deploy.md (Lossy
+    links) asks of a fleet's machines: the namespace's sysctl where the kernel has it, else the `rto_min` of
+    each of its routes. Set it before any socket opens: a socket takes it when it is made."""
+    if os.path.exists(RTO_MIN_SYSCTL):
+        sh("ip", "netns", "exec", ns, "sysctl", "-qw", f"net.ipv4.tcp_rto_min_us={int(ms * 1000)}")
+        return
+    routes = subprocess.run(["ip", "-n", ns, "-4", "route", "show"], capture_output=True, text=True, timeout=30,
+                            check=True).stdout
+    for dst, dev in re.findall(r"^(\S+) dev (\S+)", routes, re.M):
+        sh("ip", "-n", ns, "route", "replace", dst, "dev", dev, "rto_min", f"{ms:g}ms")
+
+
 @contextlib.contextmanager
-def namespaces(watch: bool = False):
+def namespaces(watch: bool = False, rto_min_ms: float | None = None):
     """(hub, a, b, a's robot-side interface, b's) namespaces joined by veth links: a on 10.231.1.0/24, b on
     10.231.2.0/24, the hub at .1 of each; with watch, a link from the caller's namespace to the hub (10.231.3.2 ->
-    10.231.3.1). Removed on the way out, whatever happened."""
+    10.231.3.1); with rto_min_ms, TCP's minimum retransmission timeout in all three (rto_min). Removed on the way
+    out, whatever happened."""
     clear_stale()
     tag = uuid.uuid4().hex[:5]
     hub, a, b = f"sw{tag}h", f"sw{tag}a", f"sw{tag}b"
@@ -118,6 +135,9 @@ def namespaces(watch: bool = False):
             sh("ip", "-n", hub, "addr", "add", "10.231.3.1/24", "dev", f"p{tag}")
             sh("ip", "link", "set", obs, "up")
             sh("ip", "-n", hub, "link", "set", f"p{tag}", "up")
+        if rto_min_ms is not None:
+            for ns in made:
+                rto_min(ns, rto_min_ms)
         yield hub, a, b, f"r{tag}a", f"r{tag}b"
     finally:
         for ns in made:

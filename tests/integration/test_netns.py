@@ -16,7 +16,7 @@ import uuid
 import numpy as np
 import pytest
 
-from swarm.core import kinematics, scenario_file
+from swarm.core import scenario_file
 from swarm.core.scenario_file import Overrides
 from swarm.core.sim import Simulation
 from tests.integration import netns
@@ -113,27 +113,26 @@ def test_robots_in_two_namespaces_converge_through_a_router_in_a_third(namespace
 
 LOSS_N = 7
 LOSS_P = 0.1
-LOSS_DURATION = 90.0  # simulated s (45 wall s at speed 2)
+LOSS_DURATION = 120.0  # simulated s (60 wall s at speed 2)
+LOSS_RTO_MIN_MS = 10.0  # docs/deploy.md, Lossy links
 
 
 @pytest.mark.slow
 def test_real_time_robots_behind_links_that_lose_a_tenth_of_their_packets_converge_without_collision(tmp_path):
     """10 % of the packets on every robot's link lost, each way, for the whole run (nftables' numgen, or
-    iptables' statistic match), real time at twice real time: zenoh's TCP sends them again, so the loss is a
-    delay of every message behind a lost one by a retransmission (200 ms or more; a second or more when the
-    retransmission is lost too), and now and then a session misses its 1 s lease and drops. Commands come late,
-    run out and brake their robots, neighbours' states age, and the safety rule holds the robots back then: no
-    collision, no robot left behind (each within 10 m of its slot at the end), and the formation forms (every
-    robot within 1 m of its slot at once, some time in the last 30 s). It does not stay within the 0.05 m of
-    `converged_at_s`: each stall, and each session that drops and comes back, sets a robot back, by a few tenths
-    of a metre to a few metres (docs/runtime.md, "The safety invariant", Degradation)."""
+    iptables' statistic match), real time at twice real time, on machines set up as docs/deploy.md (Lossy links)
+    asks: TCP's minimum retransmission timeout at 10 ms. zenoh's TCP sends each lost segment again, so the loss is
+    a delay of every message behind it until the retransmission (a few ms, when Linux's default 200 ms is not
+    its floor). Commands come late now and then, run out and brake their robots, and the safety rule holds the
+    robots back then: no collision, no robot lost or stranded, and the formation converges (every robot within
+    0.05 m of its slot for the rest of the run) well before 120 s."""
     tool = _firewall_or_skip("make a link lose packets")
     fleet = f"loss{uuid.uuid4().hex[:4]}"
     scn_args = ["--scenario", "paper-50hz", "--robots", str(LOSS_N), "--duration", str(LOSS_DURATION)]
     metrics = tmp_path / "metrics.json"
     procs: list[subprocess.Popen] = []
     start = _starter(tmp_path, procs)
-    with netns.namespaces() as (hub, a, b, a_if, b_if):
+    with netns.namespaces(rto_min_ms=LOSS_RTO_MIN_MS) as (hub, a, b, a_if, b_if):
         for ns, ifname in ((a, a_if), (b, b_if)):
             netns.lossy(ns, ifname, tool, LOSS_P, True)
         try:
@@ -141,7 +140,7 @@ def test_real_time_robots_behind_links_that_lose_a_tenth_of_their_packets_conver
             start(hub, "router", "--listen", f"tcp/0.0.0.0:{PORT}", "--fleet", fleet, name="router")
             local = ["--connect", f"tcp/127.0.0.1:{PORT}", "--fleet", fleet]
             world = start(hub, "world", *scn_args, *rt, "--metrics", str(metrics), "--start-timeout", "60", *local,
-                          "--trace", str(tmp_path / "trace.npz"), name="world")
+                          name="world")
             start(hub, "leader", *scn_args, "--mode", "realtime", *local, name="leader")
             for i in range(LOSS_N):
                 ns, hub_ip = (a, "10.231.1.1") if i % 2 == 0 else (b, "10.231.2.1")
@@ -151,23 +150,13 @@ def test_real_time_robots_behind_links_that_lose_a_tenth_of_their_packets_conver
             logs = "".join((tmp_path / f).read_text(errors="replace")[-2000:] for f in ("world.log", "robot0.log"))
         finally:
             _stop(procs)
-    assert rc in (0, 3), logs
     m = json.loads(metrics.read_text())
     said = {k: m.get(k) for k in ("collisions", "converged_at_s", "final_position_error_max_m", "round_trip_ms_p99",
                                   "held_back", "cmd_braked", "robots_lost", "min_robot_distance_m")}
     print(f"10 % loss: {said}")
     assert m["collisions"] == 0 and m["failure"] is None and m["stranded"] == [], said
-    tr = np.load(tmp_path / "trace.npz")
-    scn = scenario_file.load("paper-50hz", Overrides(robots=LOSS_N, duration=LOSS_DURATION))
-    table = scn.leader.table()
-    late = [k for k, t in enumerate(tr["t"]) if t >= LOSS_DURATION - 30.0]
-    worst = []
-    for k in late:
-        xl, yl, _th, _v, _w = kinematics.leader_state(table, float(tr["t"][k]))
-        worst.append(float(np.hypot(xl + scn.offsets[:, 0] - tr["q"][k, :, 0], yl + scn.offsets[:, 1] - tr["q"][k, :, 1]).max()))
-    print(f"10 % loss, the last 30 s: the largest error's least {min(worst):.3f} m, median {np.median(worst):.3f} m, "
-          f"max {max(worst):.3f} m")
-    assert min(worst) < 1.0 and m["final_position_error_max_m"] < 10.0, (min(worst), said)
+    assert m["robots_lost"] == 0 and m["converged_at_s"] is not None, said
+    assert rc == 0, logs
 
 
 # --------------------------------------------------------------------------- a network cut in real time

@@ -77,6 +77,19 @@ def test_the_summary_names_the_lost_and_stranded_robots_and_how_real_time_held_u
     assert "robot 0 stranded 21.8 m from its slot since t = 43 s" in text
     assert violations(m) == ["3 robots lost (1, 3, 5)", "robot 0 stranded"] and exit_status(m) == 3
     assert violations({**m, "mode": "lockstep"}) == ["3 robots lost (1, 3, 5)"]  # (the paper jams a few seeds too)
+    assert "Lossy links" not in text
+
+
+def test_a_slow_real_time_round_trip_points_to_lossy_links_unless_the_faults_delayed_it():
+    """A real-time round trip's p99 of 100 ms or more that no delay rule made names the usual cause (a link that
+    loses packets, and TCP's minimum retransmission timeout) and where the docs say what to do."""
+    from swarm.cli.console import realtime_text
+
+    slow = {"mode": "realtime", "round_trip_ms_p99": 131.0, "held_back": 0.088}
+    assert "Lossy links" in realtime_text(slow) and "200 ms" in realtime_text(slow)
+    assert "Lossy links" not in realtime_text({**slow, "round_trip_ms_p99": 99.0})
+    assert "Lossy links" not in realtime_text({**slow, "faults": {"delayed": {"state": 40, "cmd": 0}}})
+    assert "Lossy links" in realtime_text({**slow, "faults": {"delayed": {"state": 0}}})
 
 
 def test_a_collision_without_the_governor_points_to_it():
