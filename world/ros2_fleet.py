@@ -18,7 +18,8 @@ hash computed by rosbags, or TypeHashNotSupported with distro="humble"); each ro
 subscription and publication as rmw_zenoh liveliness tokens (one zenoh id per robot, as one process per
 robot would have); a command without a valid 33-byte attachment is dropped and counted
 (`dropped_no_attachment`), as rmw_zenoh's subscriber drops it; odometry goes out with an attachment.
-bridge flavour (zenoh-bridge-ros2dds): keys `robot<i>/cmd_vel` and `robot<i>/odom`, no attachment, no tokens.
+bridge flavour (zenoh-bridge-ros2dds): keys `robot<i>/cmd_vel` and `robot<i>/odom`, no attachment; each robot's
+bridge announces its two routes with their ROS 2 types (`@ros2_lv/<zid>/MS/robot<i>§cmd_vel/...`), as the bridge does.
 
 Commands wait in a queue filled on the bus's thread (the callback only appends) and are decoded on the
 caller's thread by take_commands(): the world's loop never waits for zenoh, zenoh never waits for it.
@@ -112,15 +113,22 @@ class Ros2Fleet:
                 Entity(eid="2", kind="MP", topic=ros2.topic_name(self.namespaces[i], ros2.ODOM),
                        dds_type=odom[-2], type_hash=odom[-1], qos=qos, **common)]
 
+    def routes(self, i: int) -> list[ros2.BridgeRoute]:
+        """Robot i's bridge routes (bridge flavour): its cmd_vel subscription and its odom publication, announced
+        by its own bridge (one zenoh id per robot)."""
+        return [ros2.BridgeRoute(self._zids[i], "MS", self.cmd_keys[i], self.cmd_type),
+                ros2.BridgeRoute(self._zids[i], "MP", self.odom_keys[i], ros2.ODOMETRY)]
+
     def start(self) -> None:
-        """Subscribe every robot's cmd_vel (with attachments); rmw_zenoh: declare each robot's tokens
-        after its subscription, as a ROS 2 node does (whoever sees the token can send)."""
+        """Subscribe every robot's cmd_vel (with attachments), then declare each robot's tokens, as a ROS 2 node
+        does (whoever sees the token can send): rmw_zenoh's graph, or the bridge's routes."""
         q = self._queue
         for i, key in enumerate(self.cmd_keys):
             self._handles.append(self.bus.subscribe_raw(key, lambda k, p, a, i=i: q.append((i, k, p, a))))
-            if self.flavor == "rmw_zenoh":
-                for e in self.entities(i):
-                    self._handles.append(self.bus.token(e.key))
+            tokens = [e.key for e in self.entities(i)] if self.flavor == "rmw_zenoh" else \
+                [r.token for r in self.routes(i)]
+            for token in tokens:
+                self._handles.append(self.bus.token(token))
         log.info("simulated ROS 2 fleet: %d robots, %s (%s attachments), cmd_vel as %s, first keys %s and %s", self.n,
                  self.flavor, self.attachment, self.cmd_type, self.cmd_keys[0] if self.n else "-",
                  self.odom_keys[0] if self.n else "-")

@@ -231,8 +231,8 @@ def realtime_text(m: dict) -> str:
     late = [f"{m[k]} {what}" for k, what in (("cmd_braked", "commands ran out (braked)"),
                                              ("cmd_expired", "came too late")) if m.get(k)]
     text += f"; {', '.join(late)}" if late else ""
-    faults = m.get("faults") if isinstance(m.get("faults"), dict) else {}
-    delayed = faults.get("delayed")
+    faults = m.get("faults")
+    delayed = faults.get("delayed") if isinstance(faults, dict) else None
     if isinstance(p99, (int, float)) and p99 >= SLOW_ROUND_TRIP_MS and not (isinstance(delayed, dict)
                                                                            and any(delayed.values())):
         text += ("  (a slow round trip: if a link loses packets, TCP holds every message behind a lost one until "

@@ -437,9 +437,16 @@ def _add_ros2_flags(g, world: bool | str = False) -> None:
         g.add_argument("--ros-flavor", choices=("rmw_zenoh", "bridge"), default="rmw_zenoh",
                        help="how the robot speaks ROS 2 over zenoh: rmw_zenoh (ROS 2 nodes on rmw_zenoh_cpp, keys "
                             "found from their liveliness tokens) or bridge (zenoh-bridge-ros2dds); default rmw_zenoh")
-    g.add_argument("--twist", choices=("plain", "stamped"), default="plain",
-                   help="cmd_vel as geometry_msgs/Twist (plain: TurtleBot3 on Humble) or TwistStamped (stamped: "
-                        "TurtleBot3 on Jazzy); default plain")
+    if world == "robot":
+        g.add_argument("--twist", choices=("auto", "plain", "stamped"), default="auto",
+                       help="cmd_vel as geometry_msgs/Twist (plain: TurtleBot3 on Humble) or TwistStamped (stamped: "
+                            "TurtleBot3 on Jazzy); auto (default): the type the robot subscribes (rmw_zenoh: its "
+                            "liveliness token; bridge: the route its zenoh-bridge-ros2dds announces; plain when it "
+                            "announces none); a given type the robot does not take is refused, naming the right one")
+    else:
+        g.add_argument("--twist", choices=("plain", "stamped"), default="plain",
+                       help="cmd_vel as geometry_msgs/Twist (plain: TurtleBot3 on Humble) or TwistStamped (stamped: "
+                            "TurtleBot3 on Jazzy); default plain")
     g.add_argument("--domain", type=_domain, default=0, metavar="D", help="the ROS domain id (default 0)")
     if world == "robot":
         g.add_argument("--rmw-zenoh-attachment", choices=("auto", "v1", "v2"), default="auto",

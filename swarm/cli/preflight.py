@@ -9,7 +9,8 @@ It runs on its own (`swarm preflight`) and at the start of every real run (`swar
 nothing moves (exit 1). The network part, per robot of the inventory:
 - its ROS 2 side answers: rmw_zenoh flavour, its liveliness tokens show a cmd_vel subscription of the
   inventory's twist type and an odom publication (a subscription of the other type names the fix);
-  bridge flavour, something subscribes <ns>/cmd_vel (zenoh's matching status);
+  bridge flavour, something subscribes <ns>/cmd_vel (zenoh's matching status), and where the bridge announces
+  the route (its liveliness token, with the ROS 2 type) the type is the inventory's twist;
 - its odometry is fresh: readable messages come, and over a window of `window_s` none is missing for
   longer than `max_age_s` (the robot-side guard's pose timeout: a robot whose odometry is slower would
   be halted by its own guard as soon as it moved).
@@ -44,7 +45,7 @@ class _Robot:
     entry: RobotEntry
     odom_key: str | None = None
     cmd_ok: bool = False
-    cmd_other: str | None = None  # rmw_zenoh: a cmd_vel subscription of the other twist type
+    cmd_other: str | None = None  # a cmd_vel subscription of the other twist type (rmw_zenoh: DDS name; bridge: ROS 2)
     arrivals: list[float] = field(default_factory=list)  # monotonic times of readable odometry
     bad: str | None = None  # the last unreadable odometry's reason
     bad_count: int = 0
@@ -60,16 +61,29 @@ class OdometryProbe:
         self.robots = {e.id: _Robot(e) for e in robots}
         self.lock = threading.Lock()
         self.seen: dict[str, ros2.Entity] = {}  # rmw_zenoh liveliness tokens
+        self.routes: dict[str, ros2.BridgeRoute] = {}  # zenoh-bridge-ros2dds's subscription routes, by token
         self._subscribed: set[int] = set()
         self._handles: list = []
 
     def start(self) -> None:
         for domain in sorted({r.entry.domain for r in self.robots.values() if r.entry.flavor == "rmw_zenoh"}):
             self._handles.append(self.bus.watch_alive(ros2.liveliness_any(domain), self._on_token))
+        if any(r.entry.flavor == "bridge" for r in self.robots.values()):
+            self._handles.append(self.bus.watch_alive(ros2.bridge_routes("MS"), self._on_route))
         for r in self.robots.values():
             if r.entry.flavor == "bridge":
                 r.odom_key = ros2.bridge_key(r.entry.namespace, ros2.ODOM)
         self.poll()
+
+    def _on_route(self, key: str, up: bool) -> None:
+        route = ros2.parse_bridge_route(key)
+        if route is None:
+            return
+        with self.lock:
+            if up:
+                self.routes[key] = route
+            else:
+                self.routes.pop(key, None)
 
     def _on_token(self, key: str, up: bool) -> None:
         e = ros2.parse_liveliness(key)
@@ -101,13 +115,25 @@ class OdometryProbe:
                             r.cmd_ok = True
                         else:
                             r.cmd_other = t.dds_type
-            elif not r.cmd_ok:
+            else:
+                self._bridge_type(r)
+            if e.flavor == "bridge" and not r.cmd_ok and r.cmd_other is None:
                 r.cmd_ok = self.bus.wanted(ros2.bridge_key(e.namespace, ros2.CMD_VEL))
                 doubled = ros2.doubled_bridge_key(e.namespace, ros2.CMD_VEL)
                 r.doubled = not r.cmd_ok and doubled is not None and self.bus.wanted(doubled)
             if r.odom_key is not None and e.id not in self._subscribed:
                 self._subscribed.add(e.id)
                 self._handles.append(self.bus.subscribe_raw(r.odom_key, lambda k, p, a, r=r: self._on_odom(r, p, a)))
+
+    def _bridge_type(self, r: _Robot) -> None:
+        """A bridge robot's cmd_vel type from its bridge's route, when it announces one: the inventory's twist, or
+        the other (named by verdicts)."""
+        key = ros2.bridge_key(r.entry.namespace, ros2.CMD_VEL)
+        with self.lock:
+            types = {t.ros2_type for t in self.routes.values() if t.key == key}
+        if types:
+            want = ros2.twist_type(r.entry.twist)
+            r.cmd_other = None if want in types else min(types)
 
     def _on_odom(self, r: _Robot, payload: bytes, attachment: bytes | None = None) -> None:
         now = self.clock()
@@ -167,6 +193,12 @@ def _robot_problems(r: _Robot, seen: list, window: tuple[float, float], waited_s
                                      f"({ros2.ODOMETRY}) in the ROS 2 graph of domain {e.domain} within "
                                      f"{waited_s:.3g} s"))
             return out
+    elif r.cmd_other is not None:
+        cmd = ros2.bridge_key(e.namespace, ros2.CMD_VEL)
+        twist = ros2.twist_of(r.cmd_other)
+        fix = f"set twist = \"{twist}\" in {e.key}" if twist else "it takes no Twist at all"
+        out.append(Problem(e.id, f"its zenoh-bridge-ros2dds routes {cmd} to a subscriber of {r.cmd_other}, not of the "
+                                 f"inventory's twist = {e.twist!r}: {fix}"))
     elif not r.cmd_ok and r.doubled:
         out.append(Problem(e.id, f"nothing subscribes {ros2.bridge_key(e.namespace, ros2.CMD_VEL)}, but something "
                                  f"subscribes {ros2.doubled_bridge_key(e.namespace, ros2.CMD_VEL)}: the namespace is "

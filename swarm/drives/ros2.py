@@ -44,6 +44,7 @@ if TYPE_CHECKING:
 log = logging.getLogger("swarm.drive.ros2")
 
 DISCOVER_TIMEOUT_S = 10.0
+BRIDGE_LOOK_S = 2.0  # s the bridge flavour waits for the route of the robot's cmd_vel (its type) before going on
 ODOM_DEPTH = 16  # odometry messages kept between two reads of the agent (the newest)
 HALT_REPEATS = 3  # zero commands sent by halt() (reliable already; a few more cost nothing)
 NODE = "swarm_drive"  # the ROS 2 node name the drive announces in the robot's namespace
@@ -78,12 +79,14 @@ class Ros2Drive:
                  discover_timeout_s: float = DISCOVER_TIMEOUT_S, odom_depth: int = ODOM_DEPTH,
                  wall_ns: Callable[[], int] = time.time_ns, announce: bool = True,
                  base_timeout_s: float | None = None, attachment: str = "auto",
-                 monotonic: Callable[[], float] = time.monotonic) -> None:
+                 monotonic: Callable[[], float] = time.monotonic, bridge_look_s: float = BRIDGE_LOOK_S) -> None:
         """now(): the swarm's clock [s] (None until it is known: poses are not reported before);
         wall_ns(): the wall clock [ns since the epoch] for TwistStamped headers and attachments;
         base_timeout_s: how long the robot's base executes a cmd_vel with no newer one (the inventory's
         cmd_timeout; None: not known): should the agent die, its last command acts that long, and real time's
-        safety rule counts it in the robot's reach; attachment: the form of rmw_zenoh's attachment the commands
+        safety rule counts it in the robot's reach; twist: the cmd_vel type, plain (Twist), stamped (TwistStamped)
+        or "auto": the type the robot subscribes (rmw_zenoh: its token; bridge: the bridge's route; plain when a
+        bridge announces none); attachment: the form of rmw_zenoh's attachment the commands
         carry (ros2.ATTACHMENT_FORMS: v1 for the releases before the 33-byte form, v2 after), or "auto": the form of
         the robot's own odometry (v2 until its first sample says)."""
         self.bus, self.now, self.wall_ns, self.monotonic = bus, now, wall_ns, monotonic
@@ -94,8 +97,11 @@ class Ros2Drive:
         self.robot_attachment: str | None = None  # the form the robot's odometry carries, once seen
         self.namespace = ros2.check_namespace(namespace)
         self.flavor = ros2.check_flavor(flavor)
-        self.twist = twist
-        self.cmd_type = ros2.twist_type(twist)
+        if twist != "auto":
+            ros2.twist_type(twist)
+        self.twist_given = twist
+        self.twist = "plain" if twist == "auto" else twist  # start() finds the robot's with auto
+        self.cmd_type = ros2.twist_type(self.twist)
         self.domain = ros2.check_domain(domain)
         if len(initial_pose) != 3 or not all(isinstance(a, (int, float)) and math.isfinite(a) for a in initial_pose):
             raise ValueError(f"initial_pose must be three finite numbers (x, y, theta), got {initial_pose!r}")
@@ -103,6 +109,7 @@ class Ros2Drive:
         if not discover_timeout_s > 0:
             raise ValueError(f"discover_timeout_s must be > 0, got {discover_timeout_s}")
         self.discover_timeout_s = discover_timeout_s
+        self.bridge_look_s = bridge_look_s
         self.odom_depth = odom_depth
         self.announce = announce
         self.base_timeout_s = base_timeout_s
@@ -143,9 +150,12 @@ class Ros2Drive:
         if self.flavor == "bridge":
             self.cmd_key = ros2.bridge_key(self.namespace, ros2.CMD_VEL)
             self.odom_key = ros2.bridge_key(self.namespace, ros2.ODOM)
+            self._check_bridge_route()
         else:
             sub, pub = self._discover()
             self.cmd_key, self.odom_key = sub.data_key, pub.data_key
+            if self.twist_given == "auto":
+                self._take_twist(cast(str, sub.dds_type), "its rmw_zenoh token")
             for e, what in ((sub, self.cmd_type), (pub, ros2.ODOMETRY)):
                 if e.type_hash not in (ros2.type_hash(what), ros2.NO_HASH):
                     log.warning("%s: %s on %s has type hash %s, not Jazzy's %s: its message definition differs "
@@ -160,10 +170,66 @@ class Ros2Drive:
                 self._handles.append(self.bus.token(e.key))
         log.info("%r: commands on %s, odometry from %s", self, self.cmd_key, self.odom_key)
 
+    def _take_twist(self, typename: str, said_by: str) -> None:
+        """twist auto: command the robot in the cmd_vel type it subscribes (`typename`, as `said_by` tells)."""
+        self.twist = cast(str, ros2.twist_of(typename))
+        self.cmd_type = ros2.twist_type(self.twist)
+        log.info("%s subscribes %s as %s (%s): commands go out so", self.namespace or "/", self.cmd_topic,
+                 self.cmd_type, said_by)
+
+    def _check_bridge_route(self) -> None:
+        """Bridge flavour: the route zenoh-bridge-ros2dds announces for the robot's cmd_vel says the type it
+        subscribes (twist auto takes it; a --twist of the other type is refused with the fix: the bridge would
+        pass the bytes on and the robot would read nonsense or nothing); a route only on the doubled key means the
+        namespace was given twice (DiscoveryError naming it). A bridge that announces none within BRIDGE_LOOK_S
+        (bridge_look_s; an old one) is said, and the commands go out as given (auto: plain)."""
+        doubled = ros2.doubled_bridge_key(self.namespace, ros2.CMD_VEL)
+        routes: dict[str, ros2.BridgeRoute] = {}
+        cond = threading.Condition()
+
+        def on(key: str, alive: bool) -> None:
+            r = ros2.parse_bridge_route(key)
+            if r is not None and r.key in (self.cmd_key, doubled):
+                with cond:
+                    routes[r.key] = r
+                    cond.notify_all()
+
+        watch = self.bus.watch_alive(ros2.bridge_routes("MS"), on)
+        try:
+            with cond:
+                cond.wait_for(lambda: self.cmd_key in routes, timeout=self.bridge_look_s)
+                mine, twice = routes.get(cast(str, self.cmd_key)), routes.get(doubled) if doubled else None
+        finally:
+            watch.close()
+        if mine is None and twice is not None:
+            raise DiscoveryError(
+                f"ROS 2 robot {self.namespace}: nothing subscribes {self.cmd_key}, but the bridge routes {doubled} to "
+                f"a subscriber: the namespace is given twice (the robot's nodes in /{self.namespace} and its "
+                f"zenoh-bridge-ros2dds started with -n /{self.namespace}); start the bridge without -n, or the "
+                "robot's nodes without their namespace")
+        if mine is None:
+            log.warning("%s: no zenoh-bridge-ros2dds announces a route for %s within %g s (a bridge before 0.11 "
+                        "announces none, or the robot's nodes are not up): commands go out as %s, unchecked; a "
+                        "Jazzy TurtleBot3 takes TwistStamped (--twist stamped), a Humble one Twist (--twist plain)",
+                        self.namespace or "/", self.cmd_key, self.bridge_look_s, self.cmd_type)
+            return
+        twist = ros2.twist_of(mine.ros2_type)
+        if twist is None:
+            raise DiscoveryError(f"ROS 2 robot {self.namespace}: the bridge routes {self.cmd_key} to a subscriber of "
+                                 f"{mine.ros2_type}, neither {ros2.TWIST} nor {ros2.TWIST_STAMPED}")
+        if self.twist_given == "auto":
+            self._take_twist(mine.ros2_type, "the bridge's route")
+        elif twist != self.twist:
+            raise DiscoveryError(f"ROS 2 robot {self.namespace}: the robot subscribes {self.cmd_topic} as "
+                                 f"{mine.ros2_type} (its zenoh-bridge-ros2dds says so), not as {self.cmd_type}: use "
+                                 f"--twist {twist} (or auto)")
+
     def _discover(self) -> tuple[Entity, Entity]:
-        """The robot's cmd_vel subscription (MS, of the command type) and odom publication (MP,
-        Odometry) in this namespace and domain, from the liveliness tokens."""
-        want_cmd, want_odom = ros2.dds_type(self.cmd_type), ros2.dds_type(ros2.ODOMETRY)
+        """The robot's cmd_vel subscription (MS, of the command type; twist auto: of either) and odom publication
+        (MP, Odometry) in this namespace and domain, from the liveliness tokens."""
+        want_odom = ros2.dds_type(ros2.ODOMETRY)
+        want_cmd = {ros2.dds_type(ros2.twist_type(t)) for t in ros2.TWISTS} if self.twist_given == "auto" \
+            else {ros2.dds_type(self.cmd_type)}
         seen: dict[str, Entity] = {}
         cond = threading.Condition()
 
@@ -179,7 +245,7 @@ class Ros2Drive:
                 cond.notify_all()
 
         def found() -> tuple[Entity, Entity] | None:
-            sub = [e for e in seen.values() if e.kind == "MS" and e.topic == self.cmd_topic and e.dds_type == want_cmd]
+            sub = [e for e in seen.values() if e.kind == "MS" and e.topic == self.cmd_topic and e.dds_type in want_cmd]
             pub = [e for e in seen.values() if e.kind == "MP" and e.topic == self.odom_topic and e.dds_type == want_odom]
             if sub and pub:
                 return min(sub, key=lambda e: e.key), min(pub, key=lambda e: e.key)
@@ -196,17 +262,18 @@ class Ros2Drive:
             raise DiscoveryError(self._not_found(snapshot, want_cmd, want_odom))
         return got
 
-    def _not_found(self, seen: list[Entity], want_cmd: str, want_odom: str) -> str:
+    def _not_found(self, seen: list[Entity], want_cmd: set[str], want_odom: str) -> str:
         missing = []
-        if not any(e.kind == "MS" and e.topic == self.cmd_topic and e.dds_type == want_cmd for e in seen):
-            missing.append(f"subscriber of {self.cmd_topic} as {self.cmd_type}")
+        if not any(e.kind == "MS" and e.topic == self.cmd_topic and e.dds_type in want_cmd for e in seen):
+            missing.append(f"subscriber of {self.cmd_topic} as " + (
+                f"{ros2.TWIST} or {ros2.TWIST_STAMPED}" if len(want_cmd) > 1 else self.cmd_type))
         if not any(e.kind == "MP" and e.topic == self.odom_topic and e.dds_type == want_odom for e in seen):
             missing.append(f"publisher of {self.odom_topic} as {ros2.ODOMETRY}")
         lines = [f"ROS 2 robot {self.namespace or '/'}: found no {' and no '.join(missing)} on domain {self.domain} "
                  f"within {self.discover_timeout_s:g} s (rmw_zenoh liveliness tokens under "
                  f"{ros2.liveliness_any(self.domain)})."]
         for e in seen:
-            if e.kind == "MS" and e.topic == self.cmd_topic and e.dds_type != want_cmd:
+            if e.kind == "MS" and e.topic == self.cmd_topic and e.dds_type not in want_cmd:
                 other = "stamped" if e.dds_type == ros2.dds_type(ros2.TWIST_STAMPED) else "plain"
                 lines.append(f"The robot subscribes {e.topic} as {e.dds_type}: use --twist {other}.")
         topics = sorted({f"{e.kind} {e.topic} {e.dds_type} (node {e.namespace.rstrip('/')}/{e.node})"

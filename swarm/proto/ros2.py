@@ -286,6 +286,69 @@ def parse_liveliness(key: str) -> Entity | None:
                   topic, dds, hash_, qos)
 
 
+# --------------------------------------------------------------------------- zenoh-bridge-ros2dds's routes
+
+BRIDGE_SLASH = "\u00a7"  # the bridge writes '/' inside a chunk of its route tokens as the section sign
+BRIDGE_ROUTE_KINDS = ("MP", "MS")  # a route for a ROS 2 publisher (data out of the robot), for a subscriber (in)
+BRIDGE_QOS = ":1:0:0,10"  # keyless, reliable, volatile, keep last 10 (a TurtleBot3's cmd_vel and odom)
+
+
+@dataclass(frozen=True)
+class BridgeRoute:
+    """One route zenoh-bridge-ros2dds announces with a liveliness token while a ROS 2 node behind it publishes
+    (MP) or subscribes (MS) a topic: `@ros2_lv/<bridge zid>/<kind>/<zenoh key>/<ROS 2 type>/<qos>`, with '/'
+    inside the key and the type written as BRIDGE_SLASH. It is how another bridge learns the message type of a
+    topic; swarm reads it to check the robot's cmd_vel type (docs/ros2.md, The bridge's routes)."""
+
+    zid: str
+    kind: str  # MP or MS
+    key: str  # the zenoh key the data goes on: "robot1/cmd_vel"
+    ros2_type: str  # "geometry_msgs/msg/TwistStamped"
+    qos: str = BRIDGE_QOS
+
+    @property
+    def token(self) -> str:
+        """Its liveliness token's key (what parse_bridge_route reads back)."""
+        esc = BRIDGE_SLASH
+        key = f"{LIVELINESS}/{self.zid}/{self.kind}/{self.key.replace('/', esc)}/{self.ros2_type.replace('/', esc)}/{self.qos}"
+        if parse_bridge_route(key) != self:
+            raise Ros2Error(f"not a valid bridge route: {self!r}")
+        return key
+
+
+def bridge_routes(kind: str) -> str:
+    """The key expression of every route of one kind (MP or MS) of every bridge."""
+    if kind not in BRIDGE_ROUTE_KINDS:
+        raise Ros2Error(f"a bridge route's kind is one of {', '.join(BRIDGE_ROUTE_KINDS)}, got {kind!r}")
+    return f"{LIVELINESS}/*/{kind}/*/*/*"
+
+
+def parse_bridge_route(key: str) -> BridgeRoute | None:
+    """A bridge's route token -> BridgeRoute; None for anything that is not one (an rmw_zenoh token has a domain
+    number where the bridge has its zenoh id, and its kind further on)."""
+    if not isinstance(key, str):
+        return None
+    parts = key.split("/")
+    if len(parts) != 6 or parts[0] != LIVELINESS or not all(_CHUNK.match(p) for p in parts[1:]):
+        return None
+    zid, kind, zkey, typ, qos = parts[1:]
+    if kind not in BRIDGE_ROUTE_KINDS:
+        return None
+    zkey, typ = zkey.replace(BRIDGE_SLASH, "/"), typ.replace(BRIDGE_SLASH, "/")
+    if not _TOPIC.match(zkey) or not _TYPENAME.match(typ):
+        return None
+    return BridgeRoute(zid, kind, zkey, typ, qos)
+
+
+def twist_of(typename: str) -> str | None:
+    """The --twist choice of a cmd_vel type (ROS 2 or DDS name): Twist -> "plain", TwistStamped -> "stamped"; None
+    for any other type."""
+    for twist in TWISTS:
+        if typename in (twist_type(twist), dds_type(twist_type(twist))):
+            return twist
+    return None
+
+
 # --------------------------------------------------------------------------- attachment
 
 

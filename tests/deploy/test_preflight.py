@@ -138,6 +138,17 @@ def test_cmd_vel_of_the_other_type_names_the_fix():
 
 
 @pytest.mark.unit
+def test_a_bridge_robot_of_the_other_twist_type_names_the_fix():
+    """zenoh-bridge-ros2dds announces each route with its ROS 2 type: a Jazzy TurtleBot3 (TwistStamped) in an
+    inventory that says plain is refused, naming the fix, though something subscribes its cmd_vel."""
+    fleet = fleet_of(r0={"flavor": "bridge"}, r1={"flavor": "bridge", "twist": "stamped"}, r2={"flavor": "bridge"})
+    report, _ = run_check(fleet, {0: 20, 1: 20, 2: 20}, flavor="bridge", twist="stamped", timeout_s=1.0)
+    assert [str(p) for p in report.problems] == [
+        f"robot {i}: its zenoh-bridge-ros2dds routes robot{i}/cmd_vel to a subscriber of geometry_msgs/msg/TwistStamped,"
+        f" not of the inventory's twist = 'plain': set twist = \"stamped\" in robot[{i}]" for i in (0, 2)]
+
+
+@pytest.mark.unit
 def test_bridge_flavour():
     fleet = fleet_of(r0={"flavor": "bridge"}, r1={"flavor": "bridge"}, r2={"flavor": "bridge"})
     report, _ = run_check(fleet, {0: 20, 1: 20, 2: 20}, flavor="bridge")

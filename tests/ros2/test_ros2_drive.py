@@ -43,7 +43,7 @@ def make_drive(net, flavor="bridge", twist="plain", namespace="robot1", initial=
     bus = SpyBus(net)
     d = Ros2Drive(bus, namespace=namespace, flavor=flavor, twist=twist, initial_pose=initial,
                   now=now or Clock(), wall_ns=lambda: WALL_NS, discover_timeout_s=kw.pop("discover_timeout_s", 2.0),
-                  **kw)
+                  bridge_look_s=kw.pop("bridge_look_s", 0.05), **kw)
     return d, bus
 
 
@@ -233,6 +233,67 @@ def test_discovery_with_no_robot_says_what_to_check():
     Ros2Fleet(MemoryBus(net), [(0.0, 0.0, 0.0)] * 2, "rmw_zenoh", "plain").start()
     with pytest.raises(DiscoveryError, match=r"/robot9/cmd_vel.*/robot9/odom.*Seen 2 node\(s\): /robot0/turtlebot3_node"):
         d.start()
+
+
+@pytest.mark.parametrize("twist", ["plain", "stamped"])
+def test_twist_auto_takes_the_type_the_robot_subscribes(twist):
+    """--twist auto: rmw_zenoh from the robot's token, bridge from the route its zenoh-bridge-ros2dds announces;
+    the commands then arrive in that type (the fleet decodes them as such)."""
+    for flavor in ("rmw_zenoh", "bridge"):
+        net = MemoryNet()
+        fleet = Ros2Fleet(MemoryBus(net), [(0.0, 0.0, 0.0)] * 2, flavor, twist)
+        fleet.start()
+        d, _ = make_drive(net, flavor, "auto")
+        d.start()
+        assert (d.twist, d.cmd_type) == (twist, ros2.twist_type(twist)), flavor
+        d.send(Cmd(1, 1, 0.5, -0.25))
+        assert fleet.take_commands()[-1] == (1, 0.5, -0.25), flavor
+
+
+def test_a_bridge_robot_of_the_other_twist_type_is_refused_naming_the_fix():
+    """The bridge passes any bytes on: a TwistStamped read as a Twist (or the reverse) is nonsense or nothing at the
+    robot. The route the bridge announces says the type, and a --twist that differs is refused, naming the right
+    one."""
+    net = MemoryNet()
+    Ros2Fleet(MemoryBus(net), [(0.0, 0.0, 0.0)] * 2, "bridge", "stamped").start()
+    d, _ = make_drive(net, "bridge", "plain")
+    with pytest.raises(DiscoveryError, match=r"subscribes /robot1/cmd_vel as geometry_msgs/msg/TwistStamped .*"
+                                             r"use --twist stamped \(or auto\)"):
+        d.start()
+    d, _ = make_drive(net, "bridge", "stamped")
+    d.start()  # the right one
+
+
+def test_a_bridge_started_with_the_robots_namespace_again_is_named():
+    """The robot's nodes in /robot1 behind a bridge started with -n /robot1: its route is robot1/robot1/cmd_vel."""
+    net = MemoryNet()
+    MemoryBus(net).token(ros2.BridgeRoute("ab12", "MS", "robot1/robot1/cmd_vel", ros2.TWIST).token)
+    d, _ = make_drive(net, "bridge", "auto")
+    with pytest.raises(DiscoveryError, match="namespace is given twice.*without -n"):
+        d.start()
+
+
+def test_a_bridge_that_announces_no_route_is_said_and_commanded_as_given(caplog):
+    """An old bridge (or a robot whose nodes are not up yet) announces nothing: the drive says it could not check
+    the type, and commands in the one given (auto: plain)."""
+    net = MemoryNet()
+    d, bus = make_drive(net, "bridge", "auto")
+    with caplog.at_level("WARNING", logger="swarm.drive.ros2"):
+        d.start()
+    assert d.cmd_type == ros2.TWIST and "no zenoh-bridge-ros2dds announces a route for robot1/cmd_vel" in caplog.text
+    d.send(Cmd(1, 1, 0.1, 0.0))
+    assert ros2.decode_twist(bus.puts[-1][1]) == (0.1, 0.0)
+
+
+def test_bridge_route_tokens_read_back_and_nothing_else_reads_as_one():
+    r = ros2.BridgeRoute("0123abcd", "MP", "robot1/odom", ros2.ODOMETRY)
+    assert r.token == "@ros2_lv/0123abcd/MP/robot1\u00a7odom/nav_msgs\u00a7msg\u00a7Odometry/:1:0:0,10"
+    assert ros2.parse_bridge_route(r.token) == r
+    fleet = Ros2Fleet(MemoryBus(MemoryNet()), [(0.0, 0.0, 0.0)], "rmw_zenoh", "plain")
+    for key in [e.key for e in fleet.entities(0)] + ["@ros2_lv/z/XX/a/geometry_msgs\u00a7msg\u00a7Twist/q",
+                                                    "@ros2_lv/z/MS/a/notatype/q", "@ros2_lv/z/MS/a*/b/q", 7]:
+        assert ros2.parse_bridge_route(key) is None, key
+    assert ros2.twist_of("geometry_msgs::msg::dds_::TwistStamped_") == "stamped" and ros2.twist_of(ros2.ODOMETRY) is None
 
 
 # --------------------------------------------------------------------------- the rmw_zenoh releases

@@ -38,8 +38,12 @@ def test_keys_and_liveliness_tokens(flavor, twist, distro, cmd, odom):
     f = fleet_on(net, flavor, twist, distro=distro)
     assert f.cmd_keys[1] == cmd and f.odom_keys[1] == odom
     tokens = sorted(k for k in net.tokens)
-    if flavor == "bridge":
-        assert tokens == []
+    if flavor == "bridge":  # each robot's bridge announces its two routes, with their ROS 2 types
+        routes = {(r.kind, r.key, r.ros2_type) for r in map(ros2.parse_bridge_route, tokens)}
+        assert routes == {("MS", f"robot{i}/cmd_vel", ros2.twist_type(twist)) for i in (0, 1)} | \
+            {("MP", f"robot{i}/odom", ros2.ODOMETRY) for i in (0, 1)}
+        f.close()
+        assert net.tokens == {}
         return
     entities = [ros2.parse_liveliness(k) for k in tokens]
     assert len(entities) == 6 and None not in entities

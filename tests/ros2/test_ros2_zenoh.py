@@ -1,5 +1,5 @@
 """The ROS 2 drive against the simulated ROS 2 fleet through a real zenoh router on loopback, in each
-flavour and each twist kind: discovery from liveliness tokens, commands that move the fleet's robot,
+flavour and each twist kind: discovery from liveliness tokens (the twist type too: the drive runs --twist auto), commands that move the fleet's robot,
 odometry reported back in the swarm's frame, rmw_zenoh's rule that a sample without attachment is dropped."""
 
 from __future__ import annotations
@@ -45,10 +45,11 @@ def test_the_drive_moves_a_simulated_ros2_robot_through_a_router(client, flavor,
     fleet.start()
     clock = {"t": 0.0}
     drive_bus = client()
-    drive = Ros2Drive(drive_bus, namespace=ns, flavor=flavor, twist=twist, domain=domain, initial_pose=START,
-                      now=lambda: clock["t"], discover_timeout_s=10)
-    drive.start()  # rmw_zenoh: discovery over the router
+    drive = Ros2Drive(drive_bus, namespace=ns, flavor=flavor, twist="auto", domain=domain, initial_pose=START,
+                      now=lambda: clock["t"], discover_timeout_s=10, bridge_look_s=10)
+    drive.start()  # discovery over the router: rmw_zenoh's tokens, or the bridge's route (its twist type)
     assert (drive.cmd_key, drive.odom_key) == (fleet.cmd_keys[0], fleet.odom_keys[0])
+    assert drive.twist == twist
     if flavor == "rmw_zenoh":
         assert drive.cmd_key.split("/")[-1] == ros2.type_hash(ros2.twist_type(twist))
 
