@@ -1665,6 +1665,18 @@ def fetch_obstacles(bus, fleet: str, timeout_s: float, stop: threading.Event | N
     return list(msg.obstacles)
 
 
+def within_limits(cfg: Config, limits: tuple[float, float] | None) -> Config:
+    """The configuration with v_max and w_max tightened to a drive's own (its robot model's) limits: the law, its
+    governor and the command clip then keep to them. No limits (None): cfg as it is; a limit of cfg's 0 is none."""
+    if limits is None:
+        return cfg
+    from dataclasses import replace
+
+    v, w = limits
+    return replace(cfg, v_max=v if cfg.v_max <= 0 else min(cfg.v_max, v),
+                   w_max=w if cfg.w_max <= 0 else min(cfg.w_max, w))
+
+
 def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading.Event | None = None,
               scenario=None, start_timeout: float = 60.0, wait_timeout: float = WAIT_TIMEOUT_S,
               once: bool = False, make_drive=None, ref_timeout: float = REF_TIMEOUT_S,
@@ -1717,6 +1729,7 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                     rbus = fbus = _fault_bus(bus, faults, cfg, fleet, clock, box)
                 now = (lambda: box[0].sim_time(clock.time()) if box else None)
                 drive = make_drive(cfg, now) if make_drive is not None else None
+                cfg = within_limits(cfg, getattr(drive, "speed_limits", None))
                 if drive is None:
                     from swarm.drives.sim import SimDrive
 

@@ -449,6 +449,10 @@ def _add_ros2_flags(g, world: bool | str = False) -> None:
                             "TurtleBot3 on Jazzy); default plain")
     g.add_argument("--domain", type=_domain, default=0, metavar="D", help="the ROS domain id (default 0)")
     if world == "robot":
+        g.add_argument("--robot-model", choices=("burger", "waffle", "waffle_pi"), metavar="MODEL",
+                       help="the robot's model: burger, waffle or waffle_pi (ROBOTIS's TurtleBot3 limits: 0.22 m/s and "
+                            "2.84 rad/s, 0.26 m/s and 1.82 rad/s): the run's v_max and w_max are tightened to them, "
+                            "so the law, its governor and every command keep to what the robot can do")
         g.add_argument("--rmw-zenoh-attachment", choices=("auto", "v1", "v2"), default="auto",
                        help="rmw_zenoh flavour: the form of the attachment commands carry: v2 (33 bytes: rmw_zenoh "
                             "Rolling >= 0.6.0, Jazzy >= 0.2.4, Humble >= 0.1.2), v1 (named fields: the releases "

@@ -33,7 +33,7 @@ def cmd_robot(args, started: float) -> int:
         for flag, value in (("--namespace", args.namespace), ("--initial-pose", args.initial_pose)):
             if value is not None:
                 raise BadInput(f"{flag} needs --drive ros2")
-        for flag in given(args, "ros_flavor", "twist", "domain", "rmw_zenoh_attachment"):
+        for flag in given(args, "ros_flavor", "twist", "domain", "rmw_zenoh_attachment", "robot_model"):
             raise BadInput(f"{flag} needs --drive ros2")
     elif args.mode == "lockstep":
         raise BadInput("--drive ros2 with --mode lockstep: a ROS 2 robot runs in real time only (odometry carries no "
@@ -64,6 +64,13 @@ def cmd_robot(args, started: float) -> int:
     return EXIT_INTERRUPTED
 
 
+def model_limits(model: str | None) -> tuple[float, float] | None:
+    """--robot-model's (v_max, w_max) (swarm.core.inventory.MODELS); None without one."""
+    from swarm.core.inventory import MODELS
+
+    return None if model is None else (MODELS[model].v_max, MODELS[model].w_max)
+
+
 def _ros2_drive(args):
     """make_drive for --drive ros2: a swarm.drives.ros2.Ros2Drive per run (bad input if the extra is missing)."""
     try:
@@ -84,7 +91,7 @@ def _ros2_drive(args):
             pose = args.initial_pose or (cfg.x, cfg.y, cfg.theta)
             return Ros2Drive(bus, namespace=args.namespace or f"robot{cfg.id}", now=now, flavor=args.ros_flavor,
                              twist=args.twist, domain=args.domain, initial_pose=pose,
-                             attachment=args.rmw_zenoh_attachment)
+                             attachment=args.rmw_zenoh_attachment, speed_limits=model_limits(args.robot_model))
 
         return make
 

@@ -23,12 +23,17 @@ The file:
     w_max = 2.0                            # [rad/s], may only tighten control.w_max
     cmd_timeout = 0.5                      # [s] the base's own: how long it executes a cmd_vel with no newer one
                                            # (twist_mux, a velocity smoother); real time's safety rule counts it
+    model = "burger"                       # or "waffle", "waffle_pi": ROBOTIS's limits (v_max, w_max unless
+                                           # given, tighter) and footprint (its radius must fit bodies.r)
 
 Precedence: a flag beats the inventory, which beats the scenario. The scenario gives the starts and
 the limits; the inventory may move a start (`initial_pose`, where the robot really stands) and
 tighten a limit, never loosen one; `--initial-pose I:X,Y,THETA` moves one robot's start again.
 
-Pre-flight (static part; docs/deploy.md): every robot has both limits; every leader segment is
+A `model` (MODELS: ROBOTIS's values) gives the robot's v_max and w_max where the row gives none (a row's own may
+only be tighter than the model's) and its footprint radius, which must fit within the scenario's bodies.r.
+
+Pre-flight (static part; docs/deploy.md): every robot has both limits and a footprint within r; every leader segment is
 within PREFLIGHT_SHARE of every robot's limits (|v| <= 0.8 v_max, |w| <= 0.8 w_max: a follower
 away from its slot needs the rest to catch up) and v_max >= control.vt; starts at least r apart (the
 referee's collision distance), outside every obstacle's r, and inside arena.bounds. The odometry
@@ -61,7 +66,23 @@ TWISTS = ("plain", "stamped")
 ATTACHMENTS = ("auto", "v1", "v2")  # swarm.proto.ros2.ATTACHMENT_FORMS, or the robot's own
 PREFLIGHT_SHARE = 0.8  # a leader segment may use this share of a robot's speed limits
 ROBOT_KEYS = ("id", "drive", "flavor", "namespace", "domain", "twist", "attachment", "connect", "initial_pose",
-              "v_max", "w_max", "cmd_timeout")
+              "v_max", "w_max", "cmd_timeout", "model")
+
+
+@dataclass(frozen=True)
+class RobotModel:
+    """A robot model's limits and footprint, as its maker gives them."""
+
+    name: str
+    v_max: float  # m/s
+    w_max: float  # rad/s
+    radius: float  # m: the footprint's radius (ROBOTIS's navigation robot_radius)
+
+
+# ROBOTIS's TurtleBot3 values: the teleop's maximum speeds (the firmware clamps to about these) and the navigation
+# stack's robot_radius
+MODELS = {m.name: m for m in (RobotModel("burger", 0.22, 2.84, 0.105), RobotModel("waffle", 0.26, 1.82, 0.22),
+                              RobotModel("waffle_pi", 0.26, 1.82, 0.22))}
 _FLEET = re.compile(r"^[A-Za-z0-9_\-]{1,64}$")  # swarm.proto.keys' fleet names
 _ENDPOINT = re.compile(r"^(tcp|tls|udp|quic|ws|unixsock-stream)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+):([0-9]{1,5})$")
 
@@ -87,6 +108,7 @@ class RobotEntry:
     w_max: float | None = None  # rad/s
     cmd_timeout: float | None = None  # s: the base's own cmd_vel timeout (None: not known)
     attachment: str = "auto"  # rmw_zenoh's attachment form: auto (the robot's odometry says), v1 or v2
+    model: str | None = None  # a MODELS name: its limits where v_max/w_max are not given, and its footprint
 
 
 @dataclass(frozen=True)
@@ -232,7 +254,15 @@ def _robot(rd: _Reader, row: dict[str, Any], key: str) -> RobotEntry:
         raise rd.fail(f"{key}.cmd_timeout", f"must be at most 60 s (a base that keeps a command longer is not "
                                             f"stopped by anything swarm can do), got {timeout:g}")
     attachment = rd.choice(row.get("attachment", "auto"), f"{key}.attachment", ATTACHMENTS)
-    return RobotEntry(i, key, drive, flavor, namespace, domain, twist, connect, pose, v_max, w_max, timeout, attachment)
+    model = rd.choice(row["model"], f"{key}.model", tuple(MODELS)) if "model" in row else None
+    if model is not None:
+        m = MODELS[model]
+        for name, mine, most, unit in (("v_max", v_max, m.v_max, "m/s"), ("w_max", w_max, m.w_max, "rad/s")):
+            if mine is not None and mine > most:
+                raise rd.fail(f"{key}.{name}", f"{mine:g} {unit} is more than a {model} can do ({most:g} {unit}); "
+                                               f"leave it out to take the {model}'s, or lower it")
+    return RobotEntry(i, key, drive, flavor, namespace, domain, twist, connect, pose, v_max, w_max, timeout, attachment,
+                      model)
 
 
 # --------------------------------------------------------------------------- applying to a scenario
@@ -280,6 +310,11 @@ def apply(inv: Inventory, scn: Scenario, poses: dict[int, tuple[float, float, fl
 
 def _tighter(inv: Inventory, e: RobotEntry, name: str, scenario: float | None, unit: str) -> tuple[float | None, str]:
     mine = getattr(e, name)
+    if mine is None and e.model is not None:  # the model's, or the scenario's where it is tighter
+        most = getattr(MODELS[e.model], name)
+        if scenario is not None and scenario <= most:
+            return scenario, f"the scenario's control.{name}"
+        return most, f"a {e.model}'s ({e.key}.model)"
     if mine is None:
         return scenario, (f"the scenario's control.{name}" if scenario is not None else "nowhere")
     if scenario is not None and mine > scenario:
@@ -317,6 +352,11 @@ def static_problems(fleet: Fleet) -> list[Problem]:
                 out.append(Problem(i, f"leader.segments[{k}] turns at |w| = {abs(segs[k].w):g} rad/s, more than "
                                       f"{PREFLIGHT_SHARE:g} x w_max = {PREFLIGHT_SHARE * r.w_max:.4g} rad/s (w_max "
                                       f"{r.w_max:g} rad/s from {r.w_from}): a follower could not catch up"))
+        m = MODELS.get(r.entry.model or "")
+        if m is not None and m.radius > scn.r * (1 + 1e-12):
+            out.append(Problem(i, f"a {m.name}'s footprint has a radius of {m.radius:g} m, more than the scenario's "
+                                  f"bodies.r = {scn.r:g} m: its body would reach beyond the disc the law keeps clear and "
+                                  f"the referee measures (give bodies.r >= {m.radius:g})"))
     out += _start_problems(fleet)
     return sorted(out, key=lambda p: (-1 if p.robot is None else p.robot))
 
@@ -367,6 +407,6 @@ def describe(fleet: Fleet) -> str:
         e = r.entry
         lim = ", ".join(f"{n} {v:g}" for n, v in (("v_max", r.v_max), ("w_max", r.w_max)) if v is not None)
         lines.append(f"  robot {e.id}: {e.drive} {e.flavor} /{e.namespace} domain {e.domain} twist {e.twist}"
-                     f"{' via ' + e.connect if e.connect else ''}; start ({r.start[0]:g}, {r.start[1]:g}, "
+                     f"{' via ' + e.connect if e.connect else ''}{', a ' + e.model if e.model else ''}; start ({r.start[0]:g}, {r.start[1]:g}, "
                      f"{r.start[2]:g}) from {r.start_from}; {lim or 'no limits'}")
     return "\n".join(lines)

@@ -9,6 +9,8 @@
     drive.halt(reason)            zero velocity now (watchdog, e-stop, shutdown, an exception); the body
                                   stays halted until the next send()
     drive.close()                 halt, then release everything
+    drive.speed_limits            the body's own (v_max [m/s], w_max [rad/s]), e.g. its model's, or None: the
+                                  agent tightens its run's limits to them before its first command
 
 Poses are swarm.proto.protocol.Pose in the swarm's frame (the scenario's metres and radians) and on
 the swarm's simulated clock (t [s]); seq counts the poses of this drive. A drive never raises on a
@@ -26,6 +28,7 @@ from swarm.proto.protocol import Cmd, Pose
 
 class Drive(Protocol):
     name: str  # "sim", "ros2"
+    speed_limits: tuple[float, float] | None  # the body's own (v_max, w_max), or None
 
     def start(self) -> None: ...
 

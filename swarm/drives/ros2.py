@@ -79,14 +79,16 @@ class Ros2Drive:
                  discover_timeout_s: float = DISCOVER_TIMEOUT_S, odom_depth: int = ODOM_DEPTH,
                  wall_ns: Callable[[], int] = time.time_ns, announce: bool = True,
                  base_timeout_s: float | None = None, attachment: str = "auto",
-                 monotonic: Callable[[], float] = time.monotonic, bridge_look_s: float = BRIDGE_LOOK_S) -> None:
+                 monotonic: Callable[[], float] = time.monotonic, bridge_look_s: float = BRIDGE_LOOK_S,
+                 speed_limits: tuple[float, float] | None = None) -> None:
         """now(): the swarm's clock [s] (None until it is known: poses are not reported before);
         wall_ns(): the wall clock [ns since the epoch] for TwistStamped headers and attachments;
         base_timeout_s: how long the robot's base executes a cmd_vel with no newer one (the inventory's
         cmd_timeout; None: not known): should the agent die, its last command acts that long, and real time's
         safety rule counts it in the robot's reach; twist: the cmd_vel type, plain (Twist), stamped (TwistStamped)
         or "auto": the type the robot subscribes (rmw_zenoh: its token; bridge: the bridge's route; plain when a
-        bridge announces none); attachment: the form of rmw_zenoh's attachment the commands
+        bridge announces none); speed_limits: the robot's own (v_max [m/s], w_max [rad/s]), say its model's
+        (--robot-model): the agent tightens its run's limits to them; attachment: the form of rmw_zenoh's attachment the commands
         carry (ros2.ATTACHMENT_FORMS: v1 for the releases before the 33-byte form, v2 after), or "auto": the form of
         the robot's own odometry (v2 until its first sample says)."""
         self.bus, self.now, self.wall_ns, self.monotonic = bus, now, wall_ns, monotonic
@@ -110,6 +112,10 @@ class Ros2Drive:
             raise ValueError(f"discover_timeout_s must be > 0, got {discover_timeout_s}")
         self.discover_timeout_s = discover_timeout_s
         self.bridge_look_s = bridge_look_s
+        if speed_limits is not None and not (len(speed_limits) == 2 and all(
+                isinstance(a, (int, float)) and math.isfinite(a) and a > 0 for a in speed_limits)):
+            raise ValueError(f"speed_limits must be two finite numbers > 0 (v_max, w_max), got {speed_limits!r}")
+        self.speed_limits = speed_limits  # the robot's own (v_max, w_max), e.g. its model's: the agent keeps to them
         self.odom_depth = odom_depth
         self.announce = announce
         self.base_timeout_s = base_timeout_s

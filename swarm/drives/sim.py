@@ -31,6 +31,7 @@ class SimDrive:
     ramp_s = RAMP_S  # along this ramp
     switch_s = 0.0  # and takes a new command at once
     takes_callback = True  # start(on_poses): poses handed to a callback on the bus's thread instead of an inbox
+    speed_limits = None  # the simulated body does what the scenario's limits allow
 
     def __init__(self, bus, fleet: str, robot_id: int, limits: Limits | None = None) -> None:
         self.bus, self.fleet, self.id, self.limits = bus, fleet, robot_id, limits

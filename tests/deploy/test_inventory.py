@@ -217,3 +217,31 @@ def test_a_burger_fleet_refuses_the_default_scenario_and_passes_it_scaled(tmp_pa
     assert _problems(tmp_path, doc, again) == []
     same, one = scenario_file.scaled(again, 0.22, 2.84)
     assert one == pytest.approx(1.0, abs=1e-9) and same.duration == pytest.approx(again.duration)
+
+
+def test_a_robot_model_gives_its_limits_and_footprint(tmp_path):
+    """model = "burger" (ROBOTIS: 0.22 m/s, 2.84 rad/s, radius 0.105 m): the limits where the row gives none, the
+    scenario's where they are tighter, a row's own only if tighter than the model's; a footprint larger than the
+    scenario's r is a pre-flight problem (a waffle's 0.22 m in turtlebot3's r = 0.15 m)."""
+    scn = scenario_file.load("paper-50hz", scenario_file.Overrides(robots=7), progress=scenario_file.silent)
+    doc = {"robot": [{"id": i, "model": "burger"} for i in range(7)]}
+    doc["robot"][3]["v_max"] = 0.2
+    fleet = inventory.apply(inventory.load(write(tmp_path, doc)), scn)
+    assert (fleet.limits(0), fleet.robots[0].v_from) == ((0.22, 2.84), "a burger's (robot[0].model)")
+    assert fleet.limits(3) == (0.2, 2.84) and "a burger" in inventory.describe(fleet)
+    probs = [str(p) for p in inventory.static_problems(fleet)]
+    assert probs[0].startswith("robot 0: leader.segments[0] moves at |v| = 0.5 m/s, more than 0.8 x v_max = 0.176 m/s "
+                               "(v_max 0.22 m/s from a burger's (robot[0].model))"), probs
+    tb3 = inventory.apply(inventory.load(write(tmp_path, doc)), TB3)  # the scenario's 0.22 and 2.84: as tight
+    assert tb3.limits(0) == (0.22, 2.84) and tb3.robots[0].v_from == "the scenario's control.v_max"
+    assert inventory.static_problems(tb3) == []  # 0.105 m within r = 0.15 m
+    waffles = inventory.apply(inventory.load(write(tmp_path, {"robot": [{"id": i, "model": "waffle"} for i in range(7)]})),
+                              TB3)
+    assert waffles.limits(0) == (0.22, 1.82)  # the scenario's v_max, the waffle's w_max
+    assert any(str(p).startswith("robot 0: a waffle's footprint has a radius of 0.22 m, more than the scenario's "
+                                 "bodies.r = 0.15 m") for p in inventory.static_problems(waffles))
+    doc["robot"][2]["v_max"] = 0.3
+    with pytest.raises(InventoryError, match=r"robot\[2\]\.v_max.*0\.3 m/s is more than a burger can do \(0\.22 m/s\)"):
+        inventory.load(write(tmp_path, doc))
+    with pytest.raises(InventoryError, match=r"robot\[0\]\.model"):
+        inventory.load(write(tmp_path, {"robot": [{"id": 0, "model": "roomba"}]}))

@@ -41,6 +41,30 @@ def test_flags_of_another_drive_are_refused_not_dropped(capsys):
                        (["up", "--no-preflight", "--dry-run"], "--no-preflight needs --inventory"),
                        (["up", "--twist", "plain", "--dry-run"], "--twist needs --drive ros2"),
                        (["up", "--ros-flavor", "bridge", "--dry-run"], "--ros-flavor needs --drive ros2"),
-                       (["robot", "--id", "1", "--domain", "3"], "--domain needs --drive ros2")]:
+                       (["robot", "--id", "1", "--domain", "3"], "--domain needs --drive ros2"),
+                       (["robot", "--id", "1", "--robot-model", "burger"], "--robot-model needs --drive ros2")]:
         assert main(argv) == 2, argv
         assert said in capsys.readouterr().err, argv
+
+
+def test_a_robot_model_tightens_the_runs_limits_through_its_drive():
+    """--robot-model burger: the ROS 2 drive carries ROBOTIS's limits, and the agent's configuration is tightened to
+    them (never loosened; a limit of 0, none, takes the model's)."""
+    from dataclasses import replace
+
+    from agents.robot import within_limits
+    from swarm.cli.parser import build_parser
+    from swarm.cli.robot import _ros2_drive
+    from swarm.core import runid, scenario_file
+    from swarm.net.bus import MemoryBus, MemoryNet
+
+    args = build_parser().parse_args(["robot", "--id", "2", "--drive", "ros2", "--robot-model", "burger"])
+    scn = scenario_file.load("paper-50hz", scenario_file.Overrides(robots=7), progress=scenario_file.silent)
+    cfg = runid.robot_config(scn, 2, False, "r1", "d")
+    drive = _ros2_drive(args)(MemoryBus(MemoryNet()))(cfg, lambda: None)
+    assert drive.speed_limits == (0.22, 2.84)
+    tight = within_limits(replace(cfg, v_max=0.0, w_max=3.5), drive.speed_limits)
+    assert (tight.v_max, tight.w_max) == (0.22, 2.84)
+    slow = within_limits(replace(cfg, v_max=0.1, w_max=1.0), drive.speed_limits)
+    assert (slow.v_max, slow.w_max) == (0.1, 1.0)
+    assert within_limits(cfg, None) is cfg
