@@ -85,7 +85,9 @@ class Ros2Fleet:
         self.odom_keys = [self._key(ns, ros2.ODOM, ros2.ODOMETRY) for ns in self.namespaces]
         self._robot_of = {k: i for i, k in enumerate(self.cmd_keys)}
         self._zids = [os.urandom(16).hex() for _ in range(self.n)]
-        self._gids = [os.urandom(ros2.GID_SIZE) for _ in range(self.n)]  # each odom publisher's gid
+        # each odom publisher's gid: rmw_zenoh's, from its token (the bridge carries none)
+        self._gids = [ros2.entity_gid(self.entities(i)[2].key) if self.flavor == "rmw_zenoh" else bytes(ros2.GID_SIZE)
+                      for i in range(self.n)]
         self._odom_seq = [0] * self.n
         self._queue: deque[tuple[int, str, bytes, bytes | None]] = deque(maxlen=queue_depth or 64 * self.n + 64)
         self._lock = threading.Lock()  # publish_odom's sequence numbers

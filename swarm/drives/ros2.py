@@ -122,7 +122,8 @@ class Ros2Drive:
         self.cmd_topic = ros2.topic_name(self.namespace, ros2.CMD_VEL)
         self.odom_topic = ros2.topic_name(self.namespace, ros2.ODOM)
         ros2.typestore()  # fail now, naming the extra, if rosbags is missing
-        self.gid = os.urandom(ros2.GID_SIZE)  # this publisher's gid in every attachment
+        self.zid = os.urandom(16).hex()  # the zenoh id of the node the drive announces
+        self.gid = os.urandom(ros2.GID_SIZE)  # its cmd_vel publisher's gid in every attachment (start(): rmw_zenoh's)
         self.cmd_key: str | None = None
         self.odom_key: str | None = None
         self.bad = protocol.BadMessages(log)
@@ -171,8 +172,10 @@ class Ros2Drive:
         self._handles.append(self._box)
         if self.flavor == "rmw_zenoh":  # the attachment of the robot's own samples says its release
             self._handles.append(self.bus.subscribe_raw(self.odom_key, self._on_odom_attachment))
-        if self.flavor == "rmw_zenoh" and self.announce:
-            for e in self._entities():
+        if self.flavor == "rmw_zenoh":
+            entities = self._entities()
+            self.gid = ros2.entity_gid(entities[1].key)  # the cmd_vel publisher's, as rmw_zenoh derives it
+            for e in entities if self.announce else ():
                 self._handles.append(self.bus.token(e.key))
         log.info("%r: commands on %s, odometry from %s", self, self.cmd_key, self.odom_key)
 
@@ -320,7 +323,7 @@ class Ros2Drive:
     def _entities(self) -> list[Entity]:
         """The drive as a ROS 2 node would appear: node swarm_drive in the robot's namespace, publishing
         cmd_vel and subscribing odom (what a teleop or Nav2 controller would show)."""
-        zid = self.gid.hex()
+        zid = self.zid
         ns = "/" + self.namespace if self.namespace else "/"
         qos = ros2.qos_string(QOS_DEPTH)
         cmd_key, odom_key = cast(str, self.cmd_key), cast(str, self.odom_key)  # start() found them

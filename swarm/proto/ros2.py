@@ -286,6 +286,18 @@ def parse_liveliness(key: str) -> Entity | None:
                   topic, dds, hash_, qos)
 
 
+def entity_gid(token: str) -> bytes:
+    """rmw_zenoh's gid of a graph entity: the XXH3-128 hash of its liveliness token's key, its low 64 bits then its
+    high 64 bits, each little-endian (what `ros2 topic info -v` shows, and what the entity's samples carry in
+    their attachment). ImportError naming the extra if xxhash is missing."""
+    try:
+        import xxhash
+    except ImportError as e:
+        raise ImportError(f"rmw_zenoh's gids need the xxhash package: {INSTALL}") from e
+    h = xxhash.xxh3_128_intdigest(token.encode())
+    return (h & 0xFFFF_FFFF_FFFF_FFFF).to_bytes(8, "little") + (h >> 64).to_bytes(8, "little")
+
+
 # --------------------------------------------------------------------------- zenoh-bridge-ros2dds's routes
 
 BRIDGE_SLASH = "\u00a7"  # the bridge writes '/' inside a chunk of its route tokens as the section sign

@@ -395,3 +395,23 @@ def test_an_odometry_reset_is_re_anchored_where_the_robot_was(caplog):
     pub.put(d.odom_key, odom(0.0, 0.0, 0.0))  # 0.3 m back to the origin: motion
     d.drain()
     assert d.resets == 2
+
+
+def test_gids_are_derived_from_the_entitys_token_as_rmw_zenoh_derives_them():
+    """rmw_zenoh's gid of an entity is XXH3-128 of its liveliness token's key, low 64 bits then high, little-endian:
+    the drive's commands and the fleet's odometry carry the gid of the publisher their tokens announce, so
+    `ros2 topic info -v` and the samples agree."""
+    assert ros2.entity_gid("") == bytes.fromhex("99aa06d3014798d86001c324468d497f")[::-1]  # XXH3-128 of "" (seed 0)
+    net = MemoryNet()
+    fleet = Ros2Fleet(MemoryBus(net), [(0.0, 0.0, 0.0)] * 2, "rmw_zenoh", "plain")
+    fleet.start()
+    d, bus = make_drive(net, "rmw_zenoh", "plain")
+    d.start()
+    mine = [ros2.parse_liveliness(k) for k in net.tokens if ros2.parse_liveliness(k).node == "swarm_drive"]
+    (pub,) = [e for e in mine if e.kind == "MP"]
+    d.send(Cmd(1, 1, 0.1, 0.0))
+    assert ros2.decode_attachment(bus.puts[-1][3]).gid == ros2.entity_gid(pub.key)
+    got = []
+    MemoryBus(net).subscribe_raw(fleet.odom_keys[1], lambda k, p, a: got.append(a))
+    fleet.publish_odom(1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    assert ros2.decode_attachment(got[-1]).gid == ros2.entity_gid(fleet.entities(1)[2].key)
