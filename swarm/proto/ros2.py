@@ -209,10 +209,12 @@ def liveliness_any(domain: int) -> str:
 
 
 def qos_string(depth: int = 10, reliable: bool = True, transient_local: bool = False) -> str:
-    """The QoS chunk of a liveliness token, for a keep-last history (rmw enum values: reliability
-    1 reliable / 2 best effort, durability 1 transient local / 2 volatile, history 1 keep last);
-    deadline, lifespan and liveliness left at their defaults (empty fields)."""
-    return f"{1 if reliable else 2}:{1 if transient_local else 2}:1,{int(depth)}:,:,:,,"
+    """The QoS chunk of a liveliness token as rmw_zenoh writes it, for a keep-last history:
+    `reliability:durability:history,depth:deadline:lifespan:liveliness`, each field the rmw enum value or number
+    only where it differs from rmw's default profile (reliable, volatile, keep last, depth 10, no deadline, lifespan
+    or liveliness lease), empty where it equals it: a TurtleBot3's cmd_vel subscription (reliable, volatile, keep
+    last 10) is `::,:,:,:,,`. (Reliability 2 is best effort, durability 1 transient local.)"""
+    return f"{'' if reliable else 2}:{1 if transient_local else ''}:,{'' if int(depth) == 10 else int(depth)}:,:,:,,"
 
 
 def _mangle(name: str) -> str:

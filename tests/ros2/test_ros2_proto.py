@@ -129,7 +129,10 @@ def test_entity_key_round_trips_and_refuses_unparsable_entities():
     with pytest.raises(ros2.Ros2Error):
         ros2.Entity(7, "c0ffee", "0", "4", "MP", "/", "/lab", "node").key  # a publisher needs a topic
     assert ros2.liveliness_any(7) == "@ros2_lv/7/**"
-    assert ros2.qos_string() == "1:2:1,10:,:,:,,"
+    # as rmw_zenoh writes it: a field equal to rmw's default profile is left empty (the bytes of the token, from which
+    # rmw_zenoh derives the entity's gid)
+    assert ros2.qos_string() == "::,:,:,:,,"
+    assert ros2.qos_string(5, reliable=False, transient_local=True) == "2:1:,5:,:,:,,"
 
 
 # --------------------------------------------------------------------------- attachment
