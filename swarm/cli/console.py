@@ -235,9 +235,10 @@ def realtime_text(m: dict) -> str:
     delayed = faults.get("delayed") if isinstance(faults, dict) else None
     if isinstance(p99, (int, float)) and p99 >= SLOW_ROUND_TRIP_MS and not (isinstance(delayed, dict)
                                                                            and any(delayed.values())):
-        text += ("  (a slow round trip: if a link loses packets, TCP holds every message behind a lost one until "
-                 "it sends it again, 200 ms at least with Linux's default; lower that minimum on every machine: "
-                 "docs/deploy.md, Lossy links)")
+        text += ("  (a slow round trip: a machine short of CPU for its robots, see `world behind` and the start's "
+                 "capacity warning; or a link that loses packets, where TCP holds every message behind a lost one "
+                 "until it sends it again, 200 ms at least with Linux's default: lower that minimum on every "
+                 "machine, docs/deploy.md, Lossy links)")
     return text
 
 
