@@ -46,7 +46,7 @@ log = logging.getLogger("swarm.world.ros2")
 
 NODE = "turtlebot3_node"
 QOS_DEPTH = 10
-DISTROS = ("jazzy", "humble")
+DISTROS = ("jazzy", "humble", "rolling")  # rolling writes its keys and tokens as jazzy does
 
 
 def default_namespace(i: int) -> str:

@@ -449,6 +449,10 @@ def _add_ros2_flags(g, world: bool | str = False) -> None:
                             "TurtleBot3 on Jazzy); default plain")
     g.add_argument("--domain", type=_domain, default=0, metavar="D", help="the ROS domain id (default 0)")
     if world == "robot":
+        g.add_argument("--distro", choices=("jazzy", "humble", "rolling"),
+                       help="the robot's ROS 2 distribution, for what its drive cannot learn from the robot: behind a "
+                            "bridge that announces no route, --twist auto commands TwistStamped on jazzy and rolling "
+                            "(a TurtleBot3's default there) and Twist on humble (without --distro: Twist)")
         g.add_argument("--robot-model", choices=("burger", "waffle", "waffle_pi"), metavar="MODEL",
                        help="the robot's model: burger, waffle or waffle_pi (ROBOTIS's TurtleBot3 limits: 0.22 m/s and "
                             "2.84 rad/s, 0.26 m/s and 1.82 rad/s): the run's v_max and w_max are tightened to them, "
@@ -458,9 +462,9 @@ def _add_ros2_flags(g, world: bool | str = False) -> None:
                             "Rolling >= 0.6.0, Jazzy >= 0.2.4, Humble >= 0.1.2), v1 (named fields: the releases "
                             "before), or auto (default): the form of the robot's own odometry")
     else:
-        g.add_argument("--distro", choices=("jazzy", "humble"), default="jazzy",
+        g.add_argument("--distro", choices=("jazzy", "humble", "rolling"), default="jazzy",
                        help="the simulated robots' ROS 2 distribution: jazzy (RIHS01 type hashes in keys and tokens, "
-                            "default) or humble (TypeHashNotSupported)")
+                            "default), rolling (the same) or humble (TypeHashNotSupported)")
         g.add_argument("--rmw-zenoh-attachment", choices=("v1", "v2"), default="v2",
                        help="the simulated robots' rmw_zenoh release: v2 (the 33-byte attachment, default) or v1 (named "
                             "fields, releases before Rolling 0.6.0, Jazzy 0.2.4, Humble 0.1.2); a command in the other "

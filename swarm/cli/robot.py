@@ -33,7 +33,7 @@ def cmd_robot(args, started: float) -> int:
         for flag, value in (("--namespace", args.namespace), ("--initial-pose", args.initial_pose)):
             if value is not None:
                 raise BadInput(f"{flag} needs --drive ros2")
-        for flag in given(args, "ros_flavor", "twist", "domain", "rmw_zenoh_attachment", "robot_model"):
+        for flag in given(args, "ros_flavor", "twist", "domain", "rmw_zenoh_attachment", "robot_model", "distro"):
             raise BadInput(f"{flag} needs --drive ros2")
     elif args.mode == "lockstep":
         raise BadInput("--drive ros2 with --mode lockstep: a ROS 2 robot runs in real time only (odometry carries no "
@@ -91,7 +91,8 @@ def _ros2_drive(args):
             pose = args.initial_pose or (cfg.x, cfg.y, cfg.theta)
             return Ros2Drive(bus, namespace=args.namespace or f"robot{cfg.id}", now=now, flavor=args.ros_flavor,
                              twist=args.twist, domain=args.domain, initial_pose=pose,
-                             attachment=args.rmw_zenoh_attachment, speed_limits=model_limits(args.robot_model))
+                             attachment=args.rmw_zenoh_attachment, speed_limits=model_limits(args.robot_model),
+                             distro=args.distro)
 
         return make
 

@@ -81,7 +81,7 @@ def cmd_robot_fleet(args, started: float) -> int:
             raise BadInput("--id auto with --inventory: a real robot's id is its inventory row's (hardware has fixed "
                            "ids); give --id I")
         entry = inv.entry(args.id)
-        for flag in given(args, "ros_flavor", "twist", "domain", "rmw_zenoh_attachment", "robot_model"):
+        for flag in given(args, "ros_flavor", "twist", "domain", "rmw_zenoh_attachment", "robot_model", "distro"):
             raise BadInput(f"{flag} with --inventory: the robot's drive comes from its inventory row "
                            f"({entry.key}: flavor, twist, domain, attachment, model)")
         for flag, value in (("--scenario", args.scenario), ("--initial-pose", args.initial_pose),
@@ -173,11 +173,13 @@ def _flag_drive(args):
 
     return _drive_factory(args.namespace, args.ros_flavor, args.twist, args.domain, args.initial_pose,
                           attachment=getattr(args, "rmw_zenoh_attachment", "auto"),
-                          speed_limits=model_limits(getattr(args, "robot_model", None)))
+                          speed_limits=model_limits(getattr(args, "robot_model", None)),
+                          distro=getattr(args, "distro", None))
 
 
 def _drive_factory(namespace: str | None, flavor: str, twist: str, domain: int, pose, cmd_timeout=None,
-                   attachment: str = "auto", speed_limits: tuple[float, float] | None = None):
+                   attachment: str = "auto", speed_limits: tuple[float, float] | None = None,
+                   distro: str | None = None):
     def factory(bus):
         def make(cfg, now):
             from agents.robot import DriveRefused
@@ -188,7 +190,8 @@ def _drive_factory(namespace: str | None, flavor: str, twist: str, domain: int, 
                                    "lock-step; start the world with --mode realtime (or --referee-only)")
             return Ros2Drive(bus, namespace=f"robot{cfg.id}" if namespace is None else namespace, now=now,
                              flavor=flavor, twist=twist, domain=domain, initial_pose=pose or (cfg.x, cfg.y, cfg.theta),
-                             base_timeout_s=cmd_timeout, attachment=attachment, speed_limits=speed_limits)
+                             base_timeout_s=cmd_timeout, attachment=attachment, speed_limits=speed_limits,
+                             distro=distro)
 
         return make
 

@@ -44,6 +44,7 @@ if TYPE_CHECKING:
 log = logging.getLogger("swarm.drive.ros2")
 
 DISCOVER_TIMEOUT_S = 10.0
+DISTRO_TWIST = {"jazzy": "stamped", "rolling": "stamped", "humble": "plain"}  # a TurtleBot3's cmd_vel type there
 BRIDGE_LOOK_S = 2.0  # s the bridge flavour waits for the route of the robot's cmd_vel (its type) before going on
 ODOM_DEPTH = 16  # odometry messages kept between two reads of the agent (the newest)
 HALT_REPEATS = 3  # zero commands sent by halt() (reliable already; a few more cost nothing)
@@ -80,14 +81,14 @@ class Ros2Drive:
                  wall_ns: Callable[[], int] = time.time_ns, announce: bool = True,
                  base_timeout_s: float | None = None, attachment: str = "auto",
                  monotonic: Callable[[], float] = time.monotonic, bridge_look_s: float = BRIDGE_LOOK_S,
-                 speed_limits: tuple[float, float] | None = None) -> None:
+                 speed_limits: tuple[float, float] | None = None, distro: str | None = None) -> None:
         """now(): the swarm's clock [s] (None until it is known: poses are not reported before);
         wall_ns(): the wall clock [ns since the epoch] for TwistStamped headers and attachments;
         base_timeout_s: how long the robot's base executes a cmd_vel with no newer one (the inventory's
         cmd_timeout; None: not known): should the agent die, its last command acts that long, and real time's
         safety rule counts it in the robot's reach; twist: the cmd_vel type, plain (Twist), stamped (TwistStamped)
         or "auto": the type the robot subscribes (rmw_zenoh: its token; bridge: the bridge's route; plain when a
-        bridge announces none); speed_limits: the robot's own (v_max [m/s], w_max [rad/s]), say its model's
+        bridge announces none, or distro's TurtleBot3 default); speed_limits: the robot's own (v_max [m/s], w_max [rad/s]), say its model's
         (--robot-model): the agent tightens its run's limits to them; attachment: the form of rmw_zenoh's attachment the commands
         carry (ros2.ATTACHMENT_FORMS: v1 for the releases before the 33-byte form, v2 after), or "auto": the form of
         the robot's own odometry (v2 until its first sample says)."""
@@ -101,8 +102,11 @@ class Ros2Drive:
         self.flavor = ros2.check_flavor(flavor)
         if twist != "auto":
             ros2.twist_type(twist)
+        if distro not in (None, *DISTRO_TWIST):
+            raise ValueError(f"distro must be one of {', '.join(DISTRO_TWIST)}, got {distro!r}")
         self.twist_given = twist
-        self.twist = "plain" if twist == "auto" else twist  # start() finds the robot's with auto
+        # auto: start() finds the robot's; until then (and behind a bridge that says nothing) its distro's default
+        self.twist = DISTRO_TWIST.get(distro or "", "plain") if twist == "auto" else twist
         self.cmd_type = ros2.twist_type(self.twist)
         self.domain = ros2.check_domain(domain)
         if len(initial_pose) != 3 or not all(isinstance(a, (int, float)) and math.isfinite(a) for a in initial_pose):
@@ -191,7 +195,8 @@ class Ros2Drive:
         subscribes (twist auto takes it; a --twist of the other type is refused with the fix: the bridge would
         pass the bytes on and the robot would read nonsense or nothing); a route only on the doubled key means the
         namespace was given twice (DiscoveryError naming it). A bridge that announces none within BRIDGE_LOOK_S
-        (bridge_look_s; an old one) is said, and the commands go out as given (auto: plain)."""
+        (bridge_look_s; an old one) is said, and the commands go out as given (auto: the distro's default, or
+        plain)."""
         doubled = ros2.doubled_bridge_key(self.namespace, ros2.CMD_VEL)
         routes: dict[str, ros2.BridgeRoute] = {}
         cond = threading.Condition()

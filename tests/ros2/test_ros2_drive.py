@@ -275,7 +275,7 @@ def test_a_bridge_started_with_the_robots_namespace_again_is_named():
 
 def test_a_bridge_that_announces_no_route_is_said_and_commanded_as_given(caplog):
     """An old bridge (or a robot whose nodes are not up yet) announces nothing: the drive says it could not check
-    the type, and commands in the one given (auto: plain)."""
+    the type, and commands in the one given (auto: plain, or the --distro's TurtleBot3 default)."""
     net = MemoryNet()
     d, bus = make_drive(net, "bridge", "auto")
     with caplog.at_level("WARNING", logger="swarm.drive.ros2"):
@@ -283,6 +283,12 @@ def test_a_bridge_that_announces_no_route_is_said_and_commanded_as_given(caplog)
     assert d.cmd_type == ros2.TWIST and "no zenoh-bridge-ros2dds announces a route for robot1/cmd_vel" in caplog.text
     d.send(Cmd(1, 1, 0.1, 0.0))
     assert ros2.decode_twist(bus.puts[-1][1]) == (0.1, 0.0)
+    for distro, twist in (("jazzy", ros2.TWIST_STAMPED), ("rolling", ros2.TWIST_STAMPED), ("humble", ros2.TWIST)):
+        d, _ = make_drive(net, "bridge", "auto", distro=distro)  # --distro: a TurtleBot3's default there
+        d.start()
+        assert d.cmd_type == twist, distro
+    with pytest.raises(ValueError, match="distro"):
+        make_drive(net, "bridge", "auto", distro="iron")
 
 
 def test_bridge_route_tokens_read_back_and_nothing_else_reads_as_one():
