@@ -140,9 +140,11 @@ def make_plan(o: UpOptions, python: str = sys.executable) -> Plan:
         w_argv += ["--trace", o.trace]
     ros = []
     if o.drive == "ros2":
-        ros = ["--twist", o.twist, "--domain", str(o.domain)]
-        w_argv += ["--ros2-sim", o.ros_flavor, *ros, "--rmw-zenoh-attachment", o.attachment, "--distro", o.distro]
-        ros = ["--drive", "ros2", "--ros-flavor", o.ros_flavor, *ros]
+        w_argv += ["--ros2-sim", o.ros_flavor, "--twist", o.twist, "--domain", str(o.domain),
+                   "--rmw-zenoh-attachment", o.attachment, "--distro", o.distro]
+        # the robots run with the defaults a robot of the field would: their twist type and attachment form found
+        # from the simulated robots themselves (their tokens or bridge routes, their odometry)
+        ros = ["--drive", "ros2", "--ros-flavor", o.ros_flavor, "--domain", str(o.domain)]
     world = ProcSpec("world", "world", 0, tuple(w_argv))
     leader = ProcSpec("leader", "leader", 0, (*base, "leader", *o.scenario_args, "--mode", o.mode, *net))
     robots = tuple(ProcSpec(f"robot {i}", "robot", i,

@@ -83,8 +83,10 @@ def test_five_ros2_robots_converge_on_rmw_zenoh(tmp_path):
                                                     ("rmw_zenoh", "stamped", "v2"), ("rmw_zenoh", "plain", "v1")])
 def test_commands_reach_the_robots_and_odometry_is_used(tmp_path, flavor, twist, release):
     """Each family: bridge, current rmw_zenoh (Jazzy, stamped), an older rmw_zenoh release (the named-field
-    attachment, Humble's plain Twist and keys without type hashes) that drops a command of the other form: the
-    robots find its form from its odometry, every command is taken (a dropped one would count as a bad message)."""
+    attachment, Humble's plain Twist and keys without type hashes) that drops a command of the other form. The
+    robots run with a field robot's defaults (`swarm up` gives them only the flavour and the domain): they find the
+    twist type from the robot's token or its bridge's route and the attachment form from its odometry, and every
+    command is taken (a dropped one would count as a bad message)."""
     cmd, metrics = up(tmp_path, "--robots", "3", "--mode", "realtime", "--drive", "ros2", "--ros-flavor", flavor,
                       "--twist", twist, "--duration", "10", "--speed", "2", "--quiet",
                       *(["--rmw-zenoh-attachment", release] if flavor == "rmw_zenoh" else []),
@@ -95,8 +97,11 @@ def test_commands_reach_the_robots_and_odometry_is_used(tmp_path, flavor, twist,
     # the robots moved (commands delivered) toward their slots (their odometry closed the loop)
     assert m["collisions"] == 0 and m["bad_messages"] == 0 and m["robots_alive_at_end"] == 3
     assert m["final_position_error_max_m"] < 10.0 and m["steps"] >= 400
+    said = (tmp_path / "logs" / "robot-0.log").read_text()
+    # the robots ran with a field robot's defaults: the twist type from the robot's token or its bridge's route
+    how = "its rmw_zenoh token" if flavor == "rmw_zenoh" else "the bridge's route"
+    assert f"subscribes /robot0/cmd_vel as {ros2.twist_type(twist)} ({how})" in said, said[-3000:]
     if flavor == "rmw_zenoh":
-        said = (tmp_path / "logs" / "robot-0.log").read_text()
         assert f"the robot's attachments are {release}" in said and "did not move" not in said, said[-3000:]
 
 
