@@ -13,7 +13,7 @@ clock, no configuration, no referee, no swarm key. The robots stand where the in
 (scenario + initial_pose). Faults for the pre-flight: --stale I publishes robot I's odometry at
 0.4 Hz, --silent I never. --truth writes, at exit, the ground truth to hold the odometry-based
 referee to: the smallest distance between two robots at any odometry instant, the final poses, and
-the commands taken. --speed runs the fleet's time that much faster than the wall clock (with
+the commands taken (how many were beyond the robot's limits, and the largest |v| and |w|). --speed runs the fleet's time that much faster than the wall clock (with
 `--speed` given to the referee as well).
 """
 
@@ -95,6 +95,7 @@ def run(ros: Ros2Fleet, fleet: inventory.Fleet, a, stop: threading.Event) -> dic
     heapq.heapify(due)
     t0 = time.monotonic()
     min_d, moved, commands = math.inf, [0.0] * n, 0
+    beyond, top_v, top_w = 0, 0.0, 0.0  # commands beyond the robot's limits (before the clamp), the largest |v|, |w|
 
     def now() -> float:
         return (time.monotonic() - t0) * a.speed
@@ -111,6 +112,8 @@ def run(ros: Ros2Fleet, fleet: inventory.Fleet, a, stop: threading.Event) -> dic
         for i, v, w in ros.take_commands():
             advance(i, t)
             v_max, w_max = limits[i]
+            beyond += bool((v_max and abs(v) > v_max * (1 + 1e-9)) or (w_max and abs(w) > w_max * (1 + 1e-9)))
+            top_v, top_w = max(top_v, abs(v)), max(top_w, abs(w))
             cmd[i] = (max(-v_max, min(v_max, v)) if v_max else v, max(-w_max, min(w_max, w)) if w_max else w)
             commands += 1
         while due and due[0][0] <= t:
@@ -128,7 +131,7 @@ def run(ros: Ros2Fleet, fleet: inventory.Fleet, a, stop: threading.Event) -> dic
     for i in range(n):
         advance(i, now())
     return {"min_distance_m": None if math.isinf(min_d) else min_d, "poses": q, "moved_m": moved,
-            "commands": commands, "t": now()}
+            "commands": commands, "beyond_limits": beyond, "max_abs_v": top_v, "max_abs_w": top_w, "t": now()}
 
 
 if __name__ == "__main__":

@@ -22,13 +22,13 @@ pytestmark = pytest.mark.integration
 
 @pytest.fixture
 def fleet(tmp_path):
-    """A scenario, an inventory of 7 rmw_zenoh robots and a way to start their simulated fleet."""
+    """A scenario, an inventory of 7 rmw_zenoh TurtleBot3 Burgers and a way to start their simulated fleet."""
     procs = Procs(tmp_path)
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     scenario = small_turtlebot3(tmp_path / "tb3small.toml")
     inv = tmp_path / "fleet.toml"
-    inv.write_text(inventory_text(7, endpoint))
+    inv.write_text(inventory_text(7, endpoint, **{f"r{i}": {"model": "burger"} for i in range(7)}))  # ROBOTIS's
 
     def start(*extra: str):
         return procs.start("fleet", [*FLEET_SIM, "--listen", endpoint, "--inventory", str(ns.inventory), "--scenario",
@@ -82,6 +82,8 @@ def test_up_inventory_converges_watched_recorded_and_reported(fleet):
     assert 0.0 < m["max_pose_age_s"] < 0.5, said  # within the robot-side guard's pose timeout
     truth = _truth(fleet)
     assert truth["commands"] > 7 * 20 * 30 and truth["min_distance_m"] > 0.15  # no collision in ground truth
+    # the Burgers' limits (0.22 m/s, 2.84 rad/s) held: the law, its governor and the clip kept every command within
+    assert truth["beyond_limits"] == 0 and truth["max_abs_v"] <= 0.22 + 1e-9 and truth["max_abs_w"] <= 2.84 + 1e-9, truth
     # the odometry-based referee saw what happened: it pairs each robot's newest pose, at most max_pose_age_s old,
     # so a pair's distance is off by at most 2 v_max max_pose_age_s from the simultaneous truth
     bound = 2 * 0.22 * m["max_pose_age_s"] + 1e-6
