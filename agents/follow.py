@@ -23,16 +23,17 @@ from swarm.core import runid
 from swarm.net import presence
 from swarm.proto import keys, protocol
 from swarm.proto.protocol import ProtocolError, Run
+from swarm.core.errors import SwarmError
 
 log = logging.getLogger("swarm.follow")
 SAY_S = 3.0  # s: a process still without the world's answer says what is on the router instead
 
 
-class NoAnswer(RuntimeError):
+class NoAnswer(SwarmError, RuntimeError):
     """Nobody answered a query in time."""
 
 
-class RunRefused(RuntimeError):
+class RunRefused(SwarmError, RuntimeError):
     """This process must not take part in the run (another scenario, an id outside it)."""
 
 

@@ -63,6 +63,7 @@ from swarm.proto.protocol import Cmd, Config, Limits, ProtocolError, State, Stat
 from swarm.core.wake import Runner, Wake
 from swarm.net import presence
 from swarm.net.bus import drainer
+from swarm.core.errors import SwarmError
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -98,7 +99,7 @@ def block(cx: int, cy: int) -> set[tuple[int, int]]:
     return {(cx + a, cy + b) for a in (-1, 0, 1) for b in (-1, 0, 1)}
 
 
-class DriveRefused(RuntimeError):
+class DriveRefused(SwarmError, RuntimeError):
     """A drive that cannot serve this run (a ROS 2 robot in a lock-step run)."""
 
 

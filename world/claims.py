@@ -33,6 +33,7 @@ import uuid
 from swarm.core.clock import WALL
 from swarm.proto import keys, protocol
 from swarm.proto.protocol import Claim, ProtocolError
+from swarm.core.errors import SwarmError
 
 log = logging.getLogger("swarm.claims")
 
@@ -40,11 +41,11 @@ PROVISIONAL_S = 10.0  # s: a granted id waits this long for its robot's liveline
 HOSTNAME = "@hostname"  # --claim-key @hostname: this machine's (container's) host name
 
 
-class ClaimRefused(RuntimeError):
+class ClaimRefused(SwarmError, RuntimeError):
     """The world refused the claim (every id is taken); the message says why."""
 
 
-class NoClaimAnswer(RuntimeError):
+class NoClaimAnswer(SwarmError, RuntimeError):
     """No world answered the claim in time."""
 
 

@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import threading
 from typing import Callable
+from swarm.core.errors import SwarmError
 
 
-class NotReady(RuntimeError):
+class NotReady(SwarmError, RuntimeError):
     """Some processes did not come up in time; `missing` names them."""
 
     def __init__(self, missing: list[str], timeout_s: float):

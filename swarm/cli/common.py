@@ -21,17 +21,18 @@ from typing import Literal, overload
 from swarm.launch.plan import DEFAULT_LISTEN, VIZ_HOST, VizOptions
 from swarm.net.bus import ROUTER_RUNTIME, ZENOH_RUNTIME
 from swarm.proto import keys
+from swarm.core.errors import SwarmError
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 SAY_WAIT_S = 3.0  # s: a client still without its router says why after this long (then waits on, or gives up)
 log = logging.getLogger("swarm")
 
 
-class BadInput(Exception):
+class BadInput(SwarmError):
     """A user error: printed as one line, exit code 2."""
 
 
-class Failure(Exception):
+class Failure(SwarmError):
     """A runtime failure: printed as one line, exit code 1."""
 
 

@@ -64,15 +64,10 @@ def cmd_robot(args, started: float) -> int:
     return EXIT_INTERRUPTED
 
 
-def model_limits(model: str | None) -> tuple[float, float] | None:
-    """--robot-model's (v_max, w_max) (swarm.core.inventory.MODELS); None without one."""
-    from swarm.core.inventory import MODELS
-
-    return None if model is None else (MODELS[model].v_max, MODELS[model].w_max)
-
-
 def _ros2_drive(args):
     """make_drive for --drive ros2: a swarm.drives.ros2.Ros2Drive per run (bad input if the extra is missing)."""
+    from swarm.core.inventory import model_limits
+
     try:
         from swarm.drives.ros2 import Ros2Drive
         from swarm.proto import ros2

@@ -169,11 +169,9 @@ def _row_drive(entry: inventory.RobotEntry):
 
 def _flag_drive(args):
     _ros2_available("--drive ros2")
-    from swarm.cli.robot import model_limits
-
     return _drive_factory(args.namespace, args.ros_flavor, args.twist, args.domain, args.initial_pose,
                           attachment=getattr(args, "rmw_zenoh_attachment", "auto"),
-                          speed_limits=model_limits(getattr(args, "robot_model", None)),
+                          speed_limits=inventory.model_limits(getattr(args, "robot_model", None)),
                           distro=getattr(args, "distro", None))
 
 

@@ -1,8 +1,16 @@
-"""The error of bad scenario input (a file, a built-in's flags, a faults table): one type everywhere,
-so the command line turns every refusal into the same `FILE: KEY: reason` and exit 2."""
+"""swarm's errors: SwarmError, the base of every exception swarm raises on purpose (each also derives from the
+builtin it has always been, ValueError or RuntimeError, so a handler of that still catches it); and the error of
+bad scenario input (a file, a built-in's flags, a faults table): one type everywhere, so the command line turns
+every refusal into the same `FILE: KEY: reason` and exit 2. Pure: imports nothing."""
 
 
-class ScenarioError(ValueError):
+class SwarmError(Exception):
+    """The base of every error swarm raises on purpose (`except SwarmError` catches them all, and nothing else):
+    bad input (ScenarioError, ProtocolError, ...), a refusal (DriveRefused, RunRefused, ...), a failure of a run
+    (SimulationError, NotReady, ...)."""
+
+
+class ScenarioError(SwarmError, ValueError):
     """A scenario that cannot run. `where` is the file, `key` the dotted key."""
 
     def __init__(self, where: str, key: str, reason: str):

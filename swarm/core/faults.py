@@ -35,6 +35,7 @@ import numpy as np
 
 from swarm.core import faultgen as fg
 from swarm.core.errors import ScenarioError, read_text_file
+from swarm.core.errors import SwarmError
 
 CLASSES = {"state": fg.CLS_STATE, "pose": fg.CLS_POSE, "cmd": fg.CLS_CMD, "ref": fg.CLS_REF, "all": fg.CLS_ALL}
 WORLD = fg.WORLD
@@ -53,7 +54,7 @@ SEED_LIMIT = 1 << 63  # a seed is a non-negative int64
 _T = TypeVar("_T")
 
 
-class FaultError(ValueError):
+class FaultError(SwarmError, ValueError):
     """A fault value that makes no sense; `field` is its key relative to its rule (or to [faults])."""
 
     def __init__(self, field: str, reason: str):

@@ -10,12 +10,13 @@ from typing import TYPE_CHECKING, Callable, cast
 import numpy as np
 
 from swarm.core.geometry import Counter, Grid
+from swarm.core.errors import SwarmError
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
 
-class GeneratorError(ValueError):
+class GeneratorError(SwarmError, ValueError):
     """The generator cannot produce what was asked (e.g. no room for the robots)."""
 
 

@@ -83,6 +83,11 @@ class RobotModel:
 # stack's robot_radius
 MODELS = {m.name: m for m in (RobotModel("burger", 0.22, 2.84, 0.105), RobotModel("waffle", 0.26, 1.82, 0.22),
                               RobotModel("waffle_pi", 0.26, 1.82, 0.22))}
+
+
+def model_limits(model: str | None) -> tuple[float, float] | None:
+    """A model's (v_max, w_max) (--robot-model); None without one."""
+    return None if model is None else (MODELS[model].v_max, MODELS[model].w_max)
 _FLEET = re.compile(r"^[A-Za-z0-9_\-]{1,64}$")  # swarm.proto.keys' fleet names
 _ENDPOINT = re.compile(r"^(tcp|tls|udp|quic|ws|unixsock-stream)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+):([0-9]{1,5})$")
 

@@ -20,6 +20,7 @@ import numpy as np
 from swarm.core import grid as grid_py
 from swarm.core import law, metrics
 from swarm.core.scenario import Scenario
+from swarm.core.errors import SwarmError
 
 # Samples kept for plots and recordings: one every RECORD_PERIOD_S of simulated time.
 RECORD_PERIOD_S = 0.05
@@ -56,7 +57,7 @@ class Result:
     recording: Recording
 
 
-class SimulationError(RuntimeError):
+class SimulationError(SwarmError, RuntimeError):
     """The run could not go on (a non-finite state)."""
 
 

@@ -37,6 +37,7 @@ from swarm.core.safety import RAMP_S
 from swarm.proto import protocol, ros2
 from swarm.proto.protocol import Cmd, Pose
 from swarm.proto.ros2 import Entity, Ros2Error
+from swarm.core.errors import SwarmError
 
 if TYPE_CHECKING:
     from swarm.net.bus import Closable, Inbox
@@ -65,7 +66,7 @@ def _restarted(prev: tuple[float, float, float], odom: tuple[float, float, float
     return at_origin and (math.hypot(prev[0], prev[1]) > ODOM_JUMP_M or abs(ros2.wrap(prev[2])) > ODOM_JUMP_RAD)
 
 
-class DiscoveryError(RuntimeError):
+class DiscoveryError(SwarmError, RuntimeError):
     """The robot's ROS 2 topics were not found in time; the message says what was seen."""
 
 

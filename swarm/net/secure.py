@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from swarm.proto import keys, roles
+from swarm.core.errors import SwarmError
 
 CA_DAYS = 3650  # the authority: ten years (a new CA re-issues everything: docs/security.md)
 CERT_DAYS = 825  # a process's certificate: about two years (the longest browsers accept for servers)
@@ -69,7 +70,7 @@ ALL_MESSAGES = ("put", "delete", "declare_subscriber", "query", "reply", "declar
                 "liveliness_query", "declare_liveliness_subscriber")
 
 
-class SecureError(ValueError):
+class SecureError(SwarmError, ValueError):
     """A --secure directory that cannot serve: missing, not made by `swarm secure init`, or the
     wrong identity (the message says which and what to do)."""
 

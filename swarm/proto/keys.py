@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from swarm.core.errors import SwarmError
 
 PREFIX = "swarm"
 ROLES = ("router", "world", "leader", "robot", "viz", "recorder", "launcher")
@@ -20,7 +21,7 @@ _INT = re.compile(r"^(0|[1-9][0-9]{0,9})$")
 _SIGNED = re.compile(r"^(0|-?[1-9][0-9]{0,9})$")
 
 
-class KeyError_(ValueError):
+class KeyError_(SwarmError, ValueError):
     """A fleet name or id that cannot be put in a key."""
 
 

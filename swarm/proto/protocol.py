@@ -24,6 +24,7 @@ from dataclasses import MISSING, dataclass, fields
 from typing import TYPE_CHECKING, overload
 
 import msgpack
+from swarm.core.errors import SwarmError
 
 if TYPE_CHECKING:
     from collections.abc import Callable, ValuesView
@@ -50,7 +51,7 @@ MAX_TIME = 1e9  # s: |t|
 MAX_TEXT = 256  # characters of a short string field (run id, digest)
 
 
-class ProtocolError(ValueError):
+class ProtocolError(SwarmError, ValueError):
     """A message that must not reach the law: the reason says what was wrong."""
 
 

@@ -31,6 +31,7 @@ import re
 import struct
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
+from swarm.core.errors import SwarmError
 
 if TYPE_CHECKING:
     from typing import Any
@@ -70,7 +71,7 @@ _INT64 = (-(1 << 63), (1 << 63) - 1)
 _STAMP_MAX_NS = ((1 << 31) - 1) * 1_000_000_000 + 999_999_999  # builtin_interfaces/Time: int32 sec, uint32 nanosec
 
 
-class Ros2Error(ValueError):
+class Ros2Error(SwarmError, ValueError):
     """Bytes, a key or a value that is not what ROS 2 would send: the reason says what was wrong."""
 
 

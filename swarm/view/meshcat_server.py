@@ -27,13 +27,14 @@ import sys
 import time
 from pathlib import Path
 from typing import BinaryIO, cast
+from swarm.core.errors import SwarmError
 
 LOOPBACK = "127.0.0.1"
 START_TIMEOUT_S = 20.0
 REPLY_TIMEOUT_S = 5.0
 
 
-class ServerError(RuntimeError):
+class ServerError(SwarmError, RuntimeError):
     """The meshcat server could not start, or stopped answering."""
 
 

@@ -51,6 +51,7 @@ from swarm.core.geometry import DENSE_N, pairs_within
 from swarm.core.faultgen import TIME_EPS
 from swarm.core.scenario import Scenario
 from swarm.view.faultmarks import FaultMarks
+from swarm.core.errors import SwarmError
 
 log = logging.getLogger("swarm.record")
 
@@ -79,7 +80,7 @@ METRIC_KEYS = ("robots", "obstacles", "duration_s", "dt", "seed", "converged_at_
                "last_freeze_end_s", "wall_s", "messages_dropped", "cmd_misses", "bad_messages", "interrupted")
 
 
-class RecordError(ValueError):
+class RecordError(SwarmError, ValueError):
     """A recording that cannot be written (bad record_hz, a sample grid that does not fit...)."""
 
 

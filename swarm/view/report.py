@@ -35,6 +35,7 @@ from swarm.view.record import (METRIC_KEYS, TOPIC_CMD, TOPIC_EVENTS, TOPIC_FAULT
 from swarm.core.errors import ScenarioError
 from swarm.core.scenario import Scenario
 from swarm.core.sim import Recording
+from swarm.core.errors import SwarmError
 
 FIRST_EVENTS = 50  # events listed one by one in index.html
 FIRST_FAULTS = 500  # fault events listed one by one in index.html
@@ -42,7 +43,7 @@ STATUS_FRESH_S = 1.0  # replay: a robot's recorded status counts for its stale-d
 _MAGIC = b"\x89MCAP0\r\n"  # an MCAP file starts and ends with it
 
 
-class ReportError(ValueError):
+class ReportError(SwarmError, ValueError):
     """A file that cannot be read as a swarm recording; the message names the file and the reason."""
 
 
