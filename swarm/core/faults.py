@@ -25,7 +25,6 @@ faultgen.TIME_EPS of t counting as t itself (the tick k dt that rounding puts ju
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from itertools import pairwise
@@ -34,7 +33,8 @@ from typing import Any, Callable, TypeVar, cast
 import numpy as np
 
 from swarm.core import faultgen as fg
-from swarm.core.errors import ScenarioError, read_text_file
+from swarm.core.errors import ScenarioError
+from swarm.core.toml_reader import Reader as _Reader, kind, read_toml
 from swarm.core.errors import SwarmError
 
 CLASSES = {"state": fg.CLS_STATE, "pose": fg.CLS_POSE, "cmd": fg.CLS_CMD, "ref": fg.CLS_REF, "all": fg.CLS_ALL}
@@ -340,73 +340,6 @@ def _check_process_faults(kills: tuple[Kill, ...], hangs: tuple[Hang, ...]) -> N
 # --------------------------------------------------------------------------- reading
 
 
-class _Reader:
-    """Typed access to a parsed [faults] table; errors name the file and the dotted key."""
-
-    def __init__(self, where: str):
-        self.where = where
-
-    def fail(self, key: str, reason: str) -> ScenarioError:
-        return ScenarioError(self.where, key, reason)
-
-    def table(self, value: Any, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> dict[str, Any]:
-        if not isinstance(value, dict):
-            raise self.fail(key, f"must be a table, got {_kind(value)}")
-        for k in value:
-            if k not in allowed:
-                raise self.fail(f"{key}.{k}", f"unknown key (allowed here: {', '.join(allowed)})")
-        for k in required:
-            if k not in value:
-                raise self.fail(f"{key}.{k}", "missing required key")
-        return value
-
-    def tables(self, value: Any, key: str, most: int) -> list[dict[str, Any]]:
-        if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
-            raise self.fail(key, f"must be an array of tables ([[{key}]]), got {_kind(value)}")
-        if len(value) > most:
-            raise self.fail(key, f"lists {len(value)} entries; at most {most}")
-        return value
-
-    def number(self, value: Any, key: str) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.fail(key, f"must be a number, got {_kind(value)}")
-        x = float(value) if abs(value) < 1e308 else math.inf
-        if not math.isfinite(x):
-            raise self.fail(key, f"must be finite, got {value}")
-        return x
-
-    def time(self, value: Any, key: str, duration: float) -> float:
-        """A time >= 0 (at or after the run's end too: the fault never happens, advisories() says so)."""
-        t = self.number(value, key)
-        if t < 0:
-            raise self.fail(key, f"must be >= 0 s (times count from the start of the run), got {t:g}")
-        return t
-
-    def integer(self, value: Any, key: str) -> int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise self.fail(key, f"must be an integer, got {_kind(value)}")
-        if value < 0:
-            raise self.fail(key, f"must be >= 0, got {value}")
-        return value
-
-    def robot(self, value: Any, key: str, robots: int) -> int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise self.fail(key, f"must be a robot id (an integer), got {_kind(value)}")
-        if not 0 <= value < robots:
-            raise self.fail(key, f"robot {value} is not in the scenario (it has {robots} robots: 0..{robots - 1})")
-        return value
-
-    def robots(self, value: Any, key: str, robots: int) -> tuple[int, ...]:
-        if not isinstance(value, list):
-            raise self.fail(key, f"must be a list of robot ids, got {_kind(value)}")
-        return tuple(self.robot(v, f"{key}[{k}]", robots) for k, v in enumerate(value))
-
-
-def _kind(value: Any) -> str:
-    names = {bool: "a boolean", int: "an integer", float: "a number", str: "a string", list: "a list", dict: "a table"}
-    return names.get(type(value), type(value).__name__)
-
-
 _RULE_KEYS = ("from", "to", "start", "end")
 
 
@@ -421,7 +354,7 @@ def _build(rd: _Reader, key: str, make: Callable[..., _T], **kw: Any) -> _T:
 def _span(rd: _Reader, rule: dict[str, Any], key: str, duration: float) -> dict[str, Any]:
     out: dict[str, Any] = {}
     if "start" in rule:
-        out["start"] = rd.time(rule["start"], f"{key}.start", duration)
+        out["start"] = rd.time(rule["start"], f"{key}.start")
     if "end" in rule:
         out["end"] = rd.number(rule["end"], f"{key}.end")
     return out
@@ -454,7 +387,7 @@ def _partition(rd: _Reader, rule: Any, key: str, robots: int, duration: float) -
     rd.table(rule, key, ("groups", "start", "end"), ("groups",))
     groups = rule["groups"]
     if not isinstance(groups, list) or not groups:
-        got = "an empty list" if groups == [] else _kind(groups)
+        got = "an empty list" if groups == [] else kind(groups)
         raise rd.fail(f"{key}.groups", f"must be a non-empty list of lists of robot ids, got {got}")
     groups = tuple(rd.robots(g, f"{key}.groups[{k}]", robots) for k, g in enumerate(groups))
     return _build(rd, key, Partition, groups=groups, **_span(rd, rule, key, duration))
@@ -464,13 +397,13 @@ def _kill(rd: _Reader, rule: Any, key: str, robots: int, duration: float) -> Kil
     rd.table(rule, key, ("robot", "at", "restart"), ("robot", "at"))
     restart = rd.number(rule["restart"], f"{key}.restart") if "restart" in rule else None
     return _build(rd, key, Kill, robot=rd.robot(rule["robot"], f"{key}.robot", robots),
-                  at=rd.time(rule["at"], f"{key}.at", duration), restart=restart)
+                  at=rd.time(rule["at"], f"{key}.at"), restart=restart)
 
 
 def _hang(rd: _Reader, rule: Any, key: str, robots: int, duration: float) -> Hang:
     rd.table(rule, key, ("robot", "at", "duration"), ("robot", "at", "duration"))
     return _build(rd, key, Hang, robot=rd.robot(rule["robot"], f"{key}.robot", robots),
-                  at=rd.time(rule["at"], f"{key}.at", duration),
+                  at=rd.time(rule["at"], f"{key}.at"),
                   duration=rd.number(rule["duration"], f"{key}.duration"))
 
 
@@ -497,11 +430,7 @@ def parse_faults(table: Any, where: str, robots: int, duration: float, default_s
 
 def load_faults_file(path: str, robots: int, duration: float, default_seed: int) -> Faults:
     """The Faults of a --faults FILE: a TOML file holding only a [faults] table."""
-    text = read_text_file(path, "faults file (TOML)")
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise ScenarioError(path, "", f"not valid TOML: {e}") from None
+    doc = read_toml(path, "faults file (TOML)")
     for k in doc:
         if k != "faults":
             raise ScenarioError(path, k, "a --faults file holds only a [faults] table")

@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import math
 import re
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
@@ -55,6 +54,7 @@ import numpy as np
 from swarm.core.geometry import pairs_within
 from swarm.core.scenario import Scenario, ScenarioError
 from swarm.core.scenario_file import MAX_COORD, MAX_ROBOTS, _Reader
+from swarm.core.toml_reader import read_toml
 from swarm.proto import ros2
 
 if TYPE_CHECKING:
@@ -186,15 +186,10 @@ class Problem:
 def load(path: str | Path) -> Inventory:
     """Read and check an inventory file (InventoryError naming the file, the key and the reason)."""
     where = str(path)
-    p = Path(path)
-    if not p.is_file():
-        raise InventoryError(where, "", "no such file")
     try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as e:
-        raise InventoryError(where, "", f"not valid TOML: {e}") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise InventoryError(where, "", f"cannot read: {e}") from None
+        doc = read_toml(where, "inventory file (TOML)")
+    except ScenarioError as e:
+        raise InventoryError(e.where, e.key, e.reason) from None
     return parse(doc, where)
 
 

@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any, Callable, TextIO, cast
 import numpy as np
 
 from swarm.core import generators, kinematics, law
+from swarm.core.toml_reader import Reader, join, kind, show
 from swarm.core.errors import not_utf8
 from swarm.core.geometry import Counter, Grid, closest_pair
 from swarm.core.scenario import THRESHOLDS, Control, Leader, Scenario, ScenarioError, Segment
@@ -147,71 +148,13 @@ class Spec:
 # --------------------------------------------------------------------------- reading
 
 
-class _Reader:
-    """Typed access to a parsed TOML document with errors that name file and key."""
-
-    def __init__(self, where: str):
-        self.where = where
-
-    def fail(self, key: str, reason: str) -> ScenarioError:
-        return ScenarioError(self.where, key, reason)
-
-    def table(self, value: Any, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> dict[str, Any]:
-        if not isinstance(value, dict):
-            raise self.fail(key, f"must be a table, got {_kind(value)}")
-        for k in value:
-            if k not in allowed:
-                raise self.fail(_join(key, k), f"unknown key (allowed here: {', '.join(allowed)})")
-        for k in required:
-            if k not in value:
-                raise self.fail(_join(key, k), "missing required key")
-        return value
-
-    def number(self, value: Any, key: str, *, gt: float | None = None, ge: float | None = None,
-               bound: float | None = None, why: str = "") -> float:
-        """A finite number; gt / ge: lower limits; bound: |x| <= bound (why: the bound's reason, for the message)."""
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.fail(key, f"must be a number, got {_kind(value)}")
-        try:
-            x = float(value)
-        except OverflowError:  # an integer beyond the float range
-            x = math.inf
-        if not math.isfinite(x):
-            raise self.fail(key, f"must be finite, got {value}")
-        if bound is not None and abs(x) > bound:
-            raise self.fail(key, f"must be at most {bound:g} in size{f' ({why})' if why else ''}, got {value}")
-        if gt is not None and not x > gt:
-            raise self.fail(key, f"must be > {gt:g}, got {value}")
-        if ge is not None and not x >= ge:
-            raise self.fail(key, f"must be >= {ge:g}, got {value}")
-        return x
-
-    def integer(self, value: Any, key: str, *, ge: int = 0) -> int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise self.fail(key, f"must be an integer, got {_kind(value)}")
-        if value < ge:
-            raise self.fail(key, f"must be >= {ge}, got {value}")
-        return value
-
-    def boolean(self, value: Any, key: str) -> bool:
-        if not isinstance(value, bool):
-            raise self.fail(key, f"must be true or false, got {_kind(value)}")
-        return value
-
-    def choice(self, value: Any, key: str, options: tuple[str, ...]) -> str:
-        if not isinstance(value, str) or value not in options:
-            raise self.fail(key, f"must be one of {', '.join(repr(o) for o in options)}, got {value!r}")
-        return value
-
-    def vector(self, value: Any, key: str, length: int, what: str, bound: float | None = None) -> list[float]:
-        if not isinstance(value, list) or len(value) != length:
-            raise self.fail(key, f"must be a list of {length} numbers [{what}], got {_show(value)}")
-        return [self.number(v, f"{key}[{i}]", bound=bound) for i, v in enumerate(value)]
+class _Reader(Reader):
+    """The project's TOML reader (swarm.core.toml_reader), with the scenario's lists of vectors."""
 
     def vectors(self, value: Any, key: str, length: int, what: str, most: int, bounded: int) -> np.ndarray:
         """A non-empty list of at most `most` vectors; the first `bounded` numbers of each within MAX_COORD."""
         if not isinstance(value, list) or not value:
-            raise self.fail(key, f"must be a non-empty list of [{what}], got {_show(value)}")
+            raise self.fail(key, f"must be a non-empty list of [{what}], got {show(value)}")
         if len(value) > most:
             raise self.fail(key, f"lists {len(value)} entries; a scenario has at most {most} robots")
         out = np.array([self.vector(v, f"{key}[{i}]", length, what) for i, v in enumerate(value)], float)
@@ -228,18 +171,7 @@ def _within(rd: _Reader, values: np.ndarray, key: str, bound: float = MAX_COORD,
         raise rd.fail(f"{key}[{k}][{first + c}]", f"must be at most {bound:g} {unit}, got {values[k, c]:g}")
 
 
-def _kind(value: Any) -> str:
-    names = {bool: "a boolean", int: "an integer", float: "a number", str: "a string", list: "a list", dict: "a table"}
-    return names.get(type(value), type(value).__name__)
 
-
-def _show(value: Any) -> str:
-    s = repr(value)
-    return s if len(s) <= 60 else s[:57] + "..."
-
-
-def _join(key: str, sub: str) -> str:
-    return f"{key}.{sub}" if key else sub
 
 
 def parse(doc: dict[str, Any], where: str, name: str, builtin: str | None = None) -> Spec:
@@ -288,7 +220,7 @@ def parse(doc: dict[str, Any], where: str, name: str, builtin: str | None = None
         rd.number(start[c], f"leader.start[{c}]", bound=MAX_COORD)
     rd.number(start[2], "leader.start[2]", bound=MAX_ANGLE, why=WIRE)
     if not isinstance(ld["segments"], list) or not ld["segments"]:
-        raise rd.fail("leader.segments", f"must be a non-empty list of {{duration, v, w}}, got {_show(ld['segments'])}")
+        raise rd.fail("leader.segments", f"must be a non-empty list of {{duration, v, w}}, got {show(ld['segments'])}")
     segments = []
     for i, seg in enumerate(ld["segments"]):
         key = f"leader.segments[{i}]"
@@ -347,7 +279,7 @@ def _robot_count(rd: _Reader, value: Any, key: str) -> int:
 
 def _parse_obstacles(rd: _Reader, value: Any, r: float, R: float) -> np.ndarray:
     if not isinstance(value, list):
-        raise rd.fail("obstacles", f"must be an array of tables ([[obstacles]]), got {_kind(value)}")
+        raise rd.fail("obstacles", f"must be an array of tables ([[obstacles]]), got {kind(value)}")
     if len(value) > MAX_OBSTACLES:
         raise rd.fail("obstacles", f"lists {len(value)} obstacles; a scenario has at most {MAX_OBSTACLES}")
     parts: list[np.ndarray] = []
