@@ -49,7 +49,7 @@ import math
 import threading
 import time
 from collections import deque
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 from swarm.proto import keys, protocol
 from swarm.core import fastlaw, kinematics, law, safety
@@ -66,6 +66,7 @@ from swarm.net.bus import drainer
 from swarm.core.errors import SwarmError
 
 if TYPE_CHECKING:
+    from swarm.drives.base import Drive
     from collections.abc import Callable
 
     from agents.faultview import FaultView
@@ -122,7 +123,7 @@ class Agent:
     """
 
     def __init__(self, bus, cfg: Config, fleet: str = "default", wait_timeout: float = WAIT_TIMEOUT_S,
-                 clock=WALL, drive=None, guard=None, faults=None, counters=None, inline: bool = False,
+                 clock=WALL, drive: Drive | None = None, guard=None, faults=None, counters=None, inline: bool = False,
                  partitions=()):
         """inline (zenoh's bus, no faults): a lock-step tick runs on the bus thread whose message made it due
         (its pose, the last state it waited for), and a real-time step on the thread of its simulated drive's
@@ -142,9 +143,9 @@ class Agent:
 
             drive = SimDrive(bus, fleet, cfg.id)
         self.drive = drive
-        self._pose_key = getattr(drive, "pose_key", "pose")  # where a bad pose is said to come from
+        self._pose_key = drive.pose_key if drive is not None else "pose"  # where a bad pose is said to come from
         self.guard = guard
-        self.periodic = bool(getattr(drive, "periodic", False))  # its poses come once a control period
+        self.periodic = drive is not None and drive.periodic  # its poses come once a control period
         self.p = [0.0] * law.P_SIZE
         self.p[law.P_K1], self.p[law.P_K2], self.p[law.P_K3] = cfg.k1, cfg.k2, cfg.k3
         self.p[law.P_TU], self.p[law.P_VT], self.p[law.P_THRESHOLD] = cfg.tu, cfg.vt, float(cfg.threshold)
@@ -196,7 +197,7 @@ class Agent:
         self._enc_state, self._r, self._R = protocol.encoder("state"), cfg.r, cfg.R
         self._hot_dec = {"state": self._dec_state, "ref": self._dec_ref, "pose": protocol.decoder("pose", self.limits)}
         self._key_ids: dict[str, int] = {}  # cell key -> the robot id at its end (parsed once)
-        if inline and self.view is None and counters is None and (cfg.lockstep or getattr(drive, "takes_callback", False)):
+        if inline and self.view is None and counters is None and (cfg.lockstep or (drive is not None and drive.takes_callback)):
             self.kick = Runner(self._ticks if cfg.lockstep else self._step_inline, self.wake)
         # real time: the step without a pose's deadline, for the waker to wait on without the GIL (_watch)
         wire = protocol._wire
@@ -207,7 +208,7 @@ class Agent:
         # anything but the common case goes to _on_state_msg)
         self._state_sink = wire.StateSink(self, self._dec_state, self._key_ids, self._on_state_msg, self._sink_error) \
             if wire is not None and cfg.lockstep and self.view is None and hasattr(bus, "subscribe_sink") else None
-        if self.drive is not None and getattr(self.drive, "limits", False) is None:
+        if self.drive is not None and self.drive.limits is None:
             self.drive.limits = self.limits  # the simulated drive decodes poses with the scenario's bounds
         self._spans = window.spans(cfg.dt, WATCHDOG_S)
         self._tick = cfg.dt if cfg.lockstep else 0.0  # lock-step: a pose's, reference's, state's t is seq x dt
@@ -259,9 +260,9 @@ class Agent:
         self._ordered = counters is None and self.periodic
         self.partitions = tuple(partitions)
         self.V = cfg.v_bound  # the speed bound it keeps to and assumes of every other robot
-        self.ramp = getattr(drive, "ramp_s", safety.RAMP_S)  # its drive brakes from a command's until along this
-        self.switch = getattr(drive, "switch_s", 0.0)  # and takes a new command within this
-        self.base_timeout = getattr(drive, "base_timeout_s", None)  # a base acts on a command that long (None: unknown)
+        self.ramp = drive.ramp_s if drive is not None else safety.RAMP_S  # its drive brakes from a command's until along this
+        self.switch = drive.switch_s if drive is not None else 0.0  # and takes a new command within this
+        self.base_timeout = drive.base_timeout_s if drive is not None else None  # a base acts on a command that long (None: unknown)
         self._pending: deque = deque()  # (|v|, |w|, until) of the commands sent that may still act
         # the high but typical lag of its poses, of its commands (from computing one to its drive executing it)
         # and of its neighbours' states when they come [s]: the commands' validity (swarm.core.safety.validity)
@@ -303,12 +304,12 @@ class Agent:
         if self.cfg.lockstep:
             self._inputs = [self.bus.subscribe(key, fn) for key, fn in self._lockstep_inputs()]
         elif isinstance(self.kick, Runner):  # its drive's poses to a callback that runs the step (_step_inline)
-            self.drive.start(self._on_drive_poses)
+            cast("Drive", self.drive).start(self._on_drive_poses)  # real time always has one
             self._poses_by_callback = True
             self._ref_inbox = self.bus.inbox(self._ref_key)
             self._handles.append(self._ref_inbox)
         else:  # the loop waits on its drive's poses and drains the other inboxes (see _loop_realtime)
-            self.drive.start()
+            cast("Drive", self.drive).start()
             self._ref_inbox = self.bus.inbox(self._ref_key)
             self._handles.append(self._ref_inbox)
         self._handles.append(self.bus.subscribe(keys.estop(f), self._on_estop_msg))
@@ -732,7 +733,7 @@ class Agent:
         """Real time (loop thread): decode the references and neighbour states waiting in the inboxes,
         in one batch under one lock (no per-message wake-up: the loop is already running)."""
         if not self._poses_by_callback:  # inline, the drive's callback hands every pose to the step: none here
-            self.take_poses(self.drive.drain())  # one that came since the loop woke (the newest wins)
+            self.take_poses(cast("Drive", self.drive).drain())  # one that came since the loop woke (the newest wins)
         states: list[tuple[State, str]]
         bad, refs, states = [], [], []
         if self._drain_cells is None:  # the reference's inbox and every cell's in one call (swarm.net.bus.drainer),
@@ -1354,9 +1355,7 @@ class Agent:
             self.bus.put(self._cmd_key, protocol.encode(cmd), reliable=True)
         elif self.guard is not None and self.guard.check(t, until) is not None:
             cmd = Cmd(t=t, seq=seq, v=0.0, w=0.0, until=until)  # halted (the guard says why, once)
-            hold = getattr(self.drive, "hold", None)
-            if hold is not None:
-                hold(t)  # zero, at this period's time: the world's window on its commands moves on with it
+            self.drive.hold(t)  # zero, at this period's time: the world's window on its commands moves on with it
         else:
             self.drive.send(cmd)
         self.last_cmd = cmd
@@ -1730,13 +1729,13 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                     rbus = fbus = _fault_bus(bus, faults, cfg, fleet, clock, box)
                 now = (lambda: box[0].sim_time(clock.time()) if box else None)
                 drive = make_drive(cfg, now) if make_drive is not None else None
-                cfg = within_limits(cfg, getattr(drive, "speed_limits", None))
+                cfg = within_limits(cfg, drive.speed_limits if drive is not None else None)
                 if drive is None:
                     from swarm.drives.sim import SimDrive
 
                     drive = SimDrive(rbus, fleet, robot_id)
                 guard = Guard(drive, clock, pose_timeout_s=pose_timeout, ref_timeout_s=ref_timeout, arena=arena_of(cfg),
-                              expire=not getattr(drive, "enforces_validity", False))
+                              expire=not drive.enforces_validity)
             agent = Agent(rbus, cfg, fleet, wait_timeout=wait_timeout, clock=clock, drive=drive, guard=guard,
                           faults=faults if cfg.lockstep else None, counters=fbus,
                           inline=getattr(rbus, "threaded_callbacks", False),
@@ -1860,7 +1859,7 @@ def _loop_realtime(agent: Agent, stop: threading.Event) -> None:
     try:
         while not stop.is_set() and not agent.ended:
             if runner is None:
-                got = agent.drive.wait()
+                got = cast("Drive", agent.drive).wait()
                 c0 = cpu()
                 agent.step_realtime(got)
             else:  # the steps run on the drive's callback (and the waker's thread): wake for stop and closing

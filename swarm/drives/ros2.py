@@ -34,6 +34,7 @@ import time
 from typing import TYPE_CHECKING, Any, Callable, cast
 
 from swarm.core.safety import RAMP_S
+from swarm.drives.base import DriveBase
 from swarm.proto import protocol, ros2
 from swarm.proto.protocol import Cmd, Pose
 from swarm.proto.ros2 import Entity, Ros2Error
@@ -70,7 +71,7 @@ class DiscoveryError(SwarmError, RuntimeError):
     """The robot's ROS 2 topics were not found in time; the message says what was seen."""
 
 
-class Ros2Drive:
+class Ros2Drive(DriveBase):
     name = "ros2"
     enforces_validity = False  # a base runs its last cmd_vel on: the agent's guard halts it when a command runs out
     ramp_s = RAMP_S  # the base must stop within this of a zero cmd_vel (docs/deploy.md; real time's safety rule)
@@ -123,7 +124,7 @@ class Ros2Drive:
         self.speed_limits = speed_limits  # the robot's own (v_max, w_max), e.g. its model's: the agent keeps to them
         self.odom_depth = odom_depth
         self.announce = announce
-        self.base_timeout_s = base_timeout_s
+        self.base_timeout_s: float | None = base_timeout_s
         self.cmd_topic = ros2.topic_name(self.namespace, ros2.CMD_VEL)
         self.odom_topic = ros2.topic_name(self.namespace, ros2.ODOM)
         ros2.typestore()  # fail now, naming the extra, if rosbags is missing
@@ -156,9 +157,12 @@ class Ros2Drive:
 
     # ------------------------------------------------------------------ wiring
 
-    def start(self) -> None:
+    def start(self, on_poses: Callable[[list[Pose]], None] | None = None) -> None:
         """Find the keys (rmw_zenoh: from the robot's liveliness tokens, DiscoveryError after
-        discover_timeout_s), subscribe to odometry, announce the drive's node (rmw_zenoh)."""
+        discover_timeout_s), subscribe to odometry, announce the drive's node (rmw_zenoh). Poses wait in an inbox
+        (takes_callback is False: on_poses must be None)."""
+        if on_poses is not None:
+            raise ValueError("Ros2Drive hands its poses over through wait() and drain(), not a callback")
         if self.flavor == "bridge":
             self.cmd_key = ros2.bridge_key(self.namespace, ros2.CMD_VEL)
             self.odom_key = ros2.bridge_key(self.namespace, ros2.ODOM)

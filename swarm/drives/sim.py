@@ -13,6 +13,7 @@ import threading
 from typing import TYPE_CHECKING, cast
 
 from swarm.core.safety import RAMP_S
+from swarm.drives.base import DriveBase
 from swarm.proto import keys, protocol
 from swarm.proto.protocol import Cmd, Limits, Pose, ProtocolError
 
@@ -24,17 +25,17 @@ log = logging.getLogger("swarm.drive")
 POSE_DEPTH = 8  # poses kept until the agent takes them (the newest: older ones are of no use)
 
 
-class SimDrive:
+class SimDrive(DriveBase):
     name = "sim"
     periodic = True  # the world puts each robot's pose once a control period: a pose that does not come was lost
     enforces_validity = True  # the world executes a command only until its `until`, then brakes (docs/runtime.md)
     ramp_s = RAMP_S  # along this ramp
     switch_s = 0.0  # and takes a new command at once
     takes_callback = True  # start(on_poses): poses handed to a callback on the bus's thread instead of an inbox
-    speed_limits = None  # the simulated body does what the scenario's limits allow
 
     def __init__(self, bus, fleet: str, robot_id: int, limits: Limits | None = None) -> None:
-        self.bus, self.fleet, self.id, self.limits = bus, fleet, robot_id, limits
+        self.bus, self.fleet, self.id = bus, fleet, robot_id
+        self.limits = limits
         self.pose_key = keys.robot_pose(fleet, robot_id)
         self.cmd_key = keys.robot_cmd(fleet, robot_id)
         self.bad = protocol.BadMessages(log)

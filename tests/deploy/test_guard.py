@@ -12,11 +12,12 @@ import pytest
 from agents.guard import Guard, arena_of
 from swarm.core import runid, scenario_file
 from swarm.core.clock import FakeClock
+from swarm.drives.base import DriveBase
 
 pytestmark = pytest.mark.unit
 
 
-class Drive:
+class Drive(DriveBase):
     """Records halts; `halted` as the real drives keep it (latched until send())."""
 
     def __init__(self) -> None:

@@ -21,6 +21,7 @@ from swarm.net.bus import MemoryBus, MemoryNet
 from swarm.proto import keys, protocol
 from swarm.proto.protocol import Clock, Cmd, Config, FaultStats, Pose, Ref, State
 from world.world import World
+from swarm.drives.base import DriveBase
 
 pytestmark = pytest.mark.unit
 
@@ -185,7 +186,7 @@ def test_without_its_pose_a_robot_advances_the_last_one_by_its_own_command_and_n
 
 
 def test_the_guard_halts_a_robot_that_lost_the_world():
-    class Drive:
+    class Drive(DriveBase):
         halted = None
 
         def halt(self, why):
@@ -203,11 +204,11 @@ def test_the_guard_halts_a_robot_that_lost_the_world():
 def test_a_real_time_agent_tells_its_guard_when_the_worlds_token_goes():
     halted: list[str] = []
 
-    class Drive:
+    class Drive(DriveBase):
         halted = None
         periodic = False
 
-        def start(self):
+        def start(self, on_poses=None):
             pass
 
         def halt(self, why):
