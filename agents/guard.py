@@ -33,7 +33,7 @@ import logging
 import threading
 
 from swarm.core.clock import WALL
-from swarm.launch.child import name_thread
+from swarm.process import name_thread
 
 log = logging.getLogger("swarm.guard")
 

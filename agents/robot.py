@@ -55,7 +55,7 @@ from swarm.proto import keys, protocol
 from swarm.core import fastlaw, kinematics, law, safety
 from swarm.core import runid
 from swarm.core.clock import WALL, said_step
-from swarm.launch.child import name_thread, settle_heap
+from swarm.process import name_thread, settle_heap
 from agents.follow import NoAnswer, RunFollower, check_run, query_until  # noqa: F401  (NoAnswer: for callers)
 from agents.guard import REF_TIMEOUT_S, Guard, arena_of
 from swarm.proto import window

@@ -41,7 +41,7 @@ from swarm.core import kinematics, runid
 from swarm.core.clock import WALL, said_step
 from swarm.core.safety import RAMP_S
 from swarm.core.inventory import Fleet
-from swarm.launch.child import settle_heap
+from swarm.process import settle_heap
 from swarm.net import presence
 from swarm.proto import keys, protocol, window
 from swarm.proto.protocol import Clock, Obstacle, Obstacles, ProtocolError, RobotSnap, Run, Snapshot

@@ -39,7 +39,7 @@ from swarm.core import faultgen as fg
 from swarm.core import faults as fl
 from swarm.core import kinematics, runid
 from swarm.core.clock import WALL, said_step
-from swarm.launch.child import settle_heap
+from swarm.process import settle_heap
 from swarm.proto.protocol import Clock, Obstacle, Obstacles, Pose, ProtocolError, RobotSnap, Run, Snapshot
 from swarm.core.geometry import pairs_within
 from swarm.core.scenario import Scenario

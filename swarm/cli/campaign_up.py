@@ -52,7 +52,8 @@ from swarm.cli import console
 from swarm.cli.campaign_files import (WALL_CLOCK, Point, cell, flatten, overrides, scenario_flags, scenario_source,
                                       write_csv)
 from swarm.cli.common import EXIT_INTERRUPTED, EXIT_OK, BadInput, StopEvent
-from swarm.launch.child import PARENT_ENV, stop_group
+from swarm.launch.child import stop_group
+from swarm.process import PARENT_ENV
 
 EXIT_DIFFERS = 3
 UP_CSV = "up.csv"

@@ -8,7 +8,7 @@ from swarm.cli.parser import given
 from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, BadInput, Failure, StopEvent, fleet_of,
                               load_scenario, open_bus, setup_logging)
 from swarm.core.clock import WALL
-from swarm.launch.child import die_with_parent
+from swarm.process import die_with_parent
 
 log = logging.getLogger("swarm")
 

@@ -8,7 +8,7 @@ import time
 
 from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, StopEvent, check_endpoint, fleet_of,
                               open_bus, setup_logging)
-from swarm.launch.child import die_with_parent
+from swarm.process import die_with_parent
 from swarm.launch.plan import DEFAULT_LISTEN
 from swarm.net import presence
 

@@ -25,7 +25,7 @@ from swarm.core.clock import WALL
 from swarm.core.metrics import violations
 from swarm.launch.capacity import Waves
 from swarm.launch.plan import DEFAULT_LISTEN, RestartPolicy, UpOptions, VizOptions, make_plan
-from swarm.launch.child import die_with_parent
+from swarm.process import die_with_parent
 from swarm.launch.supervisor import Supervisor, compile_project, exit_text
 from swarm.net import presence
 from swarm.proto import keys

@@ -34,7 +34,7 @@ from swarm.core import inventory
 from swarm.core.clock import WALL
 from swarm.core.metrics import violations
 from swarm.launch.capacity import Waves
-from swarm.launch.child import die_with_parent
+from swarm.process import die_with_parent
 from swarm.launch.inventory_plan import FleetUpOptions, make_fleet_plan
 from swarm.launch.plan import DEFAULT_LISTEN, VizOptions
 from swarm.launch.supervisor import Supervisor, compile_project, exit_text

@@ -6,7 +6,7 @@ import logging
 
 from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, Failure, StopEvent, check_endpoint, check_out_dir,
                               check_viz_port, fleet_of, load_scenario, open_bus, setup_logging, viz_options)
-from swarm.launch.child import die_with_parent
+from swarm.process import die_with_parent
 from swarm.launch.plan import DEFAULT_LISTEN
 from swarm.net import presence
 

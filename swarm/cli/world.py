@@ -10,7 +10,7 @@ from swarm.cli.common import (CHILD_EXIT_AFTER_S, BadInput, Failure, StopEvent, 
 from swarm.cli.console import exit_status
 from swarm.core.clock import WALL
 from swarm.core.metrics import violations
-from swarm.launch.child import die_with_parent
+from swarm.process import die_with_parent
 
 log = logging.getLogger("swarm")
 

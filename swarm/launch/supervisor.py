@@ -6,7 +6,7 @@
                                        # leaving: SIGTERM to every group, SIGKILL after a grace
 
 Children never fork after a zenoh session is open (subprocess starts a fresh interpreter). They
-die with the launcher even if it is SIGKILLed (PR_SET_PDEATHSIG: swarm.launch.child).
+die with the launcher even if it is SIGKILLed (PR_SET_PDEATHSIG: swarm.process).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import time
 from collections import deque
 from pathlib import Path
 
-from swarm.launch.child import PARENT_ENV
+from swarm.process import PARENT_ENV
 from swarm.launch.plan import Plan, ProcSpec
 
 # --------------------------------------------------------------------------- children

@@ -120,7 +120,7 @@ class MeshcatServer:
         self.stop()
 
     def start(self) -> None:
-        from swarm.launch.child import PARENT_ENV
+        from swarm.process import PARENT_ENV
 
         argv = [sys.executable, "-u", "-m", "swarm.view.meshcat_server", "--host", self.host, "--port", str(self.port)]
         err = open(self.log, "ab") if self.log is not None else subprocess.DEVNULL
@@ -276,7 +276,7 @@ def _serve(host: str, port: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from swarm.launch.child import die_with_parent
+    from swarm.process import die_with_parent
 
     die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us after its own Ctrl-C
