@@ -637,6 +637,32 @@ _FAST_ENCODE: dict[type[Message], Callable[[Message], bytes]] = {}
 _unpackb = msgpack.unpackb
 
 
+class _DuplicateKey(Exception):
+    pass
+
+
+def _unique(pairs: list[tuple[Any, Any]]) -> dict[Any, Any]:
+    """A map's pairs as a dict, refusing a key that comes twice (msgpack would keep the last silently: one reader
+    would see one value and another reader the other)."""
+    d = dict(pairs)
+    if len(d) != len(pairs):
+        raise _DuplicateKey
+    return d
+
+
+def _entries(payload: bytes) -> int:
+    """The entry count in the header of the msgpack map `payload` starts with (-1: not a map header): a dict
+    decoded from it with fewer keys had a key twice."""
+    b = payload[0] if payload else 0
+    if 0x80 <= b <= 0x8F:
+        return b & 0x0F
+    if b == 0xDE:
+        return int.from_bytes(payload[1:3], "big")
+    if b == 0xDF:
+        return int.from_bytes(payload[1:5], "big")
+    return -1
+
+
 @overload
 def decode(payload: bytes, kind: Literal["ref"], key_id: int | None = None, limits: Limits | None = None) -> Ref: ...
 @overload
@@ -721,7 +747,9 @@ def _decode(payload: object, kind: str | None, key_id: int | None) -> Any:
     if len(payload) > limit:
         raise ProtocolError(f"payload of {len(payload)} bytes exceeds {limit}")
     try:
-        d = _unpackb(payload, raw=False, strict_map_key=True)
+        d = _unpackb(payload, raw=False, strict_map_key=True, object_pairs_hook=_unique)
+    except _DuplicateKey:
+        raise ProtocolError("a map holds a key twice") from None
     except Exception as e:  # msgpack raises several types for garbage
         raise ProtocolError(f"not msgpack: {type(e).__name__}") from None
     if not isinstance(d, dict):
@@ -1005,7 +1033,7 @@ def _compile_hot(kind: str, limits: Limits | None) -> Decoder[HotMessage]:
     optional = _OPTIONAL.get(kind, ())
     var = {_FIELD.get(n, n): f"a{i}" for i, (n, _) in enumerate(spec)}  # python name -> local
     types = {"n": "float", "i": "int", "id": "int", "b": "bool"}
-    ns: dict[str, Any] = {"unpackb": _unpackb, "slow": _decode_checked, "new": object.__new__,
+    ns: dict[str, Any] = {"unpackb": _unpackb, "entries": _entries, "slow": _decode_checked, "new": object.__new__,
                           "setattr": object.__setattr__, "cls": cls, "limits": limits, "ABSENT": _ABSENT}
 
     def may_lack(name: str, test: str) -> str:  # an optional field may be absent: its test then holds
@@ -1049,7 +1077,7 @@ def _compile_hot(kind: str, limits: Limits | None) -> Decoder[HotMessage]:
             "        except Exception:",
             f"            return slow(payload, {kind!r}, key_id, limits)",
             f"        if type(d) is dict and d.get('kind') == {kind!r} and len(d) == {size} and "
-            f"type(d.get('v')) is int and d['v'] == {VERSION}:",
+            f"type(d.get('v')) is int and d['v'] == {VERSION} and entries(payload) == len(d):",
             "            try:",
             *[f"                {var[_FIELD.get(n, n)]} = d[{n!r}]" for n, _ in spec if n not in optional],
             "            except KeyError:",

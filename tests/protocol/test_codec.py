@@ -308,3 +308,35 @@ def test_hot_decoders_refuse_what_is_not_bytes_or_too_long():
         p.decoder(kind)(good + bytes(p.MAX_PAYLOAD), 3)
     with pytest.raises(p.ProtocolError, match="payload must be bytes"):
         p.decoder(kind)("text", 3)
+
+
+def _map(items: list) -> bytes:
+    """A msgpack map of these (key, value) pairs as given, duplicates included (msgpack.packb of a dict cannot)."""
+    out = bytes([0x80 | len(items)]) if len(items) < 16 else b"\xde" + len(items).to_bytes(2, "big")
+    for k, v in items:
+        out += msgpack.packb(k) + (v if isinstance(v, bytes) else msgpack.packb(v))
+    return out
+
+
+@pytest.mark.parametrize("msg", [m for m in MESSAGES if type(m).__name__ in ("Cmd", "State", "Ref", "Pose")],
+                         ids=lambda m: type(m).__name__)
+def test_a_key_twice_is_refused_on_every_path(msg):
+    """A map that holds a key twice is refused (docs/protocol.md: exactly the fields of its kind), first or last
+    copy steering alike: msgpack keeps the last silently, and another reader may take the first. The hot decoders
+    (compiled where built, and their Python twin) and the general path agree."""
+    kind = next(k for k, cls in p.KINDS.items() if cls is type(msg))
+    items = list(msgpack.unpackb(p.encode(msg)).items())
+    key, value = items[-1]
+    for payload in (_map(items + [(key, value)]), _map([(key, value)] + items)):
+        with pytest.raises(p.ProtocolError, match="a map holds a key twice"):
+            p.decode(payload, kind)
+        with pytest.raises(p.ProtocolError, match="a map holds a key twice"):
+            p.decoder(kind, None)(payload)
+    assert p.decoder(kind, None)(p.encode(msg)) == msg
+
+
+def test_a_key_twice_inside_a_nested_map_is_refused():
+    entry = _map([("x", 1.0), ("y", 2.0), ("r", 0.3), ("R", 1.2), ("x", 50.0)])
+    payload = _map([("v", 1), ("kind", "obstacles"), ("obstacles", bytes([0x91]) + entry)])
+    with pytest.raises(p.ProtocolError, match="a map holds a key twice"):
+        p.decode(payload, "obstacles")
