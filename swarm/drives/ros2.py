@@ -47,6 +47,7 @@ log = logging.getLogger("swarm.drive.ros2")
 
 DISCOVER_TIMEOUT_S = 10.0
 DISTRO_TWIST = {"jazzy": "stamped", "rolling": "stamped", "humble": "plain"}  # a TurtleBot3's cmd_vel type there
+BRIDGE_ADMIN_S = 1.0  # s the bridge flavour waits for the bridges' admin space when no route token came
 BRIDGE_LOOK_S = 2.0  # s the bridge flavour waits for the route of the robot's cmd_vel (its type) before going on
 ODOM_DEPTH = 16  # odometry messages kept between two reads of the agent (the newest)
 HALT_REPEATS = 3  # zero commands sent by halt() (reliable already; a few more cost nothing)
@@ -199,9 +200,9 @@ class Ros2Drive(DriveBase):
         """Bridge flavour: the route zenoh-bridge-ros2dds announces for the robot's cmd_vel says the type it
         subscribes (twist auto takes it; a --twist of the other type is refused with the fix: the bridge would
         pass the bytes on and the robot would read nonsense or nothing); a route only on the doubled key means the
-        namespace was given twice (DiscoveryError naming it). A bridge that announces none within BRIDGE_LOOK_S
-        (bridge_look_s; an old one) is said, and the commands go out as given (auto: the distro's default, or
-        plain)."""
+        namespace was given twice (DiscoveryError naming it). With no token within bridge_look_s, the bridges'
+        admin space answers instead (`@/<zid>/ros2/route/topic/sub/<key>`, its `ros2_type`); a bridge that says
+        neither (an old one) is said, and the commands go out as given (auto: the distro's default, or plain)."""
         doubled = ros2.doubled_bridge_key(self.namespace, ros2.CMD_VEL)
         routes: dict[str, ros2.BridgeRoute] = {}
         cond = threading.Condition()
@@ -226,22 +227,35 @@ class Ros2Drive(DriveBase):
                 f"a subscriber: the namespace is given twice (the robot's nodes in /{self.namespace} and its "
                 f"zenoh-bridge-ros2dds started with -n /{self.namespace}); start the bridge without -n, or the "
                 "robot's nodes without their namespace")
-        if mine is None:
-            log.warning("%s: no zenoh-bridge-ros2dds announces a route for %s within %g s (a bridge before 0.11 "
-                        "announces none, or the robot's nodes are not up): commands go out as %s, unchecked; a "
-                        "Jazzy TurtleBot3 takes TwistStamped (--twist stamped), a Humble one Twist (--twist plain)",
-                        self.namespace or "/", self.cmd_key, self.bridge_look_s, self.cmd_type)
+        typ = mine.ros2_type if mine is not None else self._bridge_admin_type()
+        if typ is None:
+            log.warning("%s: no zenoh-bridge-ros2dds announces a route for %s within %g s, nor has one in its admin "
+                        "space (a bridge before 0.11, or the robot's nodes are not up): commands go out as %s, "
+                        "unchecked; a Jazzy TurtleBot3 takes TwistStamped (--twist stamped), a Humble one Twist "
+                        "(--twist plain)", self.namespace or "/", self.cmd_key, self.bridge_look_s, self.cmd_type)
             return
-        twist = ros2.twist_of(mine.ros2_type)
+        said_by = "the bridge's route" if mine is not None else "the bridge's admin space"
+        twist = ros2.twist_of(typ)
         if twist is None:
             raise DiscoveryError(f"ROS 2 robot {self.namespace}: the bridge routes {self.cmd_key} to a subscriber of "
-                                 f"{mine.ros2_type}, neither {ros2.TWIST} nor {ros2.TWIST_STAMPED}")
+                                 f"{typ}, neither {ros2.TWIST} nor {ros2.TWIST_STAMPED}")
         if self.twist_given == "auto":
-            self._take_twist(mine.ros2_type, "the bridge's route")
+            self._take_twist(typ, said_by)
         elif twist != self.twist:
             raise DiscoveryError(f"ROS 2 robot {self.namespace}: the robot subscribes {self.cmd_topic} as "
-                                 f"{mine.ros2_type} (its zenoh-bridge-ros2dds says so), not as {self.cmd_type}: use "
+                                 f"{typ} (its zenoh-bridge-ros2dds says so), not as {self.cmd_type}: use "
                                  f"--twist {twist} (or auto)")
+
+    def _bridge_admin_type(self) -> str | None:
+        """The cmd_vel route's ROS 2 type from the bridges' admin space (`@/<zid>/ros2/route/topic/sub/<key>`), for a
+        bridge whose route token did not come; None when no bridge answers with one."""
+        try:
+            replies = self.bus.query(f"{ros2.BRIDGE_ADMIN_SUB}/{self.cmd_key}", timeout_s=BRIDGE_ADMIN_S)
+        except Exception as e:  # a router that refuses the admin space's key: said, not fatal
+            log.info("%s: the bridges' admin space did not answer (%s)", self.namespace or "/", e)
+            return None
+        types = sorted({t for t in (ros2.bridge_admin_type(p) for _k, p in replies) if t is not None})
+        return types[0] if types else None
 
     def _discover(self) -> tuple[Entity, Entity]:
         """The robot's cmd_vel subscription (MS, of the command type; twist auto: of either) and odom publication

@@ -355,6 +355,26 @@ def parse_bridge_route(key: str) -> BridgeRoute | None:
     return BridgeRoute(zid, kind, zkey, typ, qos)
 
 
+BRIDGE_ADMIN_SUB = "@/*/ros2/route/topic/sub"  # + "/<zenoh key>": a bridge's admin space, a route to a ROS 2 subscriber
+MAX_ADMIN_REPLY = 1 << 16  # bytes: a route's JSON is a few hundred; anything larger is not read
+
+
+def bridge_admin_type(payload: bytes) -> str | None:
+    """The ROS 2 type of a route as zenoh-bridge-ros2dds's admin space gives it (a JSON object with `ros2_type`,
+    e.g. `{"ros2_name": "/robot1/cmd_vel", "ros2_type": "geometry_msgs/msg/TwistStamped", ...}`); None for
+    anything else, whatever the bytes."""
+    import json
+
+    if not isinstance(payload, (bytes, bytearray)) or len(payload) > MAX_ADMIN_REPLY:
+        return None
+    try:
+        doc = json.loads(bytes(payload).decode("utf-8"))
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        return None
+    typ = doc.get("ros2_type") if isinstance(doc, dict) else None
+    return typ if isinstance(typ, str) and _TYPENAME.match(typ) else None
+
+
 def twist_of(typename: str) -> str | None:
     """The --twist choice of a cmd_vel type (ROS 2 or DDS name): Twist -> "plain", TwistStamped -> "stamped"; None
     for any other type."""

@@ -273,6 +273,32 @@ def test_a_bridge_started_with_the_robots_namespace_again_is_named():
         d.start()
 
 
+@pytest.mark.parametrize("twist", ["plain", "stamped"])
+def test_a_bridge_without_route_tokens_is_asked_through_its_admin_space(twist):
+    """A bridge whose route token does not come: its admin space (`@/<zid>/ros2/route/topic/sub/<key>`, a JSON object
+    with the route's `ros2_type`) says the type; auto takes it, the other --twist is refused naming the fix."""
+    import json
+
+    net = MemoryNet()
+    typ = ros2.twist_type(twist)
+    route = json.dumps({"dds_writer": "0110abcd", "is_active": True, "local_nodes": ["/robot1/turtlebot3_node"],
+                        "remote_routes": [], "ros2_name": "/robot1/cmd_vel", "ros2_type": typ}).encode()
+    MemoryBus(net).serve("@/ab12cd/ros2/route/topic/sub/robot1/cmd_vel", lambda asked: route)
+    d, _ = make_drive(net, "bridge", "auto")
+    d.start()
+    assert d.cmd_type == typ
+    other = "plain" if twist == "stamped" else "stamped"
+    d, _ = make_drive(net, "bridge", other)
+    with pytest.raises(DiscoveryError, match=f"use --twist {twist}"):
+        d.start()
+
+
+@pytest.mark.parametrize("payload", [b"", b"{", b"[]", b"null", b'{"ros2_type": 7}', b'{"ros2_type": "Twist"}',
+                                     b"\xff\xfe", b"[" * 100_000, b'{"ros2_type": "' + b"a" * 70_000 + b'"}'])
+def test_an_admin_reply_that_is_not_a_route_says_nothing(payload):
+    assert ros2.bridge_admin_type(payload) is None
+
+
 def test_a_bridge_that_announces_no_route_is_said_and_commanded_as_given(caplog):
     """An old bridge (or a robot whose nodes are not up yet) announces nothing: the drive says it could not check
     the type, and commands in the one given (auto: plain, or the --distro's TurtleBot3 default)."""
