@@ -24,14 +24,15 @@ The file:
     cmd_timeout = 0.5                      # [s] the base's own: how long it executes a cmd_vel with no newer one
                                            # (twist_mux, a velocity smoother); real time's safety rule counts it
     model = "burger"                       # or "waffle", "waffle_pi": ROBOTIS's limits (v_max, w_max unless
-                                           # given, tighter) and footprint (its radius must fit bodies.r)
+                                           # given, tighter) and footprint (bodies.r >= twice its radius)
 
 Precedence: a flag beats the inventory, which beats the scenario. The scenario gives the starts and
 the limits; the inventory may move a start (`initial_pose`, where the robot really stands) and
 tighten a limit, never loosen one; `--initial-pose I:X,Y,THETA` moves one robot's start again.
 
 A `model` (MODELS: ROBOTIS's values) gives the robot's v_max and w_max where the row gives none (a row's own may
-only be tighter than the model's) and its footprint radius, which must fit within the scenario's bodies.r.
+only be tighter than the model's) and its footprint radius rho: the scenario's bodies.r (the distance of two
+robots' centres at contact) must be at least 2 rho, and every obstacle's r at least rho.
 
 Pre-flight (static part; docs/deploy.md): every robot has both limits and a footprint within r; every leader segment is
 within PREFLIGHT_SHARE of every robot's limits (|v| <= 0.8 v_max, |w| <= 0.8 w_max: a follower
@@ -353,10 +354,16 @@ def static_problems(fleet: Fleet) -> list[Problem]:
                                       f"{PREFLIGHT_SHARE:g} x w_max = {PREFLIGHT_SHARE * r.w_max:.4g} rad/s (w_max "
                                       f"{r.w_max:g} rad/s from {r.w_from}): a follower could not catch up"))
         m = MODELS.get(r.entry.model or "")
-        if m is not None and m.radius > scn.r * (1 + 1e-12):
-            out.append(Problem(i, f"a {m.name}'s footprint has a radius of {m.radius:g} m, more than the scenario's "
-                                  f"bodies.r = {scn.r:g} m: its body would reach beyond the disc the law keeps clear and "
-                                  f"the referee measures (give bodies.r >= {m.radius:g})"))
+        if m is not None and 2 * m.radius > scn.r * (1 + 1e-12):
+            out.append(Problem(i, f"two {m.name}s touch with their centres {2 * m.radius:g} m apart (a footprint radius of "
+                                  f"{m.radius:g} m), more than the scenario's bodies.r = {scn.r:g} m, the distance the "
+                                  f"law keeps robots apart by and the referee counts a collision at: give bodies.r >= "
+                                  f"{2 * m.radius:g}"))
+        if m is not None and len(scn.obstacles) and float(np.min(scn.obstacles[:, 2])) < m.radius * (1 - 1e-12):
+            k = int(np.argmin(scn.obstacles[:, 2]))
+            out.append(Problem(i, f"obstacle {k}'s r = {scn.obstacles[k, 2]:g} m is less than a {m.name}'s footprint "
+                                  f"radius {m.radius:g} m: a robot would reach into it before the referee counts a "
+                                  "collision"))
     out += _start_problems(fleet)
     return sorted(out, key=lambda p: (-1 if p.robot is None else p.robot))
 

@@ -661,8 +661,8 @@ def builtin_document(name: str, robots: int | None = None) -> dict[str, Any]:
     robot (aspect 2.8:1, centred on x = 5 m, top edge 1.5 m below the barrier), and the
     barrier spans the rectangle plus 4.75 m on each side (centred on x = 4.7 m).
     `paper-50hz` is the same geometry at dt = 0.02 s with the safety governor on.
-    `turtlebot3` is the same formation for TurtleBot3 Burger robots: every length halved (r = 0.15 m
-    around a 0.105 m body, R = 0.6 m, 0.75 m spacing), the leader at 0.15 m/s (below 0.8 of the
+    `turtlebot3` is the same formation for TurtleBot3 Burger robots: every length halved (R = 0.6 m, 0.75 m
+    spacing, obstacles' r = 0.15 m) but the robots' r = 0.22 m (two 0.105 m bodies touch at 0.21 m), the leader at 0.15 m/s (below 0.8 of the
     robot's v_max = 0.22 m/s, so followers catch up) along the same path's shape (the same turns at
     half the radius), the robots' limits v_max = 0.22 m/s and w_max = 2.84 rad/s, 20 Hz, governor on;
     7 robots unless `robots` says otherwise (with 37, the outer slots outrun v_max in the turns).
@@ -690,7 +690,9 @@ def builtin_document(name: str, robots: int | None = None) -> dict[str, Any]:
     return {
         "run": {"duration": 120.0 * slow, "dt": {"paper": 0.001, "paper-50hz": 0.02}.get(name, 0.05), "seed": 0},
         "control": control,
-        "bodies": {"r": 0.3 * s, "R": 1.2 * s},
+        # robots: r is the distance of two robots' centres at contact; a Burger's footprint radius is 0.105 m, so two
+        # touch at 0.21 m: turtlebot3's r is 0.22 m (its obstacles keep the halved paper's 0.15 m)
+        "bodies": {"r": 0.22 if name == "turtlebot3" else 0.3 * s, "R": 1.2 * s},
         "leader": {"start": [0.0, 0.0, 0.0], "segments": [
             {"duration": 10.0 * slow, "v": v, "w": 0.0},
             {"duration": 16.0 * slow, "v": v, "w": turn},
@@ -702,7 +704,7 @@ def builtin_document(name: str, robots: int | None = None) -> dict[str, Any]:
         "robots": {"random": {"count": n, "region": [5.0 * s - width / 2, 5.0 * s + width / 2, top - height, top],
                               "min_separation": 0.8 * s, "obstacle_clearance": 1.2 * s}},
         "obstacles": [{"row": {"start": [4.7 * s - 0.8 * s * intervals, barrier_y],
-                               "end": [4.7 * s + 0.8 * s * intervals, barrier_y], "pitch": 1.6 * s}}],
+                               "end": [4.7 * s + 0.8 * s * intervals, barrier_y], "pitch": 1.6 * s}, "r": 0.3 * s}],
     }
 
 

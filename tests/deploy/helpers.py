@@ -22,7 +22,7 @@ ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), *sys.path])}
 
 
 def small_turtlebot3(path: Path, duration: float = 50.0) -> Path:
-    """The built-in turtlebot3 formation (7 robots, r 0.15, R 0.6, v_max 0.22, w_max 2.84, 20 Hz) with
+    """The built-in turtlebot3 formation (7 robots, r 0.22, R 0.6, v_max 0.22, w_max 2.84, 20 Hz) with
     each robot 0.5-0.8 m behind its slot, no obstacle, arena.bounds [-3, 9, -3, 6] (the slots stay inside
     for 50 s): it converges at about 30 s (swarm sim: 29.85 s)."""
     scn = scenario_file.load("turtlebot3", progress=scenario_file.silent)

@@ -81,7 +81,7 @@ def test_up_inventory_converges_watched_recorded_and_reported(fleet):
     assert m["robots_lost"] == 0 and m["bad_messages"] == 0 and m["robots_alive_at_end"] == 7, said
     assert 0.0 < m["max_pose_age_s"] < 0.5, said  # within the robot-side guard's pose timeout
     truth = _truth(fleet)
-    assert truth["commands"] > 7 * 20 * 30 and truth["min_distance_m"] > 0.15  # no collision in ground truth
+    assert truth["commands"] > 7 * 20 * 30 and truth["min_distance_m"] > 0.22  # no collision in ground truth
     # the Burgers' limits (0.22 m/s, 2.84 rad/s) held: the law, its governor and the clip kept every command within
     assert truth["beyond_limits"] == 0 and truth["max_abs_v"] <= 0.22 + 1e-9 and truth["max_abs_w"] <= 2.84 + 1e-9, truth
     # the odometry-based referee saw what happened: it pairs each robot's newest pose, at most max_pose_age_s old,
@@ -120,7 +120,7 @@ def test_preflight_passes_a_good_fleet_and_refuses_each_fault_naming_the_robot(f
     cases = [
         (("--initial-pose", "6:12.0,0.0,0.0"), None, "robot 6: starts at (12, 0) (from --initial-pose), outside "
                                                      "arena.bounds [-3, 9, -3, 6]"),
-        ((), close, "robot 2: starts 0.1 m from robot 4, closer than r = 0.15 m"),
+        ((), close, "robot 2: starts 0.1 m from robot 4, closer than r = 0.22 m"),
         ((), slow, "robot 5: leader.segments[0] moves at |v| = 0.15 m/s, more than 0.8 x v_max = 0.12 m/s"),
     ]
     for extra, inv, reason in cases:

@@ -138,13 +138,13 @@ def test_a_good_fleet_has_no_static_problem(tmp_path):
 def test_static_refusals_name_the_robot_and_the_reason(tmp_path):
     doc = rows(7)
     x, y, _ = TB3.poses[3]
-    doc["robot"][2]["initial_pose"] = [float(x) + 0.1, float(y), 0.0]  # inside r = 0.15 of robot 3
+    doc["robot"][2]["initial_pose"] = [float(x) + 0.1, float(y), 0.0]  # inside r = 0.22 of robot 3
     doc["robot"][5]["v_max"] = 0.15  # 0.8 x 0.15 = 0.12 < the leader's 0.15 m/s
     doc["robot"][6]["v_max"] = 0.01  # below control.vt = 0.02, and the segment
     ob = TB3.obstacles[0]
     probs = _problems(tmp_path, doc, poses={0: (float(ob[0]) + 0.05, float(ob[1]), 0.0)})
     assert any(p.startswith("robot 0: starts 0.05 m from obstacle 0") and "inside its r = 0.15" in p for p in probs)
-    assert any(p.startswith("robot 2: starts 0.1 m from robot 3, closer than r = 0.15 m") for p in probs)
+    assert any(p.startswith("robot 2: starts 0.1 m from robot 3, closer than r = 0.22 m") for p in probs)
     assert any(p.startswith("robot 3: starts 0.1 m from robot 2") for p in probs)
     assert any(p.startswith("robot 5: leader.segments[0] moves at |v| = 0.15 m/s, more than 0.8 x v_max = 0.12")
                and "robot[5].v_max" in p for p in probs)
@@ -222,7 +222,8 @@ def test_a_burger_fleet_refuses_the_default_scenario_and_passes_it_scaled(tmp_pa
 def test_a_robot_model_gives_its_limits_and_footprint(tmp_path):
     """model = "burger" (ROBOTIS: 0.22 m/s, 2.84 rad/s, radius 0.105 m): the limits where the row gives none, the
     scenario's where they are tighter, a row's own only if tighter than the model's; a footprint larger than the
-    scenario's r is a pre-flight problem (a waffle's 0.22 m in turtlebot3's r = 0.15 m)."""
+    scenario's r allows is a pre-flight problem: two waffles (0.22 m in radius) touch 0.44 m apart, more than
+    turtlebot3's r = 0.22 m, and an obstacle of r 0.15 m is smaller than a waffle."""
     scn = scenario_file.load("paper-50hz", scenario_file.Overrides(robots=7), progress=scenario_file.silent)
     doc = {"robot": [{"id": i, "model": "burger"} for i in range(7)]}
     doc["robot"][3]["v_max"] = 0.2
@@ -234,12 +235,16 @@ def test_a_robot_model_gives_its_limits_and_footprint(tmp_path):
                                "(v_max 0.22 m/s from a burger's (robot[0].model))"), probs
     tb3 = inventory.apply(inventory.load(write(tmp_path, doc)), TB3)  # the scenario's 0.22 and 2.84: as tight
     assert tb3.limits(0) == (0.22, 2.84) and tb3.robots[0].v_from == "the scenario's control.v_max"
-    assert inventory.static_problems(tb3) == []  # 0.105 m within r = 0.15 m
+    assert inventory.static_problems(tb3) == []  # two Burgers touch 0.21 m apart, within r = 0.22 m
     waffles = inventory.apply(inventory.load(write(tmp_path, {"robot": [{"id": i, "model": "waffle"} for i in range(7)]})),
                               TB3)
     assert waffles.limits(0) == (0.22, 1.82)  # the scenario's v_max, the waffle's w_max
-    assert any(str(p).startswith("robot 0: a waffle's footprint has a radius of 0.22 m, more than the scenario's "
-                                 "bodies.r = 0.15 m") for p in inventory.static_problems(waffles))
+    said = [str(p) for p in inventory.static_problems(waffles)]
+    assert "robot 0: two waffles touch with their centres 0.44 m apart (a footprint radius of 0.22 m), more than the " \
+        "scenario's bodies.r = 0.22 m, the distance the law keeps robots apart by and the referee counts a collision " \
+        "at: give bodies.r >= 0.44" in said, said
+    assert any(p.startswith("robot 0: obstacle 0's r = 0.15 m is less than a waffle's footprint radius 0.22 m")
+               for p in said), said
     doc["robot"][2]["v_max"] = 0.3
     with pytest.raises(InventoryError, match=r"robot\[2\]\.v_max.*0\.3 m/s is more than a burger can do \(0\.22 m/s\)"):
         inventory.load(write(tmp_path, doc))

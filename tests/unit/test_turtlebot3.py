@@ -12,7 +12,8 @@ pytestmark = pytest.mark.unit
 
 def test_turtlebot3_converges_within_the_robots_limits():
     scn = scenario_file.load("turtlebot3")
-    assert scn.n == 7 and scn.control.v_max == 0.22 and scn.control.w_max == 2.84 and scn.r == 0.15
+    assert scn.n == 7 and scn.control.v_max == 0.22 and scn.control.w_max == 2.84 and scn.r == 0.22
+    assert (scn.obstacles[:, 2] == 0.15).all()  # the halved paper's; two Burgers (0.105 m) touch 0.21 m apart
     assert all(abs(s.v) <= 0.8 * 0.22 and abs(s.w) <= 0.8 * 2.84 for s in scn.leader.segments)
     assert scenario_file.advisories(scn) == []
     result = Simulation(scn, record_period=scn.dt).run()  # every step recorded: every command read
