@@ -69,7 +69,8 @@ class OdometryProbe:
         for domain in sorted({r.entry.domain for r in self.robots.values() if r.entry.flavor == "rmw_zenoh"}):
             self._handles.append(self.bus.watch_alive(ros2.liveliness_any(domain), self._on_token))
         if any(r.entry.flavor == "bridge" for r in self.robots.values()):
-            self._handles.append(self.bus.watch_alive(ros2.bridge_routes("MS"), self._on_route))
+            for expr in ros2.bridge_routes("MS"):  # the 1.x form and the 0.x one
+                self._handles.append(self.bus.watch_alive(expr, self._on_route))
         for r in self.robots.values():
             if r.entry.flavor == "bridge":
                 r.odom_key = ros2.bridge_key(r.entry.namespace, ros2.ODOM)

@@ -18,7 +18,7 @@ Flavours: rmw_zenoh (the robot runs rmw_zenoh: the exact data keys, hash include
 robot's liveliness tokens, and every command carries the attachment rmw_zenoh requires; the drive
 announces itself as a ROS 2 node, swarm_drive in the robot's namespace, so `ros2 node list` and
 `ros2 topic info` show who drives the robot) and bridge (the robot runs zenoh-bridge-ros2dds: keys
-<ns>/cmd_vel and <ns>/odom, plain CDR, nothing to discover).
+<ns>/cmd_vel and <ns>/odom, plain CDR; the cmd_vel type from the route the bridge announces, or its admin space).
 
 Threads: wait(), drain() and close() from the agent's loop thread; send() and halt() from any thread
 (a lock keeps the commands and their sequence numbers in order); wake() from any thread.
@@ -147,6 +147,7 @@ class Ros2Drive(DriveBase):
         self._odom_at_move: tuple[float, float, float] | None = None
         self._odom_last: tuple[float, float, float] | None = None
         self.still_said = False  # the "commands but no motion" warning was given
+        self._late_said = False  # a bridge route that came late and contradicts --twist was said
         self._send_lock = threading.Lock()
         self._pose_lock = threading.Lock()
         self._box: Inbox | None = None  # start() sets it
@@ -201,39 +202,53 @@ class Ros2Drive(DriveBase):
         subscribes (twist auto takes it; a --twist of the other type is refused with the fix: the bridge would
         pass the bytes on and the robot would read nonsense or nothing); a route only on the doubled key means the
         namespace was given twice (DiscoveryError naming it). With no token within bridge_look_s, the bridges'
-        admin space answers instead (`@/<zid>/ros2/route/topic/sub/<key>`, its `ros2_type`); a bridge that says
-        neither (an old one) is said, and the commands go out as given (auto: the distro's default, or plain)."""
+        admin space answers instead (`@/<zid>/ros2/route/topic/sub/<key>`, its `ros2_type`). A bridge that says
+        neither (the robot's nodes not up yet) is said, the commands go out as given (auto: the distro's default, or
+        plain), and the drive keeps listening: a route that comes later sets the type (auto) or is said (given)."""
         doubled = ros2.doubled_bridge_key(self.namespace, ros2.CMD_VEL)
-        routes: dict[str, ros2.BridgeRoute] = {}
+        routes: dict[str, dict[str, ros2.BridgeRoute]] = {}  # key -> token -> route, alive ones only
         cond = threading.Condition()
+        late: list[bool] = []  # set once start() has gone on without a type: a route from then on is applied
 
         def on(key: str, alive: bool) -> None:
             r = ros2.parse_bridge_route(key)
-            if r is not None and r.key in (self.cmd_key, doubled):
-                with cond:
-                    routes[r.key] = r
-                    cond.notify_all()
-
-        watch = self.bus.watch_alive(ros2.bridge_routes("MS"), on)
-        try:
+            if r is None or r.key not in (self.cmd_key, doubled):
+                return
             with cond:
-                cond.wait_for(lambda: self.cmd_key in routes, timeout=self.bridge_look_s)
-                mine, twice = routes.get(cast(str, self.cmd_key)), routes.get(doubled) if doubled else None
-        finally:
-            watch.close()
-        if mine is None and twice is not None:
+                if alive:
+                    routes.setdefault(r.key, {})[key] = r
+                else:
+                    routes.get(r.key, {}).pop(key, None)
+                cond.notify_all()
+                now = late and alive and r.key == self.cmd_key
+            if now:
+                self._late_route(r.ros2_type)
+
+        watches = [self.bus.watch_alive(expr, on) for expr in ros2.bridge_routes("MS")]
+        with cond:
+            cond.wait_for(lambda: bool(routes.get(cast(str, self.cmd_key))), timeout=self.bridge_look_s)
+            mine = min(routes.get(cast(str, self.cmd_key), {}).values(), key=lambda r: r.zid, default=None)
+            twice = bool(routes.get(doubled or "")) if doubled else False
+        typ = mine.ros2_type if mine is not None else None
+        if typ is None and not twice:
+            typ = self._bridge_admin_type()
+        if typ is None and not twice:
+            with cond:
+                late.append(True)
+            self._handles.extend(watches)  # a route that comes later still tells the type (_late_route)
+            log.warning("%s: no zenoh-bridge-ros2dds announces a route for %s within %g s, nor has one in its admin "
+                        "space (the robot's nodes are not up yet, or its bridge says nothing): commands go out as %s "
+                        "until one does; a Jazzy TurtleBot3 takes TwistStamped (--twist stamped), a Humble one Twist "
+                        "(--twist plain)", self.namespace or "/", self.cmd_key, self.bridge_look_s, self.cmd_type)
+            return
+        for w in watches:
+            w.close()
+        if typ is None:
             raise DiscoveryError(
                 f"ROS 2 robot {self.namespace}: nothing subscribes {self.cmd_key}, but the bridge routes {doubled} to "
                 f"a subscriber: the namespace is given twice (the robot's nodes in /{self.namespace} and its "
                 f"zenoh-bridge-ros2dds started with -n /{self.namespace}); start the bridge without -n, or the "
                 "robot's nodes without their namespace")
-        typ = mine.ros2_type if mine is not None else self._bridge_admin_type()
-        if typ is None:
-            log.warning("%s: no zenoh-bridge-ros2dds announces a route for %s within %g s, nor has one in its admin "
-                        "space (a bridge before 0.11, or the robot's nodes are not up): commands go out as %s, "
-                        "unchecked; a Jazzy TurtleBot3 takes TwistStamped (--twist stamped), a Humble one Twist "
-                        "(--twist plain)", self.namespace or "/", self.cmd_key, self.bridge_look_s, self.cmd_type)
-            return
         said_by = "the bridge's route" if mine is not None else "the bridge's admin space"
         twist = ros2.twist_of(typ)
         if twist is None:
@@ -245,6 +260,22 @@ class Ros2Drive(DriveBase):
             raise DiscoveryError(f"ROS 2 robot {self.namespace}: the robot subscribes {self.cmd_topic} as "
                                  f"{typ} (its zenoh-bridge-ros2dds says so), not as {self.cmd_type}: use "
                                  f"--twist {twist} (or auto)")
+
+    def _late_route(self, typ: str) -> None:
+        """A route of the robot's cmd_vel that came after start() went on without one (on the bus's thread): auto
+        takes its type from the next command on; a given --twist of the other type is said (the robot takes none of
+        its commands)."""
+        twist = ros2.twist_of(typ)
+        if twist is None or twist == self.twist:
+            return
+        if self.twist_given == "auto":
+            with self._send_lock:
+                self._take_twist(typ, "the bridge's route, come late")
+        elif not self._late_said:
+            self._late_said = True
+            log.error("%s: the robot subscribes %s as %s (its zenoh-bridge-ros2dds says so now), not as %s: it takes "
+                      "none of these commands; give --twist %s (or auto)", self.namespace or "/", self.cmd_topic, typ,
+                      self.cmd_type, twist)
 
     def _bridge_admin_type(self) -> str | None:
         """The cmd_vel route's ROS 2 type from the bridges' admin space (`@/<zid>/ros2/route/topic/sub/<key>`), for a

@@ -311,48 +311,58 @@ BRIDGE_QOS = ":1:0:0,10"  # keyless, reliable, volatile, keep last 10 (a TurtleB
 @dataclass(frozen=True)
 class BridgeRoute:
     """One route zenoh-bridge-ros2dds announces with a liveliness token while a ROS 2 node behind it publishes
-    (MP) or subscribes (MS) a topic: `@ros2_lv/<bridge zid>/<kind>/<zenoh key>/<ROS 2 type>/<qos>`, with '/'
-    inside the key and the type written as BRIDGE_SLASH. It is how another bridge learns the message type of a
-    topic; swarm reads it to check the robot's cmd_vel type (docs/ros2.md, The bridge's routes)."""
+    (MP) or subscribes (MS) a topic, with '/' inside the key and the type written as BRIDGE_SLASH:
+    `@/<bridge zid>/@ros2_lv/<kind>/<zenoh key>/<ROS 2 type>/<qos>` since the bridge's 1.0 (the releases that
+    speak zenoh 1.x, as swarm does), `@ros2_lv/<bridge zid>/<kind>/...` before (`legacy`). It is how another
+    bridge learns the message type of a topic; swarm reads it to check the robot's cmd_vel type (docs/ros2.md,
+    The bridge's routes)."""
 
     zid: str
     kind: str  # MP or MS
     key: str  # the zenoh key the data goes on: "robot1/cmd_vel"
     ros2_type: str  # "geometry_msgs/msg/TwistStamped"
     qos: str = BRIDGE_QOS
+    legacy: bool = False  # the 0.x form
 
     @property
     def token(self) -> str:
         """Its liveliness token's key (what parse_bridge_route reads back)."""
         esc = BRIDGE_SLASH
-        key = f"{LIVELINESS}/{self.zid}/{self.kind}/{self.key.replace('/', esc)}/{self.ros2_type.replace('/', esc)}/{self.qos}"
+        head = f"{LIVELINESS}/{self.zid}" if self.legacy else f"@/{self.zid}/{LIVELINESS}"
+        key = f"{head}/{self.kind}/{self.key.replace('/', esc)}/{self.ros2_type.replace('/', esc)}/{self.qos}"
         if parse_bridge_route(key) != self:
             raise Ros2Error(f"not a valid bridge route: {self!r}")
         return key
 
 
-def bridge_routes(kind: str) -> str:
-    """The key expression of every route of one kind (MP or MS) of every bridge."""
+def bridge_routes(kind: str) -> tuple[str, str]:
+    """The key expressions of every route of one kind (MP or MS) of every bridge: the 1.x form, the 0.x form."""
     if kind not in BRIDGE_ROUTE_KINDS:
         raise Ros2Error(f"a bridge route's kind is one of {', '.join(BRIDGE_ROUTE_KINDS)}, got {kind!r}")
-    return f"{LIVELINESS}/*/{kind}/*/*/*"
+    return f"@/*/{LIVELINESS}/{kind}/*/*/*", f"{LIVELINESS}/*/{kind}/*/*/*"
 
 
 def parse_bridge_route(key: str) -> BridgeRoute | None:
-    """A bridge's route token -> BridgeRoute; None for anything that is not one (an rmw_zenoh token has a domain
-    number where the bridge has its zenoh id, and its kind further on)."""
+    """A bridge's route token (either form) -> BridgeRoute; None for anything that is not one (an rmw_zenoh token
+    has a domain number where a 0.x bridge has its zenoh id, and its kind further on)."""
     if not isinstance(key, str):
         return None
     parts = key.split("/")
-    if len(parts) != 6 or parts[0] != LIVELINESS or not all(_CHUNK.match(p) for p in parts[1:]):
+    if len(parts) == 7 and parts[0] == "@" and parts[2] == LIVELINESS:
+        legacy, rest = False, [parts[1], *parts[3:]]
+    elif len(parts) == 6 and parts[0] == LIVELINESS:
+        legacy, rest = True, parts[1:]
+    else:
         return None
-    zid, kind, zkey, typ, qos = parts[1:]
+    if not all(_CHUNK.match(p) for p in rest):
+        return None
+    zid, kind, zkey, typ, qos = rest
     if kind not in BRIDGE_ROUTE_KINDS:
         return None
     zkey, typ = zkey.replace(BRIDGE_SLASH, "/"), typ.replace(BRIDGE_SLASH, "/")
     if not _TOPIC.match(zkey) or not _TYPENAME.match(typ):
         return None
-    return BridgeRoute(zid, kind, zkey, typ, qos)
+    return BridgeRoute(zid, kind, zkey, typ, qos, legacy)
 
 
 BRIDGE_ADMIN_SUB = "@/*/ros2/route/topic/sub"  # + "/<zenoh key>": a bridge's admin space, a route to a ROS 2 subscriber
@@ -361,8 +371,8 @@ MAX_ADMIN_REPLY = 1 << 16  # bytes: a route's JSON is a few hundred; anything la
 
 def bridge_admin_type(payload: bytes) -> str | None:
     """The ROS 2 type of a route as zenoh-bridge-ros2dds's admin space gives it (a JSON object with `ros2_type`,
-    e.g. `{"ros2_name": "/robot1/cmd_vel", "ros2_type": "geometry_msgs/msg/TwistStamped", ...}`); None for
-    anything else, whatever the bytes."""
+    e.g. `{"ros2_name": "/robot1/cmd_vel", "ros2_type": "geometry_msgs/msg/TwistStamped", "is_active": true, ...}`);
+    None for a route that is not active (no local node behind it) and for anything else, whatever the bytes."""
     import json
 
     if not isinstance(payload, (bytes, bytearray)) or len(payload) > MAX_ADMIN_REPLY:
@@ -371,7 +381,9 @@ def bridge_admin_type(payload: bytes) -> str | None:
         doc = json.loads(bytes(payload).decode("utf-8"))
     except (ValueError, UnicodeDecodeError, RecursionError):
         return None
-    typ = doc.get("ros2_type") if isinstance(doc, dict) else None
+    if not isinstance(doc, dict) or doc.get("is_active") is False:  # a route made for a remote bridge's only
+        return None
+    typ = doc.get("ros2_type")
     return typ if isinstance(typ, str) and _TYPENAME.match(typ) else None
 
 

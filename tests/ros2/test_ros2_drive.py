@@ -299,6 +299,35 @@ def test_an_admin_reply_that_is_not_a_route_says_nothing(payload):
     assert ros2.bridge_admin_type(payload) is None
 
 
+def test_a_legacy_bridge_route_is_read_too():
+    net = MemoryNet()
+    MemoryBus(net).token(ros2.BridgeRoute("ab12", "MS", "robot1/cmd_vel", ros2.TWIST_STAMPED, legacy=True).token)
+    d, _ = make_drive(net, "bridge", "auto")
+    d.start()
+    assert d.cmd_type == ros2.TWIST_STAMPED
+
+
+def test_a_route_that_comes_late_sets_the_type_or_is_said(caplog):
+    """The robot's nodes come up after the drive started: auto takes the type of the route then (the next command
+    is in it); a given --twist of the other type is said as an error (the robot takes none of its commands)."""
+    net = MemoryNet()
+    d, bus = make_drive(net, "bridge", "auto")
+    d.start()
+    assert d.cmd_type == ros2.TWIST
+    MemoryBus(net).token(ros2.BridgeRoute("ab12", "MS", "robot1/cmd_vel", ros2.TWIST_STAMPED).token)
+    assert d.cmd_type == ros2.TWIST_STAMPED
+    d.send(Cmd(1, 1, 0.1, 0.0))
+    assert ros2.decode_twist_stamped(bus.puts[-1][1]) == (0.1, 0.0)
+    net = MemoryNet()
+    d, _ = make_drive(net, "bridge", "plain")
+    d.start()
+    with caplog.at_level("ERROR", logger="swarm.drive.ros2"):
+        MemoryBus(net).token(ros2.BridgeRoute("ab12", "MS", "robot1/cmd_vel", ros2.TWIST_STAMPED).token)
+    assert "give --twist stamped" in caplog.text and d.cmd_type == ros2.TWIST
+    d.close()
+    assert not net.tokens or all("swarm_drive" not in k for k in net.tokens)
+
+
 def test_a_bridge_that_announces_no_route_is_said_and_commanded_as_given(caplog):
     """An old bridge (or a robot whose nodes are not up yet) announces nothing: the drive says it could not check
     the type, and commands in the one given (auto: plain, or the --distro's TurtleBot3 default)."""
@@ -318,11 +347,20 @@ def test_a_bridge_that_announces_no_route_is_said_and_commanded_as_given(caplog)
 
 
 def test_bridge_route_tokens_read_back_and_nothing_else_reads_as_one():
+    """Both forms: zenoh-bridge-ros2dds 1.x (`@/<zid>/@ros2_lv/...`, what the simulated bridges announce) and 0.x
+    (`@ros2_lv/<zid>/...`)."""
     r = ros2.BridgeRoute("0123abcd", "MP", "robot1/odom", ros2.ODOMETRY)
-    assert r.token == "@ros2_lv/0123abcd/MP/robot1\u00a7odom/nav_msgs\u00a7msg\u00a7Odometry/:1:0:0,10"
+    assert r.token == "@/0123abcd/@ros2_lv/MP/robot1\u00a7odom/nav_msgs\u00a7msg\u00a7Odometry/:1:0:0,10"
     assert ros2.parse_bridge_route(r.token) == r
+    old = ros2.BridgeRoute("0123abcd", "MS", "robot1/cmd_vel", ros2.TWIST, legacy=True)
+    assert old.token == "@ros2_lv/0123abcd/MS/robot1\u00a7cmd_vel/geometry_msgs\u00a7msg\u00a7Twist/:1:0:0,10"
+    assert ros2.parse_bridge_route(old.token) == old
+    assert ros2.parse_bridge_route("@/z/@ros2_lv/MS/a/geometry_msgs\u00a7msg\u00a7Twist/K:1:0:0,10:typehash=x").ros2_type \
+        == ros2.TWIST  # a 1.0.4+ bridge's QoS chunk with the type hash
     fleet = Ros2Fleet(MemoryBus(MemoryNet()), [(0.0, 0.0, 0.0)], "rmw_zenoh", "plain")
     for key in [e.key for e in fleet.entities(0)] + ["@ros2_lv/z/XX/a/geometry_msgs\u00a7msg\u00a7Twist/q",
+                                                    "@/z/@ros2/MS/a/geometry_msgs\u00a7msg\u00a7Twist/q",
+                                                    "@/z/@ros2_lv/MS/a/geometry_msgs\u00a7msg\u00a7Twist",
                                                     "@ros2_lv/z/MS/a/notatype/q", "@ros2_lv/z/MS/a*/b/q", 7]:
         assert ros2.parse_bridge_route(key) is None, key
     assert ros2.twist_of("geometry_msgs::msg::dds_::TwistStamped_") == "stamped" and ros2.twist_of(ros2.ODOMETRY) is None
