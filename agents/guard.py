@@ -34,6 +34,7 @@ import threading
 
 from swarm.core.clock import WALL
 from swarm.process import name_thread
+from swarm.drives.base import Drive
 
 log = logging.getLogger("swarm.guard")
 
@@ -48,7 +49,7 @@ def arena_of(cfg) -> tuple[float, float, float, float] | None:
 
 
 class Guard:
-    def __init__(self, drive, clock=WALL, pose_timeout_s: float = POSE_TIMEOUT_S,
+    def __init__(self, drive: Drive, clock=WALL, pose_timeout_s: float = POSE_TIMEOUT_S,
                  ref_timeout_s: float = REF_TIMEOUT_S, period_s: float = 0.05,
                  arena: tuple[float, float, float, float] | None = None, expire: bool = False) -> None:
         """arena: (xmin, xmax, ymin, ymax) [m]; None: no arena check. expire: halt the drive when its newest

@@ -80,7 +80,7 @@ class Ros2Fleet:
             raise ValueError(f"robots need distinct namespaces, got {self.namespaces}")
         triples = cast("list[tuple[float, float, float]]", self.starts)  # each of length 3 (checked above)
         self._from_world = [ros2.se2_inverse(s) for s in triples]  # world frame -> robot i's odom frame
-        ros2.typestore()  # fail now, naming the extra, if rosbags is missing
+        ros2.require()  # fail now, naming the extra, if rosbags or xxhash is missing
         self.cmd_keys = [self._key(ns, ros2.CMD_VEL, self.cmd_type) for ns in self.namespaces]
         self.odom_keys = [self._key(ns, ros2.ODOM, ros2.ODOMETRY) for ns in self.namespaces]
         self._robot_of = {k: i for i, k in enumerate(self.cmd_keys)}

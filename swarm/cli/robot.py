@@ -38,6 +38,10 @@ def cmd_robot(args, started: float) -> int:
     elif args.mode == "lockstep":
         raise BadInput("--drive ros2 with --mode lockstep: a ROS 2 robot runs in real time only (odometry carries no "
                        "tick); give --mode realtime, or leave --mode out")
+    elif args.distro is not None and (args.ros_flavor != "bridge" or args.twist != "auto"):
+        from swarm.cli.up_inventory import DISTRO_ONLY
+
+        raise BadInput(DISTRO_ONLY)
     make_drive = _ros2_drive(args) if args.drive == "ros2" else None
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, lean=True, role="robot", robot_id=args.id)
@@ -72,7 +76,7 @@ def _ros2_drive(args):
         from swarm.drives.ros2 import Ros2Drive
         from swarm.proto import ros2
 
-        ros2.typestore()
+        ros2.require()
     except ImportError as e:
         raise BadInput(f"--drive ros2: {e}") from None
 

@@ -156,7 +156,7 @@ def cmd_up(args, started: float) -> int:
         try:
             from swarm.proto import ros2
 
-            ros2.typestore()
+            ros2.require()
         except ImportError as e:
             raise BadInput(f"--drive ros2: {e}") from None
     log_dir = Path(args.log_dir or os.path.join(tempfile.gettempdir(), f"{LOG_PREFIX}{fleet}-{os.getpid()}"))

@@ -113,6 +113,9 @@ def cmd_robot_fleet(args, started: float) -> int:
     scn = load_scenario(args, quiet=True) if args.scenario is not None else None
     if scn is not None and not auto and args.id >= scn.n:
         raise BadInput(f"--id {args.id}: the scenario has {scn.n} robots (ids 0..{scn.n - 1})")
+    if entry is None and args.drive == "ros2" and getattr(args, "distro", None) is not None and \
+            (args.ros_flavor != "bridge" or args.twist != "auto"):
+        raise BadInput(DISTRO_ONLY)
     factory = _row_drive(entry) if entry is not None else (_flag_drive(args) if args.drive == "ros2" else None)
     if factory is not None and args.mode == "lockstep":
         raise BadInput("a ROS 2 drive with --mode lockstep: a ROS 2 robot runs in real time only (odometry carries no "
@@ -151,11 +154,16 @@ def cmd_robot_fleet(args, started: float) -> int:
     return EXIT_INTERRUPTED
 
 
+DISTRO_ONLY = ("--distro sets only what --twist auto falls back to behind a zenoh-bridge-ros2dds that announces no "
+               "route (rmw_zenoh robots and a given --twist say their type themselves): give it with --ros-flavor bridge "
+               "and --twist auto, or leave it out")
+
+
 def _ros2_available(flag: str) -> None:
     try:
         from swarm.proto import ros2
 
-        ros2.typestore()
+        ros2.require()
     except ImportError as e:
         raise BadInput(f"{flag}: {e}") from None
 

@@ -41,7 +41,7 @@ def cmd_world(args, started: float) -> int:
         try:
             from swarm.proto import ros2
 
-            ros2.typestore()
+            ros2.require()
         except ImportError as e:
             raise BadInput(f"--ros2-sim: {e}") from None
     opts = WorldOptions(lockstep=args.mode == "lockstep", speed=args.speed, watchdog=args.watchdog,

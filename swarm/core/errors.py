@@ -31,7 +31,7 @@ def read_text_file(path: str, what: str = "file") -> str:
     except OSError as e:
         raise ScenarioError(path, "", f"cannot read: {e.strerror or e}") from None
     if stat.S_ISDIR(st.st_mode):
-        raise ScenarioError(path, "", f"is a directory; give a {what} in it")
+        raise ScenarioError(path, "", f"is a directory; give {'an' if what[:1] in 'aeiou' else 'a'} {what} in it")
     if not stat.S_ISREG(st.st_mode):
         raise ScenarioError(path, "", "is not a regular file (a FIFO, a device or a socket); give a file")
     try:

@@ -34,7 +34,7 @@ import numpy as np
 
 from swarm.core import faultgen as fg
 from swarm.core.errors import ScenarioError
-from swarm.core.toml_reader import Reader as _Reader, kind, read_toml
+from swarm.core.toml_reader import Reader, kind, read_toml
 from swarm.core.errors import SwarmError
 
 CLASSES = {"state": fg.CLS_STATE, "pose": fg.CLS_POSE, "cmd": fg.CLS_CMD, "ref": fg.CLS_REF, "all": fg.CLS_ALL}
@@ -338,6 +338,16 @@ def _check_process_faults(kills: tuple[Kill, ...], hangs: tuple[Hang, ...]) -> N
 
 
 # --------------------------------------------------------------------------- reading
+
+
+class _Reader(Reader):
+    """The TOML reader, where a number of 1e308 or more in size is not finite (a time or a probability so large
+    overflows what the schedule computes from it)."""
+
+    def number(self, value: Any, key: str, **kw: Any) -> float:
+        if not isinstance(value, bool) and isinstance(value, (int, float)) and not abs(value) < 1e308:
+            raise self.fail(key, f"must be finite, got {value}")
+        return super().number(value, key, **kw)
 
 
 _RULE_KEYS = ("from", "to", "start", "end")

@@ -43,6 +43,7 @@ class Drive(Protocol):
     base_timeout_s: float | None  # how long the body acts on a command with no newer one (None: unknown)
     speed_limits: tuple[float, float] | None  # the body's own (v_max, w_max), or None
     limits: Limits | None  # the scenario's bounds the poses are decoded with (None: the agent gives them)
+    halted: str | None  # why the body stands, latched from halt() until the next send(); None while commanded
 
     def start(self, on_poses: Callable[[list[Pose]], None] | None = None) -> None: ...
 
@@ -76,6 +77,7 @@ class DriveBase:
     base_timeout_s: float | None = None
     speed_limits: tuple[float, float] | None = None
     limits: Limits | None = None
+    halted: str | None = "not started"
 
     def hold(self, t: float) -> None:
         """The guard halted the robot at the time t of this control period (a drive that keeps a window on its

@@ -128,7 +128,7 @@ class Ros2Drive(DriveBase):
         self.base_timeout_s: float | None = base_timeout_s
         self.cmd_topic = ros2.topic_name(self.namespace, ros2.CMD_VEL)
         self.odom_topic = ros2.topic_name(self.namespace, ros2.ODOM)
-        ros2.typestore()  # fail now, naming the extra, if rosbags is missing
+        ros2.require()  # fail now, naming the extra, if rosbags or xxhash is missing
         self.zid = os.urandom(16).hex()  # the zenoh id of the node the drive announces
         self.gid = os.urandom(ros2.GID_SIZE)  # its cmd_vel publisher's gid in every attachment (start(): rmw_zenoh's)
         self.cmd_key: str | None = None

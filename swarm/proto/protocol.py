@@ -637,8 +637,8 @@ _FAST_ENCODE: dict[type[Message], Callable[[Message], bytes]] = {}
 _unpackb = msgpack.unpackb
 
 
-class _DuplicateKey(Exception):
-    pass
+class _DuplicateKey(SwarmError):
+    """Raised inside msgpack's unpacking by _unique; decode() turns it into a ProtocolError."""
 
 
 def _unique(pairs: list[tuple[Any, Any]]) -> dict[Any, Any]:

@@ -88,6 +88,15 @@ def typestore() -> Typestore:
     return get_typestore(Stores.ROS2_JAZZY)
 
 
+def require() -> None:
+    """The ros2 extra is installed (rosbags for the messages, xxhash for rmw_zenoh's gids); ImportError naming it."""
+    typestore()
+    try:
+        import xxhash  # noqa: F401
+    except ImportError as e:
+        raise ImportError(f"rmw_zenoh's gids need the xxhash package: {INSTALL}") from e
+
+
 @functools.cache
 def _types() -> dict[str, Any]:
     """The message classes this module builds, looked up once, and a zero covariance."""

@@ -99,8 +99,8 @@ def rto_min(ns: str, ms: float) -> None:
     """TCP's minimum retransmission timeout in namespace `ns` (Linux's default 200 ms), as docs/deploy.md (Lossy
     links) asks of a fleet's machines: the namespace's sysctl where the kernel has it, else the `rto_min` of
     each of its routes. Set it before any socket opens: a socket takes it when it is made."""
-    if os.path.exists(RTO_MIN_SYSCTL):
-        sh("ip", "netns", "exec", ns, "sysctl", "-qw", f"net.ipv4.tcp_rto_min_us={int(ms * 1000)}")
+    if os.path.exists(RTO_MIN_SYSCTL):  # written from inside the namespace: /proc/sys/net is the namespace's own
+        sh("ip", "netns", "exec", ns, "sh", "-c", f"echo {int(ms * 1000)} > {RTO_MIN_SYSCTL}")
         return
     routes = subprocess.run(["ip", "-n", ns, "-4", "route", "show"], capture_output=True, text=True, timeout=30,
                             check=True).stdout

@@ -150,6 +150,7 @@ def test_real_time_robots_behind_links_that_lose_a_tenth_of_their_packets_conver
             logs = "".join((tmp_path / f).read_text(errors="replace")[-2000:] for f in ("world.log", "robot0.log"))
         finally:
             _stop(procs)
+    assert metrics.exists(), logs  # the world ended without its metrics: its log says why
     m = json.loads(metrics.read_text())
     said = {k: m.get(k) for k in ("collisions", "converged_at_s", "final_position_error_max_m", "round_trip_ms_p99",
                                   "held_back", "cmd_braked", "robots_lost", "min_robot_distance_m")}

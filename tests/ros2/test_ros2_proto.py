@@ -365,3 +365,12 @@ def test_the_module_loads_without_rosbags_and_names_the_extra(monkeypatch):
         fresh.encode_twist(0.0, 0.0)
     with pytest.raises(ImportError, match=r"pip install 'swarm\[ros2\]'"):
         fresh.type_hash(fresh.TWIST)
+
+
+def test_without_xxhash_the_extra_is_named_before_anything_starts(monkeypatch):
+    """rosbags alone (the ros2 extra of before): require() names the extra, as every ROS 2 command calls it first."""
+    monkeypatch.setitem(sys.modules, "xxhash", None)  # import xxhash... now fails
+    with pytest.raises(ImportError, match=r"xxhash.*pip install 'swarm\[ros2\]'"):
+        ros2.require()
+    with pytest.raises(ImportError, match=r"xxhash.*pip install 'swarm\[ros2\]'"):
+        ros2.entity_gid("@ros2_lv/0/x")

@@ -42,7 +42,10 @@ def test_flags_of_another_drive_are_refused_not_dropped(capsys):
                        (["up", "--twist", "plain", "--dry-run"], "--twist needs --drive ros2"),
                        (["up", "--ros-flavor", "bridge", "--dry-run"], "--ros-flavor needs --drive ros2"),
                        (["robot", "--id", "1", "--domain", "3"], "--domain needs --drive ros2"),
-                       (["robot", "--id", "1", "--robot-model", "burger"], "--robot-model needs --drive ros2")]:
+                       (["robot", "--id", "1", "--robot-model", "burger"], "--robot-model needs --drive ros2"),
+                       (["robot", "--id", "1", "--drive", "ros2", "--distro", "humble"], "--distro sets only"),
+                       (["robot", "--id", "1", "--drive", "ros2", "--ros-flavor", "bridge", "--twist", "plain",
+                         "--distro", "humble"], "--distro sets only")]:
         assert main(argv) == 2, argv
         assert said in capsys.readouterr().err, argv
 
