@@ -105,14 +105,14 @@ class OdometryProbe:
             e = r.entry
             if e.flavor == "rmw_zenoh":
                 odom, cmd = ros2.topic_name(e.namespace, ros2.ODOM), ros2.topic_name(e.namespace, ros2.CMD_VEL)
-                want_cmd = ros2.dds_type(ros2.twist_type(e.twist))
+                want_cmd = {ros2.dds_type(ros2.twist_type(t)) for t in (ros2.TWISTS if e.twist == "auto" else (e.twist,))}
                 for t in seen:
                     if t.domain != e.domain:
                         continue
                     if t.kind == "MP" and t.topic == odom and t.dds_type == ros2.dds_type(ros2.ODOMETRY):
                         r.odom_key = r.odom_key or t.data_key
                     if t.kind == "MS" and t.topic == cmd:
-                        if t.dds_type == want_cmd:
+                        if t.dds_type in want_cmd:
                             r.cmd_ok = True
                         else:
                             r.cmd_other = t.dds_type
@@ -133,8 +133,8 @@ class OdometryProbe:
         with self.lock:
             types = {t.ros2_type for t in self.routes.values() if t.key == key}
         if types:
-            want = ros2.twist_type(r.entry.twist)
-            r.cmd_other = None if want in types else min(types)
+            want = {ros2.twist_type(t) for t in (ros2.TWISTS if r.entry.twist == "auto" else (r.entry.twist,))}
+            r.cmd_other = None if want & types else min(types)
 
     def _on_odom(self, r: _Robot, payload: bytes, attachment: bytes | None = None) -> None:
         now = self.clock()

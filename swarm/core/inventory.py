@@ -15,7 +15,8 @@ The file:
     flavor = "rmw_zenoh"                   # or "bridge" (zenoh-bridge-ros2dds on the robot)
     namespace = "robot0"                   # its ROS namespace (default robot<id>)
     domain = 0                             # its ROS_DOMAIN_ID (default 0)
-    twist = "plain"                        # cmd_vel as Twist, or "stamped" (TwistStamped: TurtleBot3 on Jazzy)
+    twist = "plain"                        # cmd_vel as Twist, "stamped" (TwistStamped: TurtleBot3 on Jazzy), or
+                                           # "auto" (the type the robot subscribes, as its drive finds it)
     attachment = "auto"                    # rmw_zenoh's attachment form: auto (its odometry's), v1 or v2
     connect = "tcp/192.168.1.20:7447"      # its zenoh router or bridge (optional)
     initial_pose = [-1.0, -2.5, 0.0]       # where it stands, x [m], y [m], theta [rad] (default: the scenario's start)
@@ -63,7 +64,7 @@ if TYPE_CHECKING:
 
 DRIVES = ("ros2",)
 FLAVORS = ("rmw_zenoh", "bridge")
-TWISTS = ("plain", "stamped")
+TWISTS = ("plain", "stamped", "auto")  # auto: the robot says (its token, its bridge's route)
 ATTACHMENTS = ("auto", "v1", "v2")  # swarm.proto.ros2.ATTACHMENT_FORMS, or the robot's own
 PREFLIGHT_SHARE = 0.8  # a leader segment may use this share of a robot's speed limits
 ROBOT_KEYS = ("id", "drive", "flavor", "namespace", "domain", "twist", "attachment", "connect", "initial_pose",

@@ -248,3 +248,11 @@ def test_a_robot_whose_router_does_not_answer_is_a_network_fault_not_its_ros_sid
     assert "robot 1: cannot reach its zenoh router at tcp/no-such-host.invalid:7447: host 'no-such-host.invalid' unknown" in out, out
     assert f"robot 2: cannot reach its zenoh router at {closed.replace('tcp/', 'tls/')}: connection refused" in out, out
     assert "RMW_IMPLEMENTATION" not in out and "no subscriber" not in out and "CA" not in out, out
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("flavor", ["rmw_zenoh", "bridge"])
+def test_twist_auto_in_the_inventory_takes_either_type(flavor):
+    fleet = fleet_of(**{f"r{i}": {"flavor": flavor, "twist": "auto"} for i in range(3)})
+    report, _ = run_check(fleet, {0: 20, 1: 20, 2: 20}, flavor=flavor, twist="stamped")
+    assert report.ok, report.text()
