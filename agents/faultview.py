@@ -23,12 +23,13 @@ from swarm.core import faultgen as fg
 from swarm.core import faults as fl
 from swarm.core import kinematics
 from swarm.core.faultsim import TickSchedule, arrival
+from swarm.core.faulttable import FaultTable, Link
 
 
 class FaultView:
     def __init__(self, robot_id: int, robots: int, dt: float, reach: float, side: float, faults: fl.Faults) -> None:
         self.id, self.n, self.dt = robot_id, robots, dt
-        self.table = fl.FaultTable.of(faults, robots, dt)
+        self.table = FaultTable.of(faults, robots, dt)
         self.schedule = TickSchedule(self.table, robots)
         self.dmax = int(max([d.ticks + d.jitter for d in faults.delays], default=0))
         self.h = self.dmax + 2
@@ -36,7 +37,7 @@ class FaultView:
         self.side = side
         self.pose_link = self.table.link(fg.CLS_POSE, fg.WORLD, robot_id)
         self.ref_link = self.table.link(fg.CLS_REF, fg.LEADER, robot_id)
-        self.state_links: dict[int, fl.Link] = {}
+        self.state_links: dict[int, Link] = {}
         # its belief: kb its tick (-1: none yet), bel (x, y, theta); kp the newest pose's send tick, pbase that pose
         self.kb, self.bel, self.kp, self.pbase = -1, [0.0, 0.0, 0.0], -1, (0.0, 0.0, 0.0)
         self.belh: dict[int, tuple[float, float, float]] = {}  # its belief at recent ticks it was active

@@ -1795,7 +1795,7 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
 def _fault_bus(bus, faults, cfg: Config, fleet: str, clock, box: list):
     """Real time under faults: a swarm.net.faultbus.FaultBus around bus for this robot. Its holds follow the
     swarm's speed, which the agent (box[0], once made) learns from the clock."""
-    from swarm.core.faults import FaultTable
+    from swarm.core.faulttable import FaultTable
     from swarm.net.faultbus import FaultBus
 
     table = FaultTable.of(faults, cfg.robots, cfg.dt)

@@ -9,7 +9,7 @@
     wf.metrics(alive, t_end)                   # the fault keys of the metrics contract
 
 Mirrors step 6 of swarm.core.faultkernel (the simulator's fault loop) with the same decisions
-(swarm.core.faults.Link): robot i's command of tick s arrives at s + delay unless lost; the newest
+(swarm.core.faulttable.Link): robot i's command of tick s arrives at s + delay unless lost; the newest
 is applied; without a new one the last is held one period, then braked along a ramp of BRAKE_S; a
 robot with no new command for longer than the watchdog is stopped (a static body); a dead robot
 stops at once. The world counts the commands it lost or delayed; each robot's fault layer
@@ -23,6 +23,7 @@ from swarm.core import faultgen as fg
 from swarm.core import faults as fl
 from swarm.core.faultsim import BRAKE_S, CLASSES, TickSchedule, arrival
 from swarm.proto.protocol import Bodies, Body
+from swarm.core.faulttable import FaultTable
 
 NONE = -2
 LOST = -1
@@ -40,7 +41,7 @@ class WorldFaults:
         f = scn.faults
         n, dt = scn.n, scn.dt
         self.n, self.dt, self.faults = n, dt, f
-        self.table = fl.FaultTable.of(f, n, dt)
+        self.table = FaultTable.of(f, n, dt)
         self.schedule = TickSchedule(self.table, n)
         self.dmax = int(max([d.ticks + d.jitter for d in f.delays], default=0))
         self.h = self.dmax + 2

@@ -48,6 +48,7 @@ from swarm.core.safety import BODIES_HOLD_S, RAMP_S
 from world.estop import EstopLog
 from world.realtime_faults import RealtimeFaults
 from world.referee import Referee, log_collisions
+from swarm.core.faulttable import FaultTable, first_tick
 
 if TYPE_CHECKING:
     from world.faultworld import WorldFaults
@@ -99,7 +100,7 @@ class World:
         if scn.faults and not lockstep:
             from swarm.net.faultbus import FaultBus
 
-            self.fbus = FaultBus(bus, fl.FaultTable.of(scn.faults, scn.n, scn.dt), fg.WORLD, scn.dt, fleet,
+            self.fbus = FaultBus(bus, FaultTable.of(scn.faults, scn.n, scn.dt), fg.WORLD, scn.dt, fleet,
                                  speed=speed, clock=clock)
             self.bus = self.fbus
             self.rtf = RealtimeFaults(scn, self.fbus)
@@ -773,7 +774,7 @@ class World:
         """Tick k's process events (world.faultworld): counted, logged, and noted for the waits of
         _await_returns (the token count when a robot's kill or hang began); every event at k told on
         world/events."""
-        self._tell_events(k * self.scn.dt, k, lambda t: fl.first_tick(t, self.scn.dt) <= k)
+        self._tell_events(k * self.scn.dt, k, lambda t: first_tick(t, self.scn.dt) <= k)
         for i, kind in self.wf.begin(k):  # type: ignore[union-attr]  # the run loop calls this under faults only
             log.info("world: fault at tick %d (t = %g s): robot %d %s", k, k * self.scn.dt, i,
                      {"kill": "killed", "restart": "restarted", "hang": "hung", "resume": "resumed"}[kind])

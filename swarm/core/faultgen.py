@@ -4,7 +4,7 @@ Scalar style on purpose, like swarm.core.law: this exact source runs as plain Py
 process (the fault-injecting bus decides alone for each message it carries) and, compiled by
 numba through `swarm.core.jit.compiled("swarm.core.faultgen")`, inside the simulator. Keep to what
 numba compiles: `math`, ints, floats, 1-D/2-D numpy arrays indexed by ints, tuples. No imports of
-other swarm modules. swarm.core.faults builds the arrays (FaultTable) and documents them.
+other swarm modules. swarm.core.faulttable builds the arrays (FaultTable) and documents them.
 
 The generator. Every decision reads uniform(seed, rule, cls, sender, receiver, k), a hash of six
 integers and nothing else: no generator state, so any process can ask any message in any order and
@@ -68,7 +68,7 @@ START_K = -1  # the counter of a burst chain's starting state (no message has it
 # to be the first one in (or out) may round either way.
 TIME_EPS = 1e-9  # s
 
-# Layout of a drop rule row (float64): swarm.core.faults.FaultTable.drop
+# Layout of a drop rule row (float64): swarm.core.faulttable.FaultTable.drop
 D_CLS = 0  # class code (CLS_*)
 D_P = 1  # stationary loss probability
 D_BURST = 2  # mean burst length in messages (1: independent losses)
@@ -302,7 +302,7 @@ def decide(seed: int, drop: _Floats, drop_from: _Mask, drop_to: _Mask, delay: _F
     CLS_ALL, sender and receiver in its masks, t in its window) loses it. Otherwise late by the
     largest delay of the delay rules that match it (0 when none does). chains: (D, C_SIZE) int64,
     this link's and class's burst chain cache (rows start as (-1, 0)); updated.
-    Array layouts: swarm.core.faults.FaultTable. Ids: robots 0..N-1, WORLD, LEADER.
+    Array layouts: swarm.core.faulttable.FaultTable. Ids: robots 0..N-1, WORLD, LEADER.
     """
     if is_cut(part_win, part_group, sender, receiver, t):
         return True, 0

@@ -130,7 +130,7 @@ def run_fault_steps(k0: int, k1: int, n_steps: int, dt: float, q: _Floats, comp:
     (p[P_DT] is the governor's horizon: dt, or longer when commands may be lost: faultsim.horizon.)
 
     Shapes (N robots, M obstacles, H = dmax + 2 ticks of history): q, comp (N, 3) true poses and
-    their compensations; mem (N, M_SIZE); the fault table's arrays (swarm.core.faults.FaultTable);
+    their compensations; mem (N, M_SIZE); the fault table's arrays (swarm.core.faulttable.FaultTable);
     ev (E, 3) process events (tick, robot, kind); chain caches ch_state (N, N, D, 2), ch_pose,
     ch_ref, ch_cmd (N, D, 2); decision rings ring_state (N, N, H) [receiver, sender, send tick % H],
     ring_pose, ring_ref, ring_cmd (N, 1, H): the delay of the message of that send tick, LOST or NONE;

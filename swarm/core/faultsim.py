@@ -16,6 +16,7 @@ import numpy as np
 from swarm.core import faultgen as fg
 from swarm.core import faults as fl
 from swarm.core import law
+from swarm.core.faulttable import FaultTable
 
 if TYPE_CHECKING:
     from swarm.core.scenario import Scenario
@@ -50,7 +51,7 @@ class FaultState:
         f = cast(fl.Faults, scn.faults)  # a FaultState is made for a scenario with faults only
         n, m = scn.n, len(scn.obstacles)
         self.faults = f
-        self.table = fl.FaultTable.of(f, n, scn.dt)
+        self.table = FaultTable.of(f, n, scn.dt)
         tab = self.table
         # a message later than the run is never delivered: the rings need not reach past its last tick (a delay
         # rule of 10^6 ticks made them robots x robots x 10^6 whatever the run: 11.7 GB at 37 robots)
@@ -144,7 +145,7 @@ class TickSchedule:
     (faultgen.PROC_*), and whether a restart or a resume happens exactly at k (a listening tick).
     Every lock-step process reads it, so membership follows the schedule."""
 
-    def __init__(self, table: fl.FaultTable, robots: int) -> None:
+    def __init__(self, table: FaultTable, robots: int) -> None:
         self.events: dict[int, list[tuple[int, int]]] = {i: [] for i in range(robots)}  # robot -> [(tick, kind)]
         for tick, robot, kind in table.event_ticks.tolist():
             self.events[robot].append((tick, kind))

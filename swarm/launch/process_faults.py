@@ -27,6 +27,7 @@ import time
 from typing import cast
 
 from swarm.core import faults as fl
+from swarm.core.faulttable import first_tick
 
 MIN_STOP_S = 2.5  # lock-step: wall seconds a hung process stays stopped at least (more than zenoh's 1 s lease)
 
@@ -43,11 +44,11 @@ class ProcessFaults:
         # lock-step: a hang between two ticks stops the robot at none (its SIGCONT would come before its SIGSTOP
         # and leave it stopped): neither signal is sent
         skip = {(h.robot, t, kind) for h in (faults.hangs if faults and lockstep else ())
-                if fl.first_tick(h.at, dt) == fl.first_tick(h.end, dt) for t, kind in ((h.at, "hang"), (h.end, "resume"))}
+                if first_tick(h.at, dt) == first_tick(h.end, dt) for t, kind in ((h.at, "hang"), (h.end, "resume"))}
         for t, robot, kind in (fl.events(faults) if faults else []):
             if (robot, t, kind) in skip:
                 continue
-            k = fl.first_tick(t, dt)
+            k = first_tick(t, dt)
             if kind == "kill":
                 todo.append((k if lockstep else t, then, robot, "kill"))
             elif kind == "restart":
@@ -64,8 +65,8 @@ class ProcessFaults:
     def _kill_tick(faults: fl.Faults, robot: int, restart_t: float, dt: float) -> int:
         for k in faults.kills:
             if k.robot == robot and k.restart is not None and abs(k.end - restart_t) < 1e-9:
-                return fl.first_tick(k.at, dt)
-        return fl.first_tick(restart_t, dt)
+                return first_tick(k.at, dt)
+        return first_tick(restart_t, dt)
 
     def __bool__(self) -> bool:
         return bool(self.todo)

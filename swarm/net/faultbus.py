@@ -1,6 +1,6 @@
 """The fault-injecting bus: a Bus that applies the run's faults to what its process receives (real time).
 
-    fbus = FaultBus(bus, table, me=3, dt=0.02, speed=2.0)    # table: swarm.core.faults.FaultTable
+    fbus = FaultBus(bus, table, me=3, dt=0.02, speed=2.0)    # table: swarm.core.faulttable.FaultTable
     agent = Agent(fbus, ...)                                  # everything else goes through unchanged
     fbus.dropped, fbus.delayed                                # counters by class (faultgen.CLS_* order)
     fbus.detach()                                             # its timer stops; the wrapped bus stays open
@@ -89,7 +89,7 @@ def intersects(a: str, b: str) -> bool:
 class FaultBus:
     """A Bus whose incoming messages go through the run's fault model (see the module's docstring).
 
-    table: swarm.core.faults.FaultTable of the run; me: this process's id on links (a robot's id, or
+    table: swarm.core.faulttable.FaultTable of the run; me: this process's id on links (a robot's id, or
     faultgen.WORLD for the world); dt: the control period [s]; speed: simulated seconds per wall second,
     a number or a function returning it (a robot learns it from the world's clock); clock: its
     monotonic() times the holds; timer: deliver held messages on a thread of its own when they fall due

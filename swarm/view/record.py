@@ -803,6 +803,7 @@ def record_simulation(path, scenario: Scenario, result, record_hz: float | None 
     timeline = []
     if scn.faults:
         from swarm.core import faults as schedule
+        from swarm.core.faulttable import first_tick
 
         timeline = schedule.timeline(scn.faults, scn.n)
         marks = FaultMarks(scn.n)
@@ -816,7 +817,7 @@ def record_simulation(path, scenario: Scenario, result, record_hz: float | None 
             if timeline and timeline[0][0] <= t + TIME_EPS:
                 while timeline and timeline[0][0] <= t + TIME_EPS:
                     te, name, robots, detail = timeline.pop(0)
-                    out.fault(te, schedule.first_tick(te, dt), name, robots, detail)
+                    out.fault(te, first_tick(te, dt), name, robots, detail)
                     marks.apply(te, name, robots)
                 all_alive = ~marks.killed
                 alive = all_alive.tolist()

@@ -14,6 +14,7 @@ from swarm.core import faults as fl
 from swarm.net.bus import MemoryBus, MemoryNet
 from swarm.proto import keys, protocol
 from swarm.view import record, report
+from swarm.core.faulttable import first_tick
 
 pytestmark = pytest.mark.unit
 
@@ -25,7 +26,7 @@ def _faults(path) -> list[tuple]:
 def test_a_live_lockstep_recording_has_the_worlds_fault_events_as_swarm_sim_writes_them(sim_faults_run,
                                                                                           live_faults_run):
     scn = sim_faults_run.scenario
-    want = [(t, fl.first_tick(t, scn.dt), event, robots, detail) for t, event, robots, detail in
+    want = [(t, first_tick(t, scn.dt), event, robots, detail) for t, event, robots, detail in
             fl.timeline(scn.faults, scn.n)]
     assert [e[2] for e in want] == ["hang", "kill", "partition", "resume", "partition_end"]
     assert _faults(live_faults_run.path) == want  # as the world told them on world/events

@@ -17,6 +17,7 @@ from swarm.net.bus import MemoryBus, MemoryNet
 from swarm.net.faultbus import FaultBus
 from swarm.proto import keys, protocol
 from swarm.proto.protocol import Cmd, Pose, Ref, State, Status
+from swarm.core.faulttable import FaultTable
 
 pytestmark = pytest.mark.unit
 
@@ -26,8 +27,8 @@ DT = 0.02
 ME = 3
 
 
-def table(doc: dict, seed: int = 11) -> F.FaultTable:
-    return F.FaultTable.of(F.parse_faults(doc, "test.toml", N, 60.0, seed), N, DT)
+def table(doc: dict, seed: int = 11) -> FaultTable:
+    return FaultTable.of(F.parse_faults(doc, "test.toml", N, 60.0, seed), N, DT)
 
 
 def state(j: int, seq: int, t: float | None = None) -> bytes:

@@ -20,11 +20,11 @@ from swarm.core.faults import (
     DelayRule,
     DropRule,
     Faults,
-    FaultTable,
     Hang,
     Kill,
     Partition,
 )
+from swarm.core.faulttable import FaultTable, first_tick
 from swarm.core.scenario import ScenarioError
 
 pytestmark = pytest.mark.unit
@@ -446,16 +446,16 @@ def test_a_tick_that_rounds_below_a_window_bound_is_in_it():
     table = FaultTable.of(f, 2, dt)
     assert table.decide(fg.CLS_STATE, 1, 0, k, t, table.new_chains()) == (True, 0)
     assert table.decide(fg.CLS_STATE, 1, 0, k - 1, (k - 1) * dt, table.new_chains()) == (False, 0)
-    assert F.first_tick(start, dt) == k and table.event_ticks[0].tolist() == [k, 0, F.KINDS.index("hang")]
+    assert first_tick(start, dt) == k and table.event_ticks[0].tolist() == [k, 0, F.KINDS.index("hang")]
 
 
 def test_first_tick():
-    assert [F.first_tick(t, 0.02) for t in (0.0, 0.01, 0.02, 0.021, 15.0)] == [0, 1, 1, 2, 750]
+    assert [first_tick(t, 0.02) for t in (0.0, 0.01, 0.02, 0.021, 15.0)] == [0, 1, 1, 2, 750]
     rng = np.random.default_rng(5)
     for _ in range(2000):
         dt = float(rng.choice([0.001, 0.01, 0.02, 0.1, 1 / 3]))
         t = float(rng.uniform(0, 100)) if rng.random() < 0.5 else round(float(rng.integers(0, 10000)) * dt, 6)
-        k = F.first_tick(t, dt)
+        k = first_tick(t, dt)
         assert k * dt >= t - fg.TIME_EPS and (k == 0 or (k - 1) * dt < t - fg.TIME_EPS)
 
 
