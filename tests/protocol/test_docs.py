@@ -306,7 +306,7 @@ def test_swarm_version_without_an_installed_distribution_is_pyproject_s(monkeypa
     import tomllib
     from importlib import metadata
 
-    from swarm.cli import parser
+    from swarm.cli import flags as parser
 
     project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
     assert project["name"] == parser.DISTRIBUTION and parser.PYPROJECT == ROOT / "pyproject.toml"
