@@ -144,6 +144,83 @@ def _run_all(tasks: list, jobs: int, results: dict, stop, show) -> bool:
         done.cancel_join_thread()
 
 
+# --------------------------------------------------------------------------- on a Dask cluster
+
+CLUSTER_INSTALL = "pip install 'swarm[cluster]'"
+CLUSTER_CONNECT_S = 30.0  # s to reach a cluster's scheduler
+CLUSTER_RETRIES = 2  # a run that fails on a worker (its process died) runs again this many times
+
+
+def _check_cluster(address: str) -> None:
+    """--cluster's address is tcp://HOST:PORT (or tls://...) or local:N, and Dask is installed (BadInput naming what
+    to do otherwise), before anything runs."""
+    if address.startswith("local:"):
+        n = address.removeprefix("local:")
+        if not n.isdigit() or not 1 <= int(n) <= 1024:
+            raise BadInput(f"--cluster {address}: local:N takes a number of worker processes, 1..1024")
+    elif "://" not in address or not address.split("://", 1)[1]:
+        raise BadInput(f"--cluster {address}: give the scheduler's address, tcp://HOST:PORT (what `dask scheduler` "
+                       "prints), or local:N")
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        raise BadInput(f"--cluster needs Dask's distributed scheduler: {CLUSTER_INSTALL}") from None
+
+
+def _run_on_cluster(tasks: list, address: str, results: dict, stop, show, quiet: bool) -> bool:
+    """Run every task on a Dask cluster (a scheduler's address, or local:N: a LocalCluster of N processes of one
+    thread each), filling results[index] = (metrics, why) as they come, show() after each and at least every
+    0.25 s. Each run is run_point, a pure function of its task: a worker that dies has its runs run again elsewhere
+    (Dask's own rescheduling, then CLUSTER_RETRIES), so the rows equal a local campaign's. Returns True when stopped
+    early (its runs on the cluster are cancelled)."""
+    import uuid
+
+    from distributed import Client, LocalCluster, wait
+
+    cluster = None
+    try:
+        if address.startswith("local:"):
+            cluster = LocalCluster(n_workers=int(address.removeprefix("local:")), threads_per_worker=1, processes=True,
+                                   dashboard_address=":0")
+            client = Client(cluster, timeout=CLUSTER_CONNECT_S)
+        else:
+            client = Client(address, timeout=CLUSTER_CONNECT_S)
+    except (OSError, TimeoutError) as e:
+        if cluster is not None:
+            cluster.close()
+        raise BadInput(f"--cluster {address}: no Dask scheduler answers there ({e}); start one with `dask "
+                       "scheduler` and workers with `dask worker ADDRESS`") from None
+    try:
+        workers = len(client.scheduler_info().get("workers", {}))
+        if not quiet:
+            print(f"swarm campaign: {len(tasks)} runs on the Dask cluster {client.scheduler.address} ({workers} "
+                  f"worker{'s' if workers != 1 else ''} now); its dashboard: {client.dashboard_link}", file=sys.stderr)
+        tag = uuid.uuid4().hex[:8]
+        pending = {client.submit(run_point, t, key=f"swarm-run-{tag}-{t[0]}", pure=False,
+                                 retries=CLUSTER_RETRIES): t[0] for t in tasks}
+        while pending:
+            if stop.is_set():
+                client.cancel(list(pending))
+                return True
+            try:
+                done, _ = wait(list(pending), timeout=0.25, return_when="FIRST_COMPLETED")
+            except TimeoutError:  # nothing finished within 0.25 s
+                done = set()
+            for fut in done:
+                index = pending.pop(fut)
+                try:
+                    i, m, why = fut.result()
+                    results[i] = (m, why)
+                except Exception as e:  # the run's own errors come back in `why`: this is the cluster's
+                    results[index] = (None, f"on the cluster: {type(e).__name__}: {e}")
+            show()
+        return False
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
 # --------------------------------------------------------------------------- the command
 
 
@@ -203,6 +280,7 @@ def cmd_campaign(args: argparse.Namespace, started: float) -> int:
         args.scenario = "paper-50hz"
     if args.drop is None:
         args.drop = (0.0,)
+    args.jobs_given = args.jobs is not None
     if args.jobs is None:
         args.jobs = os.cpu_count() or 1
     _check_out(args.out)
@@ -217,6 +295,10 @@ def cmd_campaign(args: argparse.Namespace, started: float) -> int:
     _warm_kernels(scns, args.quiet)
     scn = scns[0]
     jobs = max(1, min(args.jobs, len(points)))
+    if args.cluster is not None:
+        if args.jobs_given:
+            raise BadInput("-j with --cluster: the cluster's workers run the runs; give one or the other")
+        _check_cluster(args.cluster)
     results: dict[int, tuple[dict | None, str | None]] = {}
     status = console.StatusLine(enabled=not args.quiet, log_every=5.0)
     t0 = time.perf_counter()
@@ -232,7 +314,10 @@ def cmd_campaign(args: argparse.Namespace, started: float) -> int:
 
     tasks = [(pt.index, args.scenario, overrides(args, pt)) for pt in points]
     with StopEvent() as stop:
-        interrupted = _run_all(tasks, jobs, results, stop, show)
+        if args.cluster is not None:
+            interrupted = _run_on_cluster(tasks, args.cluster, results, stop, show, args.quiet)
+        else:
+            interrupted = _run_all(tasks, jobs, results, stop, show)
     status.close()
     code = _report(args, scn, points, results, interrupted)
     if args.up is None or code == EXIT_INTERRUPTED or not results:

@@ -61,6 +61,11 @@ def add_campaign_parser(sub) -> None:
                    help="the directory to write (made if missing; its files of a campaign are replaced); required "
                         "unless --from")
     g.add_argument("-j", "--jobs", type=count_arg, metavar="JOBS", help="worker processes (default: every core)")
+    g.add_argument("--cluster", metavar="ADDRESS",
+                   help="run the runs on a Dask cluster instead of local workers: tcp://HOST:PORT (a `dask scheduler` "
+                        "with `dask worker`s on any machines that have swarm installed) or local:N (N worker "
+                        "processes here); a lost worker's runs run again on another; needs pip install "
+                        "'swarm[cluster]' (docs/faults.md, Campaigns on a cluster)")
     g.add_argument("--quiet", action="store_true", help="no progress bar and no summary table")
     add_violation_flag(g)
     g = c.add_argument_group("the distributed runtime against the simulator (lock-step swarm up)")
