@@ -180,6 +180,9 @@ def _run_on_cluster(tasks: list, address: str, results: dict, stop, show, quiet:
     cluster = None
     try:
         if address.startswith("local:"):
+            import logging
+
+            logging.getLogger("distributed").setLevel(logging.ERROR)  # its processes' chatter as they start and end
             cluster = LocalCluster(n_workers=int(address.removeprefix("local:")), threads_per_worker=1, processes=True,
                                    dashboard_address=":0")
             client = Client(cluster, timeout=CLUSTER_CONNECT_S)
