@@ -147,7 +147,7 @@ def _run_all(tasks: list, jobs: int, results: dict, stop, show) -> bool:
 # --------------------------------------------------------------------------- on a Dask cluster
 
 CLUSTER_INSTALL = "pip install 'swarm[cluster]'"
-CLUSTER_CONNECT_S = 30.0  # s to reach a cluster's scheduler
+CLUSTER_CONNECT_S = 10.0  # s to reach a cluster's scheduler
 CLUSTER_RETRIES = 2  # a run that fails on a worker (its process died) runs again this many times
 
 
