@@ -77,24 +77,20 @@ class OdometryProbe:
         self.poll()
 
     def _on_route(self, key: str, up: bool) -> None:
-        route = ros2.parse_bridge_route(key)
-        if route is None:
-            return
-        with self.lock:
-            if up:
-                self.routes[key] = route
-            else:
-                self.routes.pop(key, None)
+        self._track(self.routes, ros2.parse_bridge_route(key), key, up)
 
     def _on_token(self, key: str, up: bool) -> None:
-        e = ros2.parse_liveliness(key)
-        if e is None:
+        self._track(self.seen, ros2.parse_liveliness(key), key, up)
+
+    def _track(self, table: dict, parsed: object, key: str, up: bool) -> None:
+        """Keep what a liveliness token says while it lives (nothing for a token that is not one of ours)."""
+        if parsed is None:
             return
         with self.lock:
             if up:
-                self.seen[key] = e
+                table[key] = parsed
             else:
-                self.seen.pop(key, None)
+                table.pop(key, None)
 
     def poll(self) -> None:
         """On the caller's thread: take what the tokens say, subscribe new odometry keys, ask whether
