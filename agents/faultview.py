@@ -206,7 +206,7 @@ class FaultView:
         return False, (x, y, th, v, w)
 
     def bodies(self, k: int, static: dict[int, tuple[float, float, float, float]], obstacles, robot_r: float,
-               robot_R: float, kind_robot: int, kind_obstacle: int):
+               robot_R: float, kind_robot: int, kind_obstacle: int, kind_dead: int):
         """The bodies its law is given at k, in summation order: known neighbours by id (not static), the
         obstacles (x, y, r, R, by index) within the cell side, the static bodies {id: (x, y, r, R)} (dead or
         stopped robots) by id. Lists nx, ny, nr, nR, nk, na; na: the age [s] of what it knows of each,
@@ -244,7 +244,7 @@ class FaultView:
                 ny.append(sy)
                 nr.append(sr)
                 nR.append(sR)
-                nk.append(kind_obstacle)
+                nk.append(kind_dead)
                 na.append(own)
         return nx, ny, nr, nR, nk, na
 

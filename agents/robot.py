@@ -52,7 +52,8 @@ from collections import deque
 from typing import TYPE_CHECKING, cast
 
 from swarm.proto import keys, protocol
-from swarm.core import fastlaw, kinematics, law, safety
+from agents.control import Controller
+from swarm.core import kinematics, law, safety
 from swarm.core import runid
 from swarm.core.clock import WALL, said_step
 from swarm.process import name_thread, settle_heap
@@ -124,14 +125,15 @@ class Agent:
 
     def __init__(self, bus, cfg: Config, fleet: str = "default", wait_timeout: float = WAIT_TIMEOUT_S,
                  clock=WALL, drive: Drive | None = None, guard=None, faults=None, counters=None, inline: bool = False,
-                 partitions=()):
+                 partitions=(), law_file: str | None = None):
         """inline (zenoh's bus, no faults): a lock-step tick runs on the bus thread whose message made it due
         (its pose, the last state it waited for), and a real-time step on the thread of its simulated drive's
         pose, instead of waking the loop thread for it (`kick`, a swarm.core.wake.Runner; only on a bus that
         calls another session's messages on threads of its own: zenoh's).
         Real time: counters, when given, is an object with `dropped` and `delayed` lists by class (a
         swarm.net.faultbus.FaultBus): reported to the world with every status; partitions, the run's
-        (swarm.core.faults.Partition): a neighbour cut off by one is never taken as away while it lasts."""
+        (swarm.core.faults.Partition): a neighbour cut off by one is never taken as away while it lasts. law_file: where
+        this machine keeps the file of the run's law, when not where the run's config says (swarm robot --law-file)."""
         self.bus, self.cfg, self.fleet = bus, cfg, fleet
         self.id = cfg.id
         self.clock = clock
@@ -146,12 +148,10 @@ class Agent:
         self._pose_key = drive.pose_key if drive is not None else "pose"  # where a bad pose is said to come from
         self.guard = guard
         self.periodic = drive is not None and drive.periodic  # its poses come once a control period
-        self.p = [0.0] * law.P_SIZE
-        self.p[law.P_K1], self.p[law.P_K2], self.p[law.P_K3] = cfg.k1, cfg.k2, cfg.k3
-        self.p[law.P_TU], self.p[law.P_VT], self.p[law.P_THRESHOLD] = cfg.tu, cfg.vt, float(cfg.threshold)
-        self.p[law.P_GOVERNOR] = 1.0 if cfg.governor else 0.0
-        self.p[law.P_DT], self.p[law.P_SENSE], self.p[law.P_REACH] = cfg.dt, cfg.sense, cfg.reach
-        self.p[law.P_V_MAX], self.p[law.P_W_MAX] = cfg.v_max, cfg.w_max
+        # the law: the paper's, or the user's the run names (agents.control); its parameters and memory
+        self.control = Controller(cfg, law_file)
+        self.p = self.control.p
+        self._law = self.control.command
         # lock-step under faults: the receiving side's fault layer decides what the law is given
         # (agents.faultview, the simulator's rules); the governor's horizon covers a held command
         self.view: FaultView | None = None
@@ -162,8 +162,7 @@ class Agent:
 
             self.view = FaultView(cfg.id, cfg.robots, cfg.dt, cfg.reach, cfg.sense, faults)
             self.p[law.P_DT] = horizon(faults, cfg.dt)
-        self.mem = [0.0] * law.M_SIZE
-        self.mem[law.M_SCALE] = 1.0
+        self.mem = self.control.fresh_memory()
         self.side = cfg.sense
         self._wait_reach = keys.lockstep_wait_reach(cfg.reach, cfg.sense)
         self._cmd_key, self._status_key = keys.robot_cmd(fleet, self.id), keys.robot_status(fleet, self.id)
@@ -1003,8 +1002,9 @@ class Agent:
                 self.waiting = {j for j in range(self.cfg.robots) if j != self.id and j not in dead and
                                 view.other_active(j, k) and not (j in self.table and self.table[j].seq == k)}
                 if view.event == "restart":
-                    self.mem = [0.0] * law.M_SIZE  # a fresh controller (the same object when the process
-                    self.mem[law.M_SCALE] = 1.0  # was not really killed: swarm world --process-faults played)
+                    # a fresh controller (the same object when the process was not really killed: swarm world
+                    # --process-faults played)
+                    self.mem = self.control.fresh_memory()
             self.deadline = self.clock.monotonic() + self.wait_timeout
             self._leader_ups_seen = self.leader_ups
             self.k_started = k
@@ -1018,7 +1018,7 @@ class Agent:
             key = self._state_keys[c] = keys.cell(self.fleet, c[0], c[1], self.id)
         # the fields in State's order, encoded without building one (protocol.encoder)
         s = self._enc_state(self.id, pose.t, seq, pose.x, pose.y, pose.theta, self._r, self._R,
-                            self.mem[law.M_FROZEN] != 0.0, self._rt_stop, self._rt_still)
+                            bool(self.mem[law.M_FROZEN]), self._rt_stop, self._rt_still)
         self.bus.put(key, s, loopback=False)  # its own state is of no use to this robot's cell inboxes
         if not self.cfg.lockstep:
             self._tell_cells_left(key, pose.t, s)
@@ -1234,7 +1234,7 @@ class Agent:
                 ny.append(nb.y)
                 nr.append(nb.r)
                 nR.append(nb.R)
-                nk.append(law.KIND_OBSTACLE)
+                nk.append(law.KIND_DEAD)
                 na.append(0.0)
         if self.rt_static and not self.cfg.lockstep:
             for sx, sy, sr, sR in self._listed_now().values():
@@ -1245,7 +1245,7 @@ class Agent:
                     ny.append(sy)
                     nr.append(sr)
                     nR.append(sR)
-                    nk.append(law.KIND_OBSTACLE)
+                    nk.append(law.KIND_DEAD)
                     na.append(0.0)
 
     def command(self, t: float, x: float, y: float, th: float, ref: tuple, seq: int) -> tuple[float, float]:
@@ -1254,7 +1254,7 @@ class Agent:
         is the period)."""
         nx, ny, nr, nR, nk, na, robots, stale = self.bodies(x, y, seq)
         xl, yl, thl, vl, wl = ref
-        v, w = fastlaw.robot_command(x, y, th, self.cfg.dx, self.cfg.dy, self.cfg.r, t, xl, yl, thl, vl, wl,
+        v, w = self._law(x, y, th, self.cfg.dx, self.cfg.dy, self.cfg.r, t, xl, yl, thl, vl, wl,
                                      nx, ny, nr, nR, nk, na, len(nx), self.mem, self.p)
         self.neighbours, self.stale = robots, stale
         self.stale_total += stale
@@ -1303,7 +1303,7 @@ class Agent:
         else:
             xl, yl, thl, vl, wl = ref
             self.p[law.P_DT] = dt
-            v, w = fastlaw.robot_command(x, y, th, self.cfg.dx, self.cfg.dy, self.cfg.r, t, xl, yl, thl, vl, wl,
+            v, w = self._law(x, y, th, self.cfg.dx, self.cfg.dy, self.cfg.r, t, xl, yl, thl, vl, wl,
                                          nx, ny, nr, nR, nk, na, len(nx), self.mem, self.p)
             self.commanded += 1
             if self.cfg.governor and v == v and w == w:  # a NaN goes on to be refused, never driven
@@ -1364,7 +1364,7 @@ class Agent:
             self._last_status_t = t
             xl, yl, thl = ref[0], ref[1], ref[2]
             st = Status(t=t, ex=xl + self.cfg.dx - pose.x, ey=yl + self.cfg.dy - pose.y,
-                        etheta=law.wrap_angle(thl - pose.theta), frozen=self.mem[law.M_FROZEN] != 0.0,
+                        etheta=law.wrap_angle(thl - pose.theta), frozen=bool(self.mem[law.M_FROZEN]),
                         neighbours=self.neighbours, stale=self.stale, bad=self.bad.count,
                         held=None if self.cfg.lockstep else self.held / max(1, self.commanded))
             self.bus.put(self._status_key, protocol.encode(st))
@@ -1378,7 +1378,7 @@ class Agent:
         with self._report_lock:  # the step's thread and the waker's: one seq each, in order
             d, y = self.counters.dropped, self.counters.delayed  # by class: state 0, pose 1, cmd 2, ref 3
             c = protocol.FaultStats(t, self.reports, d[0], d[1], d[3], y[0], y[1], y[3], round(self.max_age, 9),
-                                    frozen=self.mem[law.M_FROZEN] != 0.0)
+                                    frozen=bool(self.mem[law.M_FROZEN]))
             self.reports += 1
             self._reported_at = self.clock.monotonic()
             self.bus.put(self._faults_key, protocol.encode(c), reliable=True)
@@ -1447,7 +1447,7 @@ class Agent:
                 self._resubscribe()
                 self.bus.put(self._faults_key, protocol.encode(protocol.FaultStats(
                     done * self.cfg.dt, done, *self.view.counters(),
-                    frozen=self.mem[law.M_FROZEN] != 0.0)), reliable=True)
+                    frozen=bool(self.mem[law.M_FROZEN]))), reliable=True)
         with self.lock:
             pose = self.pose
         if pose is None or pose.seq <= self.k_done:
@@ -1506,7 +1506,7 @@ class Agent:
                 return True  # dead or hung at k: no state, no command (the world knows the schedule)
             c = self.view.counters()
             self.bus.put(self._faults_key, protocol.encode(protocol.FaultStats(
-                pose.t, k, *c, frozen=self.mem[law.M_FROZEN] != 0.0)), reliable=True)
+                pose.t, k, *c, frozen=bool(self.mem[law.M_FROZEN]))), reliable=True)
         self._publish(pose.t, k, v, w, r, pose)
         return True
 
@@ -1527,9 +1527,9 @@ class Agent:
         else:
             static = self.static_by_seq.get(k, {})
             nx, ny, nr, nR, nk, na = view.bodies(k, static, self.obstacles, self.cfg.r, self.cfg.R, law.KIND_ROBOT,
-                                                 law.KIND_OBSTACLE)
+                                                 law.KIND_OBSTACLE, law.KIND_DEAD)
             xl, yl, thl, vl, wl = r
-            v, w = fastlaw.robot_command(b.x, b.y, b.theta, self.cfg.dx, self.cfg.dy, self.cfg.r, k * self.cfg.dt, xl, yl,
+            v, w = self._law(b.x, b.y, b.theta, self.cfg.dx, self.cfg.dy, self.cfg.r, k * self.cfg.dt, xl, yl,
                                          thl, vl, wl, nx, ny, nr, nR, nk, na, len(nx), self.mem, self.p)
             self.neighbours = sum(1 for kind in nk if kind == law.KIND_ROBOT)
         view.commanded(k, v, w)
@@ -1680,7 +1680,7 @@ def within_limits(cfg: Config, limits: tuple[float, float] | None) -> Config:
 def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading.Event | None = None,
               scenario=None, start_timeout: float = 60.0, wait_timeout: float = WAIT_TIMEOUT_S,
               once: bool = False, make_drive=None, ref_timeout: float = REF_TIMEOUT_S,
-              pose_timeout: float = WATCHDOG_S, mode: str | None = None) -> list[Agent]:
+              pose_timeout: float = WATCHDOG_S, mode: str | None = None, law_file: str | None = None) -> list[Agent]:
     """Serve runs as robot `robot_id` on `bus` until `stop` is set: for every run the world announces,
     a fresh agent (tick state, windows, controller) with this robot's slice of the run's scenario:
     from `scenario` (this process's own; a run of another scenario is refused: RunRefused) or from
@@ -1690,7 +1690,8 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
     the simulated world's keys; now() is the swarm's clock) and a guard (agents.guard) halts it when
     its pose is older than pose_timeout, the reference is extrapolated longer than ref_timeout, the
     leader is lost or the emergency stop is engaged. mode ("lockstep" or "realtime", swarm robot --mode): a
-    run of the other mode is refused (RunRefused); None takes the world's."""
+    run of the other mode is refused (RunRefused); None takes the world's. law_file: this machine's copy of the
+    run's law, when not where the run's config says (agents.control)."""
     stop = stop or threading.Event()
     current: list[Agent] = []
 
@@ -1739,14 +1740,14 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
             agent = Agent(rbus, cfg, fleet, wait_timeout=wait_timeout, clock=clock, drive=drive, guard=guard,
                           faults=faults if cfg.lockstep else None, counters=fbus,
                           inline=getattr(rbus, "threaded_callbacks", False),
-                          partitions=() if cfg.lockstep or not faults else faults.partitions)
+                          partitions=() if cfg.lockstep or not faults else faults.partitions, law_file=law_file)
             box.append(agent)
             current[:] = [agent]
             if runs.latest is not None and runs.latest.run != run.run:
                 agent.end()  # another run began while this one was being set up
             log.info("robot %d: run %s (%s, %d robots; law %s, wire codec %s)", robot_id, run.run,
-                     "lock-step" if run.lockstep else "real time", run.robots,
-                     "compiled" if fastlaw.COMPILED else "Python", "compiled" if protocol._wire is not None else "Python")
+                     "lock-step" if run.lockstep else "real time", run.robots, agent.control.label,
+                     "compiled" if protocol._wire is not None else "Python")
             try:
                 agent.start(obstacles)
                 settle_heap()

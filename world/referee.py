@@ -76,6 +76,7 @@ class Referee:
         self.samples += 1
         inside = set()
         frozen = np.zeros(self.n, bool)
+        freezes = self.scn.control.law is None  # a user's law never freezes (docs/control.md)
         for a in range(0, self.n, _BLOCK):
             b = min(self.n, a + _BLOCK)
             dx = x[a:b, None] - x[None, :]
@@ -92,7 +93,7 @@ class Referee:
             # frozen: inside R_j of another live robot j (the law's freeze rule)
             near = (dx * dx + dy * dy < (self.R * self.R)[None, :]) & live[None, :]
             near[rows - a, rows] = False
-            frozen[a:b] = near.any(axis=1) & live[a:b]
+            frozen[a:b] = near.any(axis=1) & live[a:b] & freezes
         if len(self.obstacles) and self.n:
             ox, oy, orr = self.obstacles[:, 0], self.obstacles[:, 1], self.obstacles[:, 2]
             for a in range(0, self.n, _BLOCK):

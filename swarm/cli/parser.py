@@ -112,6 +112,9 @@ def build_parser() -> argparse.ArgumentParser:
     out.add_argument("--quiet", action="store_true", help="no progress bar and no summary table")
     add_violation_flag(out)
     add_record_flags(out)
+    sim.add_argument("--python-law", action="store_true",
+                     help="run a law of your own (control.law) as plain Python instead of compiling it with numba: "
+                          "for a law numba cannot compile; far slower, and says how much")
     add_viz_flags(sim, "--viz")
     sim.set_defaults(func="swarm.cli.sim:cmd_sim")
 

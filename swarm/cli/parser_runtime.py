@@ -97,6 +97,9 @@ def add_runtime_parsers(sub) -> None:
                        help="the robot's id (0-based), or auto: the lowest free one, claimed from the world; "
                             "required, but with --secure FOLDER it defaults to the id of the folder's certificate")
     add_optional_scenario_flags(robot, "the world's configuration is used")
+    robot.add_argument("--law-file", metavar="FILE.py",
+                       help="this machine's copy of the run's control law (control.law = \"FILE.py:NAME\"), when "
+                            "it is not at the path the run names; its sha256 must be the run's (docs/control.md)")
     add_run_flags(robot)
     add_net_flags(robot)
     g = robot.add_argument_group("drive (where the agent meets its robot; real time)")

@@ -21,6 +21,7 @@ def cmd_robot(args, started: float) -> int:
 
         return cmd_robot_fleet(args, started)
     from agents import robot
+    from agents.control import LawFailure
     from agents.follow import NoAnswer, RunRefused
 
     die_with_parent()
@@ -49,7 +50,9 @@ def cmd_robot(args, started: float) -> int:
         try:
             agents = robot.run_robot(bus, WALL, args.id, fleet, stop, scenario=scn, start_timeout=args.start_timeout,
                                      make_drive=None if make_drive is None else make_drive(bus),
-                                     ref_timeout=args.ref_timeout, mode=args.mode)
+                                     ref_timeout=args.ref_timeout, mode=args.mode, law_file=args.law_file)
+        except LawFailure as e:
+            raise Failure(str(e)) from None
         except NoAnswer as e:
             if stop.is_set():
                 return EXIT_INTERRUPTED

@@ -19,7 +19,7 @@ if TYPE_CHECKING:
 
 def cmd_sim(args: argparse.Namespace, started: float) -> int:
     from swarm.core import scenario_file
-    from swarm.core.sim import Simulation
+    from swarm.core.sim import SimulationError
 
     scn = scenario_file.load(args.scenario, overrides(args), progress=scenario_file.silent if args.quiet else None)
     for note in scenario_file.advisories(scn):
@@ -41,12 +41,7 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
     status = console.StatusLine(enabled=not args.quiet, log_every=2.0)  # a line every 2 s in a log, as swarm up
     if not args.quiet and not _kernel_cached():
         print("compiling the simulation kernel (first run after install only, ~5-10 s)...", file=sys.stderr)
-    if args.record is not None:
-        from swarm.view import record
-
-        sim = Simulation(scn, record_period=record.record_period(args.record_hz, scn.dt))
-    else:
-        sim = Simulation(scn)
+    sim = _simulation(args, scn)
 
     def show(p) -> None:
         dist = "-" if p.min_distance is None else f"{p.min_distance:.3f} m"
@@ -57,9 +52,42 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
     if viz is not None:
         return _sim_in_viewer(args, viz, scn, sim, show, status, started)
     with StopEvent() as stop:
-        result = sim.run(progress=show, should_stop=stop.is_set, started=started)
+        t0 = time.perf_counter()
+        try:
+            result = sim.run(progress=show, should_stop=stop.is_set, started=started)
+        except SimulationError as e:
+            status.close()
+            raise Failure(str(e)) from None
     status.close()
+    if args.python_law and scn.control.law is not None and not args.quiet:
+        rate = sim.progress().t / max(time.perf_counter() - t0, 1e-9)
+        print(f"swarm sim: the law ran as plain Python (--python-law): {rate:.3g} simulated s per wall s; compiled "
+              "by numba a law runs 100-1000 times faster", file=sys.stderr)
     return _sim_report(args, scn, result)
+
+
+def _simulation(args: argparse.Namespace, scn):
+    """The Simulation of `swarm sim`: samples as --record asks, a user's law compiled (or --python-law)."""
+    from swarm.core.sim import Simulation
+    from swarm.core.userlaw import LawError
+
+    period = None
+    if args.record is not None:
+        from swarm.view import record
+
+        period = record.record_period(args.record_hz, scn.dt)
+    if scn.control.law is None and args.python_law:
+        raise BadInput("--python-law: the scenario runs the paper's law (control.law = \"paper\"); the flag is for "
+                       "a law of your own")
+    if scn.control.law is not None and not args.quiet:
+        how = "as plain Python" if args.python_law else "compiled by numba (cached after the first run)"
+        print(f"law: {scn.control.law.text} (sha256 {scn.control.law.sha256[:16]}...), {how}", file=sys.stderr)
+    try:
+        if period is None:
+            return Simulation(scn, python_law=args.python_law)
+        return Simulation(scn, record_period=period, python_law=args.python_law)
+    except LawError as e:
+        raise BadInput(str(e)) from None
 
 
 def _sim_report(args: argparse.Namespace, scn, result) -> int:

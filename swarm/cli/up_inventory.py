@@ -67,6 +67,7 @@ def cmd_robot_fleet(args, started: float) -> int:
     """`swarm robot --inventory F --id I` (the drive from row I) or `swarm robot --id auto` (an id claimed
     from the world)."""
     from agents import robot
+    from agents.control import LawFailure
     from agents.follow import NoAnswer, RunRefused
     from world import claims
 
@@ -131,7 +132,9 @@ def cmd_robot_fleet(args, started: float) -> int:
                     raise BadInput(f"the world gave id {rid}, but this robot's scenario has {scn.n} robots")
             agents = robot.run_robot(bus, WALL, rid, fleet, stop, scenario=scn, start_timeout=args.start_timeout,
                                      make_drive=None if factory is None else factory(bus), ref_timeout=args.ref_timeout,
-                                     mode=args.mode)
+                                     mode=args.mode, law_file=getattr(args, "law_file", None))
+        except LawFailure as e:
+            raise Failure(str(e)) from None
         except (NoAnswer, claims.NoClaimAnswer) as e:
             if stop.is_set():
                 return EXIT_INTERRUPTED

@@ -54,7 +54,8 @@ law = jit.compiled("swarm.core.law")
 kin = jit.compiled("swarm.core.kinematics")
 fg = jit.compiled("swarm.core.faultgen")
 
-_robot_command = law.robot_command
+# the command: the paper's law, or a user's law (swarm.core.userlaw compiles this module again with it)
+_robot_command = globals().get("__swarm_command__", law.robot_command)
 _wrap = law.wrap_angle
 _step_pose = kin.step_pose
 _arc = kin.arc_displacement
@@ -63,6 +64,7 @@ _decide = fg.decide
 
 KIND_ROBOT = law.KIND_ROBOT
 KIND_OBSTACLE = law.KIND_OBSTACLE
+KIND_DEAD = law.KIND_DEAD
 M_FROZEN, M_SCALE, M_SIZE = law.M_FROZEN, law.M_SCALE, law.M_SIZE
 P_DT, P_SENSE, P_REACH = law.P_DT, law.P_SENSE, law.P_REACH
 CLS_STATE, CLS_POSE, CLS_CMD, CLS_REF = fg.CLS_STATE, fg.CLS_POSE, fg.CLS_CMD, fg.CLS_REF
@@ -170,7 +172,7 @@ def run_fault_steps(k0: int, k1: int, n_steps: int, dt: float, q: _Floats, comp:
                 listen[i] = 1
                 for d in range(1, h):  # nor takes what was sent to the old one (it died with it)
                     proch[(k - d) % h, i] = DEAD
-                for a in range(M_SIZE):
+                for a in range(mem.shape[1]):  # the paper's M_SIZE, and a user law's memory after it
                     mem[i, a] = 0.0
                 mem[i, M_SCALE] = 1.0
                 for j in range(n):
@@ -341,7 +343,7 @@ def run_fault_steps(k0: int, k1: int, n_steps: int, dt: float, q: _Floats, comp:
                         ny[cnt] = q[j, 1]
                         nr[cnt] = radius[j, 0]
                         nR[cnt] = radius[j, 1]
-                        nk[cnt] = KIND_OBSTACLE
+                        nk[cnt] = KIND_DEAD
                         na[cnt] = own
                         cnt += 1
                 v, w = _robot_command(x, y, th, offsets[i, 0], offsets[i, 1], radius[i, 0], t, rxl, ryl, rthl,

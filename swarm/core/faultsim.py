@@ -44,8 +44,9 @@ def horizon(faults: fl.Faults, dt: float, brake_s: float = BRAKE_S) -> float:
 
 
 class FaultState:
-    def __init__(self, scn: Scenario, watchdog_s: float = WATCHDOG_S) -> None:
-        from swarm.core import faultkernel as fk
+    def __init__(self, scn: Scenario, watchdog_s: float = WATCHDOG_S, fk: Any = None) -> None:
+        if fk is None:  # the paper's law (a user's law comes with its own: swarm.core.userlaw.Law.kernels)
+            from swarm.core import faultkernel as fk
 
         self.fk = fk
         f = cast(fl.Faults, scn.faults)  # a FaultState is made for a scenario with faults only

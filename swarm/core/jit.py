@@ -35,7 +35,7 @@ class Jit(Protocol):
 
 # Every module whose source ends up inside a compiled kernel.
 KERNEL_SOURCES = ("swarm.core.law", "swarm.core.kinematics", "swarm.core.grid", "swarm.core.kernel", "swarm.core.metrics",
-                  "swarm.core.faultgen", "swarm.core.faultkernel")
+                  "swarm.core.faultgen", "swarm.core.faultkernel", "swarm.core.lawplug")
 
 
 def _source_path(name: str) -> Path:
@@ -75,17 +75,23 @@ def _setup_numba() -> None:
     _numba_ready = True
 
 
+_caching = True  # off while compiling what must not be cached (a kernel calling Python: swarm.core.userlaw)
+
+
 def njit(fn: _F) -> _F:
     """numba.njit with the on-disk cache (the kernel's own decorator)."""
     _setup_numba()
     import numba
 
-    return cast(_F, numba.njit(cache=True, error_model="numpy")(fn))
+    return cast(_F, numba.njit(cache=_caching, error_model="numpy")(fn))
 
 
-def compiled(name: str) -> ModuleType:
-    """Return the compiled twin of scalar-style module `name` (e.g. "swarm.core.law")."""
-    jit_name = name + "_jit"
+def compiled(name: str, suffix: str = "_jit", bind: dict[str, Any] | None = None) -> ModuleType:
+    """Return the compiled twin of scalar-style module `name` (e.g. "swarm.core.law").
+
+    suffix and bind make another twin: module `name + suffix`, its globals `bind` set before its source runs
+    (swarm.core.userlaw binds a user's law this way; its caller picks numba's cache directory)."""
+    jit_name = name + suffix
     mod = sys.modules.get(jit_name)
     if mod is not None:
         return mod
@@ -94,6 +100,7 @@ def compiled(name: str) -> ModuleType:
     assert spec is not None and spec.loader is not None
     mod = importlib.util.module_from_spec(spec)
     mod.__dict__["__swarm_jit__"] = njit
+    mod.__dict__.update(bind or {})
     # numba's cache re-imports a function's module by name when it loads compiled code.
     sys.modules[jit_name] = mod
     try:

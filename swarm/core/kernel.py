@@ -35,7 +35,8 @@ law = jit.compiled("swarm.core.law")
 kin = jit.compiled("swarm.core.kinematics")
 grid = jit.compiled("swarm.core.grid")
 
-_robot_command = law.robot_command
+# the command: the paper's law, or a user's law (swarm.core.userlaw compiles this module again with it)
+_robot_command = globals().get("__swarm_command__", law.robot_command)
 _wrap = law.wrap_angle
 _step_pose = kin.step_pose
 _leader_state = kin.leader_state

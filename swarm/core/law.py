@@ -82,9 +82,11 @@ M_ETH = 7
 M_SCALE = 8  # governor scale applied to (v, w), 1.0 when it did not act
 M_SIZE = 9
 
-# Neighbour kinds in the `nk` array.
+# Neighbour kinds in the `nk` array. A dead (or stopped) robot is a static body: the paper's law takes it as an
+# obstacle (every test of a kind here is `== KIND_ROBOT`); a user's law (swarm.core.lawplug) is told which it is.
 KIND_OBSTACLE = 0
 KIND_ROBOT = 1
+KIND_DEAD = 2
 
 
 @_jit
@@ -285,6 +287,36 @@ def governor_speed_limit(x: float, y: float, r_self: float, nx: _Floats, ny: _Fl
 
 
 @_jit
+def bound_command(v: float, w: float, x: float, y: float, th: float, r_self: float, nx: _Floats, ny: _Floats,
+                  nr: _Floats, nk: _Kinds, na: _Floats, n: int, p: _Floats) -> tuple[float, float, float]:
+    """The filters every law's output goes through, after its threshold: the speed bound (control.v_max and
+    w_max, or the physical bounds), then, when p[P_GOVERNOR] is on, the safety governor over the known bodies
+    (governor_speed_limit). Returns (v, w, the governor's scale: 1.0 when it did not act)."""
+    bound = speed_bound_scale(v, w, p[P_V_MAX], p[P_W_MAX])
+    if bound < 1.0:  # the speed bound: after the threshold, before the governor
+        v *= bound
+        w *= bound
+        # b / |x| * x can land one rounding above b: clip, or a receiver checking the bound refuses it;
+        vb = p[P_V_MAX] if p[P_V_MAX] > 0.0 else MAX_SPEED
+        wb = p[P_W_MAX] if p[P_W_MAX] > 0.0 else MAX_TURN
+        v = clip(v, vb)
+        w = clip(w, wb)
+    scale = 1.0
+    if p[P_GOVERNOR] != 0.0:
+        sv = 1.0 if v >= 0.0 else -1.0
+        limit, blocked = governor_speed_limit(x, y, r_self, nx, ny, nr, nk, na, n, p[P_DT], p[P_REACH],
+                                              p[P_SENSE], p[P_OBSTACLE_R], p[P_V_MAX], sv * math.cos(th),
+                                              sv * math.sin(th))
+        if abs(v) > limit:
+            scale = limit / abs(v)
+            v *= scale
+            w *= scale
+        if blocked != 0.0:
+            v = 0.0  # only motion away from a stale body with no clearance left: turn in place
+    return v, w, scale
+
+
+@_jit
 def robot_command(x: float, y: float, th: float, ox: float, oy: float, r_self: float, t: float, xl: float, yl: float,
                   thl: float, vl: float, wl: float, nx: _Floats, ny: _Floats, nr: _Floats, nR: _Floats, nk: _Kinds,
                   na: _Floats, n: int, mem: _Memory, p: _Floats) -> tuple[float, float]:
@@ -324,27 +356,7 @@ def robot_command(x: float, y: float, th: float, ox: float, oy: float, r_self: f
             x, y, th, xl + ox, yl + oy, thl, vl, wl, gx, gy, p[P_K1], p[P_K2], p[P_K3]
         )
     v = apply_threshold(v, p[P_VT], int(p[P_THRESHOLD]), frozen)
-    bound = speed_bound_scale(v, w, p[P_V_MAX], p[P_W_MAX])
-    if bound < 1.0:  # the speed bound: after the threshold, before the governor
-        v *= bound
-        w *= bound
-        # b / |x| * x can land one rounding above b: clip, or a receiver checking the bound refuses it;
-        vb = p[P_V_MAX] if p[P_V_MAX] > 0.0 else MAX_SPEED
-        wb = p[P_W_MAX] if p[P_W_MAX] > 0.0 else MAX_TURN
-        v = clip(v, vb)
-        w = clip(w, wb)
-    scale = 1.0
-    if p[P_GOVERNOR] != 0.0:
-        sv = 1.0 if v >= 0.0 else -1.0
-        limit, blocked = governor_speed_limit(x, y, r_self, nx, ny, nr, nk, na, n, p[P_DT], p[P_REACH],
-                                              p[P_SENSE], p[P_OBSTACLE_R], p[P_V_MAX], sv * math.cos(th),
-                                              sv * math.sin(th))
-        if abs(v) > limit:
-            scale = limit / abs(v)
-            v *= scale
-            w *= scale
-        if blocked != 0.0:
-            v = 0.0  # only motion away from a stale body with no clearance left: turn in place
+    v, w, scale = bound_command(v, w, x, y, th, r_self, nx, ny, nr, nk, na, n, p)
     mem[M_EX] = ex
     mem[M_EY] = ey
     mem[M_ETH] = eth

@@ -20,6 +20,7 @@ from swarm.core.errors import ScenarioError as ScenarioError  # noqa: F401  (re-
 from swarm.core.faults import Faults
 
 if TYPE_CHECKING:
+    from swarm.core.userlaw import LawSpec
     from swarm.proto.protocol import Config
 
 THRESHOLDS = {"off": law.THRESHOLD_OFF, "frozen": law.THRESHOLD_FROZEN, "always": law.THRESHOLD_ALWAYS}
@@ -47,6 +48,7 @@ class Control:
     governor: bool = False
     v_max: float | None = None  # m/s
     w_max: float | None = None  # rad/s
+    law: LawSpec | None = None  # [control] law: a user's (swarm.core.userlaw), or None: the paper's
 
     def __post_init__(self) -> None:
         for name in ("k1", "k2", "k3", "tu"):
@@ -72,7 +74,14 @@ class Control:
         p[law.P_DT], p[law.P_SENSE], p[law.P_REACH], p[law.P_OBSTACLE_R] = dt, sense, reach, obstacle_r
         p[law.P_V_MAX] = 0.0 if self.v_max is None else self.v_max
         p[law.P_W_MAX] = 0.0 if self.w_max is None else self.w_max
+        if self.law is not None:  # a user's law: its params after the paper's (swarm.core.lawplug)
+            p = np.concatenate((p, np.array(self.law.params, float)))
         return p
+
+    @property
+    def mem_size(self) -> int:
+        """Floats of memory per robot: the paper's layout (law.M_*), then a user law's own."""
+        return law.M_SIZE + (self.law.memory if self.law is not None else 0)
 
 
 @dataclass(frozen=True)
@@ -165,7 +174,10 @@ class Scenario:
                       threshold=THRESHOLDS[c.threshold], governor=c.governor, dt=float(self.dt),
                       sense=float(self.cell_side), reach=self.reach, lockstep=lockstep,
                       v_max=0.0 if c.v_max is None else c.v_max, w_max=0.0 if c.w_max is None else c.w_max,
-                      v_bound=self.speed_bound)
+                      v_bound=self.speed_bound, law=None if c.law is None else c.law.ref,
+                      law_sha256=None if c.law is None else c.law.sha256,
+                      law_params=None if c.law is None else c.law.params,
+                      law_memory=None if c.law is None else c.law.memory)
 
     def replace(self, **changes: Any) -> "Scenario":
         from dataclasses import replace

@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any, Callable, TextIO, cast
 
 import numpy as np
 
-from swarm.core import generators, kinematics, law
+from swarm.core import generators, kinematics, law, userlaw
 from swarm.core.toml_reader import Reader, join, kind, show
 from swarm.core.errors import not_utf8
 from swarm.core.builtins import BUILTINS as BUILTINS, MAX_ROBOTS as MAX_ROBOTS, builtin_document
@@ -185,7 +185,7 @@ def parse(doc: dict[str, Any], where: str, name: str, builtin: str | None = None
     seed = rd.integer(run.get("seed", 0), "run.seed")
 
     ctl = rd.table(doc.get("control", {}), "control",
-                   ("k1", "k2", "k3", "tu", "vt", "threshold", "governor", "v_max", "w_max"))
+                   ("k1", "k2", "k3", "tu", "vt", "threshold", "governor", "v_max", "w_max", "law", "params", "memory"))
     defaults = Control()
     control = Control(
         k1=rd.number(ctl.get("k1", defaults.k1), "control.k1", gt=0),
@@ -197,6 +197,7 @@ def parse(doc: dict[str, Any], where: str, name: str, builtin: str | None = None
         governor=rd.boolean(ctl.get("governor", defaults.governor), "control.governor"),
         v_max=rd.number(ctl["v_max"], "control.v_max", gt=0, bound=MAX_SPEED, why=WIRE) if "v_max" in ctl else None,
         w_max=rd.number(ctl["w_max"], "control.w_max", gt=0, bound=MAX_TURN, why=WIRE) if "w_max" in ctl else None,
+        law=userlaw.parse_control(rd, ctl, None if builtin else Path(where).resolve().parent),
     )
 
     bodies = rd.table(doc.get("bodies", {}), "bodies", ("r", "R"))
@@ -496,6 +497,8 @@ def _obstacles_within(scn: Scenario, limit: np.ndarray, counter: Counter | None)
 def _check_first_commands(scn: Scenario, where: str, progress: Progress, counter: Counter | None) -> None:
     """Refuse a scenario whose law is already non-finite at t = 0 (gains so large that k1 times the
     distance to the slot overflows, say): the simulator would stop at its first step."""
+    if scn.control.law is not None:
+        return  # a user's law: `swarm scenario check` test-calls it (swarm.core.userlaw.check)
     cmd = first_commands(scn, progress, counter)
     bad = np.flatnonzero(~np.isfinite(cmd).all(axis=1))
     if bad.size:
@@ -749,6 +752,11 @@ def scaled(scn: Scenario, v_max: float, w_max: float | None = None) -> tuple[Sce
     return dataclasses.replace(scn, duration=scn.duration / k, leader=leader, control=control), k
 
 
+def _quote(text: str) -> str:
+    """A TOML basic string."""
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
 def to_toml(scn: Scenario) -> str:
     """The resolved scenario as a TOML file with explicit lists (loads back to the same numbers)."""
 
@@ -765,6 +773,8 @@ def to_toml(scn: Scenario) -> str:
         "[control]", f"k1 = {num(c.k1)}", f"k2 = {num(c.k2)}", f"k3 = {num(c.k3)}", f"tu = {num(c.tu)}",
         f"vt = {num(c.vt)}", f'threshold = "{c.threshold}"', f"governor = {'true' if c.governor else 'false'}", "",
         *(f"{k} = {num(v)}" for k, v in (("v_max", c.v_max), ("w_max", c.w_max)) if v is not None),
+        *([] if c.law is None else [f"law = {_quote(c.law.ref)}  # sha256 {c.law.sha256}",
+                                    f"params = {vec(c.law.params)}", f"memory = {c.law.memory}", ""]),
         "[bodies]", f"r = {num(scn.r)}", f"R = {num(scn.R)}", "",
         *(["[arena]", f"bounds = {vec(scn.bounds)}", ""] if scn.bounds is not None else []),
         "[leader]", f"start = {vec(scn.leader.start)}", "segments = [",

@@ -64,8 +64,24 @@ class SimulationError(SwarmError, RuntimeError):
 class Simulation:
     """All robots of one scenario, stepped by the compiled kernel."""
 
-    def __init__(self, scn: Scenario, record_period: float = RECORD_PERIOD_S):
-        from swarm.core import kernel  # compiles (or loads from cache) on first use
+    def __init__(self, scn: Scenario, record_period: float = RECORD_PERIOD_S, python_law: bool = False):
+        """python_law: a user's law (control.law) runs as plain Python, and so does the whole loop around it
+        (swarm sim --python-law: for a law numba cannot compile; far slower)."""
+        self.law = None
+        faultkernel = None
+        if scn.control.law is not None:
+            from swarm.core import userlaw
+
+            self.law = userlaw.load(scn.control.law)
+            if python_law:
+                kernel, faultkernel = self.law.python_kernels()
+            else:
+                problems = userlaw.check(self.law, samples=1)  # compiles it, or says what numba refused
+                if problems:
+                    raise userlaw.LawError(problems[0])
+                kernel, faultkernel = self.law.kernels()
+        else:
+            from swarm.core import kernel  # compiles (or loads from cache) on first use
 
         self.k = kernel
         self.scn = scn
@@ -75,7 +91,7 @@ class Simulation:
         self.sense = float(self.p[law.P_SENSE])
         self.q = np.array(scn.poses, float)
         self.comp = np.zeros((n, 3))
-        self.mem = np.zeros((n, law.M_SIZE))
+        self.mem = np.zeros((n, scn.control.mem_size))
         self.mem[:, law.M_SCALE] = 1.0
         self.cmd = np.zeros((n, 2))
         self.offsets = np.ascontiguousarray(scn.offsets, float)
@@ -111,7 +127,7 @@ class Simulation:
 
             from swarm.core.faultsim import horizon
 
-            self.faults = FaultState(scn)
+            self.faults = FaultState(scn, fk=faultkernel)
             self.p[law.P_DT] = horizon(scn.faults, scn.dt)  # the governor's; the step stays scn.dt
 
     @property
@@ -123,6 +139,27 @@ class Simulation:
         k_end = min(k_end, self.n_steps + 1)
         if k_end <= self.next_k:
             return
+        if self.law is None:
+            self._advance(k_end)
+            return
+        try:
+            self._advance(k_end)
+        except Exception as e:  # raised in the user's law: name it, the robot and the step
+            raise SimulationError(self._law_failure(f"raised {type(e).__name__}: {e}")) from None
+
+    def _law_failure(self, what: str) -> str:
+        """What a user's law did wrong, with the robot and step lawplug marks while it runs."""
+        assert self.law is not None
+        busy = np.flatnonzero(self.mem[:, law.M_SNAP_X] == 1.0)
+        if busy.size:
+            i = int(busy[0])
+            t = float(self.mem[i, law.M_T_SNAP])
+            where = f" for robot {i} at step {int(round(t / self.scn.dt))} (t = {t:g} s)"
+        else:
+            where = ""
+        return f"the law {self.law.label!r} {what}{where}"
+
+    def _advance(self, k_end: int) -> None:
         r = self.rec
         if self.faults is not None:
             f = self.faults
@@ -143,6 +180,10 @@ class Simulation:
 
     def _check_finite(self) -> None:
         bad = int(self.iacc[self.k.I_NONFINITE])
+        if bad and self.law is not None:  # its law's command (the state of a bounded one stays finite)
+            t = max(self.next_k - 1, 0) * self.scn.dt
+            raise SimulationError(f"the law {self.law.label!r} gave robot {bad - 1} a non-finite command: its state "
+                                  f"was not finite at t = {t:g} s (step {max(self.next_k - 1, 0)})")
         if bad:
             raise SimulationError(f"robot {bad - 1} reached a non-finite state at t = {(self.next_k - 1) * self.scn.dt:g} s")
 

@@ -217,6 +217,11 @@ class Config:
     ymin: float = 0.0
     ymax: float = 0.0
     v_bound: float = 1.0  # real time: the speed bound [m/s] every robot keeps to and assumes of every other
+    # a law of the user's own (docs/control.md), all four or none (None: the paper's law)
+    law: str | None = None  # where it is: "/abs/path/file.py:NAME" or "package.module:NAME"
+    law_sha256: str | None = None  # of its file: the robot checks its own copy against it
+    law_params: tuple[float, ...] | None = None  # [control] params
+    law_memory: int | None = None  # [control] memory: floats of memory per robot
 
 
 @dataclass(frozen=True)
@@ -519,7 +524,8 @@ _SPEC: dict[str, tuple[tuple[str, str], ...]] = {
                ("R", "n"), ("k1", "n"), ("k2", "n"), ("k3", "n"), ("tu", "n"), ("vt", "n"), ("threshold", "i"),
                ("governor", "b"), ("dt", "n"), ("sense", "n"), ("reach", "n"), ("lockstep", "b"), ("robots", "i"),
                ("v_max", "n"), ("w_max", "n"), ("run", "s"), ("digest", "s"), ("arena", "b"), ("xmin", "n"),
-               ("xmax", "n"), ("ymin", "n"), ("ymax", "n"), ("v_bound", "n")),
+               ("xmax", "n"), ("ymin", "n"), ("ymax", "n"), ("v_bound", "n"), ("law", "s"),
+               ("law_sha256", "s"), ("law_params", "f"), ("law_memory", "i")),
     "progress": (("t", "n"), ("seq", "i"), ("duration", "n"), ("robots", "i"), ("alive", "i"),
                  ("converged", "i"), ("frozen", "i"), ("min_distance", "n"), ("misses", "i"), ("bad", "i"),
                  ("collisions", "i"), ("overruns", "i"), ("min_obstacle", "n"), ("position_error", "n"),
@@ -537,15 +543,27 @@ _SPEC: dict[str, tuple[tuple[str, str], ...]] = {
 # None. Encoders leave out a None one; a message that has them all takes the fast paths (generated and compiled
 # decoders, which know the full layout only), one without them the general path.
 _OPTIONAL: dict[str, tuple[str, ...]] = {"pose": ("cmd",), "cmd": ("until",), "state": ("stop", "still"),
-                                         "status": ("held",)}
+                                         "status": ("held",),
+                                         "config": ("law", "law_sha256", "law_params", "law_memory")}
 # The key-space contract names both the protocol version and the linear velocity of ref and cmd
 # "v"; one map cannot hold both. "v" stays the version (a decoder needs it before the kind);
 # on the wire the linear velocity is "vel" (docs/protocol.md). In Python it is still .v.
 _WIRE = {"v": "vel"}
 _FIELD = {"vel": "v"}
 _WIRE_NAMES = {k: tuple((f.name, _WIRE.get(f.name, f.name)) for f in fields(cls)) for k, cls in KINDS.items()}
+MAX_LAW_PARAMS = 64  # numbers in a config's law_params
+MAX_LAW_MEMORY = 1024  # floats of a user law's memory per robot
+
+
+def _floats(d: dict[str, Any], name: str) -> tuple[float, ...]:
+    x = d[name]
+    if not isinstance(x, list) or len(x) > MAX_LAW_PARAMS:
+        raise ProtocolError(f"field {name!r} must be a list of at most {MAX_LAW_PARAMS} numbers")
+    return tuple(_num({name: v}, name) for v in x)
+
+
 _READ: dict[str, Callable[[dict[str, Any], str], Any]] = {
-    "n": _num, "i": _int, "b": _bool, "id": lambda d, n: _int(d, n, MAX_ROBOTS - 1), "s": _text,
+    "f": _floats, "n": _num, "i": _int, "b": _bool, "id": lambda d, n: _int(d, n, MAX_ROBOTS - 1), "s": _text,
     "S": lambda d, n: _text(d, n, MAX_LARGE_PAYLOAD)}
 
 
@@ -817,6 +835,15 @@ def _check_config(c: Config) -> None:
         raise ProtocolError(f"field 'threshold' must be 0, 1 or 2, got {c.threshold}")
     if not c.R <= c.reach < c.sense:
         raise ProtocolError(f"fields must hold R <= reach < sense, got R {c.R}, reach {c.reach}, sense {c.sense}")
+    given = [c.law is not None, c.law_sha256 is not None, c.law_params is not None, c.law_memory is not None]
+    if any(given) and not all(given):
+        raise ProtocolError("fields law, law_sha256, law_params and law_memory come all four or none")
+    if c.law_sha256 is not None and not (len(c.law_sha256) == 64 and all(ch in "0123456789abcdef" for ch in c.law_sha256)):
+        raise ProtocolError("field 'law_sha256' must be 64 lowercase hexadecimal digits")
+    if c.law is not None and (":" not in c.law or not c.law.rpartition(":")[2].isidentifier()):
+        raise ProtocolError("field 'law' must read FILE.py:NAME or package.module:NAME")
+    if c.law_memory is not None and c.law_memory > MAX_LAW_MEMORY:
+        raise ProtocolError(f"field 'law_memory' must be at most {MAX_LAW_MEMORY}, got {c.law_memory}")
 
 
 def _within(msg: object, limit: float, *names: str) -> None:

@@ -793,8 +793,8 @@ def test_a_real_time_robot_takes_the_still_robots_the_world_lists_as_bodies():
         agent._on_bodies(Bodies(t=1.0, seq=50, bodies=(Body(5, 0.8, 0.1, 0.3, 1.2), Body(cfg.id, 0.0, 0.0, 0.3, 1.2),
                                                         Body(6, 40.0, 0.0, 0.3, 1.2))), key)
         (nx, ny, nr, nR, nk), robots, safe = bodies(1.0)
-        # robot 5 as a static body; not itself; not robot 6, out of this robot's cells (the rule has it, far)
-        assert (nx, ny, nr, nR, nk) == ([0.8], [0.1], [0.3], [1.2], [law.KIND_OBSTACLE]) and robots == 0
+        # robot 5 as a static body (a dead robot, which the paper's law takes as an obstacle); not itself; not robot 6, out of this robot's cells (the rule has it, far)
+        assert (nx, ny, nr, nR, nk) == ([0.8], [0.1], [0.3], [1.2], [law.KIND_DEAD]) and robots == 0
         assert (0.8, 0.1, 0.3, 0.0) in safe and (40.0, 0.0, 0.3, 0.0) in safe
         agent._on_bodies(Bodies(t=0.98, seq=49, bodies=()), key)  # older: refused, nothing changes
         assert bodies(1.0)[0][0] == [0.8] and agent.bad.stale == 1

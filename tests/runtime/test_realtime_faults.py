@@ -153,7 +153,7 @@ def test_a_lost_robot_is_a_static_body_for_the_law_and_keeps_its_motion_bound_un
     rig.clock.advance(3.0)
     with rig.agent.lock:
         nx, ny, nr, nR, nk, na, robots, _, safe, _ = rig.agent._rt_bodies(0.0, 0.0, rig.now(), rig.now() + 0.2)
-    assert (nx, nk, robots) == ([0.8], [law.KIND_OBSTACLE], 0)
+    assert (nx, nk, robots) == ([0.8], [law.KIND_DEAD], 0)
     V, eps = CFG.v_bound, 0.01
     assert safe == [(0.8, 0.0, 0.3, pytest.approx(V * (0.2 + 0.1 + 3.2 + eps)))]
     other.close()
