@@ -33,6 +33,7 @@ class Referee:
         self.obstacles = np.asarray(scn.obstacles, float).reshape(-1, 4)
         self.samples = 0
         self.last_t: float | None = None
+        self.last_xy = np.zeros((0, 2))  # the live robots' positions at the last sample
         self.good_since: float | None = None  # first sample of the current run with every live robot converged
         self.last_frozen_t: float | None = None
         self.freeze_intervals = 0
@@ -73,6 +74,7 @@ class Referee:
         self.pmax = float(pe[live].max()) if self.alive_now else 0.0
         self.emax = float(ee[live].max()) if self.alive_now else 0.0
         self.last_t = t
+        self.last_xy = q[live, :2].copy()
         self.samples += 1
         inside = set()
         frozen = np.zeros(self.n, bool)
@@ -145,7 +147,7 @@ class Referee:
             orientation_error_max=self.emax if self.samples and self.alive_now else None, min_robot_distance=self.min_rr, min_obstacle_distance=self.min_ro,
             collisions=self.collisions, last_freeze_end_s=self.last_frozen_t, wall_s=wall_s,
             interrupted=interrupted, mode=mode, freeze_intervals=self.freeze_intervals, samples=self.samples,
-            **self.strands.keys(), **extra)
+            **self.strands.keys(), final_spread_m=metrics.spread(self.last_xy), **extra)
 
 
 def log_collisions(ref: Referee, t: float, log: logging.Logger = logging.getLogger("swarm.world")) -> None:

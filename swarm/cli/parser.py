@@ -144,8 +144,16 @@ def build_parser() -> argparse.ArgumentParser:
     scale.add_argument("--robots", type=count_arg, metavar="N", help="resize a scenario made by generators")
     scale.add_argument("--seed", type=seed_arg, metavar="S", help="the random seed (starts, slot assignment)")
     scale.set_defaults(func="swarm.cli.sim:cmd_scenario_scale")
-    check = scn_sub.add_parser("check", help="check scenario files; exit 2 at the first bad one")
+    check = scn_sub.add_parser("check", help="check scenario files; exit 2 at the first bad one",
+                               description="Check scenario files against the contract (docs/scenarios.md). A file "
+                                           "with a law of its own (control.law) has it loaded and called on random "
+                                           "inputs, compiled by numba and as plain Python: an exception, a result "
+                                           "that is not two finite numbers or a compiled result that differs from "
+                                           "the Python one is refused, named (docs/control.md).")
     check.add_argument("files", nargs="+", metavar="FILE")
+    check.add_argument("--python-law", action="store_true",
+                       help="test-call a law of your own as plain Python only (for a law numba cannot compile, "
+                            "run with swarm sim --python-law)")
     check.set_defaults(func="swarm.cli.sim:cmd_scenario_check")
 
     sec = sub.add_parser("secure", help="credentials for --secure: a CA, a certificate per process, the router's rules",

@@ -171,10 +171,32 @@ def cmd_scenario_check(args: argparse.Namespace, started: float) -> int:
 
     for f in args.files:
         scn = scenario_file.load(f)
+        if scn.control.law is not None:
+            _check_law(f, scn.control.law, args.python_law)
         print(f"{f}: ok ({scn.n} robots, {len(scn.obstacles)} obstacles, {scn.steps} steps of {scn.dt:g} s)")
         for note in scenario_file.advisories(scn):
             print(f"{f}: warning: {note}")
     return EXIT_OK
+
+
+LAW_SAMPLES = 200  # random test calls of a user's law in `swarm scenario check`
+
+
+def _check_law(where: str, spec, python_only: bool) -> None:
+    """Load and test-call a scenario's own law (swarm.core.userlaw.check): exit 2 naming what is wrong."""
+    from swarm.core import userlaw
+    from swarm.core.scenario import ScenarioError
+
+    try:
+        loaded = userlaw.load(spec)
+    except userlaw.LawError as e:
+        raise ScenarioError(where, "control.law", str(e)) from None
+    problems = userlaw.check(loaded, samples=LAW_SAMPLES, compiled=not python_only)
+    if problems:
+        raise ScenarioError(where, "control.law", problems[0])
+    how = "as plain Python" if python_only else "compiled by numba and as Python, the two equal bit for bit"
+    print(f"{where}: law {spec.text} ({spec.name}, sha256 {spec.sha256[:16]}...): {LAW_SAMPLES} random test calls "
+          f"{how}, every command finite")
 
 
 def _fault_fields(sim) -> str:

@@ -14,7 +14,8 @@ What the user's law sees (the contract of docs/control.md):
   sums them (robots by id, obstacles by index), which every run (simulated or distributed) shares;
 - params = p[P_SIZE:], the scenario's [control] params; mem = mem[M_SIZE:], its robot's own memory.
 Its (v, w) then goes through what the paper's goes through: the threshold (only with threshold = "always": a
-user's law never freezes), the speed bound and the governor (swarm.core.law.bound_command).
+user's law never freezes), the speed bound and the governor (swarm.core.law.bound_command), and, with the
+governor on, one rule more: a body it touches allows only motion away from it (_contact).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ KIND_OBSTACLE = _law.KIND_OBSTACLE
 P_REACH = _law.P_REACH
 P_VT = _law.P_VT
 P_THRESHOLD = _law.P_THRESHOLD
+P_GOVERNOR = _law.P_GOVERNOR
 P_SIZE = _law.P_SIZE
 M_FROZEN = _law.M_FROZEN
 M_SNAP_X = _law.M_SNAP_X
@@ -55,6 +57,32 @@ M_SIZE = _law.M_SIZE
 BODY_ROBOT = 0
 BODY_OBSTACLE = 1
 BODY_DEAD = 2
+
+
+# A body whose clearance is below this [m] is touched: the governor lets no law move toward it (_contact).
+CONTACT_M = 1e-6
+
+
+@_jit
+def _contact(v: float, x: float, y: float, th: float, r_self: float, nx: Any, ny: Any, nr: Any, nk: Any,
+             n: int) -> float:
+    """v, or 0.0 when the robot touches a body (clearance below CONTACT_M) and v moves it toward that body.
+
+    The governor lets a step close half a clearance (law.governor_speed_limit), and sets no limit inside a body,
+    where the paper's repulsion pushes out. A law that keeps pushing toward a body (nothing in the contract says
+    it may not) would halve its clearance step after step down to rounding, then drive in: for a user's law, a
+    touched body allows only motion away from it (turning in place is always allowed)."""
+    sv = 1.0 if v > 0.0 else -1.0
+    hx = sv * math.cos(th)
+    hy = sv * math.sin(th)
+    for k in range(n):
+        dx = x - nx[k]
+        dy = y - ny[k]
+        l = math.sqrt(dx * dx + dy * dy)
+        contact = max(r_self, nr[k]) if nk[k] == KIND_ROBOT else nr[k]
+        if l - contact < CONTACT_M and -dx * hx - dy * hy > 0.0:
+            return 0.0
+    return v
 
 
 @_jit
@@ -115,6 +143,8 @@ def plugin_command(x: float, y: float, th: float, ox: float, oy: float, r_self: 
     mem[M_FROZEN] = 0.0
     v = _threshold(v, p[P_VT], int(p[P_THRESHOLD]), False)
     v, w, scale = _bound(v, w, x, y, th, r_self, nx, ny, nr, nk, na, n, p)
+    if p[P_GOVERNOR] != 0.0 and v != 0.0:
+        v = _contact(v, x, y, th, r_self, nx, ny, nr, nk, n)
     px = ref[0] - x
     py = ref[1] - y
     c0 = math.cos(th)

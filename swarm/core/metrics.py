@@ -26,6 +26,26 @@ def step_time(t: float) -> float:
     return round(t, 9)
 
 
+def spread(xy: np.ndarray) -> float | None:
+    """The largest distance between two of the points xy (K, 2) [m] (the swarm's diameter: what a rendezvous
+    law is judged by, docs/metrics.md); None for fewer than two. Exact: over the convex hull's corners."""
+    pts = np.unique(np.asarray(xy, float).reshape(-1, 2), axis=0)  # sorted by x, then y
+    if len(pts) < 2:
+        return 0.0 if len(xy) >= 2 else None
+    hull: list[tuple[float, float]] = []
+    for part in (pts, pts[::-1]):  # Andrew's monotone chain: lower hull, then upper
+        chain: list[tuple[float, float]] = []
+        for x, y in part.tolist():
+            while len(chain) >= 2 and ((chain[-1][0] - chain[-2][0]) * (y - chain[-2][1]) -
+                                       (chain[-1][1] - chain[-2][1]) * (x - chain[-2][0])) <= 0.0:
+                chain.pop()
+            chain.append((x, y))
+        hull += chain[:-1]
+    h = np.array(hull)
+    d2 = ((h[:, None, :] - h[None, :, :]) ** 2).sum(axis=2)
+    return float(np.sqrt(d2.max()))
+
+
 def record(scn: Scenario, *, duration_s: float, converged_at_s: float | None, position_error_max: float | None,
            orientation_error_max: float | None, min_robot_distance: float, min_obstacle_distance: float,
            collisions: int, last_freeze_end_s: float | None, wall_s: float, interrupted: bool, mode: str,

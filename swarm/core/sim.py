@@ -250,7 +250,16 @@ class Simulation:
             last_freeze_end_s=None if last_frozen < 0 else _step_time(last_frozen, scn.dt), wall_s=wall_s,
             interrupted=interrupted, mode="sim", freeze_intervals=int(self.iacc[k.I_FREEZE_INTERVALS]),
             governed_robot_steps=int(self.iacc[k.I_GOVERNED]), steps=max(last, 0), **self._strands(),
+            final_spread_m=metrics.spread(self.q[self._alive(), :2]),
             **(self.faults.metrics(_step_time(max(last, 0), scn.dt)) if self.faults is not None else {}))
+
+    def _alive(self) -> np.ndarray:
+        """(N,) bool: the robots not dead (under faults, the fault state's; else every robot)."""
+        if self.faults is None:
+            return np.ones(self.scn.n, bool)
+        from swarm.core import faultgen as fg
+
+        return np.asarray(self.faults.proc != fg.PROC_DEAD)
 
     def _strands(self) -> dict[str, Any]:
         """The metrics' `stranded` keys over the recorded samples (docs/metrics.md; every robot counts as live)."""
