@@ -77,10 +77,10 @@ def _user_command(cfg: Config, law_file: str | None) -> tuple[Callable[..., tupl
             loaded = _LAWS[key] = userlaw.load(spec, law_file)
         except userlaw.LawError as e:
             raise LawFailure(f"robot {cfg.id}: {e}") from None
-    problems = userlaw.check(loaded, samples=1)
-    compiled = not problems
-    if problems:
-        log.warning("robot %d: %s; it runs as plain Python", cfg.id, problems[0])
+    problem = userlaw.compile_problem(loaded)
+    compiled = not problem
+    if problem:
+        log.warning("robot %d: %s; it runs as plain Python", cfg.id, problem)
     command = loaded.command(compiled)
     name = f"{cfg.law} ({'compiled by numba' if compiled else 'Python'})"
     dt = cfg.dt

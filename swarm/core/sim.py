@@ -64,21 +64,23 @@ class SimulationError(SwarmError, RuntimeError):
 class Simulation:
     """All robots of one scenario, stepped by the compiled kernel."""
 
-    def __init__(self, scn: Scenario, record_period: float = RECORD_PERIOD_S, python_law: bool = False):
-        """python_law: a user's law (control.law) runs as plain Python, and so does the whole loop around it
-        (swarm sim --python-law: for a law numba cannot compile; far slower)."""
+    def __init__(self, scn: Scenario, record_period: float = RECORD_PERIOD_S, python_law: bool = False,
+                 loaded: Any = None):
+        """python_law: a user's law (control.law) runs as plain Python, called from the compiled loop (swarm sim
+        --python-law: for a law numba cannot compile; far slower). loaded: that law already loaded (a
+        swarm.core.userlaw.Law: swarm.simulate(law=function)); None: loaded from scn.control.law."""
         self.law = None
         faultkernel = None
         if scn.control.law is not None:
             from swarm.core import userlaw
 
-            self.law = userlaw.load(scn.control.law)
+            self.law = loaded if loaded is not None else userlaw.load(scn.control.law)
             if python_law:
                 kernel, faultkernel = self.law.python_kernels()
             else:
-                problems = userlaw.check(self.law, samples=1)  # compiles it, or says what numba refused
-                if problems:
-                    raise userlaw.LawError(problems[0])
+                problem = userlaw.compile_problem(self.law)  # compiles it, or says what numba refused
+                if problem:
+                    raise userlaw.LawError(problem)
                 kernel, faultkernel = self.law.kernels()
         else:
             from swarm.core import kernel  # compiles (or loads from cache) on first use

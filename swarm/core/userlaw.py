@@ -372,6 +372,28 @@ def load(spec: LawSpec, path: str | None = None) -> Law:
     return Law(spec, py, signature_extras(py, f"law {spec.text!r}"))
 
 
+def from_function(fn: Callable[..., Any], params: tuple[float, ...] = (), memory: int = 0) -> Law:
+    """A Law of a function given in Python (swarm.simulate(law=fn)): one in a file keeps that file's name and
+    sha256; one defined in a notebook or an interpreter is named "<python>:NAME", its sha256 that of its source."""
+    py = getattr(fn, "py_func", fn)
+    if not isinstance(py, types.FunctionType):
+        raise LawError(f"law {fn!r} is a {type(fn).__name__}, not a function")
+    name = py.__name__
+    extras = signature_extras(py, f"law {name!r}")
+    if not 0 <= memory <= MAX_MEMORY or len(params) > MAX_PARAMS:
+        raise LawError(f"law {name!r}: at most {MAX_PARAMS} params and 0..{MAX_MEMORY} floats of memory")
+    file = inspect.getsourcefile(py)
+    if file and Path(file).is_file() and name.isidentifier() and getattr(sys.modules.get(py.__module__), name, None) is fn:
+        spec = LawSpec(f"{file}:{name}", f"{Path(file).resolve()}:{name}", sha256_of(file), params, memory)
+    else:
+        try:
+            text = inspect.getsource(py)
+        except (OSError, TypeError):
+            text = repr(py.__code__.co_code)
+        spec = LawSpec(f"<python>:{name}", f"<python>:{name}", hashlib.sha256(text.encode()).hexdigest(), params, memory)
+    return Law(spec, py, extras)
+
+
 def sample_inputs(rng: np.random.Generator, n_params: int, params: tuple[float, ...], memory: int
                   ) -> tuple[np.ndarray, ...]:
     """One random call's arguments (me, ref, bodies, params, t, mem, kinds), as a run would give them."""
@@ -387,6 +409,24 @@ def sample_inputs(rng: np.random.Generator, n_params: int, params: tuple[float, 
             rng.uniform(-1, 1, memory), kinds)
 
 
+def compile_problem(law: Law) -> str:
+    """What numba could not compile in the law ("" when it compiled): it is compiled by a first call, on sample
+    inputs; an exception the law itself raises there is not numba's (check() reports it with its inputs)."""
+    from numba.core.errors import NumbaError
+
+    try:
+        fn = law.call(True)
+        fn(*_sample_args(sample_inputs(np.random.default_rng(0), 0, law.spec.params, law.spec.memory)))
+    except NumbaError as e:
+        text = str(e).strip().splitlines()
+        brief = " ".join(line.strip() for line in text if line.strip())[:600]
+        return (f"law {law.label!r}: numba cannot compile it: {type(e).__name__}: {brief} (run it as plain Python "
+                "with --python-law, or keep to what numba compiles: docs/control.md)")
+    except Exception:
+        pass
+    return ""
+
+
 def check(law: Law, samples: int = 200, seed: int = 0, compiled: bool = True) -> list[str]:
     """Call the law on `samples` random inputs, as Python and (compiled) with numba: what is wrong, [] if nothing.
 
@@ -396,14 +436,10 @@ def check(law: Law, samples: int = 200, seed: int = 0, compiled: bool = True) ->
     py = law.call(False)
     jit_call = None
     if compiled:
-        try:
-            jit_call = law.call(True)
-            jit_call(*_sample_args(sample_inputs(np.random.default_rng(seed), 0, law.spec.params, law.spec.memory)))
-        except Exception as e:
-            text = str(e).strip().splitlines()
-            brief = " ".join(line.strip() for line in text if line.strip())[:600]
-            return [f"law {law.label!r}: numba cannot compile it: {type(e).__name__}: {brief} (run it as plain Python "
-                    "with --python-law, or keep to what numba compiles: docs/control.md)"]
+        problem = compile_problem(law)
+        if problem:
+            return [problem]
+        jit_call = law.call(True)
     for s in range(samples):
         args = sample_inputs(rng, 0, law.spec.params, law.spec.memory)
         out = []

@@ -1,0 +1,71 @@
+"""A law of one's own end to end (docs/control.md): `swarm sim` and lock-step `swarm up` give the same run with
+and without faults; a law that raises ends the run naming itself, the robot and the step; swarm.simulate is
+`swarm sim` from Python."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.integration.helpers import up
+
+EXAMPLES = Path(__file__).parents[2] / "examples"
+SMALL = ("--robots", "7", "--duration", "10")
+
+
+def sim_metrics(tmp_path: Path, *args: str) -> dict:
+    out = tmp_path / "sim.json"
+    done = subprocess.run([sys.executable, "-m", "swarm.cli", "sim", *args, "--quiet", "--metrics", str(out)],
+                          capture_output=True, text=True, timeout=240)
+    assert done.returncode == 0, done.stderr
+    return json.loads(out.read_text())
+
+
+def same_run(a: dict, b: dict) -> None:
+    keys = set(a) & set(b) - {"wall_s", "mode"}
+    assert {k: a[k] for k in keys} == {k: b[k] for k in keys}
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize("faults", [(), ("--drop", "0.3")], ids=["no-faults", "drop-0.3"])
+def test_lockstep_up_equals_sim_with_a_law_of_ones_own(tmp_path, faults):
+    scenario = ("--scenario", str(EXAMPLES / "goto_slot.toml"), *SMALL, *faults)
+    expected = sim_metrics(tmp_path, *scenario)
+    cmd, metrics = up(tmp_path, *scenario, "--quiet")
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
+    logs = "".join(p.read_text() for p in (tmp_path / "logs").glob("robot-*.log"))
+    assert done.returncode == 0, done.stderr + logs
+    assert "laws/goto_slot.py:goto_slot (compiled by numba)" in logs or "goto_slot.py:goto_slot (compiled by numba)" in logs
+    m = json.loads(metrics.read_text())
+    same_run(expected, m)
+    assert m["mode"] == "lockstep" and m["collisions"] == 0 and m["freeze_intervals"] == 0
+
+
+@pytest.mark.integration
+def test_a_law_that_raises_ends_swarm_sim_naming_the_law_the_robot_and_the_step(tmp_path):
+    (tmp_path / "laws").mkdir()
+    (tmp_path / "laws" / "late.py").write_text(
+        "def late(me, ref, bodies, params, *, t):\n"
+        "    if t >= 1.0 and me[0] > -1e9:\n"
+        "        raise ValueError('too late')\n"
+        "    return 0.1, 0.0\n")
+    scn = (EXAMPLES / "goto_slot.toml").read_text().replace("laws/goto_slot.py:goto_slot", "laws/late.py:late")
+    (tmp_path / "late.toml").write_text(scn)
+    done = subprocess.run([sys.executable, "-m", "swarm.cli", "sim", "--scenario", str(tmp_path / "late.toml"),
+                           *SMALL, "--quiet"], capture_output=True, text=True, timeout=240)
+    assert done.returncode == 1, done.stderr
+    assert "the law 'laws/late.py:late' raised ValueError: too late for robot 0 at step 50 (t = 1 s)" in done.stderr
+
+
+@pytest.mark.integration
+def test_swarm_simulate_gives_swarm_sims_metrics_for_the_paper(tmp_path):
+    code = ("import json, sys, swarm; run = swarm.simulate('paper-50hz', robots=7, duration=10, seed=2); "
+            "json.dump(run.metrics, sys.stdout); "
+            "assert run.q.shape == (run.t.shape[0], 7, 3) and run.err.shape == run.q.shape and run.cmd.shape[2] == 2")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=240)
+    assert done.returncode == 0, done.stderr
+    same_run(sim_metrics(tmp_path, "--scenario", "paper-50hz", *SMALL, "--seed", "2"), json.loads(done.stdout))
