@@ -14,7 +14,7 @@ import pytest
 from tests.integration.helpers import up
 
 EXAMPLES = Path(__file__).parents[2] / "examples"
-SMALL = ("--robots", "7", "--duration", "10")
+SMALL = ("--robots", "7", "--duration", "6")
 
 
 def sim_metrics(tmp_path: Path, *args: str) -> dict:
