@@ -63,7 +63,7 @@ def test_a_law_that_raises_ends_swarm_sim_naming_the_law_the_robot_and_the_step(
 
 @pytest.mark.integration
 def test_swarm_simulate_gives_swarm_sims_metrics_for_the_paper(tmp_path):
-    code = ("import json, sys, swarm; run = swarm.simulate('paper-50hz', robots=7, duration=10, seed=2); "
+    code = ("import json, sys, swarm; run = swarm.simulate('paper-50hz', robots=7, duration=6, seed=2); "
             "json.dump(run.metrics, sys.stdout); "
             "assert run.q.shape == (run.t.shape[0], 7, 3) and run.err.shape == run.q.shape and run.cmd.shape[2] == 2")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=240)
