@@ -42,7 +42,7 @@ class Controller:
         self.memory = 0
         self.p: Any = p
         self.command: Callable[..., tuple[float, float]] = fastlaw.robot_command
-        self.label = "paper (" + ("compiled" if fastlaw.COMPILED else "Python") + ")"
+        self.label = "compiled" if fastlaw.COMPILED else "Python"  # the paper's law, as the robot's log says it
         if cfg.law is None:
             return
         import numpy as np  # a user's law only: a robot of the paper's law never loads numpy
