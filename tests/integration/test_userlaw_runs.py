@@ -14,7 +14,7 @@ import pytest
 from tests.integration.helpers import up
 
 EXAMPLES = Path(__file__).parents[2] / "examples"
-SMALL = ("--robots", "7", "--duration", "6")
+SMALL = ("--robots", "5", "--duration", "4")
 
 
 def sim_metrics(tmp_path: Path, *args: str) -> dict:
@@ -63,9 +63,9 @@ def test_a_law_that_raises_ends_swarm_sim_naming_the_law_the_robot_and_the_step(
 
 @pytest.mark.integration
 def test_swarm_simulate_gives_swarm_sims_metrics_for_the_paper(tmp_path):
-    code = ("import json, sys, swarm; run = swarm.simulate('paper-50hz', robots=7, duration=6, seed=2); "
+    code = ("import json, sys, swarm; run = swarm.simulate('paper-50hz', robots=5, duration=4, seed=2); "
             "json.dump(run.metrics, sys.stdout); "
-            "assert run.q.shape == (run.t.shape[0], 7, 3) and run.err.shape == run.q.shape and run.cmd.shape[2] == 2")
+            "assert run.q.shape == (run.t.shape[0], 5, 3) and run.err.shape == run.q.shape and run.cmd.shape[2] == 2")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=240)
     assert done.returncode == 0, done.stderr
     same_run(sim_metrics(tmp_path, "--scenario", "paper-50hz", *SMALL, "--seed", "2"), json.loads(done.stdout))
