@@ -10,6 +10,7 @@ simulation) or, where numba cannot compile it, as plain Python, which the robot 
 from __future__ import annotations
 
 import logging
+import math
 from typing import TYPE_CHECKING, Any, Callable
 
 from swarm.core import fastlaw, law
@@ -89,11 +90,15 @@ def _user_command(cfg: Config, law_file: str | None) -> tuple[Callable[..., tupl
             thl: float, vl: float, wl: float, nx: Any, ny: Any, nr: Any, nR: Any, nk: Any, na: Any, n: int,
             mem: Any, p: Any) -> tuple[float, float]:
         try:
-            return command(x, y, th, ox, oy, r, t, xl, yl, thl, vl, wl, np.asarray(nx, float), np.asarray(ny, float),
+            v, w = command(x, y, th, ox, oy, r, t, xl, yl, thl, vl, wl, np.asarray(nx, float), np.asarray(ny, float),
                            np.asarray(nr, float), np.asarray(nR, float), np.asarray(nk, np.int64),
                            np.asarray(na, float), n, mem, p)
         except Exception as e:
             raise LawFailure(f"robot {cfg.id}: the law {cfg.law!r} raised {type(e).__name__}: {e} at step "
                              f"{int(round(t / dt))} (t = {t:g} s)") from None
+        if not (math.isfinite(v) and math.isfinite(w)):  # swarm sim ends the run there too
+            raise LawFailure(f"robot {cfg.id}: the law {cfg.law!r} gave a non-finite command (v = {v}, w = {w}) at "
+                             f"step {int(round(t / dt))} (t = {t:g} s)")
+        return v, w
 
     return run, name

@@ -271,6 +271,11 @@ def cmd_up(args, started: float) -> int:
                     break
                 for note in sup.check_restarts():
                     say(note)
+                if sup.fatal is not None:  # a robot refused the run (its law raised, say): the run ends, named
+                    failure = sup.fatal
+                    sup.signal("world", signal.SIGTERM)  # the world writes the metrics it has
+                    sup.wait("world", 3.0)
+                    break
                 watch_viewer()
                 last = progress[0] or last
                 faults.act(last)

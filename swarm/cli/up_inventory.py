@@ -133,8 +133,8 @@ def cmd_robot_fleet(args, started: float) -> int:
             agents = robot.run_robot(bus, WALL, rid, fleet, stop, scenario=scn, start_timeout=args.start_timeout,
                                      make_drive=None if factory is None else factory(bus), ref_timeout=args.ref_timeout,
                                      mode=args.mode, law_file=getattr(args, "law_file", None))
-        except LawFailure as e:
-            raise Failure(str(e)) from None
+        except LawFailure as e:  # the run's own law: exit 2, which swarm up does not restart (it ends the run)
+            raise BadInput(str(e)) from None
         except (NoAnswer, claims.NoClaimAnswer) as e:
             if stop.is_set():
                 return EXIT_INTERRUPTED

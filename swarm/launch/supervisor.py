@@ -68,6 +68,9 @@ class Supervisor:
         self.plan, self.log_dir, self.grace_s = plan, log_dir, grace_s
         self.children: dict[str, Child] = {}
         self.env = {**os.environ, **dict(plan.env), PARENT_ENV: str(os.getpid())}
+        # why the run cannot go on: a robot or the leader refused it (exit code 2: bad input, such as a law of the
+        # run's own that raised, or a copy of it that differs); the launcher ends the run with this text
+        self.fatal: str | None = None
         self.restarted = 0  # robot processes restarted
         self.leader_restarted = 0
 
@@ -109,6 +112,12 @@ class Supervisor:
             if c.spec.role not in self.RESTARTED_ROLES or c.given_up or c.scheduled or c.proc.poll() is None:
                 continue
             rc = c.proc.returncode
+            if rc == REFUSED_EXIT:  # it refused the run: a new copy would refuse it again
+                c.given_up = True
+                said = last_error(c.log)
+                self.fatal = self.fatal or f"{name} refused to go on ({said or exit_text(rc)}; log: {c.log})"
+                notes.append(self.fatal)
+                continue
             while c.restarts and now - c.restarts[0] > pol.window_s:
                 c.restarts.popleft()
             if len(c.restarts) >= pol.max_restarts:
@@ -194,6 +203,25 @@ class Supervisor:
                 c.proc.wait(2.0)
             except subprocess.TimeoutExpired:
                 pass
+
+
+REFUSED_EXIT = 2  # swarm.cli.common.EXIT_BAD_INPUT: a process that refuses its input is not restarted
+
+
+def last_error(log: Path) -> str:
+    """The last line of a child's log that says why it stopped ("swarm robot: error: ..."), "" if none."""
+    try:
+        with open(log, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - 8192))
+            lines = f.read().decode("utf-8", "replace").splitlines()
+    except OSError:
+        return ""
+    for line in reversed(lines):
+        for mark in (": error: ", ": failed: "):
+            if mark in line:
+                return line.split(mark, 1)[1].strip()
+    return ""
 
 
 def exit_text(rc: int | None) -> str:

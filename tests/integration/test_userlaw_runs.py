@@ -5,6 +5,7 @@ and without faults; a law that raises ends the run naming itself, the robot and 
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -46,7 +47,7 @@ def test_lockstep_up_equals_sim_with_a_law_of_ones_own(tmp_path, faults):
 
 
 @pytest.mark.integration
-def test_a_law_that_raises_ends_swarm_sim_naming_the_law_the_robot_and_the_step(tmp_path):
+def test_a_law_that_raises_ends_the_run_naming_the_law_the_robot_and_the_step(tmp_path):
     (tmp_path / "laws").mkdir()
     (tmp_path / "laws" / "late.py").write_text(
         "def late(me, ref, bodies, params, *, t):\n"
@@ -59,6 +60,14 @@ def test_a_law_that_raises_ends_swarm_sim_naming_the_law_the_robot_and_the_step(
                            *SMALL, "--quiet"], capture_output=True, text=True, timeout=240)
     assert done.returncode == 1, done.stderr
     assert "the law 'laws/late.py:late' raised ValueError: too late for robot 0 at step 50 (t = 1 s)" in done.stderr
+    # swarm up: the robots' processes stop with that line (never restarted) and the run ends with it
+    cmd, metrics = up(tmp_path, "--scenario", str(tmp_path / "late.toml"), *SMALL, "--quiet")
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
+    assert done.returncode == 1, done.stderr
+    said = re.search(r"robot \d refused to go on \(robot (\d): the law '(\S+)' raised ValueError: too late at step 50 "
+                     r"\(t = 1 s\); log: ", done.stderr + done.stdout)
+    assert said and said.group(2).endswith("late.py:late"), done.stderr + done.stdout
+    assert "refused to go on" in json.loads(metrics.read_text())["failure"]
 
 
 @pytest.mark.integration

@@ -165,3 +165,14 @@ def test_final_spread_is_the_largest_pairwise_distance():
         assert (got is None) if brute is None else got == pytest.approx(brute, rel=1e-12)
     assert metrics.spread(np.array([[1.0, 1.0], [1.0, 1.0]])) == 0.0
     assert metrics.spread(np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])) == 2.0  # collinear
+
+
+def test_the_launcher_reads_why_a_process_refused_from_its_log(tmp_path):
+    from swarm.launch.supervisor import last_error
+
+    log = tmp_path / "robot-3.log"
+    log.write_text("2026-12-05 INFO robot 3: connected\nswarm robot: error: robot 3: the law 'x.py:f' raised "
+                   "ValueError: no at step 5 (t = 0.1 s)\n")
+    assert last_error(log) == "robot 3: the law 'x.py:f' raised ValueError: no at step 5 (t = 0.1 s)"
+    log.write_text("nothing said\n")
+    assert last_error(log) == "" and last_error(tmp_path / "missing.log") == ""
