@@ -65,8 +65,10 @@ def simulate(scenario: str | Path | Scenario = "paper", *, law: str | Callable[.
     if law is not None or params is not None or memory is not None:
         p = tuple(float(x) for x in (params if params is not None else (spec.params if spec else ())))
         m = int(memory if memory is not None else (spec.memory if spec else 0))
-        if not all(math.isfinite(x) for x in p):
-            raise userlaw.LawError(f"params must be finite numbers, got {list(p)}")
+        if not all(math.isfinite(x) for x in p) or len(p) > userlaw.MAX_PARAMS:
+            raise userlaw.LawError(f"params must be at most {userlaw.MAX_PARAMS} finite numbers, got {list(p)[:8]}")
+        if not 0 <= m <= userlaw.MAX_MEMORY:
+            raise userlaw.LawError(f"memory must be 0..{userlaw.MAX_MEMORY} floats a robot, got {m}")
         if callable(law):
             loaded = userlaw.from_function(law, p, m)
             spec = loaded.spec

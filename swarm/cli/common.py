@@ -24,6 +24,13 @@ from swarm.proto import keys
 from swarm.core.errors import SwarmError
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+# a robot process whose run cannot go on for a reason a restart would meet again (the run's own law raised, gave
+# a non-finite command, or this machine's copy differs): swarm up never restarts it and ends the run with its reason
+EXIT_REFUSED = 4
+
+
+class Refused(SwarmError, RuntimeError):
+    """The process refuses its run (EXIT_REFUSED); the message says why."""
 SAY_WAIT_S = 3.0  # s: a client still without its router says why after this long (then waits on, or gives up)
 log = logging.getLogger("swarm")
 

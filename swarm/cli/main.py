@@ -13,7 +13,8 @@ import sys
 import time
 from typing import Sequence
 
-from swarm.cli.common import EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure
+from swarm.cli.common import (EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, EXIT_REFUSED, BadInput, Failure,
+                              Refused)
 from swarm.cli.parser import build_parser, value_options
 
 
@@ -73,6 +74,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ScenarioError, BadInput) as e:
         print(f"swarm {args.command}: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except Refused as e:
+        print(f"swarm {args.command}: refused: {e}", file=sys.stderr)
+        return EXIT_REFUSED
     except Failure as e:
         print(f"swarm {args.command}: failed: {e}", file=sys.stderr)
         return EXIT_FAILURE

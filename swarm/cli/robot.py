@@ -6,7 +6,7 @@ import logging
 
 from swarm.cli.parser import given
 from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, BadInput, Failure, StopEvent, fleet_of,
-                              load_scenario, open_bus, setup_logging)
+                              load_scenario, open_bus, setup_logging, Refused)
 from swarm.core.clock import WALL
 from swarm.process import die_with_parent
 
@@ -51,8 +51,8 @@ def cmd_robot(args, started: float) -> int:
             agents = robot.run_robot(bus, WALL, args.id, fleet, stop, scenario=scn, start_timeout=args.start_timeout,
                                      make_drive=None if make_drive is None else make_drive(bus),
                                      ref_timeout=args.ref_timeout, mode=args.mode, law_file=args.law_file)
-        except LawFailure as e:  # the run's own law: exit 2, which swarm up does not restart (it ends the run)
-            raise BadInput(str(e)) from None
+        except LawFailure as e:  # the run's own law: EXIT_REFUSED, which swarm up does not restart (it ends the run)
+            raise Refused(str(e)) from None
         except NoAnswer as e:
             if stop.is_set():
                 return EXIT_INTERRUPTED

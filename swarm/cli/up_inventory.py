@@ -28,7 +28,7 @@ from swarm.cli.parser import given
 from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent,
                               check_endpoint, check_listen_free, check_out_dir, check_resources, check_viz_apart,
                               check_viz_port, clear_metrics, load_scenario, make_log_dir, open_bus, record_rate,
-                              scenario_args, setup_logging, viz_options, write_json, write_metrics)
+                              scenario_args, setup_logging, viz_options, write_json, write_metrics, Refused)
 from swarm.cli.console import EstopFollower, exit_status, progress_line, summary
 from swarm.core import inventory
 from swarm.core.clock import WALL
@@ -133,8 +133,8 @@ def cmd_robot_fleet(args, started: float) -> int:
             agents = robot.run_robot(bus, WALL, rid, fleet, stop, scenario=scn, start_timeout=args.start_timeout,
                                      make_drive=None if factory is None else factory(bus), ref_timeout=args.ref_timeout,
                                      mode=args.mode, law_file=getattr(args, "law_file", None))
-        except LawFailure as e:  # the run's own law: exit 2, which swarm up does not restart (it ends the run)
-            raise BadInput(str(e)) from None
+        except LawFailure as e:  # the run's own law: EXIT_REFUSED, which swarm up does not restart (it ends the run)
+            raise Refused(str(e)) from None
         except (NoAnswer, claims.NoClaimAnswer) as e:
             if stop.is_set():
                 return EXIT_INTERRUPTED

@@ -141,6 +141,8 @@ def plugin_command(x: float, y: float, th: float, ox: float, oy: float, r_self: 
     w = float(w)
     mem[M_SNAP_X] = 0.0
     mem[M_FROZEN] = 0.0
+    if not (math.isfinite(v) and math.isfinite(w)):
+        return v, w  # unfiltered (no filter may turn it into a number): every run ends there, naming the law
     v = _threshold(v, p[P_VT], int(p[P_THRESHOLD]), False)
     v, w, scale = _bound(v, w, x, y, th, r_self, nx, ny, nr, nk, na, n, p)
     if p[P_GOVERNOR] != 0.0 and v != 0.0:

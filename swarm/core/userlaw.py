@@ -93,13 +93,10 @@ def locate(text: str, base: Path | None) -> tuple[str, Path]:
         return f"{path}:{name}", path
     if not all(part.isidentifier() for part in where.split(".")):
         raise LawError(f"{where!r} is neither a file ending in .py nor a module name (package.module)")
-    try:
-        found = importlib.util.find_spec(where)
-    except (ImportError, ValueError) as e:
-        raise LawError(f"cannot find module {where!r}: {e}") from None
-    if found is None or not found.origin or not Path(found.origin).is_file():
-        raise LawError(f"no module {where!r} with a source file on this machine's Python path")
-    return f"{where}:{name}", Path(found.origin)
+    source = module_source(where)
+    if source is None:
+        raise LawError(f"no module {where!r} with a Python source file on this machine's Python path")
+    return f"{where}:{name}", source
 
 
 def parse_control(rd: Reader, ctl: dict[str, Any], base: Path | None) -> LawSpec | None:
@@ -128,17 +125,24 @@ def parse_control(rd: Reader, ctl: dict[str, Any], base: Path | None) -> LawSpec
     return LawSpec(text, ref, sha256_of(path), params, memory)
 
 
+_IMPORTED: dict[str, str] = {}  # a module law's module name -> the sha256 of the file it was imported from
+
+
 def _module_of(spec: LawSpec) -> types.ModuleType:
     where = spec.ref.rpartition(":")[0]
     if not spec.is_file:
         try:
-            return importlib.import_module(where)
+            mod = importlib.import_module(where)
+            if _IMPORTED.setdefault(where, spec.sha256) != spec.sha256:  # edited since: the file's code, not the old
+                mod = importlib.reload(mod)
+                _IMPORTED[where] = spec.sha256
+            return mod
         except Exception as e:
             raise LawError(f"law {spec.text!r}: importing {where} failed: {type(e).__name__}: {e}") from None
     name = f"swarm_law_{spec.sha256[:16]}"
-    mod = sys.modules.get(name)
-    if mod is not None:
-        return mod
+    loaded = sys.modules.get(name)
+    if loaded is not None:
+        return loaded
     imp = importlib.util.spec_from_file_location(name, where)
     if imp is None or imp.loader is None:
         raise LawError(f"law {spec.text!r}: cannot load {where} as Python")
@@ -150,6 +154,30 @@ def _module_of(spec: LawSpec) -> types.ModuleType:
         del sys.modules[name]
         raise LawError(f"law {spec.text!r}: running {where} failed: {type(e).__name__}: {e}") from None
     return mod
+
+
+def module_source(where: str) -> Path | None:
+    """The source file of module `where` (dotted), found on sys.path without importing anything (a name from the
+    network must not run a package's code before its file's sha256 is checked); None if there is none."""
+    from importlib.machinery import PathFinder
+
+    parts = where.split(".")
+    if not parts or not all(p.isidentifier() for p in parts):
+        return None
+    search: Any = None
+    found = None
+    for k in range(len(parts)):
+        try:
+            found = PathFinder.find_spec(".".join(parts[:k + 1]), search)
+        except (ImportError, ValueError, OSError):
+            return None
+        if found is None:
+            return None
+        search = found.submodule_search_locations
+        if k < len(parts) - 1 and search is None:
+            return None
+    origin = found.origin if found is not None else None
+    return Path(origin) if origin and origin.endswith(".py") and Path(origin).is_file() else None
 
 
 def _positional(fn: types.FunctionType) -> types.FunctionType:
@@ -186,39 +214,60 @@ def signature_extras(fn: Callable[..., Any], what: str) -> tuple[str, ...]:
 
 
 @contextmanager
-def _numba_cache(path: Path) -> Iterator[None]:
-    """numba's cache directory is `path` for the functions decorated inside (a dispatcher reads it then)."""
+def _numba_cache(path: Path, cached: bool = True) -> Iterator[None]:
+    """numba's cache directory is `path` for the functions decorated inside (a dispatcher reads it then); where
+    that cannot be (NUMBA_CACHE_DIR set, no directory), or cached is False, they are not cached at all: numba
+    tells a cached function by its source file and name, which a law's kernels share with the paper's."""
     from swarm.core import jit
 
     jit._setup_numba()
     import numba
 
     config: Any = numba.config
-    before = config.CACHE_DIR
-    if not os.environ.get("NUMBA_CACHE_DIR"):
+    before, caching = config.CACHE_DIR, jit._caching
+    own = False
+    if cached and not os.environ.get("NUMBA_CACHE_DIR"):
         try:
             path.mkdir(parents=True, exist_ok=True)
             config.CACHE_DIR = str(path)
+            own = True
         except OSError:
             pass
+    jit._caching = own
     try:
         yield
     finally:
         config.CACHE_DIR = before
+        jit._caching = caching
 
 
 @dataclass
 class Law:
-    """A loaded law: its spec, the function, and its compiled copies once asked for."""
+    """A loaded law: its spec, the function, and its compiled copies once asked for.
+
+    cached: its compiled copies may go to (and come from) numba's disk cache. True for a law loaded from its
+    file or module (the key covers the file's sha256, the name and the keyword arguments it takes); False for a
+    function handed over in Python (swarm.simulate(law=fn)), whose globals and closure no hash covers."""
 
     spec: LawSpec
     fn: types.FunctionType
     extras: tuple[str, ...]
+    cached: bool = True
     _built: dict[str, Any] = field(default_factory=dict, repr=False)
 
     @property
     def label(self) -> str:
         return self.spec.text
+
+    @property
+    def key(self) -> str:
+        """What names this law's compiled modules and cache directory: the file's sha256, the function's name and
+        the keyword arguments it declares (two laws of one file compile apart); a function handed over in Python
+        adds its identity in this process."""
+        text = f"{self.spec.sha256}:{self.spec.name}:{','.join(self.extras)}"
+        if not self.cached:
+            text += f":{id(self.fn)}"
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     def _adapter_source(self) -> str:
         args = ", ".join(("me", "ref", "bodies", "params") + self.extras)
@@ -229,7 +278,7 @@ class Law:
     def cache_dir(self) -> Path:
         from swarm.core import jit
 
-        return jit.cache_dir() / f"law-{self.spec.sha256[:16]}"
+        return jit.cache_dir() / f"law-{self.key}"
 
     def call(self, compiled: bool) -> Callable[..., Any]:
         """The law behind the fixed signature call(me, ref, bodies, params, t, mem, kinds)."""
@@ -237,7 +286,7 @@ class Law:
         if key in self._built:
             return cast(Callable[..., Any], self._built[key])
         source = self._adapter_source()
-        ns: dict[str, Any] = {"__name__": f"swarm_law_call_{self.spec.sha256[:16]}"}
+        ns: dict[str, Any] = {"__name__": f"swarm_law_call_{self.key}"}
         if not compiled:
             ns["law"] = _positional(self.fn)
             exec(compile(source, f"<adapter of {self.spec.ref}>", "exec"), ns)
@@ -246,14 +295,16 @@ class Law:
         from swarm.core import jit
 
         d = self.cache_dir()
-        with _numba_cache(d):
+        with _numba_cache(d, self.cached):
             import numba
 
             target = d / "adapter.py"
             try:
                 if not target.is_file() or target.read_text() != source:
-                    target.write_text(source)
-                name = f"swarm_law_call_{self.spec.sha256[:16]}"
+                    tmp = target.with_name(f"adapter.{os.getpid()}.tmp")  # robots start together: no half a file
+                    tmp.write_text(source)
+                    os.replace(tmp, target)
+                name = f"swarm_law_call_{self.key}"
                 imp = importlib.util.spec_from_file_location(name, target)
                 assert imp is not None and imp.loader is not None
                 mod = importlib.util.module_from_spec(imp)
@@ -282,11 +333,11 @@ class Law:
         key = "command-jit" if compiled else "command-py"
         if key in self._built:
             return cast(Callable[..., tuple[float, float]], self._built[key])
-        suffix = f"_{self.spec.sha256[:16]}"
+        suffix = f"_{self.key}"
         if compiled:
             from swarm.core import jit
 
-            with _numba_cache(self.cache_dir()):
+            with _numba_cache(self.cache_dir(), self.cached):
                 mod = jit.compiled("swarm.core.lawplug", suffix + "_jit", self._bound(True))
         else:
             spec = importlib.util.find_spec("swarm.core.lawplug")
@@ -305,8 +356,8 @@ class Law:
         from swarm.core import jit
 
         command = self.command(True)
-        suffix = f"_{self.spec.sha256[:16]}_jit"
-        with _numba_cache(self.cache_dir()):
+        suffix = f"_{self.key}_jit"
+        with _numba_cache(self.cache_dir(), self.cached):
             kernel = jit.compiled("swarm.core.kernel", suffix, {"__swarm_command__": command})
             faultkernel = jit.compiled("swarm.core.faultkernel", suffix, {"__swarm_command__": command})
         return kernel, faultkernel
@@ -318,8 +369,7 @@ class Law:
 
 _OBJMODE = """def call(me, ref, bodies, params, t, mem, kinds):
     with numba.objmode(v="float64", w="float64"):
-        out = pylaw(me, ref, bodies, params, t, mem, kinds)
-        v, w = float(out[0]), float(out[1])
+        v, w = pylaw(me, ref, bodies, params, t, mem, kinds)
     return v, w
 """
 
@@ -332,10 +382,18 @@ def _python_kernels(law: Law) -> tuple[types.ModuleType, types.ModuleType]:
     jit._setup_numba()
     import numba
 
-    ns: dict[str, Any] = {"numba": numba, "pylaw": law.call(False)}
+    call = law.call(False)
+
+    def pylaw(*args: Any) -> tuple[float, float]:  # two numbers, or the contract's error (no raise in objmode)
+        out = call(*args)
+        if len(out) != 2:
+            raise ValueError(f"it returned {len(out)} values; the contract is (v, w)")
+        return float(out[0]), float(out[1])
+
+    ns: dict[str, Any] = {"numba": numba, "pylaw": pylaw}
     exec(compile(_OBJMODE, f"<Python call of {law.spec.ref}>", "exec"), ns)
     bound = {"__swarm_law__": jit.compiled("swarm.core.law"), "__swarm_law_call__": numba.njit(ns["call"])}
-    suffix = f"_{law.spec.sha256[:16]}_pyjit"
+    suffix = f"_{law.key}_pyjit"
     jit._caching = False
     try:
         plug = jit.compiled("swarm.core.lawplug", suffix, bound)
@@ -352,13 +410,13 @@ def load(spec: LawSpec, path: str | None = None) -> Law:
     if path is not None:
         spec = LawSpec(spec.text, f"{Path(path).resolve()}:{spec.name}", spec.sha256, spec.params, spec.memory)
     where = spec.ref.rpartition(":")[0]
-    source = Path(where) if spec.is_file else None
-    if source is None:
-        found = importlib.util.find_spec(where)
-        source = Path(found.origin) if found is not None and found.origin else None
+    source = Path(where) if spec.is_file else module_source(where)
     if source is None or not source.is_file():
         raise LawError(f"law {spec.text!r}: no {where} on this machine (give the file with --law-file PATH)")
-    digest = sha256_of(source)
+    try:
+        digest = sha256_of(source)
+    except OSError as e:
+        raise LawError(f"law {spec.text!r}: cannot read {source}: {e.strerror or e}") from None
     if digest != spec.sha256:
         raise LawError(f"law {spec.text!r}: {source} has sha256 {digest[:16]}..., the run's is "
                        f"{spec.sha256[:16]}...: this machine's copy of the law differs from the one the run uses")
@@ -391,7 +449,7 @@ def from_function(fn: Callable[..., Any], params: tuple[float, ...] = (), memory
         except (OSError, TypeError):
             text = repr(py.__code__.co_code)
         spec = LawSpec(f"<python>:{name}", f"<python>:{name}", hashlib.sha256(text.encode()).hexdigest(), params, memory)
-    return Law(spec, py, extras)
+    return Law(spec, py, extras, cached=False)  # its globals and closure are not in any hash: compiled afresh
 
 
 def sample_inputs(rng: np.random.Generator, n_params: int, params: tuple[float, ...], memory: int

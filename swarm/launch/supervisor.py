@@ -68,8 +68,8 @@ class Supervisor:
         self.plan, self.log_dir, self.grace_s = plan, log_dir, grace_s
         self.children: dict[str, Child] = {}
         self.env = {**os.environ, **dict(plan.env), PARENT_ENV: str(os.getpid())}
-        # why the run cannot go on: a robot or the leader refused it (exit code 2: bad input, such as a law of the
-        # run's own that raised, or a copy of it that differs); the launcher ends the run with this text
+        # why the run cannot go on: a robot refused it (REFUSED_EXIT: the run's own law raised or gave a non-finite
+        # command, or this machine's copy differs); the launcher ends the run with this text
         self.fatal: str | None = None
         self.restarted = 0  # robot processes restarted
         self.leader_restarted = 0
@@ -205,7 +205,7 @@ class Supervisor:
                 pass
 
 
-REFUSED_EXIT = 2  # swarm.cli.common.EXIT_BAD_INPUT: a process that refuses its input is not restarted
+REFUSED_EXIT = 4  # swarm.cli.common.EXIT_REFUSED: a process that refuses its run is not restarted
 
 
 def last_error(log: Path) -> str:
@@ -218,7 +218,7 @@ def last_error(log: Path) -> str:
     except OSError:
         return ""
     for line in reversed(lines):
-        for mark in (": error: ", ": failed: "):
+        for mark in (": refused: ", ": error: ", ": failed: "):
             if mark in line:
                 return line.split(mark, 1)[1].strip()
     return ""

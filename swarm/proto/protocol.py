@@ -840,8 +840,11 @@ def _check_config(c: Config) -> None:
         raise ProtocolError("fields law, law_sha256, law_params and law_memory come all four or none")
     if c.law_sha256 is not None and not (len(c.law_sha256) == 64 and all(ch in "0123456789abcdef" for ch in c.law_sha256)):
         raise ProtocolError("field 'law_sha256' must be 64 lowercase hexadecimal digits")
-    if c.law is not None and (":" not in c.law or not c.law.rpartition(":")[2].isidentifier()):
-        raise ProtocolError("field 'law' must read FILE.py:NAME or package.module:NAME")
+    if c.law is not None:
+        where, _, name = c.law.rpartition(":")
+        if not (name.isidentifier() and (where.endswith(".py") or
+                                         (where and all(part.isidentifier() for part in where.split("."))))):
+            raise ProtocolError("field 'law' must read FILE.py:NAME or package.module:NAME")
     if c.law_memory is not None and c.law_memory > MAX_LAW_MEMORY:
         raise ProtocolError(f"field 'law_memory' must be at most {MAX_LAW_MEMORY}, got {c.law_memory}")
 

@@ -176,3 +176,40 @@ def test_the_launcher_reads_why_a_process_refused_from_its_log(tmp_path):
     assert last_error(log) == "robot 3: the law 'x.py:f' raised ValueError: no at step 5 (t = 0.1 s)"
     log.write_text("nothing said\n")
     assert last_error(log) == "" and last_error(tmp_path / "missing.log") == ""
+
+
+def test_two_laws_of_one_file_compile_apart_and_a_nan_is_never_filtered_into_a_number(laws):
+    (laws / "two.py").write_text("def a(me, ref, bodies, params):\n    return 0.25, 0.0\n\n"
+                                 "def b(me, ref, bodies, params):\n    return float('nan'), 0.0\n")
+    la = userlaw.load(userlaw.parse_control(Reader("s.toml"), {"law": "two.py:a"}, laws))
+    lb = userlaw.load(userlaw.parse_control(Reader("s.toml"), {"law": "two.py:b"}, laws))
+    assert la.spec.sha256 == lb.spec.sha256 and la.key != lb.key and la.cache_dir() != lb.cache_dir()
+    p = np.zeros(law.P_SIZE)
+    p[law.P_GOVERNOR], p[law.P_DT], p[law.P_SENSE], p[law.P_REACH] = 1.0, 0.02, 1.5, 1.2
+    # a robot touching an obstacle ahead: the governor would stop a finite command; a NaN stays NaN
+    args = (0.0, 0.0, 0.0, 0.0, 0.0, 0.3, 0.0, 1.0, 0.0, 0.0, 0.5, 0.0, np.array([0.3]), np.array([0.0]),
+            np.array([0.3]), np.array([1.2]), np.array([law.KIND_OBSTACLE]), np.zeros(1), 1)
+    for compiled in (False, True):
+        assert la.command(compiled)(*args, np.zeros(law.M_SIZE), p)[0] == 0.0  # touching, heading in: held
+        assert math.isnan(lb.command(compiled)(*args, np.zeros(law.M_SIZE), p)[0])
+
+
+@pytest.mark.parametrize("bad", [".x:f", "a-b:f", "pkg.:f", ":f", "x.py:1f", "x.py"])
+def test_a_config_naming_no_file_or_module_is_refused(bad):
+    from dataclasses import replace
+    from swarm.core import scenario_file
+
+    c = replace(scenario_file.load("paper", progress=scenario_file.silent).robot_config(0), law=bad,
+                law_sha256="0" * 64, law_params=(), law_memory=0)
+    with pytest.raises(protocol.ProtocolError, match="law"):
+        protocol.decode(protocol.encode(c), "config")
+
+
+def test_a_module_law_is_found_without_importing_its_package():
+    import sys
+
+    assert userlaw.module_source("json.decoder") == Path(__import__("json.decoder").decoder.__file__)
+    assert userlaw.module_source("no_such_package_xyz.mod") is None and userlaw.module_source("a..b") is None
+    before = set(sys.modules)
+    userlaw.module_source("email.mime.text")
+    assert "email.mime.text" not in set(sys.modules) - before
