@@ -147,6 +147,8 @@ def summary(m: dict, name: str) -> str:
         ("collisions", collisions_text(m)),
         ("last freeze end", fmt(m["last_freeze_end_s"], "s")),
     ]
+    if conv is None and m.get("final_spread_m") is not None:  # what a law whose goal is not the slots is judged by
+        rows.insert(3, ("spread at end", f"{fmt(m['final_spread_m'], 'm')} (the largest distance between two robots)"))
     if alive is not None and alive != m["robots"]:
         rows.append(("robots alive", f"{alive} of {m['robots']} at the end"))
     faults = m.get("faults") if isinstance(m.get("faults"), dict) else None
