@@ -285,39 +285,48 @@ class Law:
         key = "call-jit" if compiled else "call-py"
         if key in self._built:
             return cast(Callable[..., Any], self._built[key])
-        source = self._adapter_source()
-        ns: dict[str, Any] = {"__name__": f"swarm_law_call_{self.key}"}
+        law: Any = _positional(self.fn)
         if not compiled:
-            ns["law"] = _positional(self.fn)
-            exec(compile(source, f"<adapter of {self.spec.ref}>", "exec"), ns)
-            self._built[key] = ns["call"]
-            return cast(Callable[..., Any], ns["call"])
-        from swarm.core import jit
-
-        d = self.cache_dir()
-        with _numba_cache(d, self.cached):
+            fn = self._adapter(law)
+        else:
             import numba
 
-            target = d / "adapter.py"
-            try:
-                if not target.is_file() or target.read_text() != source:
-                    tmp = target.with_name(f"adapter.{os.getpid()}.tmp")  # robots start together: no half a file
-                    tmp.write_text(source)
-                    os.replace(tmp, target)
-                name = f"swarm_law_call_{self.key}"
-                imp = importlib.util.spec_from_file_location(name, target)
-                assert imp is not None and imp.loader is not None
-                mod = importlib.util.module_from_spec(imp)
-                mod.__dict__["law"] = numba.njit(error_model="numpy")(_positional(self.fn))
-                sys.modules[name] = mod
-                imp.loader.exec_module(mod)
-                fn = jit.njit(mod.call)
-            except OSError:  # no cache directory: compiled in memory, every run
-                ns["law"] = numba.njit(error_model="numpy")(_positional(self.fn))
-                exec(compile(source, f"<adapter of {self.spec.ref}>", "exec"), ns)
-                fn = numba.njit(error_model="numpy")(ns["call"])
+            from swarm.core import jit
+
+            with _numba_cache(self.cache_dir(), self.cached):
+                law = numba.njit(error_model="numpy")(law)
+                fn = None
+                if jit._caching:  # its own cache directory: the adapter from a file there, which numba can cache
+                    try:
+                        fn = jit.njit(self._adapter_file(law))
+                    except OSError:
+                        fn = None
+                if fn is None:  # compiled in memory, every run
+                    fn = numba.njit(error_model="numpy")(self._adapter(law))
         self._built[key] = fn
         return cast(Callable[..., Any], fn)
+
+    def _adapter(self, law: Any) -> Any:
+        """call(me, ref, bodies, params, t, mem, kinds) calling `law` with the arguments it declares, in memory."""
+        ns: dict[str, Any] = {"__name__": f"swarm_law_call_{self.key}", "law": law}
+        exec(compile(self._adapter_source(), f"<adapter of {self.spec.ref}>", "exec"), ns)
+        return ns["call"]
+
+    def _adapter_file(self, law: Any) -> Any:
+        """The same adapter, from a file in the law's cache directory (written whole: robots start together)."""
+        source, target = self._adapter_source(), self.cache_dir() / "adapter.py"
+        if not target.is_file() or target.read_text() != source:
+            tmp = target.with_name(f"adapter.{os.getpid()}.tmp")
+            tmp.write_text(source)
+            os.replace(tmp, target)
+        name = f"swarm_law_call_{self.key}"
+        imp = importlib.util.spec_from_file_location(name, target)
+        assert imp is not None and imp.loader is not None
+        mod = importlib.util.module_from_spec(imp)
+        mod.__dict__["law"] = law
+        sys.modules[name] = mod
+        imp.loader.exec_module(mod)
+        return mod.call
 
     def _bound(self, compiled: bool) -> dict[str, Any]:
         from swarm.core import law as paper
@@ -452,7 +461,7 @@ def from_function(fn: Callable[..., Any], params: tuple[float, ...] = (), memory
     return Law(spec, py, extras, cached=False)  # its globals and closure are not in any hash: compiled afresh
 
 
-def sample_inputs(rng: np.random.Generator, n_params: int, params: tuple[float, ...], memory: int
+def sample_inputs(rng: np.random.Generator, params: tuple[float, ...], memory: int
                   ) -> tuple[np.ndarray, ...]:
     """One random call's arguments (me, ref, bodies, params, t, mem, kinds), as a run would give them."""
     me = np.array([rng.uniform(-5, 5), rng.uniform(-5, 5), rng.uniform(-math.pi, math.pi)])
@@ -474,7 +483,7 @@ def compile_problem(law: Law) -> str:
 
     try:
         fn = law.call(True)
-        fn(*_sample_args(sample_inputs(np.random.default_rng(0), 0, law.spec.params, law.spec.memory)))
+        fn(*_sample_args(sample_inputs(np.random.default_rng(0), law.spec.params, law.spec.memory)))
     except NumbaError as e:
         text = str(e).strip().splitlines()
         brief = " ".join(line.strip() for line in text if line.strip())[:600]
@@ -499,7 +508,7 @@ def check(law: Law, samples: int = 200, seed: int = 0, compiled: bool = True) ->
             return [problem]
         jit_call = law.call(True)
     for s in range(samples):
-        args = sample_inputs(rng, 0, law.spec.params, law.spec.memory)
+        args = sample_inputs(rng, law.spec.params, law.spec.memory)
         out = []
         for label, fn in (("Python", py), ("compiled", jit_call)):
             if fn is None:
