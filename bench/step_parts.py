@@ -31,7 +31,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 
 # (label, depth, where, attribute): where is "Agent", "Guard", "SimDrive", "ZenohBus", "wire" (the compiled
-# codec module), "fastlaw" or "drainer" (agents.robot's drainer: the function it returns is timed)
+# codec module), "fastlaw" or "drainer" (agents.realtime's drainer: the function it returns is timed)
 PARTS = [
     ("Runner work (the whole step)", 0, "Agent", "_step_inline"),
     ("take_poses (the new pose)", 1, "Agent", "take_poses"),
@@ -73,7 +73,7 @@ if "robot" in sys.argv and os.environ.get("SWARM_STEP_PARTS"):
                 cell[1] += 1
         return wrapper
 
-    from agents import guard as guard_mod, robot
+    from agents import guard as guard_mod, realtime, robot
     from swarm.core import fastlaw
     from swarm.drives import sim
     from swarm.net import bus
@@ -84,8 +84,8 @@ if "robot" in sys.argv and os.environ.get("SWARM_STEP_PARTS"):
     for label, _, where, name in PARTS:
         cell = sums[label]
         if where == "drainer":
-            make = robot.drainer
-            robot.drainer = lambda boxes, make=make, cell=cell: timed(make(boxes), cell)
+            make = realtime.drainer
+            realtime.drainer = lambda boxes, make=make, cell=cell: timed(make(boxes), cell)
         elif owners.get(where) is not None:
             setattr(owners[where], name, timed(getattr(owners[where], name), cell))
 

@@ -71,7 +71,7 @@ COMPILED = {"swarm.core.jit", "swarm.core.kernel", "swarm.core.faultkernel", "sw
 def test_the_walk_finds_the_layers():
     assert {"swarm.core.law", "swarm.proto.keys", "swarm.net.bus", "agents.robot", "world.world",
             "swarm.cli.main"} <= set(MODULES)
-    assert "swarm.core.law" in GRAPH["agents.robot"]
+    assert "swarm.core.law" in GRAPH["agents.lockstep"] and "agents.agent" in GRAPH["agents.robot"]
 
 
 @pytest.mark.unit

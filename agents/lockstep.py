@@ -1,0 +1,284 @@
+"""The lock-step tick protocol of one robot.
+
+Lock-step tick k (the world owns the clock; docs/runtime.md):
+  1. pose_k arrives: move the cell subscriptions (the old block is kept one more tick) and
+     publish state_k on the cell key.
+  2. Wait for state_k of every live robot whose state_(k-1) was within reach + 2L, where
+     reach is the largest R (the law ignores bodies farther than that) and L = (side - reach) / 3
+     is the largest step the protocol assumes (a robot that can matter at k, closer than reach,
+     was within reach + 2L at k-1; one that was that close is still inside the cells subscribed
+     at k-1, so its state_k is sure to arrive), for ref_k and for clock_k (clock_0 is the world's
+     start barrier: every state_0 has been delivered). After `wait_timeout` seconds it goes on
+     with what it has and counts the missing as stale. A robot that moves more than L in a tick
+     breaks the premise; the world then counts the pairs the rule could not cover (metrics
+     `lockstep_overruns`): only then can a run differ from swarm sim.
+  3. Compute cmd_k from the bodies closer than the cell side in ascending id order (the
+     simulator's order: robots by id, then obstacles, then dead robots as static bodies; the
+     law uses those closer than reach) and publish it.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING
+
+from swarm.proto import keys, protocol
+from swarm.core import law
+from swarm.proto.protocol import ProtocolError
+from agents.bodies import Bodies
+
+if TYPE_CHECKING:
+    from agents.faultview import FaultView
+
+log = logging.getLogger("swarm.robot")
+
+
+class Lockstep(Bodies):
+    """Lock-step: a tick starts at its pose, waits for the inputs the wait rule names, and commands."""
+
+    def _lockstep_inputs(self) -> list:
+        """Lock-step: (key, handler) of its pose, the reference and, under faults, the static bodies."""
+        f = self.fleet
+        out = [(keys.robot_pose(f, self.id), self._on_pose_msg), (keys.leader_ref(f), self._on_ref_msg)]
+        if self.view is not None:
+            out.append((keys.world_bodies(f), self._on_bodies_msg))
+        return out
+
+    def _resubscribe(self) -> None:
+        """Lock-step under faults (loop thread): this robot's session came back after a stop past its lease.
+        zenoh declares its subscriptions again by itself, but in no order one can count on; declared here
+        once more, they are in place before the message that follows them on the same session (which tells
+        the world this robot is back: World._await_returns)."""
+        f = self.fleet
+        for h in self._inputs:
+            h.close()
+        self._inputs = [self.bus.subscribe(key, fn) for key, fn in self._lockstep_inputs()]
+        with self.lock:  # the world and the leader went on meanwhile: their next messages jump ahead
+            self.w_pose.reset()
+            self.w_ref.reset()
+            self.w_clock.reset()
+        for c in list(self._cells):
+            self._cells.pop(c).close()
+            self._cells[c] = self._subscribe_cell(keys.cell_any(f, *c))
+        if self._all_sub is not None:
+            self._listen_all(False)
+            self._listen_all(True)
+
+    def _listen_all(self, on: bool) -> None:
+        """Lock-step under faults (loop thread, or start()): hear every robot's state, in every cell, for
+        a tick this robot returns at (restarted or resumed, it knows nobody's previous state, so it waits
+        for the state of every robot running then)."""
+        if on and self._all_sub is None:
+            self._all_sub = self.bus.subscribe(keys.cell_all(self.fleet), self._on_any_state_msg)
+        elif not on and self._all_sub is not None:
+            self._all_sub.close()
+            self._all_sub = None
+
+    def _on_any_state_msg(self, key: str, data: bytes) -> None:
+        """A state heard through _listen_all: kept only when it is of a tick this robot returns at (its
+        cells' subscriptions bring the same message through the windows of _on_state)."""
+        if self.ended:
+            return
+        j = keys.cell_robot(key)
+        try:
+            if j is None:
+                raise ProtocolError(f"not a cell key: {key!r}")
+            s = protocol.decode(data, "state", j, self.limits)
+        except ProtocolError as e:
+            with self.lock:
+                self.bad.reject(key, e)
+            return
+        with self.lock:
+            if s.id == self.id or self.view is None:
+                return
+            if s.seq <= self.k_done or s.seq > self._next_tick() or self.view.schedule.fresh(self.id, s.seq) is None:
+                return  # not of a return tick of this robot (or too far ahead): the cells' subscriptions decide
+            nb = self.table.get(s.id)
+            if nb is None or nb.seq < s.seq:
+                self.table[s.id] = s
+            if s.seq == self.k_started:
+                self.waiting.discard(s.id)
+            due = self._due()
+        if due:
+            self.kick.set()
+
+    def _start_tick(self, pose) -> None:
+        """Lock-step tick k starts (loop thread): publish state_k, decide whose state_k to wait for.
+        Under faults the state is the robot's belief (its pose as it knows it: agents.faultview), and a
+        robot whose process the schedule says is dead or hung at k does nothing."""
+        k = pose.seq
+        view = self.view
+        if view is not None:
+            b = view.start(k, (pose.x, pose.y, pose.theta))
+            if b is None:
+                with self.lock:
+                    self._idle = k
+                    self.waiting = set()
+                    self.k_started = k
+                self._move_cells(pose.x, pose.y)  # where it stands (raw: for its subscriptions only)
+                return
+            pose = protocol.Pose(t=pose.t, seq=k, x=b[0], y=b[1], theta=b[2])
+            self.belief = pose
+        self._move_cells(pose.x, pose.y)
+        self._publish_state(pose, k)
+        with self.lock:
+            if view is not None:
+                px, py, _ = view.previous(k)
+            else:
+                px, py = self.prev_xy if self.prev_xy is not None else (pose.x, pose.y)
+            dead = self.dead
+            reach2 = self._wait_reach * self._wait_reach
+            wire = protocol._wire if view is None else None
+            if wire is not None:  # the two loops below, compiled (swarm/proto/_wire.c)
+                self.waiting = wire.wait_for(self.table, dead, k, px, py, reach2)
+            else:
+                self.waiting = set()
+                for j in [j for j, nb in self.table.items() if nb.seq < k - 1 and j not in dead]:
+                    del self.table[j]  # never used again (bounded state): a live robot counts only with state_k or state_(k-1)
+                for j, nb in self.table.items():
+                    if nb.seq == k - 1 and j not in dead and (px - nb.x) * (px - nb.x) + (py - nb.y) * (py - nb.y) < \
+                            reach2 and (view is None or view.other_active(j, k)):  # under faults: nobody waits for a stopped robot
+                        self.waiting.add(j)
+            if view is not None and view.event is not None:
+                # it returns at k (restarted or resumed): it knows nobody's state of k - 1, so it waits for
+                # every robot running at k (heard in every cell: _listen_all), but those already here
+                self.waiting = {j for j in range(self.cfg.robots) if j != self.id and j not in dead and
+                                view.other_active(j, k) and not (j in self.table and self.table[j].seq == k)}
+                if view.event == "restart":
+                    # a fresh controller (the same object when the process was not really killed: swarm world
+                    # --process-faults played)
+                    self.mem = self.control.fresh_memory()
+            self.deadline = self.clock.monotonic() + self.wait_timeout
+            self._leader_ups_seen = self.leader_ups
+            self.k_started = k
+
+    def command(self, t: float, x: float, y: float, th: float, ref: tuple, seq: int) -> tuple[float, float]:
+        """Lock-step: the law for this robot at time t with pose (x, y, th) and live reference ref = (xl, yl, thl,
+        vl, wl), over the bodies of tick seq (the world applies a command for exactly dt: the governor's horizon
+        is the period)."""
+        nx, ny, nr, nR, nk, na, robots, stale = self.bodies(x, y, seq)
+        xl, yl, thl, vl, wl = ref
+        v, w = self._law(x, y, th, self.cfg.dx, self.cfg.dy, self.cfg.r, t, xl, yl, thl, vl, wl,
+                                     nx, ny, nr, nR, nk, na, len(nx), self.mem, self.p)
+        self.neighbours, self.stale = robots, stale
+        self.stale_total += stale
+        return v, w
+
+    def _ticks(self) -> None:
+        """Inline (Runner): every tick that is due now (tick_lockstep until it has nothing to do)."""
+        while self.tick_lockstep():
+            pass
+
+    def tick_lockstep(self) -> bool:
+        """Loop thread: start a new tick if its pose came, and compute it once its inputs are complete
+        (or overdue). True if a command (or a skip) was issued."""
+        if self._announce:
+            self._announce = False
+            if self.view is not None:
+                # a process stopped before its first tick (hung at tick 0, or at the tick it was restarted for)
+                # says so with tick 0 and its counters, all zero then (the world takes that as its word only)
+                done = max(self.k_done, 0)
+                # its next tick is its return: it hears every cell for it (stopped before its first tick, at 0 or
+                # at the tick it was restarted for, it never reached the idle tick that subscribes it)
+                with self.lock:
+                    nxt = self._next_tick()
+                self._listen_all(self.view.schedule.fresh(self.id, nxt) is not None)
+                self._resubscribe()
+                self.bus.put(self._faults_key, protocol.encode(protocol.FaultStats(
+                    done * self.cfg.dt, done, *self.view.counters(),
+                    frozen=bool(self.mem[law.M_FROZEN]))), reliable=True)
+        with self.lock:
+            pose = self.pose
+        if pose is None or pose.seq <= self.k_done:
+            return False
+        if pose.seq > self.k_started:
+            self._start_tick(pose)
+            if pose.seq > 0 and self.clock_seq >= 0:
+                self.drop_clock()  # past the start barrier: the clock is not needed any more
+        with self.lock:
+            k = self.k_started
+            newest: protocol.Pose = self.pose  # type: ignore[assignment]  # not None: a pose came (above)
+            pose = newest if newest.seq == k else pose
+            overdue = self.clock.monotonic() >= self.deadline
+            if overdue and k not in self.refs and (not self.leader_alive or self.leader_ups != self._leader_ups_seen):
+                # no reference because the leader is away, or came back during the tick and is catching up:
+                # wait for it (the world holds the tick and ends the run if it does not come back)
+                self._leader_ups_seen = self.leader_ups
+                self.deadline = self.clock.monotonic() + self.wait_timeout
+                return False
+            if not self._inputs_complete(k) and not overdue:
+                return False
+            if overdue and not self._inputs_complete(k):
+                self._overdue += 1
+                if self._overdue <= 5 or self._overdue % 100 == 0:
+                    what = ([f"the states of robots {sorted(self.waiting)[:8]}"] if self.waiting else []) + \
+                        (["the reference"] if k not in self.refs else []) + \
+                        (["the clock"] if self.clock_seq < min(k, self._clock_needed) else []) + \
+                        (["the static bodies"] if self.view is not None and k not in self.static_by_seq else [])
+                    log.warning("robot %d: tick %d goes on after %g s without %s (%d ticks so far)", self.id, k,
+                                self.wait_timeout, ", ".join(what), self._overdue)
+            ref = self.refs.get(k)
+            self.k_done = k
+            self.prev_xy = (pose.x, pose.y)
+            for old in [s for s in self.refs if s <= k]:
+                del self.refs[old]
+            if self.static_by_seq:  # under faults only
+                for old in [s for s in self.static_by_seq if s < k]:
+                    del self.static_by_seq[old]
+            if self.view is not None:
+                if self._idle != k:
+                    v, w, r = self._command_under_faults(k, ref)
+                    belief: protocol.Pose = self.belief  # type: ignore[assignment]  # _start_tick set it: k is not idle
+                    pose = belief
+            elif ref is None:
+                self.skipped += 1  # no reference for this tick (a restart mid-run): no command, the world holds
+                log.warning("robot %d: no reference for tick %d, no command", self.id, k)
+                return True
+            else:
+                r = (ref.x, ref.y, ref.theta, ref.v, ref.w)
+                v, w = self.command(pose.t, pose.x, pose.y, pose.theta, r, k)
+        if self.view is not None:
+            # before its command goes out (the world starts the next tick only once it has it): the next
+            # tick this robot runs is a return tick, so it hears every cell from now on
+            self._listen_all(self.view.returns_next(k))
+            if self._idle == k:
+                return True  # dead or hung at k: no state, no command (the world knows the schedule)
+            c = self.view.counters()
+            self.bus.put(self._faults_key, protocol.encode(protocol.FaultStats(
+                pose.t, k, *c, frozen=bool(self.mem[law.M_FROZEN]))), reliable=True)
+        self._publish(pose.t, k, v, w, r, pose)
+        return True
+
+    def _command_under_faults(self, k: int, ref) -> tuple[float, float, tuple]:
+        """Lock-step under faults (under the lock): the law given what the fault layer delivered; returns
+        (v, w, the reference the law used, or the raw one for the status)."""
+        view: FaultView = self.view  # type: ignore[assignment]  # tick_lockstep calls this under faults only
+        view.reference(k, None if ref is None else (ref.x, ref.y, ref.theta, ref.v, ref.w))
+        fresh = {j: (nb.x, nb.y) for j, nb in self.table.items() if nb.seq == k}
+        for j in sorted(set(fresh) | set(view.tk) | set(view.ring_state)):
+            if j != self.id:
+                view.neighbour(k, j, fresh.get(j))
+        listen, r = view.law_inputs(k)
+        b: protocol.Pose = self.belief  # type: ignore[assignment]  # _start_tick set it: tick k is not idle
+        if listen or r is None:
+            v = w = 0.0  # listening (just restarted or resumed), or no reference yet: it holds still
+            r = r or (b.x - self.cfg.dx, b.y - self.cfg.dy, b.theta, 0.0, 0.0)
+        else:
+            static = self.static_by_seq.get(k, {})
+            nx, ny, nr, nR, nk, na = view.bodies(k, static, self.obstacles, self.cfg.r, self.cfg.R, law.KIND_ROBOT,
+                                                 law.KIND_OBSTACLE, law.KIND_DEAD)
+            xl, yl, thl, vl, wl = r
+            v, w = self._law(b.x, b.y, b.theta, self.cfg.dx, self.cfg.dy, self.cfg.r, k * self.cfg.dt, xl, yl,
+                                         thl, vl, wl, nx, ny, nr, nR, nk, na, len(nx), self.mem, self.p)
+            self.neighbours = sum(1 for kind in nk if kind == law.KIND_ROBOT)
+        view.commanded(k, v, w)
+        return v, w, r
+
+    def next_wakeup(self) -> float:
+        """Seconds until tick_lockstep() may act by timeout (a bound for the loop's wait)."""
+        with self.lock:
+            if self.pose is None or self.pose.seq <= self.k_done:
+                return 0.5
+            if self.pose.seq > self.k_started:
+                return 0.0
+            return max(0.0, self.deadline - self.clock.monotonic())
