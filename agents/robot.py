@@ -24,7 +24,8 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import TYPE_CHECKING, cast
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, cast
 
 from swarm.proto import keys, protocol
 from swarm.core import safety
@@ -44,11 +45,13 @@ from swarm.core.errors import SwarmError
 from swarm.net import presence
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from swarm.drives.base import Drive
 
 log = logging.getLogger("swarm.robot")
 
-__all__ = ["Agent", "DriveRefused", "NoAnswer", "fetch_config", "fetch_obstacles", "run_robot", "within_limits",
+__all__ = ["Agent", "DriveRefused", "NoAnswer", "RobotOptions", "fetch_config", "fetch_obstacles", "run_robot", "within_limits",
            # the agent's constants (agents.state), where callers have always found them
            "CLOSE_WAIT_S", "DEPART_EVERY", "DEPART_S", "GAP_PERIODS", "HEAR_GAP_PERIODS", "HINTS_PER_TICK",
            "KEY_IDS_MAX", "LISTEN_PERIODS", "POSE_LATE_PERIODS", "PROBE_S", "RECENT_S", "RT_BODIES_TTL_S",
@@ -81,17 +84,29 @@ def within_limits(cfg: Config, limits: tuple[float, float] | None) -> Config:
     governor and the command clip then keep to them. No limits (None): cfg as it is; a limit of cfg's 0 is none."""
     if limits is None:
         return cfg
-    from dataclasses import replace
-
     v, w = limits
     return replace(cfg, v_max=v if cfg.v_max <= 0 else min(cfg.v_max, v),
                    w_max=w if cfg.w_max <= 0 else min(cfg.w_max, w))
 
 
+@dataclass(frozen=True)
+class RobotOptions:
+    """How a robot process serves runs: built once by the command line (`swarm robot`'s flags, an inventory's row)
+    or a test; run_robot takes it, or any of its fields as keywords."""
+
+    scenario: Any = None  # this process's own scenario (swarm.core.scenario.Scenario), or None: the world's
+    start_timeout: float = 60.0  # s: the world (its run, its configuration) must answer within this
+    wait_timeout: float = WAIT_TIMEOUT_S  # lock-step: wall s to wait for a tick's inputs
+    once: bool = False  # serve one run only
+    make_drive: Callable[..., Any] | None = None  # real time: make_drive(cfg, now) -> the drive (None: simulated)
+    ref_timeout: float = REF_TIMEOUT_S  # the guard: a reference extrapolated longer than this halts the robot
+    pose_timeout: float = WATCHDOG_S  # the guard: a pose older than this halts the robot
+    mode: str | None = None  # "lockstep" or "realtime": a run of the other mode is refused; None takes the world's
+    law_file: str | None = None  # this machine's copy of the run's law, when not where the run's config says
+
+
 def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading.Event | None = None,
-              scenario=None, start_timeout: float = 60.0, wait_timeout: float = WAIT_TIMEOUT_S,
-              once: bool = False, make_drive=None, ref_timeout: float = REF_TIMEOUT_S,
-              pose_timeout: float = WATCHDOG_S, mode: str | None = None, law_file: str | None = None) -> list[Agent]:
+              opts: RobotOptions | None = None, **fields) -> list[Agent]:
     """Serve runs as robot `robot_id` on `bus` until `stop` is set: for every run the world announces,
     a fresh agent (tick state, windows, controller) with this robot's slice of the run's scenario:
     from `scenario` (this process's own; a run of another scenario is refused: RunRefused) or from
@@ -102,7 +117,12 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
     its pose is older than pose_timeout, the reference is extrapolated longer than ref_timeout, the
     leader is lost or the emergency stop is engaged. mode ("lockstep" or "realtime", swarm robot --mode): a
     run of the other mode is refused (RunRefused); None takes the world's. law_file: this machine's copy of the
-    run's law, when not where the run's config says (agents.control)."""
+    run's law, when not where the run's config says (agents.control). These are RobotOptions's fields (`opts`,
+    each overridden by a keyword of `fields`)."""
+    o = replace(opts or RobotOptions(), **fields)
+    scenario, start_timeout, wait_timeout, once, make_drive = o.scenario, o.start_timeout, o.wait_timeout, o.once, \
+        o.make_drive
+    ref_timeout, pose_timeout, mode, law_file = o.ref_timeout, o.pose_timeout, o.mode, o.law_file
     stop = stop or threading.Event()
     current: list[Agent] = []
 

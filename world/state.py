@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -35,16 +36,39 @@ LOST_TIMEOUT_S = 10.0  # s: a leader (or every robot) away this long ends the ru
 FINE_DT_S = 0.001
 
 
+@dataclass(frozen=True)
+class WorldOptions:
+    """How the world runs a scenario: built once by the command line (`swarm world`'s flags) or a test; World takes
+    it, or any of its fields as keywords."""
+
+    lockstep: bool = True
+    speed: float = 1.0  # real time: simulated seconds per wall second
+    watchdog: float = WATCHDOG_S
+    tick_timeout: float = TICK_TIMEOUT_S
+    lost_timeout: float = LOST_TIMEOUT_S
+    ros2: tuple[str, str, int, str, str] | None = None  # real time, a simulated ROS 2 fleet: flavor, twist, domain,
+    # attachment form, distro
+    start_timeout: float = 60.0
+    trace: bool = False
+    process_faults: str = "played"  # lock-step kills and hangs: "signals" when a supervisor really does them
+    fine_dt: float = FINE_DT_S  # the integration step of the world's kinematics [s]
+
+
 class WorldState:
     # real time: the bus inboxes the run loop drains (World.start opens them)
     _cmd_inbox: Any
     _status_inbox: Any
     _faults_inbox: Any
 
-    def __init__(self, bus, scn: Scenario, fleet: str = "default", lockstep: bool = True, speed: float = 1.0,
-                 watchdog: float = WATCHDOG_S, tick_timeout: float = TICK_TIMEOUT_S, fine_dt: float = FINE_DT_S,
-                 trace: bool = False, progress=None, clock=WALL, lost_timeout: float = LOST_TIMEOUT_S,
-                 ros2: tuple[str, str, int, str, str] | None = None, process_faults: str = "played"):
+    def __init__(self, bus, scn: Scenario, fleet: str = "default", opts: WorldOptions | None = None, *, clock=WALL,
+                 progress=None, **fields):
+        """The world of scenario `scn` on `bus`, run as `opts` says (fields: WorldOptions's, each overriding
+        opts's: World(bus, scn, fleet, lockstep=False, speed=2.0))."""
+        opts = replace(opts or WorldOptions(), **fields)
+        self.opts = opts
+        lockstep, speed, watchdog, ros2 = opts.lockstep, opts.speed, opts.watchdog, opts.ros2
+        tick_timeout, fine_dt, trace, lost_timeout = opts.tick_timeout, opts.fine_dt, opts.trace, opts.lost_timeout
+        process_faults = opts.process_faults
         self.bus, self.scn, self.fleet = bus, scn, fleet
         self.clock = clock
         self.lockstep, self.speed = lockstep, speed

@@ -29,12 +29,11 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
 from world.ready import NotReady
-from world.state import FINE_DT_S, LOST_TIMEOUT_S, TICK_TIMEOUT_S, WATCHDOG_S
+from world.state import FINE_DT_S, LOST_TIMEOUT_S, TICK_TIMEOUT_S, WATCHDOG_S, WorldOptions
 from world.publishing import PROGRESS_PERIOD_S
 from world.lockstep_loop import LockstepLoop
 from world.realtime_loop import BODIES_EVERY_S, BODIES_SILENT_S, ROUND_TRIP_HISTORY_S, RealtimeLoop
@@ -179,31 +178,13 @@ class World(LockstepLoop, RealtimeLoop):
                 "round_trips": int(rt.size)}
 
 
-@dataclass(frozen=True)
-class WorldOptions:
-    """How `swarm world` runs a scenario (the command line's flags)."""
-
-    lockstep: bool = True
-    speed: float = 1.0  # real time: simulated seconds per wall second
-    watchdog: float = WATCHDOG_S
-    tick_timeout: float = TICK_TIMEOUT_S
-    lost_timeout: float = LOST_TIMEOUT_S
-    ros2: tuple[str, str, int, str, str] | None = None  # real time, a simulated ROS 2 fleet: flavor, twist, domain,
-    # attachment form, distro
-    start_timeout: float = 60.0
-    trace: bool = False
-    process_faults: str = "played"  # lock-step kills and hangs: "signals" when a supervisor really does them
-
-
 def run_world(bus, clock, scn: Scenario, opts: WorldOptions = WorldOptions(), stop: threading.Event | None = None,
               fleet: str = "default", started: float | None = None) -> tuple[dict, "World"]:
     """Run scenario `scn` on `bus`: serve, wait for every robot and the leader (NotReady after
     opts.start_timeout), run, close. Returns the metrics and the world (its trace)."""
     stop = stop or threading.Event()
     started = time.perf_counter() if started is None else started
-    world = World(bus, scn, fleet, lockstep=opts.lockstep, speed=opts.speed, watchdog=opts.watchdog,
-                  tick_timeout=opts.tick_timeout, trace=opts.trace, clock=clock, lost_timeout=opts.lost_timeout,
-                  ros2=opts.ros2, process_faults=opts.process_faults)
+    world = World(bus, scn, fleet, opts, clock=clock)
     world.start()
     try:
         log.info("world: %d robots, %d obstacles, %s, waiting for robots and leader", scn.n, len(scn.obstacles),

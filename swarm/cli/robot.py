@@ -48,9 +48,10 @@ def cmd_robot(args, started: float) -> int:
         bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, lean=True, role="robot", robot_id=args.id)
         log.info("robot %d: connected (fleet %s), waiting for a run", args.id, fleet)
         try:
-            agents = robot.run_robot(bus, WALL, args.id, fleet, stop, scenario=scn, start_timeout=args.start_timeout,
-                                     make_drive=None if make_drive is None else make_drive(bus),
-                                     ref_timeout=args.ref_timeout, mode=args.mode, law_file=args.law_file)
+            opts = robot.RobotOptions(scenario=scn, start_timeout=args.start_timeout,
+                                      make_drive=None if make_drive is None else make_drive(bus),
+                                      ref_timeout=args.ref_timeout, mode=args.mode, law_file=args.law_file)
+            agents = robot.run_robot(bus, WALL, args.id, fleet, stop, opts)
         except LawFailure as e:  # the run's own law: EXIT_REFUSED, which swarm up does not restart (it ends the run)
             raise Refused(str(e)) from None
         except NoAnswer as e:

@@ -130,9 +130,11 @@ def cmd_robot_fleet(args, started: float) -> int:
                 log.info("robot: claimed id %d (claim key %s)", rid, key)
                 if scn is not None and rid >= scn.n:
                     raise BadInput(f"the world gave id {rid}, but this robot's scenario has {scn.n} robots")
-            agents = robot.run_robot(bus, WALL, rid, fleet, stop, scenario=scn, start_timeout=args.start_timeout,
-                                     make_drive=None if factory is None else factory(bus), ref_timeout=args.ref_timeout,
-                                     mode=args.mode, law_file=getattr(args, "law_file", None))
+            opts = robot.RobotOptions(scenario=scn, start_timeout=args.start_timeout,
+                                      make_drive=None if factory is None else factory(bus),
+                                      ref_timeout=args.ref_timeout, mode=args.mode,
+                                      law_file=getattr(args, "law_file", None))
+            agents = robot.run_robot(bus, WALL, rid, fleet, stop, opts)
         except LawFailure as e:  # the run's own law: EXIT_REFUSED, which swarm up does not restart (it ends the run)
             raise Refused(str(e)) from None
         except (NoAnswer, claims.NoClaimAnswer) as e:
