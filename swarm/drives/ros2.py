@@ -22,6 +22,8 @@ announces itself as a ROS 2 node, swarm_drive in the robot's namespace, so `ros2
 
 Threads: wait(), drain() and close() from the agent's loop thread; send() and halt() from any thread
 (a lock keeps the commands and their sequence numbers in order); wake() from any thread.
+
+Finding the robot's topics over rmw_zenoh, and the node the drive announces: swarm.drives.ros2_graph.
 """
 
 from __future__ import annotations
@@ -31,14 +33,14 @@ import math
 import os
 import threading
 import time
-from typing import TYPE_CHECKING, Any, Callable, cast
+from typing import TYPE_CHECKING, Callable, cast
 
 from swarm.core.safety import RAMP_S
 from swarm.drives.base import DriveBase
+from swarm.drives.ros2_graph import Discovery, DiscoveryError, drive_entities
 from swarm.proto import protocol, ros2
 from swarm.proto.protocol import Cmd, Pose
-from swarm.proto.ros2 import Entity, Ros2Error
-from swarm.core.errors import SwarmError
+from swarm.proto.ros2 import Ros2Error
 
 if TYPE_CHECKING:
     from swarm.net.bus import Closable, Inbox
@@ -51,9 +53,7 @@ BRIDGE_ADMIN_S = 1.0  # s the bridge flavour waits for the bridges' admin space 
 BRIDGE_LOOK_S = 2.0  # s the bridge flavour waits for the route of the robot's cmd_vel (its type) before going on
 ODOM_DEPTH = 16  # odometry messages kept between two reads of the agent (the newest)
 HALT_REPEATS = 3  # zero commands sent by halt() (reliable already; a few more cost nothing)
-NODE = "swarm_drive"  # the ROS 2 node name the drive announces in the robot's namespace
 FRAME_ID = "base_link"  # TwistStamped's header frame
-QOS_DEPTH = 10
 ODOM_JUMP_M, ODOM_JUMP_RAD = 0.5, 0.5  # odometry back at its origin from this far in one sample has restarted
 ODOM_ORIGIN = 1e-3  # m and rad: a restarted odometry's first samples are at (0, 0, 0)
 STILL_SAY_S = 2.0  # s of commands that move with odometry that does not: said once (the robot drops them?)
@@ -66,10 +66,6 @@ def _restarted(prev: tuple[float, float, float], odom: tuple[float, float, float
     back to exactly its origin)."""
     at_origin = abs(odom[0]) < ODOM_ORIGIN and abs(odom[1]) < ODOM_ORIGIN and abs(odom[2]) < ODOM_ORIGIN
     return at_origin and (math.hypot(prev[0], prev[1]) > ODOM_JUMP_M or abs(ros2.wrap(prev[2])) > ODOM_JUMP_RAD)
-
-
-class DiscoveryError(SwarmError, RuntimeError):
-    """The robot's ROS 2 topics were not found in time; the message says what was seen."""
 
 
 class Ros2Drive(DriveBase):
@@ -170,7 +166,9 @@ class Ros2Drive(DriveBase):
             self.odom_key = ros2.bridge_key(self.namespace, ros2.ODOM)
             self._check_bridge_route()
         else:
-            sub, pub = self._discover()
+            sub, pub = Discovery(self.bus, namespace=self.namespace, domain=self.domain, cmd_topic=self.cmd_topic,
+                                 odom_topic=self.odom_topic, cmd_type=self.cmd_type, twist_given=self.twist_given,
+                                 discover_timeout_s=self.discover_timeout_s).find()
             self.cmd_key, self.odom_key = sub.data_key, pub.data_key
             if self.twist_given == "auto":
                 self._take_twist(cast(str, sub.dds_type), "its rmw_zenoh token")
@@ -184,7 +182,9 @@ class Ros2Drive(DriveBase):
         if self.flavor == "rmw_zenoh":  # the attachment of the robot's own samples says its release
             self._handles.append(self.bus.subscribe_raw(self.odom_key, self._on_odom_attachment))
         if self.flavor == "rmw_zenoh":
-            entities = self._entities()
+            entities = drive_entities(domain=self.domain, namespace=self.namespace, zid=self.zid,
+                                      cmd_topic=self.cmd_topic, odom_topic=self.odom_topic,
+                                      cmd_key=self.cmd_key, odom_key=self.odom_key)
             self.gid = ros2.entity_gid(entities[1].key)  # the cmd_vel publisher's, as rmw_zenoh derives it
             for e in entities if self.announce else ():
                 self._handles.append(self.bus.token(e.key))
@@ -288,71 +288,6 @@ class Ros2Drive(DriveBase):
         types = sorted({t for t in (ros2.bridge_admin_type(p) for _k, p in replies) if t is not None})
         return types[0] if types else None
 
-    def _discover(self) -> tuple[Entity, Entity]:
-        """The robot's cmd_vel subscription (MS, of the command type; twist auto: of either) and odom publication
-        (MP, Odometry) in this namespace and domain, from the liveliness tokens."""
-        want_odom = ros2.dds_type(ros2.ODOMETRY)
-        want_cmd = {ros2.dds_type(ros2.twist_type(t)) for t in ros2.TWISTS} if self.twist_given == "auto" \
-            else {ros2.dds_type(self.cmd_type)}
-        seen: dict[str, Entity] = {}
-        cond = threading.Condition()
-
-        def on(key: str, alive: bool) -> None:
-            e = ros2.parse_liveliness(key)
-            if e is None:
-                return
-            with cond:
-                if alive:
-                    seen[key] = e
-                else:
-                    seen.pop(key, None)
-                cond.notify_all()
-
-        def found() -> tuple[Entity, Entity] | None:
-            sub = [e for e in seen.values() if e.kind == "MS" and e.topic == self.cmd_topic and e.dds_type in want_cmd]
-            pub = [e for e in seen.values() if e.kind == "MP" and e.topic == self.odom_topic and e.dds_type == want_odom]
-            if sub and pub:
-                return min(sub, key=lambda e: e.key), min(pub, key=lambda e: e.key)
-            return None
-
-        watch = self.bus.watch_alive(ros2.liveliness_any(self.domain), on)
-        try:
-            with cond:
-                got = cond.wait_for(found, timeout=self.discover_timeout_s)
-                snapshot = list(seen.values())
-        finally:
-            watch.close()
-        if not got:
-            raise DiscoveryError(self._not_found(snapshot, want_cmd, want_odom))
-        return got
-
-    def _not_found(self, seen: list[Entity], want_cmd: set[str], want_odom: str) -> str:
-        missing = []
-        if not any(e.kind == "MS" and e.topic == self.cmd_topic and e.dds_type in want_cmd for e in seen):
-            missing.append(f"subscriber of {self.cmd_topic} as " + (
-                f"{ros2.TWIST} or {ros2.TWIST_STAMPED}" if len(want_cmd) > 1 else self.cmd_type))
-        if not any(e.kind == "MP" and e.topic == self.odom_topic and e.dds_type == want_odom for e in seen):
-            missing.append(f"publisher of {self.odom_topic} as {ros2.ODOMETRY}")
-        lines = [f"ROS 2 robot {self.namespace or '/'}: found no {' and no '.join(missing)} on domain {self.domain} "
-                 f"within {self.discover_timeout_s:g} s (rmw_zenoh liveliness tokens under "
-                 f"{ros2.liveliness_any(self.domain)})."]
-        for e in seen:
-            if e.kind == "MS" and e.topic == self.cmd_topic and e.dds_type not in want_cmd:
-                other = "stamped" if e.dds_type == ros2.dds_type(ros2.TWIST_STAMPED) else "plain"
-                lines.append(f"The robot subscribes {e.topic} as {e.dds_type}: use --twist {other}.")
-        topics = sorted({f"{e.kind} {e.topic} {e.dds_type} (node {e.namespace.rstrip('/')}/{e.node})"
-                         for e in seen if e.topic is not None})
-        nodes = sorted({f"{e.namespace.rstrip('/')}/{e.node}" for e in seen if e.kind == "NN"})
-        if seen:
-            lines.append(f"Seen {len(nodes)} node(s): {', '.join(nodes[:12]) or '-'}; topics: "
-                         + ("; ".join(topics[:20]) + (f"; and {len(topics) - 20} more" if len(topics) > 20 else "")
-                            if topics else "-"))
-        else:
-            lines.append("No ROS 2 entity at all: is the robot's bringup running with "
-                         "RMW_IMPLEMENTATION=rmw_zenoh_cpp, its zenoh router linked to this one, and ROS_DOMAIN_ID "
-                         f"{self.domain}? (With zenoh-bridge-ros2dds on the robot, use --ros-flavor bridge.)")
-        return " ".join(lines)
-
     def _on_odom_attachment(self, key: str, payload: bytes, attachment: bytes | None) -> None:
         """The first odometry sample's attachment form: auto takes it for the commands; a given form that differs
         is said once (that robot's rmw_zenoh drops every command)."""
@@ -374,20 +309,6 @@ class Ros2Drive(DriveBase):
             log.error("%s: the robot's odometry carries %s attachments (%s) and --rmw-zenoh-attachment is %s: its "
                       "rmw_zenoh drops every command. Give --rmw-zenoh-attachment %s, or auto", self.namespace, form,
                       ros2.RELEASES[form], self.attachment, form)
-
-    def _entities(self) -> list[Entity]:
-        """The drive as a ROS 2 node would appear: node swarm_drive in the robot's namespace, publishing
-        cmd_vel and subscribing odom (what a teleop or Nav2 controller would show)."""
-        zid = self.zid
-        ns = "/" + self.namespace if self.namespace else "/"
-        qos = ros2.qos_string(QOS_DEPTH)
-        cmd_key, odom_key = cast(str, self.cmd_key), cast(str, self.odom_key)  # start() found them
-        common: dict[str, Any] = dict(domain=self.domain, zid=zid, nid="0", enclave="/", namespace=ns, node=NODE)
-        return [Entity(eid="0", kind="NN", **common),
-                Entity(eid="1", kind="MP", topic=self.cmd_topic, dds_type=cmd_key.split("/")[-2],
-                       type_hash=cmd_key.split("/")[-1], qos=qos, **common),
-                Entity(eid="2", kind="MS", topic=self.odom_topic, dds_type=odom_key.split("/")[-2],
-                       type_hash=odom_key.split("/")[-1], qos=qos, **common)]
 
     def close(self) -> None:
         """Halt, then release the subscription and the tokens (from the loop thread, after wait() returned)."""
