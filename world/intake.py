@@ -1,5 +1,6 @@
-"""What comes in to the simulated world: lock-step commands, statuses and fault counters, and the liveliness of
-the robots and the leader (who is there), each taken under the lock (real time drains its commands itself)."""
+"""What comes in to the simulated world: lock-step commands, and the liveliness of the robots and the leader (who
+is there), each taken under the lock; real time drains its commands, statuses and fault counters itself
+(world.realtime_loop)."""
 
 from __future__ import annotations
 

@@ -751,7 +751,7 @@ fail:
 /* decode_states(items, dec, ids, parse, states, bad, error, limit): for each (key, payload) of items, the
  * robot id of its cell key (ids caches parse(key); cleared when it holds limit keys), then dec(payload, id)
  * appended to states as (state, key); a key parse refuses, or an error dec raises, goes to bad as (key, error).
- * agents.robot.Agent._take_inboxes's loop over its cells, without a bytecode per message. */
+ * agents.realtime.Realtime._take_inboxes's loop over its cells, without a bytecode per message. */
 static PyObject *wire_decode_states(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
     if (nargs != 8) {
         PyErr_SetString(PyExc_TypeError, "decode_states(items, dec, ids, parse, states, bad, error, limit)");
@@ -897,7 +897,7 @@ done:
 }
 
 /* take_states(states, me, ahead, now, mono, windows, table, rx, away, slow): real time, a batch of decoded
- * neighbour states (agents.robot.Agent._on_states). A state of another robot, not ahead of this robot's clock
+ * neighbour states (agents.realtime.Realtime._on_states). A state of another robot, not ahead of this robot's clock
  * (t <= ahead), that its sender's window takes in the common case is taken here: table[j] = s, rx[j] = (its age
  * now, mono), j not away any more. Any other goes to slow(s, key), in its turn (the windows see the states in
  * order). Returns how many were taken here. */
@@ -1088,7 +1088,7 @@ static int append_body(PyObject **out, PyObject *nb, PyObject *kind, double age)
     return 0;
 }
 
-/* lock_bodies(table, dead, waiting, seq, x, y, r2, kind): lock-step, agents.robot.Agent.bodies()'s loop over
+/* lock_bodies(table, dead, waiting, seq, x, y, r2, kind): lock-step, agents.bodies.Bodies.bodies()'s loop over
  * its table, robots in ascending id: a dead one goes to the dead list; a live one counts with its state of tick
  * seq, or, when it was awaited (waiting) and did not come, its last one (stale); closer than r2 (squared) it is a
  * body, of age 0. The same float operations in the same order as the Python (lock-step parity with swarm sim).
@@ -1147,7 +1147,7 @@ done:
     return result;
 }
 
-/* wait_for(table, dead, k, px, py, reach2): lock-step, no faults: agents.robot.Agent._start_tick's pass over its
+/* wait_for(table, dead, k, px, py, reach2): lock-step, no faults: agents.lockstep.Lockstep._start_tick's pass over its
  * table as tick k starts. A live robot's state older than k - 1 is never used again: deleted from the table. A
  * live robot whose state of k - 1 put it closer than reach2 (squared) to this robot's previous position is
  * waited for. Returns the set of those. */
@@ -1204,12 +1204,12 @@ done:
 /* ------------------------------------------------------------------------------------------- lock-step states */
 
 /* StateSink(agent, dec, ids, slow, report): a lock-step robot's neighbour states, taken on zenoh's receiving
- * thread without a Python frame in the common case (agents.robot.Agent._on_state_msg and _on_state, lock-step,
+ * thread without a Python frame in the common case (agents.intake.Intake._on_state_msg and _on_state, lock-step,
  * no faults). Called with a zenoh sample (ZenohBus.subscribe_sink) or as take(key, payload) (MemoryBus). A
  * state whose cell key's id is known (ids), that dec decodes, of another robot, not ahead of the robot's next
  * tick, and that its sender's window takes in the common case, is taken under the agent's lock: counted, put in
  * its table, and no longer waited for if it is of the tick under way; agent.kick is set (the loop woken, or the
- * tick run on this thread: agents.robot) when that took the last awaited robot off and agent._due() says so (nothing else a state changes is read by _due()). Any
+ * tick run on this thread: agents.agent) when that took the last awaited robot off and agent._due() says so (nothing else a state changes is read by _due()). Any
  * other message goes, untouched, to
  * slow(key, payload) (the Python, which takes, refuses or counts it); an error of either goes to
  * report(key, error). Nothing raises into the bus. */

@@ -56,7 +56,7 @@ from swarm.core.errors import SwarmError
 log = logging.getLogger("swarm.record")
 
 DEFAULT_RECORD_HZ = 20.0
-STATUS_PERIOD_S = 0.1  # record_simulation writes statuses at the agents' status rate (agents/robot.py)
+STATUS_PERIOD_S = 0.1  # record_simulation writes statuses at the agents' status rate (agents/state.py)
 MAX_BAD_EVENTS = 100  # bad messages beyond this are counted, not written one by one
 MAX_PENDING = 200_000  # BusRecorder: received messages not yet written; a callback waits beyond this
 POLL_S = 0.02  # BusRecorder: the worker's wake-up period [wall s]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import subprocess
+from pathlib import Path
 import sys
 
 import pytest
@@ -452,9 +453,10 @@ def test_agent_module_imports_nothing_of_the_world_nor_numpy():
             "('world', 'numpy', 'numba', 'zenoh')]; print(','.join(bad))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     assert out.stdout.strip() == ""
-    src = open(robot.__file__).read()
-    assert "world" not in [line.split()[1].split(".")[0] for line in src.splitlines()
-                           if line.startswith(("import ", "from "))]
+    for path in Path(robot.__file__).parent.glob("*.py"):  # the process and every layer of the agent
+        src = path.read_text()
+        assert "world" not in [line.split()[1].split(".")[0] for line in src.splitlines()
+                               if line.strip().startswith(("import ", "from "))], path
 
 
 @pytest.mark.unit

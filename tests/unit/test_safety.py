@@ -17,7 +17,7 @@ H = min(DT, RAMP / 2.0)  # the simulated world's ramp step
 
 
 def factor(t: float, until: float) -> float:
-    """The simulated world's speed factor of a command valid until `until`, at time t (world.world: full until
+    """The simulated world's speed factor of a command valid until `until`, at time t (world.realtime_loop: full until
     then, then 1 - k h / RAMP from until + (k - 1) h, never faster than a linear ramp to a stop over RAMP)."""
     if t < until:
         return 1.0
