@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from typing import TYPE_CHECKING, Any, Callable
 
 from swarm.core import fastlaw, law
@@ -21,6 +22,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("swarm.robot")
 
+SLOW_CALL_SHARE = 0.5  # a user's law call longer than this share of the control period is logged as slow
 _LAWS: dict[tuple[str, str, str | None], Any] = {}  # loaded laws by (ref, sha256, --law-file): one per process
 
 
@@ -85,10 +87,12 @@ def _user_command(cfg: Config, law_file: str | None) -> tuple[Callable[..., tupl
     command = loaded.command(compiled)
     name = f"{cfg.law} ({'compiled by numba' if compiled else 'Python'})"
     dt = cfg.dt
+    slow = [0]  # calls that took longer than SLOW_CALL_SHARE of the control period (logged: the first, then every 100th)
 
     def run(x: float, y: float, th: float, ox: float, oy: float, r: float, t: float, xl: float, yl: float,
             thl: float, vl: float, wl: float, nx: Any, ny: Any, nr: Any, nR: Any, nk: Any, na: Any, n: int,
             mem: Any, p: Any) -> tuple[float, float]:
+        t0 = time.perf_counter()
         try:
             v, w = command(x, y, th, ox, oy, r, t, xl, yl, thl, vl, wl, np.asarray(nx, float), np.asarray(ny, float),
                            np.asarray(nr, float), np.asarray(nR, float), np.asarray(nk, np.int64),
@@ -99,6 +103,13 @@ def _user_command(cfg: Config, law_file: str | None) -> tuple[Callable[..., tupl
         if not (math.isfinite(v) and math.isfinite(w)):  # swarm sim ends the run there too
             raise LawFailure(f"robot {cfg.id}: the law {cfg.law!r} gave a non-finite command (v = {v}, w = {w}) at "
                              f"step {int(round(t / dt))} (t = {t:g} s)")
+        took = time.perf_counter() - t0
+        if took > SLOW_CALL_SHARE * dt:
+            slow[0] += 1
+            if slow[0] % 100 == 1:
+                log.warning("robot %d: the law %r took %.2f ms at step %d, more than %d %% of the control period "
+                            "(%g ms): its commands go out late (%d such calls so far)", cfg.id, cfg.law, took * 1e3,
+                            int(round(t / dt)), int(SLOW_CALL_SHARE * 100), dt * 1e3, slow[0])
         return v, w
 
     return run, name

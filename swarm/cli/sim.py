@@ -172,7 +172,7 @@ def cmd_scenario_check(args: argparse.Namespace, started: float) -> int:
     for f in args.files:
         scn = scenario_file.load(f)
         if scn.control.law is not None:
-            _check_law(f, scn.control.law, args.python_law)
+            _check_law(f, scn.control.law, args.python_law, scn.dt)
         print(f"{f}: ok ({scn.n} robots, {len(scn.obstacles)} obstacles, {scn.steps} steps of {scn.dt:g} s)")
         for note in scenario_file.advisories(scn):
             print(f"{f}: warning: {note}")
@@ -182,8 +182,12 @@ def cmd_scenario_check(args: argparse.Namespace, started: float) -> int:
 LAW_SAMPLES = 200  # random test calls of a user's law in `swarm scenario check`
 
 
-def _check_law(where: str, spec, python_only: bool) -> None:
-    """Load and test-call a scenario's own law (swarm.core.userlaw.check): exit 2 naming what is wrong."""
+SLOW_LAW_SHARE = 0.25  # a law whose call takes more than this share of the control period is said to be slow
+
+
+def _check_law(where: str, spec, python_only: bool, dt: float) -> None:
+    """Load and test-call a scenario's own law (swarm.core.userlaw.check): exit 2 naming what is wrong; then time
+    its calls, and warn when one takes more than SLOW_LAW_SHARE of the control period dt."""
     from swarm.core import userlaw
     from swarm.core.scenario import ScenarioError
 
@@ -195,8 +199,13 @@ def _check_law(where: str, spec, python_only: bool) -> None:
     if problems:
         raise ScenarioError(where, "control.law", problems[0])
     how = "as plain Python" if python_only else "compiled by numba and as Python, the two equal bit for bit"
+    per_call = userlaw.call_time(loaded, LAW_SAMPLES, compiled=not python_only)
     print(f"{where}: law {spec.text} ({spec.name}, sha256 {spec.sha256[:16]}...): {LAW_SAMPLES} random test calls "
-          f"{how}, every command finite")
+          f"{how}, every command finite; {per_call * 1e6:.1f} us a call (median)")
+    if per_call > SLOW_LAW_SHARE * dt:
+        print(f"{where}: warning: the law takes {per_call * 1e3:.2f} ms a call, more than {SLOW_LAW_SHARE:.0%} of the "
+              f"control period ({dt * 1e3:g} ms): `swarm sim` runs slowly, and in `swarm up` a robot computes its "
+              "commands late (docs/control.md)")
 
 
 def _fault_fields(sim) -> str:

@@ -45,6 +45,12 @@ LAWS = textwrap.dedent('''
     def single(me, ref, bodies, params):
         return 1.0
 
+    def slow(me, ref, bodies, params):
+        x = me[0]
+        for i in range(20000):
+            x = x * 0.999999 + 1e-7
+        return 0.0 * x, 0.0
+
     NOT_A_FUNCTION = 3
 ''')
 
@@ -213,3 +219,14 @@ def test_a_module_law_is_found_without_importing_its_package():
     before = set(sys.modules)
     userlaw.module_source("email.mime.text")
     assert "email.mime.text" not in set(sys.modules) - before
+
+
+def test_scenario_check_times_the_law_and_says_when_it_is_slow_for_the_period(laws, capsys):
+    """A law over a quarter of the control period a call is said to be slow (a warning, not a refusal)."""
+    from swarm.cli.sim import _check_law
+
+    for name, slow in (("good", False), ("slow", True)):
+        _check_law("s.toml", spec(laws, name), False, dt=4e-5)
+        out = capsys.readouterr().out
+        assert "us a call (median)" in out
+        assert ("warning: the law takes" in out) == slow, out
