@@ -77,7 +77,7 @@ class Links(Intake):
 
     def _subscribe_cell(self, key: str):
         """Lock-step: a cell's states, through the compiled sink where there is one (no faults, a bus that takes
-        it, the wire codec built), else through _on_state_msg: the same rules either way."""
+        it, the compiled loops built), else through _on_state_msg: the same rules either way."""
         if self._state_sink is None:
             return self.bus.subscribe(key, self._on_state_msg)
         return self.bus.subscribe_sink(key, self._state_sink)

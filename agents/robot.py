@@ -85,7 +85,7 @@ def within_limits(cfg: Config, limits: tuple[float, float] | None) -> Config:
     if limits is None:
         return cfg
     v, w = limits
-    return replace(cfg, v_max=v if cfg.v_max <= 0 else min(cfg.v_max, v),
+    return protocol.replace(cfg, v_max=v if cfg.v_max <= 0 else min(cfg.v_max, v),
                    w_max=w if cfg.w_max <= 0 else min(cfg.w_max, w))
 
 
@@ -176,7 +176,7 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
             current[:] = [agent]
             if runs.latest is not None and runs.latest.run != run.run:
                 agent.end()  # another run began while this one was being set up
-            log.info("robot %d: run %s (%s, %d robots; law %s, wire codec %s)", robot_id, run.run,
+            log.info("robot %d: run %s (%s, %d robots; law %s, message loops %s)", robot_id, run.run,
                      "lock-step" if run.lockstep else "real time", run.robots, agent.control.label,
                      "compiled" if protocol._wire is not None else "Python")
             try:

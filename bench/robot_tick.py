@@ -200,7 +200,7 @@ def main() -> None:
     print(f"robot {me} of {scn.n} (paper-50hz formation), {a.mode}, bus {'memory' if router is None else 'zenoh'}, "
           f"{len(cpu)} periods: "
           f"{heard / len(cpu):.1f} neighbours a period, {agent.bad.count} bad messages; law "
-          f"{'compiled' if fastlaw.COMPILED else 'Python'}, wire codec {'compiled' if protocol._wire else 'Python'}"
+          f"{'compiled' if fastlaw.COMPILED else 'Python'}, message loops {'compiled' if protocol._wire else 'Python'}"
           " (SWARM_PURE_PYTHON=1: both Python)")
     print(f"CPU per period: mean {statistics.fmean(cpu):.0f} us, median {cpu[len(cpu) // 2]:.0f} us, "
           f"p90 {cpu[math.floor(0.9 * len(cpu))]:.0f} us")

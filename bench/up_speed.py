@@ -18,7 +18,7 @@ samples every child process with psutil while the run is under way. Figures:
               moving work to another thread; the floor's beside it ("floor proc us")
   steal %     the share of this machine's CPU its host took during swarm's two runs (a VM's steal time,
               from /proc/stat): where it is high, the figures are the host's, not swarm's
-  robots ran  "compiled" (the C wire codec and law, swarm/proto/_wire.c and swarm/core/_law.c) or
+  robots ran  "compiled" (the C message loops and law, swarm/proto/_wire.c and swarm/core/_law.c) or
               "Python": set SWARM_PURE_PYTHON=1 to measure the Python back to back
 --floor runs bench/zenoh_floor.py (lock-step, lock-step with swarm's wait rule: "floor wait t/s", and real
 time) after each round's two runs, so that swarm and its floor are measured back to back; --rounds 3 prints
@@ -105,7 +105,7 @@ def logged_us(log_dir: Path, figure: re.Pattern) -> float:
     return sum(found) / len(found) if found else float("nan")
 
 
-RUNS_WITH = re.compile(r"law (compiled|Python), wire codec (compiled|Python)")
+RUNS_WITH = re.compile(r"law (compiled|Python), message loops (compiled|Python)")
 
 
 def runs_with(log_dir: Path) -> str:

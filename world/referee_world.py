@@ -32,7 +32,7 @@ import logging
 import math
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -142,7 +142,8 @@ class RefereeWorld:
     def config(self, i: int) -> protocol.Config:
         """Robot i's slice: the scenario's, with its real start and its own (tighter) limits."""
         v_max, w_max = self.fleet.limits(i)
-        return replace(runid.robot_config(self.scn, i, False, self.run_id, self.digest), v_max=v_max, w_max=w_max)
+        return protocol.replace(runid.robot_config(self.scn, i, False, self.run_id, self.digest), v_max=v_max,
+                                w_max=w_max)
 
     def _config(self, key: str) -> bytes | None:
         parsed = keys.parse(key)

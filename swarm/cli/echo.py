@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import queue
 import time
+
+import msgspec
 
 from swarm.cli.common import EXIT_FAILURE, EXIT_OK, BadInput, StopEvent, fleet_of, open_bus
 from swarm.proto import keys, protocol
@@ -46,7 +47,7 @@ def line(key: str, payload: bytes) -> tuple[str, bool]:
         msg = protocol.decode(payload, kind)
     except ProtocolError as e:
         return f"{key} ! not a {kind or 'swarm'} message: {e}", False
-    fields = dataclasses.asdict(msg)
+    fields = msgspec.to_builtins(msg)
     text = json.dumps(fields, separators=(", ", ": "), default=str,
                       allow_nan=True).replace("NaN", "nan") if fields else "{}"
     return f"{key} {protocol.kind_of(msg)} {text}", True

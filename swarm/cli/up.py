@@ -81,17 +81,17 @@ class ViewerUrl:
 
 
 def python_note() -> str | None:
-    """Why the robots here will run slower, if they will: their wire codec or law is Python, not compiled
+    """Why the robots here will run slower, if they will: their message loops or law is Python, not compiled
     (setup.py found no C compiler at install, or SWARM_PURE_PYTHON is set). None when both are compiled."""
     from swarm.core import fastlaw
     from swarm.proto import protocol
 
-    missing = [what for what, ok in (("wire codec", protocol._wire is not None), ("law", fastlaw.COMPILED)) if not ok]
+    missing = [what for what, ok in (("message loops", protocol._wire is not None), ("law", fastlaw.COMPILED)) if not ok]
     if not missing:
         return None
     why = "SWARM_PURE_PYTHON is set" if os.environ.get("SWARM_PURE_PYTHON") else \
         "no C compiler was found when swarm was installed: install gcc and run pip install -e . again"
-    return (f"note: the robots' {' and '.join(missing)} {'run' if len(missing) > 1 else 'runs'} as Python ({why}); "
+    return (f"note: the robots' {' and '.join(missing)} {'runs' if missing == ['law'] else 'run'} as Python ({why}); "
             "a robot's period costs about a third more CPU (docs/performance.md)")
 
 

@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import time
 import tomllib
-from dataclasses import replace
 from typing import TYPE_CHECKING, Any, cast
+
+from msgspec.structs import replace
 
 if TYPE_CHECKING:
     from swarm.core.clock import FakeClock, WallClock

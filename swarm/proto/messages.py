@@ -1,10 +1,12 @@
-"""The messages of docs/protocol.md as dataclasses, one per kind, and ProtocolError, the error of a message
-that must not reach the law. swarm.proto.protocol encodes and decodes them (and gives each a faster __init__)."""
+"""The messages of docs/protocol.md, one frozen msgspec struct per kind (built in a tenth of a microsecond, compared
+and hashed by value; msgspec.structs.replace makes a changed copy), and ProtocolError, the error of a message that
+must not reach the law. swarm.proto.protocol encodes and decodes them through each kind's wire struct."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
+
+import msgspec
 
 from swarm.core.errors import SwarmError
 
@@ -16,8 +18,7 @@ class ProtocolError(SwarmError, ValueError):
     """A message that must not reach the law: the reason says what was wrong."""
 
 
-@dataclass(frozen=True, slots=True)
-class Ref:
+class Ref(msgspec.Struct, frozen=True):
     """The leader's live reference (leader -> agents)."""
 
     t: float
@@ -29,8 +30,7 @@ class Ref:
     w: float
 
 
-@dataclass(frozen=True, slots=True)
-class Pose:
+class Pose(msgspec.Struct, frozen=True):
     """A robot's pose (world or localization -> agent)."""
 
     t: float
@@ -43,8 +43,7 @@ class Pose:
     cmd: float | None = None
 
 
-@dataclass(frozen=True, slots=True)
-class Cmd:
+class Cmd(msgspec.Struct, frozen=True):
     """A robot's command (agent -> world or drive)."""
 
     t: float
@@ -57,8 +56,7 @@ class Cmd:
     until: float | None = None
 
 
-@dataclass(frozen=True, slots=True)
-class State:
+class State(msgspec.Struct, frozen=True):
     """A robot's state on its cell key (agent -> agents nearby)."""
 
     id: int
@@ -78,8 +76,7 @@ class State:
     still: float | None = None
 
 
-@dataclass(frozen=True, slots=True)
-class Status:
+class Status(msgspec.Struct, frozen=True):
     """A robot's status (agent -> viewers, recorder)."""
 
     t: float
@@ -95,23 +92,20 @@ class Status:
     held: float | None = None
 
 
-@dataclass(frozen=True)
-class Obstacle:
+class Obstacle(msgspec.Struct, frozen=True):
     x: float
     y: float
     r: float
     R: float
 
 
-@dataclass(frozen=True)
-class Obstacles:
+class Obstacles(msgspec.Struct, frozen=True):
     """The world's static obstacles (reply of the obstacles queryable)."""
 
     obstacles: tuple[Obstacle, ...]
 
 
-@dataclass(frozen=True)
-class RobotSnap:
+class RobotSnap(msgspec.Struct, frozen=True):
     id: int
     x: float
     y: float
@@ -122,8 +116,7 @@ class RobotSnap:
     alive: bool
 
 
-@dataclass(frozen=True)
-class Snapshot:
+class Snapshot(msgspec.Struct, frozen=True):
     """Every robot at one tick (world -> viewers, recorder)."""
 
     t: float
@@ -131,8 +124,7 @@ class Snapshot:
     robots: tuple[RobotSnap, ...]
 
 
-@dataclass(frozen=True)
-class Clock:
+class Clock(msgspec.Struct, frozen=True):
     """The world's clock (world -> leader, agents; an extension key). Lock-step: tick seq at time t
     (clock 0 also says every robot's first state has been delivered). Real time: t = (unix time -
     epoch) * speed, so every process can run the same simulated clock from its own wall clock."""
@@ -143,8 +135,7 @@ class Clock:
     speed: float  # simulated seconds per wall second (> 0)
 
 
-@dataclass(frozen=True)
-class Config:
+class Config(msgspec.Struct, frozen=True):
     """One robot's slice of the scenario (reply of the world's config queryable): its id, start
     pose, formation offset, radii, gains and timing; never another robot's state."""
 
@@ -185,8 +176,7 @@ class Config:
     law_memory: int | None = None  # [control] memory: floats of memory per robot
 
 
-@dataclass(frozen=True)
-class Body:
+class Body(msgspec.Struct, frozen=True):
     id: int
     x: float
     y: float
@@ -194,8 +184,7 @@ class Body:
     R: float
 
 
-@dataclass(frozen=True)
-class Bodies:
+class Bodies(msgspec.Struct, frozen=True):
     """Lock-step under faults (world -> every agent, each tick before its poses): the static bodies at
     tick seq, robots that are dead or stopped by the watchdog, where they stand (every agent takes them
     as bodies, neighbours or not); and the robots returning at seq (restarted or resumed: their first
@@ -207,8 +196,7 @@ class Bodies:
     returning: tuple[Body, ...] = ()
 
 
-@dataclass(frozen=True)
-class FaultStats:
+class FaultStats(msgspec.Struct, frozen=True):
     """A robot's fault counters (agent -> world, lock-step under faults, each tick before its command):
     what its fault layer lost or delayed so far of its neighbours' states, its poses and its references,
     and the oldest neighbour state its law used [s]. A restarted robot counts from 0 again."""
@@ -225,8 +213,7 @@ class FaultStats:
     frozen: bool  # its law froze it at seq (the metrics' freezes under faults are the laws' own)
 
 
-@dataclass(frozen=True)
-class Estop:
+class Estop(msgspec.Struct, frozen=True):
     """The emergency stop (operator -> every drive): engaged, every robot holds zero velocity until a
     release (engaged false). t is the operator's unix time [s], seq its counter (unix time in ms)."""
 
@@ -236,8 +223,7 @@ class Estop:
     reason: str
 
 
-@dataclass(frozen=True)
-class Proc:
+class Proc(msgspec.Struct, frozen=True):
     """A process of the swarm says who it is (its proc queryable's reply: `swarm ps`): its role and id (as in its
     liveliness token), the machine's host name, its pid, when it started (unix time [s]), the run it is in ("" for
     none yet) and the swarm version it runs."""
@@ -251,8 +237,7 @@ class Proc:
     version: str
 
 
-@dataclass(frozen=True)
-class Run:
+class Run(msgspec.Struct, frozen=True):
     """A run's identity (world -> everyone, and the world's run queryable): a new id at every run's
     start; digest = sha256 of the resolved scenario (faults included) as canonical TOML. The
     queryable's reply also carries that TOML in `scenario` (so a robot can name the first
@@ -265,8 +250,7 @@ class Run:
     scenario: str
 
 
-@dataclass(frozen=True)
-class Progress:
+class Progress(msgspec.Struct, frozen=True):
     """A run's progress (world -> launcher, viewers; an extension key). min_distance < 0: none yet."""
 
     t: float
@@ -295,8 +279,7 @@ class Progress:
 EVENTS = ("kill", "restart", "hang", "resume", "partition", "partition_end", "signal", "estop", "estop_release")
 
 
-@dataclass(frozen=True)
-class Event:
+class Event(msgspec.Struct, frozen=True):
     """A fault or supervision event (world, swarm up -> viewers, recorders; world/events): a scheduled
     process event of the robots named (kill, restart, hang, resume), a partition that begins or ends
     (robots: every robot cut off from the world's group), or a signal the supervisor sent (signal)."""
@@ -308,8 +291,7 @@ class Event:
     detail: str
 
 
-@dataclass(frozen=True)
-class Claim:
+class Claim(msgspec.Struct, frozen=True):
     """The world's answer to a robot started with --id auto (reply of world/claim/<claim key>): the id it
     may take (granted), or why not. The id is provisional until that robot's liveliness token appears
     (world.claims)."""

@@ -16,18 +16,21 @@ per sender (swarm.proto.window) are in docs/protocol.md.
 The parts live in modules of their own, and everything other modules use is re-exported here (import it from
 here): swarm.proto.messages (the dataclasses, ProtocolError), swarm.proto.spec (the version, the bounds, every
 kind's fields on the wire), swarm.proto.checks (the checks of every field and kind, Limits) and
-swarm.proto.refusals (BadMessages, Claims). This module is the codec: encode(), decode(), decoder() and the
-code they generate, or take compiled from swarm/proto/_wire.c.
+swarm.proto.refusals (BadMessages, Claims). This module is the codec: encode(), decode() and decoder(). msgspec
+writes every message and reads every flat kind through the kind's wire struct (_wire_struct: every type and bound
+checked as it reads); what it does not take, and the nested kinds, go the general way (msgpack, then each check in
+turn), which refuses naming the reason. No msgpack is parsed by hand.
 """
 
 from __future__ import annotations
 
 import math
 import os
-from dataclasses import MISSING, fields
-from typing import TYPE_CHECKING, overload
+from typing import TYPE_CHECKING, Annotated, Any, Literal, overload
 
 import msgpack
+import msgspec
+from msgspec.structs import replace as replace  # a message with some fields changed: replace(cfg, v_max=0.2)
 from swarm.core.errors import SwarmError
 # re-exported (X as X): what other modules, the tests and the benchmarks take from here
 from swarm.proto.checks import PROC_ROLES as PROC_ROLES
@@ -53,17 +56,17 @@ from swarm.proto.spec import _FIELD, _HOT_BOUNDS, _OPTIONAL, _SNAP_FIELDS, _SPEC
 
 if TYPE_CHECKING:
     from collections.abc import Callable
-    from typing import Any, Literal, Protocol, TypeVar
+    from typing import Protocol, TypeVar
 
     from swarm.proto.messages import HotMessage, Message
 
-try:  # the compiled wire codec of the kinds of every period (setup.py builds it where a C compiler is found)
-    from swarm.proto import _wire as _wire  # re-exported: other modules read protocol._wire
-    # (and tests set it, to None for the Python codec: the functions below that build codecs read it here)
+try:  # a robot's loops over its messages, compiled (setup.py builds them where a C compiler is found)
+    from swarm.proto import _wire as _wire  # re-exported: the agent and the bus read protocol._wire
+    # (and tests set it, to None for the Python loops)
 except ImportError:
     _wire = None
 
-if os.environ.get("SWARM_PURE_PYTHON"):  # the generated Python codec alone (tests compare the two)
+if os.environ.get("SWARM_PURE_PYTHON"):  # the Python loops alone (tests compare the two)
     _wire = None
 
 if TYPE_CHECKING:
@@ -75,47 +78,12 @@ if TYPE_CHECKING:
         def __call__(self, payload: bytes, key_id: int | None = None, /) -> _M_co: ...
 
 
-def _fast_init(cls: type[Any]) -> None:
-    """Give a frozen dataclass an __init__ that fills its __dict__ directly (or, with __slots__, each slot
-    through its descriptor): the same signature and defaults, the same object (fields, eq, hash, repr, frozen
-    after it), built in a third of the time (a frozen dataclass's own __init__ calls object.__setattr__ once
-    per field: about 2 us for a state, and a robot builds several messages every control period)."""
-    ns: dict[str, Any] = {}
-    params, stores = [], []
-    slotted = "__slots__" in cls.__dict__
-    for f in fields(cls):
-        if f.default_factory is not MISSING:
-            raise TypeError(f"{cls.__name__}.{f.name}: a default factory is not supported here")
-        if f.default is MISSING:
-            params.append(f.name)
-        else:
-            ns[f"_default_{f.name}"] = f.default
-            params.append(f"{f.name}=_default_{f.name}")
-        if slotted:
-            ns[f"_set_{f.name}"] = cls.__dict__[f.name].__set__
-            stores.append(f"    _set_{f.name}(self, {f.name})")
-        else:
-            stores.append(f"    d[{f.name!r}] = {f.name}")
-    names = [f.name for f in fields(cls)]
-    if slotted and _wire is not None:  # every slot in one compiled call (swarm/proto/_wire.c)
-        ns["_fill"] = _wire.Filler(cls, tuple(names))
-        stores = [f"    _fill(self, {', '.join(names)})"]
-    head = "" if slotted else "    d = self.__dict__\n"
-    src = f"def __init__(self, {', '.join(params)}):\n{head}" + "\n".join(stores)
-    exec(compile(src, f"<protocol __init__ of {cls.__name__}>", "exec"), ns)
-    ns["__init__"].__qualname__ = f"{cls.__name__}.__init__"
-    cls.__init__ = ns["__init__"]
-
-
-for _cls in (*KINDS.values(), Obstacle, RobotSnap, Body):
-    _fast_init(_cls)
-
-
 # --------------------------------------------------------------------------- encoding
 
 
 def encode(msg: Any) -> bytes:
-    """msgpack bytes of a message (no validation: messages are built by this process)."""
+    """msgpack bytes of a message (no validation: messages are built by this process), written by msgspec: a flat
+    kind from its wire struct (_wire_struct), a nested one from a dict in the same key order."""
     cls = type(msg)
     fast = _FAST_ENCODE.get(cls)
     if fast is not None:
@@ -137,101 +105,119 @@ def encode(msg: Any) -> bytes:
     elif kind == "snapshot":
         d.update(t=msg.t, seq=msg.seq,
                  robots=[{f: getattr(s, f) for f in _SNAP_FIELDS} for s in msg.robots])
-    else:
-        for name, wire in _WIRE_NAMES[kind]:
-            d[wire] = getattr(msg, name)
-    payload: bytes = msgpack.packb(d, use_bin_type=True)
-    return payload
+    return _packb(d)
 
 
-# --------------------------------------------------------------------------- decoding
+def _enc_hook(obj: Any) -> Any:
+    """What msgspec does not write itself, as msgpack.packb writes it: a float subclass (numpy's float64) as a float,
+    an int subclass as an int; anything else is not a field of a message."""
+    if isinstance(obj, float):
+        return float(obj)
+    if isinstance(obj, int):
+        return int(obj)
+    raise TypeError(f"a message field cannot be a {type(obj).__name__}")
 
 
-def _compile_fast(kind: str) -> Callable[[dict[str, Any]], Any]:
-    """A decoder for the common case of a flat kind: exactly the fields of the spec, floats that are
-    floats and finite, ints in range, bools. It returns the message, or None for anything else, and
-    decode() then takes the general path, which accepts ints for numbers and names what is wrong.
-    Generated once per kind (as dataclasses and namedtuple do): straight-line code is 3x faster than
-    the general path, and a robot decodes ~10 messages per control period."""
-    spec = _SPEC[kind]
-    wire = {_FIELD.get(n, n): n for n, _ in spec}  # python name -> wire name
-    var = {n: f"a{i}" for i, (n, _) in enumerate(spec)}
-    floats = [var[n] for n, t in spec if t == "n"]
-    body = ["def fast(d):",
-            f"    if len(d) != {len(spec) + 2} or d.get('kind') != {kind!r} or d.get('v') != {VERSION} "
-            "or type(d['v']) is not int:",
-            "        return None",
-            "    try:",
-            *[f"        {var[n]} = d[{n!r}]" for n, _ in spec],
-            "    except KeyError:",
-            "        return None"]
-    for n, t in spec:
-        a = var[n]
+_packb = msgspec.msgpack.Encoder(enc_hook=_enc_hook).encode  # the bytes msgpack.packb(x, use_bin_type=True) writes
+
+
+def _wire_struct(kind: str, limits: Limits | None = None, *, typed: bool = True) -> type[msgspec.Struct]:
+    """A flat kind's map on the wire as a msgspec struct: "v" and "kind", then its fields by wire name in the
+    encoder's order (the dataclass's), the optional ones last with UNSET (left out when written, absent when read).
+    typed: every field's type and bound as decode() holds them (numbers finite and, for the kinds of every period,
+    within _HOT_BOUNDS and the scenario's `limits`; ints in range; strings bounded), for decoding; else Any, for
+    writing (what a message holds is written as it is)."""
+    types = dict(_SPEC[kind])
+    optional = _OPTIONAL.get(kind, ())
+    bounds = {_WIRE.get(n, n): b for n, b in _HOT_BOUNDS.get(kind, ())}
+    lims: dict[str, tuple[float, float]] = {}
+    if limits is not None:
+        tol = 1 + 1e-9  # as Limits.check
+        if kind == "state":
+            lims["R"] = (-math.inf, limits.radius * tol)
+        if kind == "cmd":
+            lims["vel"] = (-(limits.v_max * tol), limits.v_max * tol)
+            lims["w"] = (-(limits.w_max * tol), limits.w_max * tol)
+        if limits.bounds is not None and kind in ("state", "pose"):
+            xmin, xmax, ymin, ymax = limits.bounds
+            lims["x"], lims["y"] = (xmin, xmax), (ymin, ymax)
+
+    def typ(wire: str) -> Any:
+        if not typed:
+            return Any
+        t = types[wire]
         if t == "n":
-            body.append(f"    if type({a}) is not float: return None")
-        elif t == "b":
-            body.append(f"    if type({a}) is not bool: return None")
-        elif t in ("s", "S"):
-            limit = MAX_TEXT if t == "s" else MAX_LARGE_PAYLOAD
-            body.append(f"    if type({a}) is not str or len({a}) > {limit}: return None")
+            lo, hi = -_FINITE, _FINITE
+            if wire in bounds:
+                lo, hi = max(lo, -bounds[wire]), min(hi, bounds[wire])
+            if kind == "state" and wire == "stop":
+                lo = max(lo, 0.0)
+            if wire in lims:
+                lo, hi = max(lo, lims[wire][0]), min(hi, lims[wire][1])
+            return Annotated[float, msgspec.Meta(ge=lo, le=hi)]
+        if t in ("i", "id"):
+            top = 2**53 if t == "i" else MAX_ROBOTS - 1
+            if t == "id" and limits is not None:
+                top = min(top, limits.robots - 1)
+            return Annotated[int, msgspec.Meta(ge=0, le=top)]
+        if t == "b":
+            return bool
+        if t in ("s", "S"):
+            return Annotated[str, msgspec.Meta(max_length=MAX_TEXT if t == "s" else MAX_LARGE_PAYLOAD)]
+        if t == "f":
+            return Annotated[list[Annotated[float, msgspec.Meta(ge=-_FINITE, le=_FINITE)]],
+                             msgspec.Meta(max_length=MAX_LAW_PARAMS)]
+        raise TypeError(f"no wire type for {t!r}")
+
+    spec: list[Any] = [("v", Literal[VERSION] if typed else Any), ("kind", Literal[kind] if typed else Any)]
+    for _, wire in _WIRE_NAMES[kind]:
+        if wire in optional:
+            spec.append((wire, typ(wire) | msgspec.UnsetType if typed else Any, msgspec.UNSET))
         else:
-            limit = MAX_ROBOTS - 1 if t == "id" else 2**53
-            body.append(f"    if type({a}) is not int or not 0 <= {a} <= {limit}: return None")
-    if floats:  # finite iff their sum minus itself is 0 (inf and nan propagate; an overflow goes the long way)
-        body += [f"    s = {' + '.join(floats)}", "    if s - s != 0.0: return None"]
-    args = ", ".join(var[wire[f.name]] for f in fields(KINDS[kind]))
-    body.append(f"    return cls({args})")
-    ns: dict[str, Any] = {"cls": KINDS[kind]}
-    exec(compile("\n".join(body), f"<protocol fast decoder for {kind}>", "exec"), ns)
-    fast: Callable[[dict[str, Any]], Any] = ns["fast"]
-    return fast
+            spec.append((wire, typ(wire)))
+    return msgspec.defstruct(f"Wire_{kind}", spec, forbid_unknown_fields=True, gc=False)
 
 
-# Generated on first use of each kind (a process uses a few; compiling all at import cost ~15 ms of
-# every process's start, 40 times over at `swarm up`).
-_FAST: dict[str, Callable[[dict[str, Any]], Any]] = {}
+_FINITE = 1.7976931348623157e308  # the largest float: bounds of [-it, it] refuse inf and nan
 
 
 def _compile_encode(kind: str) -> Callable[[Message], bytes]:
-    """encode() for a flat kind as one dict display (the general loop costs 3x as much)."""
-    items = ", ".join(f"{wire!r}: m.{name}" for name, wire in _WIRE_NAMES[kind])
+    """encode() for a flat kind: its wire struct (a None optional field left out) written by msgspec."""
     optional = _OPTIONAL.get(kind, ())
-    src = f"def enc(m):\n    d = {{'v': {VERSION}, 'kind': {kind!r}, {items}}}\n"
-    src += "".join(f"    if m.{_FIELD.get(n, n)} is None:\n        del d[{n!r}]\n" for n in optional)
-    src += "    return packb(d, use_bin_type=True)"
-    ns: dict[str, Any] = {"packb": msgpack.packb}
-    exec(compile(src, f"<protocol fast encoder for {kind}>", "exec"), ns)
+    items = ", ".join(f"m.{name}" if wire not in optional else f"(UNSET if m.{name} is None else m.{name})"
+                      for name, wire in _WIRE_NAMES[kind])
+    ns: dict[str, Any] = {"W": _wire_struct(kind, typed=False), "packb": _packb, "UNSET": msgspec.UNSET}
+    src = f"def enc(m):\n    return packb(W({VERSION}, {kind!r}, {items}))"
+    exec(compile(src, f"<protocol encoder for {kind}>", "exec"), ns)
     enc: Callable[[Message], bytes] = ns["enc"]
-    order = _wire_order(kind)
-    if _wire is None or any(t not in ("n", "i", "id", "b") for _, t, _ in order):
-        return enc
-    compiled: Callable[[Message], bytes] = _wire.Encoder(kind, VERSION, order, enc, KINDS[kind])
-    return compiled
+    return enc
 
 
 def encoder(kind: str) -> Callable[..., bytes]:
-    """f(*fields) -> bytes: encode(cls(*fields)) for a flat kind, its fields given in the dataclass's order,
-    without building the message where the compiled codec is (a robot's own state and command, every period)."""
+    """f(*fields) -> bytes: encode(cls(*fields)) for a flat kind, its fields given in the dataclass's order (with
+    its defaults), without building the message (a robot's own state and command, every period)."""
     if kind not in _SPEC:
         raise ValueError(f"{kind!r} is not a flat message kind")
+    got = _FIELD_ENCODE.get(kind)
+    if got is not None:
+        return got
     cls = KINDS[kind]
-    fast = _FAST_ENCODE.get(cls)
-    if fast is None:  # generated once, as encode() would
-        fast = _FAST_ENCODE[cls] = _compile_encode(kind)
-    if _wire is not None and isinstance(fast, _wire.Encoder):
-        compiled: Callable[..., bytes] = fast
-        return compiled
-    return lambda *fields: fast(cls(*fields))
-
-
-def _wire_order(kind: str) -> list[tuple[str, str, str]]:
-    """A flat kind's fields as the compiled codec takes them: (wire name, _SPEC type, Python name), in the
-    encoder's order (the dataclass's)."""
-    types = dict(_SPEC[kind])
-    return [(wire, types[wire], name) for name, wire in _WIRE_NAMES[kind]]
+    optional = _OPTIONAL.get(kind, ())
+    declared = msgspec.structs.fields(cls)
+    params = [f.name if f.required else f"{f.name}=D_{f.name}" for f in declared]
+    items = ", ".join(f"{name}" if wire not in optional else f"(UNSET if {name} is None else {name})"
+                      for name, wire in _WIRE_NAMES[kind])
+    ns: dict[str, Any] = {"W": _wire_struct(kind, typed=False), "packb": _packb, "UNSET": msgspec.UNSET,
+                          **{f"D_{f.name}": f.default for f in declared if not f.required}}
+    src = f"def enc({', '.join(params)}):\n    return packb(W({VERSION}, {kind!r}, {items}))"
+    exec(compile(src, f"<protocol field encoder for {kind}>", "exec"), ns)
+    enc: Callable[..., bytes] = ns["enc"]
+    _FIELD_ENCODE[kind] = enc
+    return enc
 
 
 _FAST_ENCODE: dict[type[Message], Callable[[Message], bytes]] = {}
+_FIELD_ENCODE: dict[str, Callable[..., bytes]] = {}
 _unpackb = msgpack.unpackb
 
 
@@ -316,12 +302,12 @@ def decode(payload: bytes, kind: str | None = None, key_id: int | None = None,
            limits: Limits | None = None) -> Message:
     """Validate and decode a payload; `kind` is the expected kind, `key_id` the id in its key, `limits`
     the scenario's bounds (ids, radii, speeds, arena) on top of the physical ones. Raises only
-    ProtocolError. The kinds of every control period (state, pose, ref, cmd) go through decoder()."""
-    if kind in _HOT_BOUNDS:
-        hot = _HOT.get((kind, id(limits)))
-        if hot is None or hot[0] is not limits:
-            return decoder(kind, limits)(payload, key_id)
-        return hot[1](payload, key_id)
+    ProtocolError. A flat kind goes through its decoder() (limits matter to the kinds of every period only)."""
+    if kind in _SPEC:
+        lim = limits if kind in _HOT_BOUNDS else None
+        hot = _HOT.get((kind, id(lim)))
+        msg: Message = (decoder(kind, lim) if hot is None or hot[0] is not lim else hot[1])(payload, key_id)
+        return msg
     return _decode_checked(payload, kind, key_id, limits)
 
 
@@ -352,18 +338,6 @@ def _decode(payload: object, kind: str | None, key_id: int | None) -> Any:
         raise ProtocolError(f"not msgpack: {type(e).__name__}") from None
     if not isinstance(d, dict):
         raise ProtocolError(f"payload must be a map, got {type(d).__name__}")
-    fast = _FAST.get(kind) if kind is not None else None
-    if fast is None and kind in _SPEC:
-        fast = _FAST[kind] = _compile_fast(kind)
-    if fast is not None:
-        msg = fast(d)
-        if msg is not None:
-            check = _CHECK.get(kind)
-            if check is not None:
-                check(msg)
-            if key_id is not None and kind in ("state", "config") and msg.id != key_id:
-                raise ProtocolError(f"id {msg.id} in the payload does not match id {key_id} in the key")
-            return msg
     return _decode_map(d, kind, key_id)
 
 
@@ -395,11 +369,13 @@ def _decode_map(d: dict[str, Any], kind: str | None, key_id: int | None) -> Any:
     return msg
 
 
-# --------------------------------------------------------------------------- the hot path
+# --------------------------------------------------------------------------- the fast path
 
-# The kinds every robot (or the world) decodes every control period, and their bounds: spec._HOT_BOUNDS.
-_ABSENT = object()  # an optional field the map leaves out (an explicit nil is a wrong type, refused)
-_HOT: dict[tuple[str, int], tuple[Limits | None, Decoder[HotMessage]]] = {}  # (kind, id(limits)) -> (limits, decoder)
+# A flat kind's decoder: msgspec reads the map into its wire struct, every type and bound checked as it reads
+# (_wire_struct); what it refuses, or a map whose header counts more entries than it read (a key twice), goes to the
+# general path (_decode_checked), which refuses it naming why. So the fast path is never more lenient, and the
+# general one says what is wrong.
+_HOT: dict[tuple[str, int], tuple[Limits | None, Decoder[Any]]] = {}  # (kind, id(limits)) -> (limits, decoder)
 
 
 @overload
@@ -414,117 +390,61 @@ def decoder(kind: Literal["cmd"], limits: Limits | None = None) -> Decoder[Cmd]:
 def decoder(kind: str, limits: Limits | None = None) -> Decoder[HotMessage]: ...
 
 
-def decoder(kind: str, limits: Limits | None = None) -> Decoder[HotMessage]:
-    """f(payload, key_id=None): decode(payload, kind, key_id, limits) for a kind of every control period
-    (state, pose, ref, cmd), as one generated function: the payload unpacked once, every field's type,
-    bound and limit checked in one expression, the message built without a dataclass __init__. It
-    accepts exactly what decode() accepts of those kinds, but for numbers sent as ints: anything it does
-    not accept at once goes the general way (_decode_checked), which says what is wrong, or converts.
-    Generated once per kind and Limits (a process has one or two; kept while they live)."""
+def decoder(kind: str, limits: Limits | None = None) -> Decoder[Any]:
+    """f(payload, key_id=None): decode(payload, kind, key_id, limits) for a flat kind (the kinds of every control
+    period, state, pose, ref and cmd, with the scenario's `limits`), as one function made for it: msgspec reads the
+    map into the kind's wire struct with every bound checked, and the message is built from it; anything it does not
+    take at once goes the general way (_decode_checked), which says what is wrong. Made once per kind and Limits (a
+    process has one or two; kept while they live)."""
+    if kind not in _SPEC:
+        raise ValueError(f"{kind!r} is not a flat message kind")
     hot = _HOT.get((kind, id(limits)))
     if hot is not None and hot[0] is limits:
         return hot[1]
     if len(_HOT) >= 64:  # limits of ended runs: let them go
         _HOT.clear()
-    f = _HOT[(kind, id(limits))] = (limits, _compile_hot(kind, limits))
+    f = _HOT[(kind, id(limits))] = (limits, _compile_flat(kind, limits))
     return f[1]
 
 
-def _compile_hot(kind: str, limits: Limits | None) -> Decoder[HotMessage]:
-    spec = _SPEC[kind]
+def _compile_flat(kind: str, limits: Limits | None) -> Decoder[Any]:
     cls = KINDS[kind]
     optional = _OPTIONAL.get(kind, ())
-    var = {_FIELD.get(n, n): f"a{i}" for i, (n, _) in enumerate(spec)}  # python name -> local
-    types = {"n": "float", "i": "int", "id": "int", "b": "bool"}
-    ns: dict[str, Any] = {"unpackb": _unpackb, "entries": _entries, "slow": _decode_checked, "new": object.__new__,
-                          "setattr": object.__setattr__, "cls": cls, "limits": limits, "ABSENT": _ABSENT}
-
-    def may_lack(name: str, test: str) -> str:  # an optional field may be absent: its test then holds
-        return f"({var[name]} is ABSENT or {test})" if _WIRE.get(name, name) in optional else test
-
-    cond = [may_lack(_FIELD.get(n, n), f"type({var[_FIELD.get(n, n)]}) is {types[t]}") for n, t in spec]
-    for n, t in spec:
-        if t in ("i", "id"):
-            cond.append(f"0 <= {var[_FIELD.get(n, n)]} <= {MAX_ROBOTS - 1 if t == 'id' else 2**53}")
-    for i, (name, bound) in enumerate(_HOT_BOUNDS[kind]):
-        ns[f"B{i}"] = bound
-        cond.append(may_lack(name, f"-B{i} <= {var[name]} <= B{i}"))
+    if limits is not None and kind in _HOT_BOUNDS and any(
+            math.isnan(x) for x in (limits.radius, limits.v_max, limits.w_max, *(limits.bounds or ()))):
+        def general(payload: bytes, key_id: int | None = None, /) -> Any:  # a bound no number meets or fails alike
+            return _decode_checked(payload, kind, key_id, limits)
+        return general
+    required = len(_SPEC[kind]) - len(optional) + 2  # the map's entries but the optional ones ("v" and "kind" too)
+    size = f"{required}" + "".join(f" + (w.{o} is not UNSET)" for o in optional)
+    cond = [f"entries(payload) == {size}"]
     if kind == "state":
-        cond.append(f"0 < {var['r']} < {var['R']}")
-        cond.append(may_lack("stop", f"0.0 <= {var['stop']}"))
-    if limits is not None:
-        tol = 1 + 1e-9  # as Limits.check
-        ns.update(ROBOTS=limits.robots, RADIUS=limits.radius * tol, VMAX=limits.v_max * tol,
-                  WMAX=limits.w_max * tol)
-        if kind == "state":
-            cond += [f"{var['id']} < ROBOTS", f"{var['R']} <= RADIUS"]
-        if kind == "cmd":
-            cond += [f"abs({var['v']}) <= VMAX", f"abs({var['w']}) <= WMAX"]
-        if limits.bounds is not None and kind in ("state", "pose"):
-            ns["XMIN"], ns["XMAX"], ns["YMIN"], ns["YMAX"] = limits.bounds
-            cond += [f"XMIN <= {var['x']} <= XMAX", f"YMIN <= {var['y']} <= YMAX"]
-    if kind == "state":
-        cond.append(f"(key_id is None or {var['id']} == key_id)")
-    if "__slots__" not in cls.__dict__:
-        raise TypeError(f"{cls.__name__}: a kind of every control period is a slotted dataclass")
-    ns.update({f"_set_{name}": cls.__dict__[name].__set__ for name in var})
-    build = ["                m = new(cls)", *[f"                _set_{name}(m, {a})" if _WIRE.get(name, name) not in optional
-                                                 else f"                _set_{name}(m, None if {a} is ABSENT else {a})"
-                                                 for name, a in var.items()]]
-    # the map has exactly the fields of the spec, but the optional ones it leaves out: its size says how many
-    size = f"{len(spec) + 2 - len(optional)}" + "".join(f" + ({o!r} in d)" for o in optional)
+        cond.append("0.0 < w.r < w.R")
+    if kind in ("state", "config"):
+        cond.append("(key_id is None or w.id == key_id)")
+    types = dict(_SPEC[kind])
+
+    def value(wire: str) -> str:
+        got = f"w.{wire}" if types[wire] != "f" else f"tuple(w.{wire})"
+        return got if wire not in optional else f"(None if w.{wire} is UNSET else {got})"
+
+    args = ", ".join(value(wire) for _, wire in _WIRE_NAMES[kind])
+    check = kind not in _HOT_BOUNDS and kind in _CHECK  # the kinds of every period: their bounds are the struct's
+    ns: dict[str, Any] = {"read": msgspec.msgpack.Decoder(_wire_struct(kind, limits)).decode, "entries": _entries,
+                          "slow": _decode_checked, "cls": cls, "limits": limits, "UNSET": msgspec.UNSET,
+                          "check": _CHECK.get(kind)}
     body = ["def dec(payload, key_id=None):",
-            f"    if type(payload) is bytes and len(payload) <= {MAX_PAYLOAD}:",
-            "        try:",
-            "            d = unpackb(payload, raw=False, strict_map_key=True)",
-            "        except Exception:",
-            f"            return slow(payload, {kind!r}, key_id, limits)",
-            f"        if type(d) is dict and d.get('kind') == {kind!r} and len(d) == {size} and "
-            f"type(d.get('v')) is int and d['v'] == {VERSION} and entries(payload) == len(d):",
-            "            try:",
-            *[f"                {var[_FIELD.get(n, n)]} = d[{n!r}]" for n, _ in spec if n not in optional],
-            "            except KeyError:",
-            f"                return slow(payload, {kind!r}, key_id, limits)",
-            *[f"            {var[_FIELD.get(n, n)]} = d.get({n!r}, ABSENT)" for n, _ in spec if n in optional],
-            "            if " + " and ".join(cond) + ":",
-            *build,
-            "                return m",
-            f"    return slow(payload, {kind!r}, key_id, limits)"]
-    exec(compile("\n".join(body), f"<protocol hot decoder for {kind}>", "exec"), ns)
-    dec: Decoder[HotMessage] = ns["dec"]
-    return dec if _wire is None else _compile_wire(kind, limits, dec)
-
-
-def _compile_wire(kind: str, limits: Limits | None, fallback: Decoder[HotMessage]) -> Decoder[HotMessage]:
-    """The compiled decoder (swarm/proto/_wire.c) of the same conditions as _compile_hot's, on the canonical
-    layout only (the encoder's keys in its order, float64 numbers): anything else goes to fallback."""
-    order = _wire_order(kind)
-    at = {wire: i for i, (wire, _, _) in enumerate(order)}
-    conds = [(_wire.IMAX, i, i, 0.0, 0.0, MAX_ROBOTS - 1 if t == "id" else 2**53)
-             for i, (_, t, _) in enumerate(order) if t in ("i", "id")]
-
-    def rng(wire: str, lo: float, hi: float) -> None:
-        conds.append((_wire.RANGE, at[wire], at[wire], lo, hi, 0))
-
-    for name, bound in _HOT_BOUNDS[kind]:
-        rng(_WIRE.get(name, name), -bound, bound)
-    if kind == "state":
-        conds += [(_wire.GT0, at["r"], at["r"], 0.0, 0.0, 0), (_wire.LT, at["r"], at["R"], 0.0, 0.0, 0)]
-        rng("stop", 0.0, MAX_COORD)
-    if limits is not None:
-        tol = 1 + 1e-9  # as Limits.check and _compile_hot
-        if kind == "state":
-            if limits.robots < 1:
-                return fallback  # no id is in the scenario: the fallback says so
-            conds.append((_wire.IMAX, at["id"], at["id"], 0.0, 0.0, limits.robots - 1))
-            rng("R", -math.inf, limits.radius * tol)
-        if kind == "cmd":  # abs(a) <= b, as a range
-            rng("vel", -(limits.v_max * tol), limits.v_max * tol)
-            rng("w", -(limits.w_max * tol), limits.w_max * tol)
-        if limits.bounds is not None and kind in ("state", "pose"):
-            xmin, xmax, ymin, ymax = limits.bounds
-            rng("x", xmin, xmax)
-            rng("y", ymin, ymax)
-    dec: Decoder[HotMessage] = _wire.Decoder(kind, VERSION, order, conds, at["id"] if kind == "state" else -1,
-                                             MAX_PAYLOAD, KINDS[kind], fallback)
+            "    try:",
+            f"        if len(payload) > {MAX_LARGE_PAYLOAD if kind in LARGE_KINDS else MAX_PAYLOAD}:",
+            "            raise ValueError",
+            "        w = read(payload)",
+            "    except Exception:",
+            f"        return slow(payload, {kind!r}, key_id, limits)",
+            f"    if not ({' and '.join(cond)}):",
+            f"        return slow(payload, {kind!r}, key_id, limits)",
+            f"    m = cls({args})",
+            *(["    check(m)"] if check else []),
+            "    return m"]
+    exec(compile("\n".join(body), f"<protocol decoder for {kind}>", "exec"), ns)
+    dec: Decoder[Any] = ns["dec"]
     return dec

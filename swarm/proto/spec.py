@@ -5,8 +5,6 @@ ones (swarm/proto/_wire.c) from them."""
 
 from __future__ import annotations
 
-from dataclasses import fields
-
 from swarm.proto.messages import KINDS
 
 VERSION = 1
@@ -60,7 +58,7 @@ _OPTIONAL: dict[str, tuple[str, ...]] = {"pose": ("cmd",), "cmd": ("until",), "s
 # on the wire the linear velocity is "vel" (docs/protocol.md). In Python it is still .v.
 _WIRE = {"v": "vel"}
 _FIELD = {"vel": "v"}
-_WIRE_NAMES = {k: tuple((f.name, _WIRE.get(f.name, f.name)) for f in fields(cls)) for k, cls in KINDS.items()}
+_WIRE_NAMES = {k: tuple((f, _WIRE.get(f, f)) for f in cls.__struct_fields__) for k, cls in KINDS.items()}
 MAX_LAW_PARAMS = 64  # numbers in a config's law_params
 MAX_LAW_MEMORY = 1024  # floats of a user law's memory per robot
 

@@ -4,7 +4,6 @@ velocities, lost robots, a lost leader, bad states."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
@@ -159,10 +158,10 @@ def test_bad_states_are_dropped_and_counted(world):
     a = world.agent
     good = State(id=2, t=0.0, seq=1, x=0.0, y=0.0, theta=0.0, r=0.15, R=0.6, frozen=False)
     a.put(keys.cell("f", 0, 0, 3), protocol.encode(good))  # id 2 on robot 3's key
-    a.put(keys.cell("f", 0, 0, 9), protocol.encode(dataclasses.replace(good, id=9)))  # not in the run
+    a.put(keys.cell("f", 0, 0, 9), protocol.encode(protocol.replace(good, id=9)))  # not in the run
     a.put(keys.cell("f", 0, 0, 2), b"garbage")
     a.put(keys.cell("f", 0, 0, 2), protocol.encode(good))
-    a.put(keys.cell("f", 0, 0, 2), protocol.encode(dataclasses.replace(good, t=1e6, seq=2)))  # a jump
+    a.put(keys.cell("f", 0, 0, 2), protocol.encode(protocol.replace(good, t=1e6, seq=2)))  # a jump
     world.take_states()
     assert world.bad.count == 4 and world.seen.tolist() == [False, False, True] + [False] * 4
 

@@ -54,13 +54,13 @@ def test_up_lockstep_equals_sim_step_for_step(tmp_path):
 @pytest.mark.integration
 def test_robots_without_the_compiled_parts_say_so_and_give_the_same_run(tmp_path):
     """SWARM_PURE_PYTHON=1, as where setup.py found no C compiler: `swarm up` says so, every robot runs the
-    Python wire codec and law, and lock-step still equals swarm sim step for step."""
+    Python message loops and law, and lock-step still equals swarm sim step for step."""
     cmd, _ = up(tmp_path, "--robots", "7", "--duration", "6", "--trace", str(tmp_path / "trace.npz"))
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=180, env={**os.environ, "SWARM_PURE_PYTHON": "1"})
     logs = "".join(p.read_text() for p in (tmp_path / "logs").glob("robot-*.log"))
     assert out.returncode == 0, out.stderr + logs
-    assert "wire codec and law run as Python (SWARM_PURE_PYTHON is set)" in out.stdout + out.stderr
-    assert logs.count("law Python, wire codec Python") == 7 and "compiled" not in logs
+    assert "message loops and law run as Python (SWARM_PURE_PYTHON is set)" in out.stdout + out.stderr
+    assert logs.count("law Python, message loops Python") == 7 and "compiled" not in logs
     scn = scenario_file.load("paper-50hz", Overrides(robots=7, duration=6.0))
     q = np.load(tmp_path / "trace.npz")["q"]
     assert np.abs(q - Simulation(scn, record_period=scn.dt).run().recording.q).max() <= 1e-9
@@ -281,7 +281,7 @@ def test_processes_say_what_they_do_and_log_level_quiets_them(tmp_path):
     logs = tmp_path / "a" / "logs"
     robot, leader, world = ((logs / f"{name}.log").read_text() for name in ("robot-0", "leader", "world"))
     assert "robot 0: connected" in robot and re.search(r"robot 0: run \S+ \(lock-step, 2 robots; law (compiled|Python), "
-                                                       r"wire codec (compiled|Python)\)", robot)
+                                                       r"message loops (compiled|Python)\)", robot)
     assert re.search(r"robot 0, run \S+: \d+ ticks, .* duplicated, loop CPU", robot)
     assert "leader: connected" in leader and re.search(r"leader: run \S+ begins", leader)
     assert re.search(r"leader: run \S+ (ended|stopped): \d+ references sent", leader)

@@ -119,7 +119,7 @@ def test_waits_for_neighbours_known_at_the_previous_tick():
 def test_the_wait_reach_follows_the_largest_R_of_any_body(distance, awaited):
     """An obstacle with R = 2 makes the law's reach 2 m (the governor counts robots that close), so
     with cells of 2.3 m (L = 0.1 m) the agent waits for robots within 2.2 m at the previous tick."""
-    cfg = Config(**{**CFG.__dict__, "sense": 2.3, "reach": 2.0})
+    cfg = protocol.replace(CFG, sense=2.3, reach=2.0)
     w = Wire(cfg)
     ref = (0.0, 0.0, 0.0, 0.5, 0.0)
     w.put(keys.leader_ref(F), Ref(t=0.0, seq=0, x=0.0, y=0.0, theta=0.0, v=0.5, w=0.0))
@@ -238,7 +238,7 @@ def _capped(v, om, V):
 
 @pytest.mark.unit
 def test_real_time_tick_uses_the_newest_data_and_advances_the_reference():
-    cfg = Config(**{**CFG.__dict__, "lockstep": False})
+    cfg = protocol.replace(CFG, lockstep=False)
     w = Wire(cfg)
     w.put(keys.leader_ref(F), Ref(t=1.0, seq=50, x=0.0, y=0.0, theta=0.0, v=0.5, w=0.0))
     # just started: it listens for LISTEN_PERIODS control periods, commanding 0 (states still on their way)
@@ -270,7 +270,7 @@ def test_a_base_that_keeps_a_command_longer_than_its_validity_makes_the_robot_s_
     class SlowBase(SimDrive):
         base_timeout_s = 0.5
 
-    cfg = Config(**{**CFG.__dict__, "lockstep": False})
+    cfg = protocol.replace(CFG, lockstep=False)
     reach = {}
     for drive_cls in (SimDrive, SlowBase):
         w = Wire(cfg)
@@ -296,7 +296,7 @@ def test_a_real_time_robot_blocked_by_a_neighbour_stands_turns_in_place_and_prom
     until that time."""
     from swarm.core.clock import FakeClock
 
-    cfg = Config(**{**CFG.__dict__, "lockstep": False})
+    cfg = protocol.replace(CFG, lockstep=False)
     clock = FakeClock()
     w = Wire(cfg)
     w.agent.close()
@@ -337,7 +337,7 @@ def test_a_neighbour_not_heard_is_kept_however_old_until_news_puts_it_beyond_the
     from swarm.core.clock import FakeClock
     from swarm.core.faults import Partition
 
-    cfg = Config(**{**CFG.__dict__, "lockstep": False, "v_bound": 1.0})
+    cfg = protocol.replace(CFG, lockstep=False, v_bound=1.0)
     side = cfg.sense
     for partition in (False, True):
         clock = FakeClock()
@@ -381,7 +381,7 @@ def test_a_neighbour_heard_in_order_is_bounded_by_what_it_announced_and_the_gaps
     from swarm.core.clock import FakeClock
 
     for faulty in (False, True):
-        cfg = Config(**{**CFG.__dict__, "lockstep": False, "v_bound": 1.0})
+        cfg = protocol.replace(CFG, lockstep=False, v_bound=1.0)
         clock = FakeClock()
         agent = robot.Agent(MemoryBus(MemoryNet()), cfg, F, clock=clock, counters=object() if faulty else None)
         agent.start([])
@@ -427,7 +427,7 @@ def test_a_real_time_robot_that_moves_to_another_cell_puts_its_states_in_the_one
     from swarm.core.clock import FakeClock
 
     for lockstep in (False, True):
-        cfg = Config(**{**CFG.__dict__, "lockstep": lockstep, "v_bound": 1.0})
+        cfg = protocol.replace(CFG, lockstep=lockstep, v_bound=1.0)
         net = MemoryNet()
         agent = robot.Agent(MemoryBus(net), cfg, F, clock=FakeClock())
         seen = []
@@ -490,7 +490,7 @@ def test_the_compiled_state_batch_takes_what_the_python_one_takes():
     compiled loop (swarm/proto/_wire.c, take_states) or the Python one takes it."""
     from swarm.core.clock import FakeClock
 
-    cfg = Config(**{**CFG.__dict__, "lockstep": False})
+    cfg = protocol.replace(CFG, lockstep=False)
 
     def st(j, seq, t=None, x=0.5):
         return State(id=j, t=0.02 * seq if t is None else t, seq=seq, x=x, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False)
@@ -780,7 +780,7 @@ def test_a_real_time_robot_takes_the_still_robots_the_world_lists_as_bodies():
     from swarm.core.clock import FakeClock
     from swarm.proto.protocol import Bodies, Body
 
-    cfg = Config(**{**CFG.__dict__, "lockstep": False})
+    cfg = protocol.replace(CFG, lockstep=False)
     agent = robot.Agent(MemoryBus(MemoryNet()), cfg, F, clock=FakeClock())
     agent.start([])
     agent.epoch, agent.speed = agent.clock.time() - 1.0, 1.0  # now: t = 1.0 on the swarm's clock

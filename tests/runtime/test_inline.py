@@ -240,7 +240,7 @@ def _realtime_run(inline: bool, seed: int, periods: int = 30) -> tuple[list, rob
     from swarm.core.clock import FakeClock
     from swarm.drives.sim import SimDrive
 
-    cfg = protocol.Config(**{**CFG.__dict__, "lockstep": False})
+    cfg = protocol.replace(CFG, lockstep=False)
     net = MemoryNet()
     bus = ThreadedBus(net)
     clock = FakeClock()

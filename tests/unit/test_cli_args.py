@@ -53,7 +53,7 @@ def test_flags_of_another_drive_are_refused_not_dropped(capsys):
 def test_a_robot_model_tightens_the_runs_limits_through_its_drive():
     """--robot-model burger: the ROS 2 drive carries ROBOTIS's limits, and the agent's configuration is tightened to
     them (never loosened; a limit of 0, none, takes the model's)."""
-    from dataclasses import replace
+    from swarm.proto.protocol import replace
 
     from agents.robot import within_limits
     from swarm.cli.parser import build_parser

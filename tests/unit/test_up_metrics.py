@@ -36,10 +36,10 @@ def test_swarm_up_says_when_the_robots_run_python(monkeypatch):
     assert python_note() is None
     monkeypatch.setattr(protocol, "_wire", None)
     note = python_note()
-    assert "wire codec runs as Python" in note and "no C compiler" in note and "law" not in note
+    assert "message loops run as Python" in note and "no C compiler" in note and "law" not in note
     monkeypatch.setattr(fastlaw, "COMPILED", False)
     monkeypatch.setenv("SWARM_PURE_PYTHON", "1")
-    assert "wire codec and law run as Python (SWARM_PURE_PYTHON is set)" in python_note()
+    assert "message loops and law run as Python (SWARM_PURE_PYTHON is set)" in python_note()
 
 
 def test_the_summary_says_when_the_host_took_the_machines_cpu():

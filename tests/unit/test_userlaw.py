@@ -152,7 +152,7 @@ def test_the_config_carries_the_law_all_four_fields_or_none(laws):
     assert scn.control.law == s and scn.control.mem_size == law.M_SIZE + 2
     c = scn.robot_config(0)
     assert protocol.decode(protocol.encode(c), "config") == c and c.law_sha256 == s.sha256
-    from dataclasses import replace
+    from swarm.proto.protocol import replace
 
     with pytest.raises(protocol.ProtocolError, match="all four or none"):
         protocol.decode(protocol.encode(replace(c, law_memory=None)), "config")
@@ -202,8 +202,8 @@ def test_two_laws_of_one_file_compile_apart_and_a_nan_is_never_filtered_into_a_n
 
 @pytest.mark.parametrize("bad", [".x:f", "a-b:f", "pkg.:f", ":f", "x.py:1f", "x.py"])
 def test_a_config_naming_no_file_or_module_is_refused(bad):
-    from dataclasses import replace
     from swarm.core import scenario_file
+    from swarm.proto.protocol import replace
 
     c = replace(scenario_file.load("paper", progress=scenario_file.silent).robot_config(0), law=bad,
                 law_sha256="0" * 64, law_params=(), law_memory=0)
