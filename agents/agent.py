@@ -56,8 +56,10 @@ class Agent(Lockstep, Realtime):
         # lock-step, no faults: neighbour states taken in C on the bus's thread (swarm/proto/_wire.c, StateSink;
         # anything but the common case goes to _on_state_msg)
         wire = protocol._wire
-        self._state_sink = wire.StateSink(self, self._dec_state, self._key_ids, self._on_state_msg, self._sink_error) \
-            if wire is not None and cfg.lockstep and self.view is None and hasattr(bus, "subscribe_sink") else None
+        if wire is not None and cfg.lockstep and self.view is None and hasattr(bus, "subscribe_sink"):
+            self._state_sink = wire.StateSink(self.id, self._key_ids, self._dec_state, self._on_state_msg,
+                                              self._sink_error, self.lock.acquire, self.lock.release, self.kick.set,
+                                              self._due, self.table, self.w_state, self.waiting)
 
     def start(self, obstacles: list[protocol.Obstacle] | None = None) -> None:
         """Subscribe (own pose, reference, clock, liveliness, the cells around the start pose),

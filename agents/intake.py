@@ -207,7 +207,7 @@ class Intake(AgentState):
         v = w.check(s.t, s.seq)
         if v != window.OK and not self.bad.verdict(key, v, f"robot {s.id}'s t or seq"):
             return
-        self.states_received += 1
+        self._received += 1
         self.table[s.id] = s
         if self.cfg.lockstep:
             if s.seq == self.k_started:
@@ -268,6 +268,8 @@ class Intake(AgentState):
                 gaps.append((self._pose_mono, mono))
             self._pose_mono = mono
         self.pose = pose
+        if self._state_sink is not None:
+            self._state_sink.posed = pose.seq  # the sink's idea of this robot's next tick (_next_tick)
 
     def _missed(self, m0: float) -> float:
         """Real time: how long [simulated s] since monotonic time m0 this robot may have missed states (the gaps

@@ -151,6 +151,8 @@ class Lockstep(Bodies):
             self.deadline = self.clock.monotonic() + self.wait_timeout
             self._leader_ups_seen = self.leader_ups
             self.k_started = k
+            if self._state_sink is not None:  # the tick under way and whom it waits for, as the sink reads them
+                self._state_sink.started, self._state_sink.waiting = k, self.waiting
 
     def command(self, t: float, x: float, y: float, th: float, ref: tuple, seq: int) -> tuple[float, float]:
         """Lock-step: the law for this robot at time t with pose (x, y, th) and live reference ref = (xl, yl, thl,

@@ -108,7 +108,7 @@ class Realtime(SafeCommand):
         if wire is not None:  # the common case of _take_one compiled; every other state goes to it in its turn
             n = wire.take_states(states, self.id, ahead, now, mono, self.w_state, self.table, self.rx, self.away,
                                  self._take_one)  # it counts its own: add after the call
-            self.states_received += n
+            self._received += n
             return
         for s, key in states:
             self._take_one(s, key)
@@ -126,7 +126,7 @@ class Realtime(SafeCommand):
         v = w.check(t, s.seq)
         if v != window.OK and not self.bad.verdict(key, v, f"robot {j}'s t or seq"):
             return
-        self.states_received += 1
+        self._received += 1
         self.table[j] = s
         self.rx[j] = (0.0 if now is None or now <= t else now - t, mono)
         self.away.discard(j)

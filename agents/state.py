@@ -196,7 +196,7 @@ class AgentState:
         self.prev_xy: tuple[float, float] | None = None
         # counters
         self.refs_taken = 0
-        self.states_received = 0
+        self._received = 0  # neighbour states the Python took (states_received: the sink's too)
         self.loop_cpu_s = 0.0  # CPU time of the loop thread handling its wake-ups (thread_time; bench/up_speed.py)
         self.process_cpu_s = 0.0  # CPU time of the whole process (zenoh's threads too) while its loop ran
         self.ticks = 0
@@ -262,7 +262,14 @@ class AgentState:
         """The run this agent serves is over (any thread): it ignores everything from now on and its
         loop returns."""
         self.ended = True
+        if self._state_sink is not None:
+            self._state_sink.ended = True
         self.wake.set()
+
+    @property
+    def states_received(self) -> int:
+        """Neighbour states taken: by the Python (_received) and by the compiled sink (its `taken`)."""
+        return self._received + (self._state_sink.taken if self._state_sink is not None else 0)
 
     @property
     def horizon_s(self) -> float:

@@ -359,26 +359,33 @@ done:
     return result;
 }
 
-static int get_double(PyObject *m, const char *name, double *out) {
-    PyObject *o = PyObject_GetAttrString(m, name);
-    if (o == NULL)
+/* A constant of the dict configure() is handed (swarm.core.fastlaw.CONSTANTS), as a double or an index. */
+static int get_double(PyObject *d, const char *name, double *out) {
+    PyObject *o = PyDict_GetItemString(d, name); /* borrowed */
+    if (o == NULL) {
+        PyErr_Format(PyExc_KeyError, "configure: the law's constants lack %s", name);
         return -1;
+    }
     *out = PyFloat_AsDouble(o);
-    Py_DECREF(o);
     return *out == -1.0 && PyErr_Occurred() ? -1 : 0;
 }
 
-static int get_index(PyObject *m, const char *name, Py_ssize_t *out) {
-    PyObject *o = PyObject_GetAttrString(m, name);
-    if (o == NULL)
+static int get_index(PyObject *d, const char *name, Py_ssize_t *out) {
+    PyObject *o = PyDict_GetItemString(d, name); /* borrowed */
+    if (o == NULL) {
+        PyErr_Format(PyExc_KeyError, "configure: the law's constants lack %s", name);
         return -1;
+    }
     *out = PyLong_AsSsize_t(o);
-    Py_DECREF(o);
     return *out == -1 && PyErr_Occurred() ? -1 : 0;
 }
 
 static PyObject *law_configure(PyObject *module, PyObject *law) {
-    /* The constants and layouts, read from swarm.core.law itself: one place holds them. */
+    /* The constants and layouts of swarm.core.law (one place holds them), handed over as a dict by name. */
+    if (!PyDict_Check(law)) {
+        PyErr_SetString(PyExc_TypeError, "configure(constants): a dict of swarm.core.law's constants");
+        return NULL;
+    }
     Py_ssize_t off, frozen, robot;
     if (get_double(law, "PI", &PI) < 0 || get_double(law, "TWO_PI", &TWO_PI) < 0 ||
         get_double(law, "COLLISION_EPS", &COLLISION_EPS) < 0 ||
@@ -409,7 +416,7 @@ static PyObject *law_configure(PyObject *module, PyObject *law) {
 static PyMethodDef law_methods[] = {
     {"robot_command", (PyCFunction)(void (*)(void))law_robot_command, METH_FASTCALL,
      "swarm.core.law.robot_command, compiled (the same arguments; mem a list, updated in place)"},
-    {"configure", (PyCFunction)law_configure, METH_O, "configure(law): take the constants and layouts of swarm.core.law"},
+    {"configure", (PyCFunction)law_configure, METH_O, "configure(constants): take swarm.core.law's constants and layouts (a dict: swarm.core.fastlaw.CONSTANTS)"},
     {NULL, NULL, 0, NULL},
 };
 

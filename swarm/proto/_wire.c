@@ -6,6 +6,7 @@
  * built: tests hold the two equal. It parses no msgpack. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <structmember.h>
 #include <stddef.h>
 #include <limits.h>
 #include <stdint.h>
@@ -15,67 +16,106 @@
 #include <pthread.h>
 #include <time.h>
 
-static PyObject *one_int;
+/* What the loops read of Python objects is handed over by setup() (swarm.proto.protocol calls it once), never
+ * looked up here by name: a state's fields as a tuple, a sender window's common-case take, a zenoh sample's parts
+ * and a payload's bytes. A rename on the Python side changes the call of setup(), where the tests see it. */
+static PyObject *state_fields, *window_take_fn, *sample_parts, *to_bytes_fn;
+enum { F_ID, F_T, F_SEQ, F_X, F_Y, F_R, F_RR, F_N }; /* the tuple state_fields gives: id, t, seq, x, y, r, R */
+
+static PyObject *wire_setup(PyObject *module, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 4) {
+        PyErr_SetString(PyExc_TypeError, "setup(state_fields, window_take, sample_parts, to_bytes)");
+        return NULL;
+    }
+    for (int i = 0; i < 4; i++)
+        if (!PyCallable_Check(args[i])) {
+            PyErr_Format(PyExc_TypeError, "setup: argument %d is not callable", i + 1);
+            return NULL;
+        }
+    Py_XSETREF(state_fields, Py_NewRef(args[0]));
+    Py_XSETREF(window_take_fn, Py_NewRef(args[1]));
+    Py_XSETREF(sample_parts, Py_NewRef(args[2]));
+    Py_XSETREF(to_bytes_fn, Py_NewRef(args[3]));
+    Py_RETURN_NONE;
+}
+
+static int ready(void) {
+    if (state_fields == NULL || window_take_fn == NULL || sample_parts == NULL || to_bytes_fn == NULL) {
+        PyErr_SetString(PyExc_RuntimeError, "swarm.proto._wire.setup() was not called");
+        return -1;
+    }
+    return 0;
+}
+
+/* A state's fields (state_fields(st): id, t, seq, x, y, r, R) as a tuple: a new reference, NULL with the error. */
+static PyObject *fields_of(PyObject *st) {
+    PyObject *f = PyObject_CallOneArg(state_fields, st);
+    if (f != NULL && (!PyTuple_CheckExact(f) || PyTuple_GET_SIZE(f) != F_N)) {
+        Py_DECREF(f);
+        PyErr_SetString(PyExc_TypeError, "state_fields() must give a tuple of (id, t, seq, x, y, r, R)");
+        return NULL;
+    }
+    return f;
+}
+
+/* 1: the sender's window w took (t, seq) in its common case (window_take(w, t, seq) is true); 0: it is not that
+ * case, and nothing changed (the full check decides); -1: an error. */
+static int window_take(PyObject *w, PyObject *tt, PyObject *seq) {
+    PyObject *call[3] = {w, tt, seq};
+    PyObject *r = PyObject_Vectorcall(window_take_fn, call, 3, NULL);
+    if (r == NULL)
+        return -1;
+    int ok = PyObject_IsTrue(r);
+    Py_DECREF(r);
+    return ok;
+}
 
 /* ------------------------------------------------------------------------------------------- inboxes */
 
-static PyObject *s_payload, *s_to_bytes, *s_attachment, *s_key_expr;
-
 /* The (key, payload) of a zenoh sample, or Py_None for a wake-up (an empty payload with the wake attachment):
- * swarm.net.bus._ZenohInbox._item. A new reference; NULL with an exception. */
+ * swarm.net.bus._ZenohInbox._item. sample_parts(s) gives (key_expr, payload, attachment), to_bytes(z) a payload's
+ * bytes. A new reference; NULL with an exception. */
 static PyObject *sample_item(PyObject *s, PyObject *wake) {
-    PyObject *z = PyObject_GetAttr(s, s_payload);
-    if (z == NULL)
+    if (ready() < 0)
         return NULL;
-    PyObject *b = PyObject_CallMethodNoArgs(z, s_to_bytes);
-    Py_DECREF(z);
+    PyObject *parts = PyObject_CallOneArg(sample_parts, s);
+    if (parts == NULL)
+        return NULL;
+    if (!PyTuple_CheckExact(parts) || PyTuple_GET_SIZE(parts) != 3) {
+        Py_DECREF(parts);
+        PyErr_SetString(PyExc_TypeError, "sample_parts() must give (key_expr, payload, attachment)");
+        return NULL;
+    }
+    PyObject *b = PyObject_CallOneArg(to_bytes_fn, PyTuple_GET_ITEM(parts, 1)), *result = NULL;
     if (b == NULL)
-        return NULL;
+        goto done;
     if (!PyBytes_Check(b)) {
-        Py_DECREF(b);
-        PyErr_SetString(PyExc_TypeError, "a sample's payload.to_bytes() gave no bytes");
-        return NULL;
+        PyErr_SetString(PyExc_TypeError, "a sample's payload gave no bytes");
+        goto done;
     }
-    if (PyBytes_GET_SIZE(b) == 0) { /* a real message is never empty: only then look for the wake marker */
-        PyObject *a = PyObject_GetAttr(s, s_attachment);
-        if (a == NULL) {
-            Py_DECREF(b);
-            return NULL;
-        }
-        if (a != Py_None) {
-            PyObject *ab = PyObject_CallMethodNoArgs(a, s_to_bytes);
-            Py_DECREF(a);
-            if (ab == NULL) {
-                Py_DECREF(b);
-                return NULL;
-            }
-            int is_wake = PyObject_RichCompareBool(ab, wake, Py_EQ);
-            Py_DECREF(ab);
-            if (is_wake != 0) {
-                Py_DECREF(b);
-                if (is_wake < 0)
-                    return NULL;
-                Py_RETURN_NONE;
-            }
-        } else {
-            Py_DECREF(a);
+    PyObject *a = PyTuple_GET_ITEM(parts, 2);
+    if (PyBytes_GET_SIZE(b) == 0 && a != Py_None) { /* a real message is never empty: only then look for the wake */
+        PyObject *ab = PyObject_CallOneArg(to_bytes_fn, a);
+        if (ab == NULL)
+            goto done;
+        int is_wake = PyObject_RichCompareBool(ab, wake, Py_EQ);
+        Py_DECREF(ab);
+        if (is_wake < 0)
+            goto done;
+        if (is_wake) {
+            result = Py_NewRef(Py_None);
+            goto done;
         }
     }
-    PyObject *ke = PyObject_GetAttr(s, s_key_expr);
-    if (ke == NULL) {
-        Py_DECREF(b);
-        return NULL;
-    }
-    PyObject *k = PyObject_Str(ke);
-    Py_DECREF(ke);
-    if (k == NULL) {
-        Py_DECREF(b);
-        return NULL;
-    }
-    PyObject *t = PyTuple_Pack(2, k, b);
+    PyObject *k = PyObject_Str(PyTuple_GET_ITEM(parts, 0));
+    if (k == NULL)
+        goto done;
+    result = PyTuple_Pack(2, k, b);
     Py_DECREF(k);
-    Py_DECREF(b);
-    return t;
+done:
+    Py_XDECREF(b);
+    Py_DECREF(parts);
+    return result;
 }
 
 /* recv()'s sample appended to out as (key, payload), a wake-up left out: 1; recv() gave None: 0; -1 on error. */
@@ -222,61 +262,6 @@ static PyObject *wire_decode_states(PyObject *module, PyObject *const *args, Py_
 
 /* ------------------------------------------------------------------------------------------- states */
 
-static PyObject *s_id, *s_t, *s_seq, *s_seq_span, *s_t_span, *s_cand, *s_run, *s_dt;
-
-/* 1: robot j's state (tt, a float, and seq) is in its window's common case (swarm.proto.window.Window.check's
- * first test), and the window took it (its t the same object, as the Python's); 0: it is not (nothing changed:
- * the full check decides); -1: an error. */
-static int window_take(PyObject *w, PyObject *tt, PyObject *seq) {
-    double t = PyFloat_AS_DOUBLE(tt);
-    PyObject *t0 = PyObject_GetAttr(w, s_t);
-    if (t0 == NULL)
-        return -1;
-    if (!PyFloat_CheckExact(t0)) { /* None: not anchored yet */
-        Py_DECREF(t0);
-        return 0;
-    }
-    double t0v = PyFloat_AS_DOUBLE(t0);
-    Py_DECREF(t0);
-    PyObject *seq0 = PyObject_GetAttr(w, s_seq), *span = PyObject_GetAttr(w, s_seq_span);
-    PyObject *tspan = PyObject_GetAttr(w, s_t_span);
-    int ok = -1;
-    if (seq0 == NULL || span == NULL || tspan == NULL)
-        goto done;
-    ok = 0;
-    if (!PyLong_CheckExact(seq0) || !PyLong_CheckExact(span) || !PyLong_CheckExact(seq) || !PyFloat_Check(tspan))
-        goto done;
-    int o1, o2, o3;
-    long long a = PyLong_AsLongLongAndOverflow(seq0, &o1), b = PyLong_AsLongLongAndOverflow(span, &o2);
-    long long q = PyLong_AsLongLongAndOverflow(seq, &o3);
-    if (o1 || o2 || o3 || PyErr_Occurred() || b < 0 || a > LLONG_MAX - b) {
-        PyErr_Clear();
-        goto done;
-    }
-    if (!(a < q && q <= a + b && t0v <= t && t <= t0v + PyFloat_AS_DOUBLE(tspan)))
-        goto done;
-    PyObject *dt = PyObject_GetAttr(w, s_dt); /* lock-step: t must be q x dt (Window.dt; 0: not tied) */
-    if (dt == NULL) {
-        ok = -1;
-        goto done;
-    }
-    double dtv = PyFloat_Check(dt) ? PyFloat_AS_DOUBLE(dt) : -1.0;
-    Py_DECREF(dt);
-    if (dtv < 0.0 || (dtv > 0.0 && !(fabs(t - (double)q * dtv) <= 1e-6))) /* window.TICK_EPS */
-        goto done; /* the full check decides (and refuses) */
-    PyObject *zero = PyLong_FromLong(0);
-    ok = -1;
-    if (zero != NULL && PyObject_SetAttr(w, s_t, tt) == 0 && PyObject_SetAttr(w, s_seq, seq) == 0 &&
-        PyObject_SetAttr(w, s_cand, Py_None) == 0 && PyObject_SetAttr(w, s_run, zero) == 0)
-        ok = 1;
-    Py_XDECREF(zero);
-done:
-    Py_XDECREF(seq0);
-    Py_XDECREF(span);
-    Py_XDECREF(tspan);
-    return ok;
-}
-
 /* take_states(states, me, ahead, now, mono, windows, table, rx, away, slow): real time, a batch of decoded
  * neighbour states (agents.realtime.Realtime._on_states). A state of another robot, not ahead of this robot's clock
  * (t <= ahead), that its sender's window takes in the common case is taken here: table[j] = s, rx[j] = (its age
@@ -290,7 +275,7 @@ static PyObject *wire_take_states(PyObject *module, PyObject *const *args, Py_ss
     PyObject *states = args[0], *me = args[1], *now = args[3], *mono = args[4], *windows = args[5];
     PyObject *table = args[6], *rx = args[7], *away = args[8], *slow = args[9];
     double ahead = PyFloat_AsDouble(args[2]);
-    if (ahead == -1.0 && PyErr_Occurred())
+    if ((ahead == -1.0 && PyErr_Occurred()) || ready() < 0)
         return NULL;
     if (!PyList_Check(states) || !PyDict_Check(windows) || !PyDict_Check(table) || !PyDict_Check(rx) ||
         !PySet_Check(away)) {
@@ -309,10 +294,11 @@ static PyObject *wire_take_states(PyObject *module, PyObject *const *args, Py_ss
             return NULL;
         }
         PyObject *st = PyTuple_GET_ITEM(it, 0), *key = PyTuple_GET_ITEM(it, 1);
-        PyObject *j = PyObject_GetAttr(st, s_id), *tt = PyObject_GetAttr(st, s_t), *seq = PyObject_GetAttr(st, s_seq);
+        PyObject *f = fields_of(st);
+        if (f == NULL)
+            return NULL;
+        PyObject *j = PyTuple_GET_ITEM(f, F_ID), *tt = PyTuple_GET_ITEM(f, F_T), *seq = PyTuple_GET_ITEM(f, F_SEQ);
         int fast = 0;
-        if (j == NULL || tt == NULL || seq == NULL)
-            goto fail;
         if (PyFloat_CheckExact(tt) && PyFloat_AS_DOUBLE(tt) <= ahead) {
             int mine = PyObject_RichCompareBool(j, me, Py_EQ);
             if (mine < 0)
@@ -346,30 +332,15 @@ static PyObject *wire_take_states(PyObject *module, PyObject *const *args, Py_ss
                 goto fail;
             Py_DECREF(r);
         }
-        Py_DECREF(j);
-        Py_DECREF(tt);
-        Py_DECREF(seq);
+        Py_DECREF(f);
         continue;
     fail:
-        Py_XDECREF(j);
-        Py_XDECREF(tt);
-        Py_XDECREF(seq);
+        Py_DECREF(f);
         return NULL;
     }
     return PyLong_FromSsize_t(taken);
 }
 
-
-static PyObject *s_x, *s_y, *s_r, *s_R;
-
-static int attr_double(PyObject *o, PyObject *name, double *out) {
-    PyObject *v = PyObject_GetAttr(o, name);
-    if (v == NULL)
-        return -1;
-    *out = PyFloat_AsDouble(v);
-    Py_DECREF(v);
-    return *out == -1.0 && PyErr_Occurred() ? -1 : 0;
-}
 
 static int append_double(PyObject *list, double v) {
     PyObject *f = PyFloat_FromDouble(v);
@@ -378,23 +349,15 @@ static int append_double(PyObject *list, double v) {
     return rc;
 }
 
-/* An int attribute as a long long: 1, 0 when it is not an int that fits (the common case does not hold), -1. */
-static int attr_ll(PyObject *o, PyObject *name, long long *out) {
-    PyObject *v = PyObject_GetAttr(o, name);
-    if (v == NULL)
+/* An int as a long long: 1, 0 when it is not an int that fits (the common case does not hold), -1. */
+static int as_ll(PyObject *v, long long *out) {
+    if (!PyLong_CheckExact(v))
+        return 0;
+    int overflow;
+    *out = PyLong_AsLongLongAndOverflow(v, &overflow);
+    if (*out == -1 && PyErr_Occurred())
         return -1;
-    int ok = 0;
-    if (PyLong_CheckExact(v)) {
-        int overflow;
-        *out = PyLong_AsLongLongAndOverflow(v, &overflow);
-        if (*out == -1 && PyErr_Occurred()) {
-            Py_DECREF(v);
-            return -1;
-        }
-        ok = !overflow;
-    }
-    Py_DECREF(v);
-    return ok;
+    return !overflow;
 }
 
 /* The passes over a robot's table (its neighbours' newest states, by id) below share these. */
@@ -425,12 +388,26 @@ static int table_entry(PyObject *table, PyObject *dead, PyObject *dead_near, PyO
     return c;
 }
 
-/* A state's seq; -1 with the error set if it is not an int that fits. */
-static int state_seq(PyObject *nb, long long *seq, const char *who) {
-    int got = attr_ll(nb, s_seq, seq);
+/* A state's fields (a new reference, fields_of) with its seq and x, y as numbers; NULL with the error set. */
+static PyObject *state_xy(PyObject *nb, long long *seq, double *x, double *y, const char *who) {
+    PyObject *f = fields_of(nb);
+    if (f == NULL)
+        return NULL;
+    int got = as_ll(PyTuple_GET_ITEM(f, F_SEQ), seq);
     if (got == 0)
         PyErr_Format(PyExc_TypeError, "%s: a state's seq is not an int", who);
-    return got > 0 ? 0 : -1;
+    if (got <= 0)
+        goto fail;
+    *x = PyFloat_AsDouble(PyTuple_GET_ITEM(f, F_X));
+    if (*x == -1.0 && PyErr_Occurred())
+        goto fail;
+    *y = PyFloat_AsDouble(PyTuple_GET_ITEM(f, F_Y));
+    if (*y == -1.0 && PyErr_Occurred())
+        goto fail;
+    return f;
+fail:
+    Py_DECREF(f);
+    return NULL;
 }
 
 /* bodies()'s six lists (nx, ny, nr, nR, nk, na), the dead ones near and the table's ids in ascending order
@@ -453,17 +430,13 @@ static void bodies_free(PyObject *ids, PyObject **out, PyObject *dead_near) {
         Py_XDECREF(out[i]);
 }
 
-/* A robot's body (its state nb) appended to bodies()'s lists, with its kind and age: its x, y, r and R objects
- * themselves, as the Python appends them (no float made for them). */
-static int append_body(PyObject **out, PyObject *nb, PyObject *kind, double age) {
-    PyObject *const names[4] = {s_x, s_y, s_r, s_R};
-    for (int i = 0; i < 4; i++) {
-        PyObject *v = PyObject_GetAttr(nb, names[i]);
-        int rc = v == NULL ? -1 : PyList_Append(out[i], v);
-        Py_XDECREF(v);
-        if (rc < 0)
+/* A robot's body (its state's fields f) appended to bodies()'s lists, with its kind and age: its x, y, r and R
+ * objects themselves, as the Python appends them (no float made for them). */
+static int append_body(PyObject **out, PyObject *f, PyObject *kind, double age) {
+    const int at[4] = {F_X, F_Y, F_R, F_RR};
+    for (int i = 0; i < 4; i++)
+        if (PyList_Append(out[i], PyTuple_GET_ITEM(f, at[i])) < 0)
             return -1;
-    }
     if (PyList_Append(out[4], kind) < 0 || append_double(out[5], age) < 0)
         return -1;
     return 0;
@@ -486,7 +459,7 @@ static PyObject *wire_lock_bodies(PyObject *module, PyObject *const *args, Py_ss
     }
     long long seq = PyLong_AsLongLong(args[3]);
     double v[3];
-    if ((seq == -1 && PyErr_Occurred()) || float_args(args + 4, 3, v) < 0)
+    if ((seq == -1 && PyErr_Occurred()) || float_args(args + 4, 3, v) < 0 || ready() < 0)
         return NULL;
     double x = v[0], y = v[1], r2 = v[2];
     PyObject *ids = NULL, *out[6] = {NULL}, *dead_near = NULL, *result = NULL;
@@ -501,25 +474,27 @@ static PyObject *wire_lock_bodies(PyObject *module, PyObject *const *args, Py_ss
         if (c)
             continue;
         long long nseq;
-        if (state_seq(nb, &nseq, "lock_bodies") < 0)
+        double bx, by;
+        PyObject *f = state_xy(nb, &nseq, &bx, &by, "lock_bodies");
+        if (f == NULL)
             goto done;
         int is_stale = nseq != seq;
-        if (is_stale) {
-            if ((c = PySet_Contains(waiting, j)) < 0)
+        if (is_stale && (c = PySet_Contains(waiting, j)) <= 0) {
+            Py_DECREF(f);
+            if (c < 0)
                 goto done;
-            if (!c)
-                continue;
+            continue;
         }
-        double bx, by;
-        if (attr_double(nb, s_x, &bx) < 0 || attr_double(nb, s_y, &by) < 0)
-            goto done;
         double dx = x - bx, dy = y - by;
+        int rc = 0;
         if (dx * dx + dy * dy < r2) {
-            if (append_body(out, nb, kind, 0.0) < 0)
-                goto done;
+            rc = append_body(out, f, kind, 0.0);
             robots += 1;
             stale += is_stale;
         }
+        Py_DECREF(f);
+        if (rc < 0)
+            goto done;
     }
     result = Py_BuildValue("(OOOOOOnndO)", out[0], out[1], out[2], out[3], out[4], out[5], robots, stale, 0.0,
                            dead_near);
@@ -544,7 +519,7 @@ static PyObject *wire_wait_for(PyObject *module, PyObject *const *args, Py_ssize
     }
     long long k = PyLong_AsLongLong(args[2]);
     double v[3];
-    if ((k == -1 && PyErr_Occurred()) || float_args(args + 3, 3, v) < 0)
+    if ((k == -1 && PyErr_Occurred()) || float_args(args + 3, 3, v) < 0 || ready() < 0)
         return NULL;
     double px = v[0], py = v[1], reach2 = v[2];
     PyObject *ids = PyDict_Keys(table), *waiting = PySet_New(NULL), *result = NULL;
@@ -558,8 +533,11 @@ static PyObject *wire_wait_for(PyObject *module, PyObject *const *args, Py_ssize
         if (c)
             continue;
         long long nseq;
-        if (state_seq(nb, &nseq, "wait_for") < 0)
+        double bx, by;
+        PyObject *f = state_xy(nb, &nseq, &bx, &by, "wait_for");
+        if (f == NULL)
             goto done;
+        Py_DECREF(f);
         if (nseq < k - 1) {
             if (PyDict_DelItem(table, j) < 0)
                 goto done;
@@ -567,9 +545,6 @@ static PyObject *wire_wait_for(PyObject *module, PyObject *const *args, Py_ssize
         }
         if (nseq != k - 1)
             continue;
-        double bx, by;
-        if (attr_double(nb, s_x, &bx) < 0 || attr_double(nb, s_y, &by) < 0)
-            goto done;
         double dx = px - bx, dy = py - by;
         if (dx * dx + dy * dy < reach2 && PySet_Add(waiting, j) < 0)
             goto done;
@@ -584,73 +559,75 @@ done:
 
 /* ------------------------------------------------------------------------------------------- lock-step states */
 
-/* StateSink(agent, dec, ids, slow, report): a lock-step robot's neighbour states, taken on zenoh's receiving
- * thread without a Python frame in the common case (agents.intake.Intake._on_state_msg and _on_state, lock-step,
- * no faults). Called with a zenoh sample (ZenohBus.subscribe_sink) or as take(key, payload) (MemoryBus). A
- * state whose cell key's id is known (ids), that dec decodes, of another robot, not ahead of the robot's next
- * tick, and that its sender's window takes in the common case, is taken under the agent's lock: counted, put in
- * its table, and no longer waited for if it is of the tick under way; agent.kick is set (the loop woken, or the
- * tick run on this thread: agents.agent) when that took the last awaited robot off and agent._due() says so (nothing else a state changes is read by _due()). Any
- * other message goes, untouched, to
- * slow(key, payload) (the Python, which takes, refuses or counts it); an error of either goes to
- * report(key, error). Nothing raises into the bus. */
+/* StateSink(me, ids, dec, slow, report, acquire, release, kick, due, table, windows, waiting): a lock-step robot's
+ * neighbour states, taken on zenoh's receiving thread without a Python frame in the common case
+ * (agents.intake.Intake._on_state_msg and _on_state, lock-step, no faults: the agent makes none under faults).
+ * Everything it reads is handed to it: the robot's id `me`, its cell keys' ids `ids`, the decoder `dec`, the
+ * Python path `slow(key, payload)` and `report(key, error)`, its lock's `acquire` and `release`, `kick()` (the
+ * loop woken, or the tick run on this thread: agents.agent), `due()` (is the tick due now), and its `table`,
+ * sender `windows` and `waiting` set; the agent keeps the members `ended`, `started` (the tick under way) and
+ * `posed` (its newest pose's seq) up to date under its lock, and reads `taken` (the states taken here).
+ * A state whose cell key's id is known, that dec decodes, of another robot, not ahead of the robot's next tick,
+ * and that its sender's window takes in the common case, is taken under the lock: counted, put in the table, and
+ * no longer waited for if it is of the tick under way; kick() is called when that took the last awaited robot off
+ * and due() says so (nothing else a state changes is read by due()). Any other message goes, untouched, to slow
+ * (the Python, which takes, refuses or counts it); an error of either goes to report. Nothing raises into the bus. */
 typedef struct {
     PyObject_HEAD
     vectorcallfunc vectorcall;
-    PyObject *agent, *dec, *ids, *slow, *report, *lock, *wake;
+    PyObject *ids, *dec, *slow, *report, *acquire, *release, *kick, *due, *table, *windows, *waiting;
+    long long me, started, posed, taken;
+    char ended;
 } StateSink;
-
-static PyObject *s_ended, *s_acquire, *s_release, *s_view, *s_k_started, *s_pose, *s_w_state, *s_table,
-    *s_states_received, *s_waiting, *s_due, *s_set, *s_lock, *s_wake;
 
 static PyObject *StateSink_vectorcall(PyObject *callable, PyObject *const *args, size_t nargsf, PyObject *kwnames);
 
 static PyObject *StateSink_new(PyTypeObject *tp, PyObject *args, PyObject *kw) {
-    PyObject *agent, *dec, *ids, *slow, *report;
-    if (!PyArg_ParseTuple(args, "OOO!OO", &agent, &dec, &PyDict_Type, &ids, &slow, &report))
+    long long me;
+    PyObject *o[11];
+    if (!PyArg_ParseTuple(args, "LO!OOOOOOOO!O!O!", &me, &PyDict_Type, &o[0], &o[1], &o[2], &o[3], &o[4], &o[5],
+                          &o[6], &o[7], &PyDict_Type, &o[8], &PyDict_Type, &o[9], &PySet_Type, &o[10]))
         return NULL;
     StateSink *k = (StateSink *)tp->tp_alloc(tp, 0);
     if (k == NULL)
         return NULL;
     k->vectorcall = StateSink_vectorcall;
-    Py_INCREF(agent);
-    k->agent = agent;
-    Py_INCREF(dec);
-    k->dec = dec;
-    Py_INCREF(ids);
-    k->ids = ids;
-    Py_INCREF(slow);
-    k->slow = slow;
-    Py_INCREF(report);
-    k->report = report;
-    k->lock = PyObject_GetAttr(agent, s_lock); /* both made once with the agent */
-    k->wake = PyObject_GetAttr(agent, s_wake);
-    if (k->lock == NULL || k->wake == NULL) {
-        Py_DECREF(k);
-        return NULL;
-    }
+    k->me = me;
+    k->started = k->posed = -1;
+    PyObject **slots[11] = {&k->ids, &k->dec, &k->slow, &k->report, &k->acquire, &k->release, &k->kick, &k->due,
+                            &k->table, &k->windows, &k->waiting};
+    for (int i = 0; i < 11; i++)
+        *slots[i] = Py_NewRef(o[i]);
     return (PyObject *)k;
 }
 
 static int StateSink_traverse(StateSink *k, visitproc visit, void *arg) {
-    Py_VISIT(k->agent);
-    Py_VISIT(k->dec);
     Py_VISIT(k->ids);
+    Py_VISIT(k->dec);
     Py_VISIT(k->slow);
     Py_VISIT(k->report);
-    Py_VISIT(k->lock);
-    Py_VISIT(k->wake);
+    Py_VISIT(k->acquire);
+    Py_VISIT(k->release);
+    Py_VISIT(k->kick);
+    Py_VISIT(k->due);
+    Py_VISIT(k->table);
+    Py_VISIT(k->windows);
+    Py_VISIT(k->waiting);
     return 0;
 }
 
 static int StateSink_clear(StateSink *k) {
-    Py_CLEAR(k->agent);
-    Py_CLEAR(k->dec);
     Py_CLEAR(k->ids);
+    Py_CLEAR(k->dec);
     Py_CLEAR(k->slow);
     Py_CLEAR(k->report);
-    Py_CLEAR(k->lock);
-    Py_CLEAR(k->wake);
+    Py_CLEAR(k->acquire);
+    Py_CLEAR(k->release);
+    Py_CLEAR(k->kick);
+    Py_CLEAR(k->due);
+    Py_CLEAR(k->table);
+    Py_CLEAR(k->windows);
+    Py_CLEAR(k->waiting);
     return 0;
 }
 
@@ -660,118 +637,62 @@ static void StateSink_dealloc(StateSink *k) {
     Py_TYPE(k)->tp_free((PyObject *)k);
 }
 
-/* Under the agent's lock: 1 if state st (robot j's) was taken in the common case, 0 if it is not that case
- * (nothing changed), -1 on an error. *due: the loop has work. */
+/* Under the agent's lock: 1 if state st was taken in the common case, 0 if it is not that case (nothing changed),
+ * -1 on an error. *due: the loop has work. */
 static int sink_take(StateSink *k, PyObject *st, int *due) {
-    PyObject *a = k->agent, *j = NULL, *tt = NULL, *seq = NULL, *me = NULL, *w = NULL, *windows = NULL;
-    int rc = -1;
     *due = 0;
-    PyObject *view = PyObject_GetAttr(a, s_view);
-    if (view == NULL)
+    if (k->table == NULL || k->windows == NULL || k->waiting == NULL || !PySet_Check(k->waiting)) {
+        PyErr_SetString(PyExc_TypeError, "the sink's table and windows are dicts, its waiting a set");
         return -1;
-    int faults = view != Py_None; /* under faults the fault layer decides: the Python's */
-    Py_DECREF(view);
-    if (faults)
-        return 0;
-    j = PyObject_GetAttr(st, s_id);
-    tt = PyObject_GetAttr(st, s_t);
-    seq = PyObject_GetAttr(st, s_seq);
-    me = PyObject_GetAttr(a, s_id);
-    if (j == NULL || tt == NULL || seq == NULL || me == NULL)
+    }
+    PyObject *f = fields_of(st);
+    if (f == NULL)
+        return -1;
+    PyObject *j = PyTuple_GET_ITEM(f, F_ID), *tt = PyTuple_GET_ITEM(f, F_T), *seq = PyTuple_GET_ITEM(f, F_SEQ);
+    long long id, q;
+    int rc = as_ll(j, &id);
+    if (rc < 0)
+        goto done;
+    if (rc == 0 || id == k->me || !PyFloat_CheckExact(tt)) {
+        rc = 0; /* its own id from elsewhere, or an odd one: the Python refuses it */
+        goto done;
+    }
+    if ((rc = as_ll(seq, &q)) <= 0)
         goto done;
     rc = 0;
-    int mine = PyObject_RichCompareBool(j, me, Py_EQ);
-    if (mine != 0 || !PyFloat_CheckExact(tt) || !PyLong_CheckExact(seq)) {
-        rc = mine < 0 ? -1 : 0;
-        goto done;
-    }
-    int overflow;
-    long long q = PyLong_AsLongLongAndOverflow(seq, &overflow), started, pseq = -1;
-    if (overflow || (q == -1 && PyErr_Occurred())) {
-        PyErr_Clear();
-        goto done;
-    }
-    int got = attr_ll(a, s_k_started, &started);
-    if (got <= 0) {
-        rc = got;
-        goto done;
-    }
-    PyObject *pose = PyObject_GetAttr(a, s_pose);
-    if (pose == NULL) {
-        rc = -1;
-        goto done;
-    }
-    if (pose != Py_None)
-        got = attr_ll(pose, s_seq, &pseq);
-    Py_DECREF(pose);
-    if (got <= 0) {
-        rc = got;
-        goto done;
-    }
-    long long now = started > pseq ? started : pseq; /* Agent._next_tick, no faults: now + 1 */
+    long long now = k->started > k->posed ? k->started : k->posed; /* Agent._next_tick, no faults: now + 1 */
     if (q > now + 1) /* ahead of this robot: refused, and counted, the long way */
         goto done;
-    windows = PyObject_GetAttr(a, s_w_state);
-    if (windows == NULL || !PyDict_Check(windows)) {
-        rc = windows == NULL ? -1 : 0;
-        goto done;
-    }
-    w = PyDict_GetItemWithError(windows, j); /* borrowed */
+    PyObject *w = PyDict_GetItemWithError(k->windows, j); /* borrowed */
     if (w == NULL) {
         rc = PyErr_Occurred() ? -1 : 0; /* its first state: the Python makes its window */
         goto done;
     }
     Py_INCREF(w);
     rc = window_take(w, tt, seq);
+    Py_DECREF(w);
     if (rc != 1)
         goto done;
     /* taken: from here on every step must happen (an error is reported, not undone) */
+    k->taken += 1;
     rc = -1;
-    PyObject *n = PyObject_GetAttr(a, s_states_received);
-    if (n == NULL)
+    if (PyObject_SetItem(k->table, j, st) < 0)
         goto done;
-    PyObject *n1 = PyNumber_Add(n, one_int);
-    Py_DECREF(n);
-    if (n1 == NULL)
+    int removed = q == k->started ? PySet_Discard(k->waiting, j) : 0;
+    if (removed < 0)
         goto done;
-    int bad = PyObject_SetAttr(a, s_states_received, n1);
-    Py_DECREF(n1);
-    PyObject *table = bad < 0 ? NULL : PyObject_GetAttr(a, s_table);
-    if (table == NULL)
-        goto done;
-    bad = PyObject_SetItem(table, j, st);
-    Py_DECREF(table);
-    if (bad < 0)
-        goto done;
-    PyObject *waiting = PyObject_GetAttr(a, s_waiting);
-    if (waiting == NULL)
-        goto done;
-    int removed = PySet_Check(waiting) && q == started ? PySet_Discard(waiting, j) : 0;
-    if (!PySet_Check(waiting) || removed < 0) {
-        if (!PyErr_Occurred())
-            PyErr_SetString(PyExc_TypeError, "the agent's waiting is not a set");
-        Py_DECREF(waiting);
-        goto done;
-    }
-    Py_ssize_t left = PySet_GET_SIZE(waiting);
-    Py_DECREF(waiting);
     rc = 1;
     /* Only the state that took the last robot off `waiting` can make the tick due: while someone is waited for,
-     * _due() is only true for a new pose, which woke the loop itself; and a state that took nobody off changed
-     * nothing _due() reads (a pose, the reference, the clock, the robots lost woke the loop when they came). */
-    if (removed == 1 && left == 0) {
-        PyObject *d = PyObject_CallMethodNoArgs(a, s_due);
+     * due() is only true for a new pose, which woke the loop itself; and a state that took nobody off changed
+     * nothing due() reads (a pose, the reference, the clock, the robots lost woke the loop when they came). */
+    if (removed == 1 && PySet_GET_SIZE(k->waiting) == 0) {
+        PyObject *d = PyObject_CallNoArgs(k->due);
         if (d == NULL || (*due = PyObject_IsTrue(d)) < 0)
             rc = -1;
         Py_XDECREF(d);
     }
 done:
-    Py_XDECREF(j);
-    Py_XDECREF(tt);
-    Py_XDECREF(seq);
-    Py_XDECREF(me);
-    Py_XDECREF(w);
-    Py_XDECREF(windows);
+    Py_DECREF(f);
     return rc;
 }
 
@@ -798,18 +719,8 @@ static void sink_report(StateSink *k, PyObject *key) {
 
 /* The message (key, payload); never raises. */
 static void sink_message(StateSink *k, PyObject *key, PyObject *payload) {
-    PyObject *ended = PyObject_GetAttr(k->agent, s_ended);
-    if (ended == NULL) {
-        sink_report(k, key);
+    if (k->ended)
         return;
-    }
-    int over = PyObject_IsTrue(ended);
-    Py_DECREF(ended);
-    if (over != 0) {
-        if (over < 0)
-            sink_report(k, key);
-        return;
-    }
     int rc = 0, due = 0;
     PyObject *j = PyUnicode_CheckExact(key) ? PyDict_GetItemWithError(k->ids, key) : NULL; /* borrowed */
     if (j == NULL && PyErr_Occurred()) {
@@ -824,7 +735,7 @@ static void sink_message(StateSink *k, PyObject *key, PyObject *payload) {
         if (st == NULL) {
             PyErr_Clear(); /* the Python decodes it again and names what is wrong */
         } else {
-            PyObject *got = PyObject_CallMethodNoArgs(k->lock, s_acquire);
+            PyObject *got = PyObject_CallNoArgs(k->acquire);
             if (got == NULL) {
                 Py_DECREF(st);
                 sink_report(k, key);
@@ -835,10 +746,10 @@ static void sink_message(StateSink *k, PyObject *key, PyObject *payload) {
             Py_DECREF(st);
             PyObject *exc_type, *exc_value, *exc_tb;
             PyErr_Fetch(&exc_type, &exc_value, &exc_tb); /* release even after an error */
-            PyObject *r = PyObject_CallMethodNoArgs(k->lock, s_release);
+            PyObject *r = PyObject_CallNoArgs(k->release);
             Py_XDECREF(r);
             if (r == NULL)
-                PyErr_WriteUnraisable(k->lock);
+                PyErr_WriteUnraisable(k->release);
             PyErr_Restore(exc_type, exc_value, exc_tb);
             if (rc < 0) {
                 sink_report(k, key);
@@ -854,7 +765,7 @@ static void sink_message(StateSink *k, PyObject *key, PyObject *payload) {
         return;
     }
     if (due) {
-        PyObject *r = PyObject_CallMethodNoArgs(k->wake, s_set);
+        PyObject *r = PyObject_CallNoArgs(k->kick);
         if (r == NULL)
             sink_report(k, key);
         Py_XDECREF(r);
@@ -909,6 +820,18 @@ static PyObject *StateSink_take(PyObject *self, PyObject *const *args, Py_ssize_
     Py_RETURN_NONE;
 }
 
+static PyMemberDef StateSink_members[] = {
+    {"table", T_OBJECT_EX, offsetof(StateSink, table), 0, "the robot's table of states, by id"},
+    {"windows", T_OBJECT_EX, offsetof(StateSink, windows), 0, "its senders' windows, by id"},
+    {"waiting", T_OBJECT_EX, offsetof(StateSink, waiting), 0, "the robots the tick under way waits for"},
+    {"ended", T_BOOL, offsetof(StateSink, ended), 0, "the run is over: nothing is taken"},
+    {"started", T_LONGLONG, offsetof(StateSink, started), 0, "the tick under way (-1: none)"},
+    {"posed", T_LONGLONG, offsetof(StateSink, posed), 0, "the seq of the robot's newest pose (-1: none)"},
+    {"taken", T_LONGLONG, offsetof(StateSink, taken), 0, "the states taken here"},
+    {"me", T_LONGLONG, offsetof(StateSink, me), READONLY, "the robot's id"},
+    {NULL, 0, 0, 0, NULL},
+};
+
 static PyMethodDef StateSink_methods[] = {
     {"take", (PyCFunction)(void (*)(void))StateSink_take, METH_FASTCALL, "take(key, payload): one message"},
     {NULL, NULL, 0, NULL},
@@ -924,8 +847,10 @@ static PyTypeObject StateSinkType = {
     .tp_vectorcall_offset = offsetof(StateSink, vectorcall),
     .tp_call = PyVectorcall_Call,
     .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_VECTORCALL | Py_TPFLAGS_HAVE_GC,
-    .tp_doc = "StateSink(agent, dec, ids, slow, report): a lock-step robot's neighbour states, taken in C",
+    .tp_doc = "StateSink(me, ids, dec, slow, report, acquire, release, kick, due, table, windows, waiting): a "
+              "lock-step robot's neighbour states, taken in C",
     .tp_methods = StateSink_methods,
+    .tp_members = StateSink_members,
     .tp_new = StateSink_new,
 };
 
@@ -1070,6 +995,8 @@ static PyTypeObject DeadlineType = {
 };
 
 static PyMethodDef wire_methods[] = {
+    {"setup", (PyCFunction)(void (*)(void))wire_setup, METH_FASTCALL,
+     "setup(state_fields, window_take, sample_parts, to_bytes): what the loops read of Python objects"},
     {"pin_thread", wire_pin_thread, METH_NOARGS,
      "pin_thread(): keep this thread's Python thread state (a callback on zenoh's thread: see swarm.net.bus)"},
     {"drain", (PyCFunction)(void (*)(void))wire_drain, METH_FASTCALL,
@@ -1092,33 +1019,6 @@ static struct PyModuleDef wire_module = {
 
 PyMODINIT_FUNC PyInit__wire(void) {
     if (PyType_Ready(&StateSinkType) < 0 || PyType_Ready(&DeadlineType) < 0)
-        return NULL;
-    if (one_int == NULL && (one_int = PyLong_FromLong(1)) == NULL)
-        return NULL;
-    if ((s_payload = PyUnicode_InternFromString("payload")) == NULL ||
-        (s_to_bytes = PyUnicode_InternFromString("to_bytes")) == NULL ||
-        (s_attachment = PyUnicode_InternFromString("attachment")) == NULL ||
-        (s_key_expr = PyUnicode_InternFromString("key_expr")) == NULL ||
-        (s_id = PyUnicode_InternFromString("id")) == NULL || (s_t = PyUnicode_InternFromString("t")) == NULL ||
-        (s_seq = PyUnicode_InternFromString("seq")) == NULL ||
-        (s_seq_span = PyUnicode_InternFromString("seq_span")) == NULL ||
-        (s_t_span = PyUnicode_InternFromString("t_span")) == NULL ||
-        (s_cand = PyUnicode_InternFromString("_cand")) == NULL || (s_run = PyUnicode_InternFromString("_run")) == NULL ||
-        (s_dt = PyUnicode_InternFromString("dt")) == NULL ||
-        (s_x = PyUnicode_InternFromString("x")) == NULL || (s_y = PyUnicode_InternFromString("y")) == NULL ||
-        (s_r = PyUnicode_InternFromString("r")) == NULL || (s_R = PyUnicode_InternFromString("R")) == NULL ||
-        (s_ended = PyUnicode_InternFromString("ended")) == NULL ||
-        (s_acquire = PyUnicode_InternFromString("acquire")) == NULL ||
-        (s_release = PyUnicode_InternFromString("release")) == NULL ||
-        (s_view = PyUnicode_InternFromString("view")) == NULL ||
-        (s_k_started = PyUnicode_InternFromString("k_started")) == NULL ||
-        (s_pose = PyUnicode_InternFromString("pose")) == NULL ||
-        (s_w_state = PyUnicode_InternFromString("w_state")) == NULL ||
-        (s_table = PyUnicode_InternFromString("table")) == NULL ||
-        (s_states_received = PyUnicode_InternFromString("states_received")) == NULL ||
-        (s_waiting = PyUnicode_InternFromString("waiting")) == NULL ||
-        (s_due = PyUnicode_InternFromString("_due")) == NULL || (s_set = PyUnicode_InternFromString("set")) == NULL ||
-        (s_lock = PyUnicode_InternFromString("lock")) == NULL || (s_wake = PyUnicode_InternFromString("kick")) == NULL)
         return NULL;
     PyObject *m = PyModule_Create(&wire_module);
     if (m == NULL)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import os
+from operator import attrgetter, methodcaller
 from typing import TYPE_CHECKING, Annotated, Any, Literal, overload
 
 import msgpack
@@ -53,6 +54,7 @@ from swarm.proto.spec import (LARGE_KINDS as LARGE_KINDS, MAX_ANGLE as MAX_ANGLE
 from swarm.proto.checks import _CHECK, _READ, _bodies, _event, _obstacles, _snapshot, _spec_fields
 from swarm.proto.messages import _KIND_OF
 from swarm.proto.spec import _FIELD, _HOT_BOUNDS, _OPTIONAL, _SNAP_FIELDS, _SPEC, _WIRE, _WIRE_NAMES
+from swarm.proto.window import Window
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -68,6 +70,10 @@ except ImportError:
 
 if os.environ.get("SWARM_PURE_PYTHON"):  # the Python loops alone (tests compare the two)
     _wire = None
+
+if _wire is not None:  # what the loops read of Python objects, handed over here (they look nothing up by name)
+    _wire.setup(attrgetter("id", "t", "seq", "x", "y", "r", "R"), Window.take,
+                attrgetter("key_expr", "payload", "attachment"), methodcaller("to_bytes"))
 
 if TYPE_CHECKING:
     _M_co = TypeVar("_M_co", covariant=True)

@@ -71,12 +71,20 @@ class Window:
             return FORGED
         return OK if self.t is None else self._verdict(t, seq, self.t, self.seq)
 
-    def check(self, t: float, seq: int) -> str:
-        """Adopt (t, seq) if it is in the window (OK), else say why not."""
+    def take(self, t: float, seq: int) -> bool:
+        """check()'s common case alone: adopt (t, seq) and say True if it moves the anchored window forward within
+        its spans (and is its tick's time in lock-step); else False, with nothing changed (check() decides). The
+        compiled loops call it (swarm/proto/_wire.c, handed over by swarm.proto.protocol)."""
         t0 = self.t
         if t0 is not None and self.seq < seq <= self.seq + self.seq_span and t0 <= t <= t0 + self.t_span and \
                 (not self.dt or abs(t - seq * self.dt) <= TICK_EPS):
-            self.t, self.seq, self._cand, self._run = t, seq, None, 0  # the common case: _verdict's OK
+            self.t, self.seq, self._cand, self._run = t, seq, None, 0  # _verdict's OK
+            return True
+        return False
+
+    def check(self, t: float, seq: int) -> str:
+        """Adopt (t, seq) if it is in the window (OK), else say why not."""
+        if self.take(t, seq):  # the common case
             return OK
         v = self.peek(t, seq)
         if v in (JUMP, STALE):

@@ -115,3 +115,49 @@ def test_the_messages_are_frozen_structs_built_fast_and_equal_by_value():
             got.t = 2.0  # type: ignore[misc]
     assert p.decoder("state")(p.encode(s), 3) == s
     assert math.isnan(p.Cmd(1.0, 5, math.nan, 0.0).v)  # a message holds what it is given: the codec checks on reading
+
+
+# The C API calls that look an attribute or a method up by its name: compiled code that used one would break,
+# unseen by any test of the layers, when the Python it reads renames an attribute.
+BY_NAME = ("PyObject_GetAttr", "PyObject_SetAttr", "PyObject_HasAttr", "PyObject_DelAttr", "PyObject_CallMethod",
+           "PyObject_VectorcallMethod", "PyObject_GetOptionalAttr", "PyObject_GenericGetAttr",
+           "PyObject_GenericSetAttr", "_PyObject_GetAttrId", "_PyObject_LookupAttr", "_PyType_Lookup",
+           "PyObject_Dir")
+
+
+def test_no_compiled_code_reads_a_python_attribute_by_name():
+    """The compiled parts (swarm/proto/_wire.c, swarm/core/_law.c) are handed what they read of Python objects:
+    swarm.proto.protocol gives _wire.setup() a state's fields as a tuple, a window's take, a sample's parts and a
+    payload's bytes; the state sink gets the agent's table, windows, waiting set, lock and callbacks, and the
+    agent keeps its members (ended, started, posed) up to date. No C looks a name up."""
+    import re
+    from pathlib import Path
+
+    root = Path(p.__file__).resolve().parents[2]
+    sources = sorted(root.glob("swarm/**/*.c"))
+    assert {s.name for s in sources} >= {"_wire.c", "_law.c"}
+    found = [f"{s.relative_to(root)}:{n}: {m.group(0)}" for s in sources
+             for n, line in enumerate(s.read_text().splitlines(), 1)
+             for m in re.finditer(r"\b(" + "|".join(BY_NAME) + r")\w*", line)]
+    assert found == []
+
+
+@pytest.mark.skipif(p._wire is None, reason="the compiled loops are not built here (no C compiler)")
+def test_the_compiled_loops_read_states_through_what_setup_gave_them():
+    """A state's fields reach the compiled loops only through the tuple setup()'s getter gives: a getter that
+    gives something else is refused with a TypeError that says so (never a crash, never a wrong read)."""
+    from operator import attrgetter, methodcaller
+
+    from swarm.proto.window import Window
+    s = p.State(id=2, t=0.02, seq=1, x=1.0, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False)
+    table, dead, waiting = {2: s}, set(), set()
+    assert p._wire.lock_bodies(table, dead, waiting, 1, 0.0, 0.0, 4.0, 0)[:4] == ([1.0], [0.0], [0.3], [1.2])
+    try:
+        p._wire.setup(attrgetter("id", "t", "seq"), Window.take, attrgetter("key_expr", "payload", "attachment"),
+                      methodcaller("to_bytes"))
+        with pytest.raises(TypeError, match=r"state_fields\(\) must give a tuple of \(id, t, seq, x, y, r, R\)"):
+            p._wire.lock_bodies(table, dead, waiting, 1, 0.0, 0.0, 4.0, 0)
+    finally:  # as swarm.proto.protocol sets it up
+        p._wire.setup(attrgetter("id", "t", "seq", "x", "y", "r", "R"), Window.take,
+                      attrgetter("key_expr", "payload", "attachment"), methodcaller("to_bytes"))
+    assert p._wire.lock_bodies(table, dead, waiting, 1, 0.0, 0.0, 4.0, 0)[:4] == ([1.0], [0.0], [0.3], [1.2])

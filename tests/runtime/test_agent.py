@@ -759,7 +759,7 @@ def test_the_lockstep_sink_reads_zenoh_samples_and_counts_its_own_errors():
             raise RuntimeError("no room")
 
     before = w.agent.bad.count
-    w.agent.table = Refusing(w.agent.table)
+    w.agent.table = sink.table = Refusing(w.agent.table)  # the sink takes into the table it was handed
     two = protocol.encode(State(id=5, t=0.04, seq=2, x=1.0, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False))
     w.put(keys.robot_pose(F, CFG.id), Pose(t=0.04, seq=2, x=0.0, y=0.0, theta=0.0))
     w.agent.tick_lockstep()
