@@ -203,7 +203,7 @@ class Intake(AgentState):
             return
         w = self.w_state.get(s.id)
         if w is None:
-            w = self.w_state[s.id] = window.Window(math.inf, 2**62, dt=self._tick)  # forward only (see above)
+            w = self.w_state[s.id] = window.new(math.inf, 2**62, dt=self._tick)  # forward only (see above)
         v = w.check(s.t, s.seq)
         if v != window.OK and not self.bad.verdict(key, v, f"robot {s.id}'s t or seq"):
             return

@@ -43,7 +43,7 @@ class Leader:
         self.epoch: float | None = None
         self.speed = 1.0
         self.sent = 0
-        self.w_clock = window.Window(*window.spans(dt, WATCHDOG_S), dt=dt if lockstep else 0.0)  # the world's clock:
+        self.w_clock = window.new(*window.spans(dt, WATCHDOG_S), dt=dt if lockstep else 0.0)  # the world's clock:
         # forward, within a window; lock-step: its t is its tick's, seq x dt
         self.ended = False  # the run is over (a new one began): run() returns
         self._handles: list = []

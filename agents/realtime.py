@@ -122,7 +122,7 @@ class Realtime(SafeCommand):
             return
         w = self.w_state.get(j)
         if w is None:
-            w = self.w_state[j] = window.Window(math.inf, 2**62)  # forward only (see _on_state)
+            w = self.w_state[j] = window.new(math.inf, 2**62)  # forward only (see _on_state)
         v = w.check(t, s.seq)
         if v != window.OK and not self.bad.verdict(key, v, f"robot {j}'s t or seq"):
             return

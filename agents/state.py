@@ -176,14 +176,14 @@ class AgentState:
             self.drive.limits = self.limits  # the simulated drive decodes poses with the scenario's bounds
         self._spans = window.spans(cfg.dt, WATCHDOG_S)
         self._tick = cfg.dt if cfg.lockstep else 0.0  # lock-step: a pose's, reference's, state's t is seq x dt
-        self.w_pose = window.Window(*self._spans, dt=self._tick)  # the world (or localization)
-        self.w_clock = window.Window(*self._spans, dt=self._tick)  # the world
-        self.w_ref = window.Window(*self._spans, dt=self._tick)  # the leader
-        self.w_bodies = window.Window(*self._spans)  # the world (real time under faults)
+        self.w_pose = window.new(*self._spans, dt=self._tick)  # the world (or localization)
+        self.w_clock = window.new(*self._spans, dt=self._tick)  # the world
+        self.w_ref = window.new(*self._spans, dt=self._tick)  # the leader
+        self.w_bodies = window.new(*self._spans)  # the world (real time under faults)
         self.w_state: dict[int, window.Window] = {}  # robot j
         self.ended = False  # the run this agent serves is over (a new run began): ignore everything
         self.belief: protocol.Pose | None = None  # lock-step under faults: its pose as it knows it at the tick
-        self.w_estop = window.Window(math.inf, 2**62)  # the operator's: forward only (its clock is unix time)
+        self.w_estop = window.new(math.inf, 2**62)  # the operator's: forward only (its clock is unix time)
         self.estopped: str | None = None
         self.leader_alive = False
         self.leader_ups = 0  # times the leader's token appeared (a restarted leader during a tick)

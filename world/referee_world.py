@@ -92,8 +92,8 @@ class RefereeWorld:
         self._listed: tuple[int, ...] = ()  # the robots the last bodies message listed, and its time
         self._listed_t = -math.inf
         self._spans = window.spans(scn.dt, opts.watchdog)
-        self.w_state = [window.Window(*self._spans) for _ in range(n)]
-        self.w_status = [window.Window(*self._spans) for _ in range(n)]
+        self.w_state = [window.new(*self._spans) for _ in range(n)]
+        self.w_status = [window.new(*self._spans) for _ in range(n)]
         self.bad = protocol.BadMessages(log)
         self.robot_bad = protocol.Claims()  # the robots' own counts of bad messages, bounded
         self.lost: set[int] = set()

@@ -114,8 +114,8 @@ class WorldState:
         c = scn.control
         self.limits = protocol.Limits.of(scn.n, scn.reach, getattr(c, "v_max", None), getattr(c, "w_max", None))
         self._spans = window.spans(scn.dt, watchdog)
-        self.w_cmd = [window.Window(*self._spans) for _ in range(scn.n)]  # real time: each robot's commands
-        self.w_status = [window.Window(*self._spans) for _ in range(scn.n)]
+        self.w_cmd = [window.new(*self._spans) for _ in range(scn.n)]  # real time: each robot's commands
+        self.w_status = [window.new(*self._spans) for _ in range(scn.n)]
         self.failure: str | None = None  # what ended the run early (metrics "failure")
         self.lost: set[int] = set()  # robots whose token went away during the run
         self.lost_events = 0  # token losses during the run (a robot lost twice counts twice)

@@ -58,9 +58,172 @@ static PyObject *fields_of(PyObject *st) {
     return f;
 }
 
+/* ------------------------------------------------------------------------------------------- windows */
+
+/* Window(t_span, seq_span, dt=0.0): swarm.proto.window.Window compiled, the same rules (its docstring) for the
+ * numbers a window sees (t a finite or infinite float, seq an int that fits in 64 bits: every decoded message's):
+ * tests/protocol/test_window.py holds the two equal on random sequences. The loops above take a state's window in
+ * its common case straight from this struct. */
+typedef struct {
+    PyObject_HEAD
+    double t_span, dt, t, cand_t;
+    long long seq_span, seq, cand_seq, run;
+    char anchored, has_cand;
+} Window;
+
+static PyTypeObject WindowType;
+static PyObject *v_ok, *v_duplicate, *v_stale, *v_jump, *v_forged;
+#define TICK_EPS 1e-6 /* swarm.proto.window.TICK_EPS */
+#define CONFIRM 3     /* swarm.proto.window.CONFIRM */
+
+static int Window_init(Window *w, PyObject *args, PyObject *kw) {
+    static char *names[] = {"t_span", "seq_span", "dt", NULL};
+    double dt = 0.0;
+    if (!PyArg_ParseTupleAndKeywords(args, kw, "dL|d", names, &w->t_span, &w->seq_span, &dt))
+        return -1;
+    w->dt = dt;
+    w->anchored = w->has_cand = 0;
+    w->seq = -1;
+    w->run = 0;
+    return 0;
+}
+
+static PyObject *verdict(Window *w, double t, long long seq, double t0, long long seq0) {
+    if (seq == seq0 && t == t0)
+        return v_duplicate;
+    if (seq <= seq0 || t < t0)
+        return v_stale;
+    if (seq > seq0 + w->seq_span || t > t0 + w->t_span)
+        return v_jump;
+    return v_ok;
+}
+
+static int take(Window *w, double t, long long seq) {
+    if (w->anchored && w->seq < seq && seq <= w->seq + w->seq_span && w->t <= t && t <= w->t + w->t_span &&
+        (!w->dt || fabs(t - (double)seq * w->dt) <= TICK_EPS)) {
+        w->t = t, w->seq = seq, w->has_cand = 0, w->run = 0;
+        return 1;
+    }
+    return 0;
+}
+
+static PyObject *peek(Window *w, double t, long long seq) {
+    if (w->dt && !(fabs(t - (double)seq * w->dt) <= TICK_EPS))
+        return v_forged;
+    return w->anchored ? verdict(w, t, seq, w->t, w->seq) : v_ok;
+}
+
+static int window_args(PyObject *const *args, Py_ssize_t nargs, double *t, long long *seq) {
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "(t, seq)");
+        return -1;
+    }
+    *t = PyFloat_AsDouble(args[0]);
+    if (*t == -1.0 && PyErr_Occurred())
+        return -1;
+    *seq = PyLong_AsLongLong(args[1]);
+    return *seq == -1 && PyErr_Occurred() ? -1 : 0;
+}
+
+static PyObject *Window_take(Window *w, PyObject *const *args, Py_ssize_t nargs) {
+    double t;
+    long long seq;
+    if (window_args(args, nargs, &t, &seq) < 0)
+        return NULL;
+    return PyBool_FromLong(take(w, t, seq));
+}
+
+static PyObject *Window_peek(Window *w, PyObject *const *args, Py_ssize_t nargs) {
+    double t;
+    long long seq;
+    if (window_args(args, nargs, &t, &seq) < 0)
+        return NULL;
+    return Py_NewRef(peek(w, t, seq));
+}
+
+static PyObject *Window_check(Window *w, PyObject *const *args, Py_ssize_t nargs) {
+    double t;
+    long long seq;
+    if (window_args(args, nargs, &t, &seq) < 0)
+        return NULL;
+    if (take(w, t, seq))
+        return Py_NewRef(v_ok);
+    PyObject *v = peek(w, t, seq);
+    if (v == v_jump || v == v_stale) {
+        w->run = w->has_cand && verdict(w, t, seq, w->cand_t, w->cand_seq) == v_ok ? w->run + 1 : 1;
+        w->cand_t = t, w->cand_seq = seq, w->has_cand = 1;
+        if (w->run < CONFIRM)
+            return Py_NewRef(v);
+        v = v_ok; /* the sender did jump (or the window was anchored by a crafted message): follow it */
+    }
+    if (v == v_ok)
+        w->t = t, w->seq = seq, w->anchored = 1, w->has_cand = 0, w->run = 0;
+    return Py_NewRef(v);
+}
+
+static PyObject *Window_reset(Window *w, PyObject *unused) {
+    w->anchored = w->has_cand = 0;
+    w->seq = -1;
+    w->run = 0;
+    Py_RETURN_NONE;
+}
+
+static PyObject *Window_get_t(Window *w, void *c) {
+    return w->anchored ? PyFloat_FromDouble(w->t) : Py_NewRef(Py_None);
+}
+
+static PyObject *Window_get_cand(Window *w, void *c) {
+    return w->has_cand ? Py_BuildValue("(dL)", w->cand_t, w->cand_seq) : Py_NewRef(Py_None);
+}
+
+static PyGetSetDef Window_getset[] = {
+    {"t", (getter)Window_get_t, NULL, "the time of the last message adopted (None: not anchored)", NULL},
+    {"_cand", (getter)Window_get_cand, NULL, "the last refused jump, (t, seq), or None", NULL},
+    {NULL, NULL, NULL, NULL, NULL},
+};
+
+static PyMemberDef Window_members[] = {
+    {"t_span", T_DOUBLE, offsetof(Window, t_span), READONLY, "how far t may move forward [s]"},
+    {"seq_span", T_LONGLONG, offsetof(Window, seq_span), READONLY, "how far seq may move forward"},
+    {"dt", T_DOUBLE, offsetof(Window, dt), READONLY, "lock-step: the tick (0: t and seq are not tied)"},
+    {"seq", T_LONGLONG, offsetof(Window, seq), READONLY, "the seq of the last message adopted (-1: none)"},
+    {"_run", T_LONGLONG, offsetof(Window, run), READONLY, "jumps in a row that agree with each other"},
+    {NULL, 0, 0, 0, NULL},
+};
+
+static PyMethodDef Window_methods[] = {
+    {"check", (PyCFunction)(void (*)(void))Window_check, METH_FASTCALL,
+     "check(t, seq): adopt (t, seq) if it is in the window (\"ok\"), else say why not"},
+    {"peek", (PyCFunction)(void (*)(void))Window_peek, METH_FASTCALL, "peek(t, seq): what check() would say"},
+    {"take", (PyCFunction)(void (*)(void))Window_take, METH_FASTCALL, "take(t, seq): check()'s common case alone"},
+    {"reset", (PyCFunction)Window_reset, METH_NOARGS, "reset(): the next message anchors the window"},
+    {NULL, NULL, 0, NULL},
+};
+
+static PyTypeObject WindowType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "swarm.proto._wire.Window",
+    .tp_basicsize = sizeof(Window),
+    .tp_flags = Py_TPFLAGS_DEFAULT,
+    .tp_doc = "Window(t_span, seq_span, dt=0.0): one sender's forward window (swarm.proto.window.Window, compiled)",
+    .tp_methods = Window_methods,
+    .tp_members = Window_members,
+    .tp_getset = Window_getset,
+    .tp_init = (initproc)Window_init,
+    .tp_new = PyType_GenericNew,
+};
+
 /* 1: the sender's window w took (t, seq) in its common case (window_take(w, t, seq) is true); 0: it is not that
  * case, and nothing changed (the full check decides); -1: an error. */
 static int window_take(PyObject *w, PyObject *tt, PyObject *seq) {
+    if (Py_IS_TYPE(w, &WindowType) && PyFloat_CheckExact(tt) && PyLong_CheckExact(seq)) {
+        int overflow;
+        long long q = PyLong_AsLongLongAndOverflow(seq, &overflow);
+        if (!overflow && !(q == -1 && PyErr_Occurred()))
+            return take((Window *)w, PyFloat_AS_DOUBLE(tt), q);
+        PyErr_Clear();
+        return 0;
+    }
     PyObject *call[3] = {w, tt, seq};
     PyObject *r = PyObject_Vectorcall(window_take_fn, call, 3, NULL);
     if (r == NULL)
@@ -1018,14 +1181,22 @@ static struct PyModuleDef wire_module = {
 };
 
 PyMODINIT_FUNC PyInit__wire(void) {
-    if (PyType_Ready(&StateSinkType) < 0 || PyType_Ready(&DeadlineType) < 0)
+    if (PyType_Ready(&StateSinkType) < 0 || PyType_Ready(&DeadlineType) < 0 || PyType_Ready(&WindowType) < 0)
+        return NULL;
+    if ((v_ok = PyUnicode_InternFromString("ok")) == NULL ||
+        (v_duplicate = PyUnicode_InternFromString("duplicate")) == NULL ||
+        (v_stale = PyUnicode_InternFromString("stale")) == NULL ||
+        (v_jump = PyUnicode_InternFromString("jump")) == NULL ||
+        (v_forged = PyUnicode_InternFromString("forged")) == NULL)
         return NULL;
     PyObject *m = PyModule_Create(&wire_module);
     if (m == NULL)
         return NULL;
     Py_INCREF(&StateSinkType);
     Py_INCREF(&DeadlineType);
+    Py_INCREF(&WindowType);
     if (PyModule_AddObject(m, "Deadline", (PyObject *)&DeadlineType) < 0 ||
+        PyModule_AddObject(m, "Window", (PyObject *)&WindowType) < 0 ||
         PyModule_AddObject(m, "StateSink", (PyObject *)&StateSinkType) < 0) {
         Py_DECREF(m);
         return NULL;

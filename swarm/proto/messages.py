@@ -1,6 +1,7 @@
 """The messages of docs/protocol.md, one frozen msgspec struct per kind (built in a tenth of a microsecond, compared
 and hashed by value; msgspec.structs.replace makes a changed copy), and ProtocolError, the error of a message that
-must not reach the law. swarm.proto.protocol encodes and decodes them through each kind's wire struct."""
+must not reach the law. swarm.proto.protocol encodes and decodes them through each kind's wire struct. A message of
+numbers and strings alone is not tracked by the garbage collector (gc=False: it can hold no cycle)."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ class ProtocolError(SwarmError, ValueError):
     """A message that must not reach the law: the reason says what was wrong."""
 
 
-class Ref(msgspec.Struct, frozen=True):
+class Ref(msgspec.Struct, frozen=True, gc=False):
     """The leader's live reference (leader -> agents)."""
 
     t: float
@@ -30,7 +31,7 @@ class Ref(msgspec.Struct, frozen=True):
     w: float
 
 
-class Pose(msgspec.Struct, frozen=True):
+class Pose(msgspec.Struct, frozen=True, gc=False):
     """A robot's pose (world or localization -> agent)."""
 
     t: float
@@ -43,7 +44,7 @@ class Pose(msgspec.Struct, frozen=True):
     cmd: float | None = None
 
 
-class Cmd(msgspec.Struct, frozen=True):
+class Cmd(msgspec.Struct, frozen=True, gc=False):
     """A robot's command (agent -> world or drive)."""
 
     t: float
@@ -56,7 +57,7 @@ class Cmd(msgspec.Struct, frozen=True):
     until: float | None = None
 
 
-class State(msgspec.Struct, frozen=True):
+class State(msgspec.Struct, frozen=True, gc=False):
     """A robot's state on its cell key (agent -> agents nearby)."""
 
     id: int
@@ -76,7 +77,7 @@ class State(msgspec.Struct, frozen=True):
     still: float | None = None
 
 
-class Status(msgspec.Struct, frozen=True):
+class Status(msgspec.Struct, frozen=True, gc=False):
     """A robot's status (agent -> viewers, recorder)."""
 
     t: float
@@ -92,7 +93,7 @@ class Status(msgspec.Struct, frozen=True):
     held: float | None = None
 
 
-class Obstacle(msgspec.Struct, frozen=True):
+class Obstacle(msgspec.Struct, frozen=True, gc=False):
     x: float
     y: float
     r: float
@@ -105,7 +106,7 @@ class Obstacles(msgspec.Struct, frozen=True):
     obstacles: tuple[Obstacle, ...]
 
 
-class RobotSnap(msgspec.Struct, frozen=True):
+class RobotSnap(msgspec.Struct, frozen=True, gc=False):
     id: int
     x: float
     y: float
@@ -124,7 +125,7 @@ class Snapshot(msgspec.Struct, frozen=True):
     robots: tuple[RobotSnap, ...]
 
 
-class Clock(msgspec.Struct, frozen=True):
+class Clock(msgspec.Struct, frozen=True, gc=False):
     """The world's clock (world -> leader, agents; an extension key). Lock-step: tick seq at time t
     (clock 0 also says every robot's first state has been delivered). Real time: t = (unix time -
     epoch) * speed, so every process can run the same simulated clock from its own wall clock."""
@@ -135,7 +136,7 @@ class Clock(msgspec.Struct, frozen=True):
     speed: float  # simulated seconds per wall second (> 0)
 
 
-class Config(msgspec.Struct, frozen=True):
+class Config(msgspec.Struct, frozen=True, gc=False):
     """One robot's slice of the scenario (reply of the world's config queryable): its id, start
     pose, formation offset, radii, gains and timing; never another robot's state."""
 
@@ -176,7 +177,7 @@ class Config(msgspec.Struct, frozen=True):
     law_memory: int | None = None  # [control] memory: floats of memory per robot
 
 
-class Body(msgspec.Struct, frozen=True):
+class Body(msgspec.Struct, frozen=True, gc=False):
     id: int
     x: float
     y: float
@@ -196,7 +197,7 @@ class Bodies(msgspec.Struct, frozen=True):
     returning: tuple[Body, ...] = ()
 
 
-class FaultStats(msgspec.Struct, frozen=True):
+class FaultStats(msgspec.Struct, frozen=True, gc=False):
     """A robot's fault counters (agent -> world, lock-step under faults, each tick before its command):
     what its fault layer lost or delayed so far of its neighbours' states, its poses and its references,
     and the oldest neighbour state its law used [s]. A restarted robot counts from 0 again."""
@@ -213,7 +214,7 @@ class FaultStats(msgspec.Struct, frozen=True):
     frozen: bool  # its law froze it at seq (the metrics' freezes under faults are the laws' own)
 
 
-class Estop(msgspec.Struct, frozen=True):
+class Estop(msgspec.Struct, frozen=True, gc=False):
     """The emergency stop (operator -> every drive): engaged, every robot holds zero velocity until a
     release (engaged false). t is the operator's unix time [s], seq its counter (unix time in ms)."""
 
@@ -223,7 +224,7 @@ class Estop(msgspec.Struct, frozen=True):
     reason: str
 
 
-class Proc(msgspec.Struct, frozen=True):
+class Proc(msgspec.Struct, frozen=True, gc=False):
     """A process of the swarm says who it is (its proc queryable's reply: `swarm ps`): its role and id (as in its
     liveliness token), the machine's host name, its pid, when it started (unix time [s]), the run it is in ("" for
     none yet) and the swarm version it runs."""
@@ -237,7 +238,7 @@ class Proc(msgspec.Struct, frozen=True):
     version: str
 
 
-class Run(msgspec.Struct, frozen=True):
+class Run(msgspec.Struct, frozen=True, gc=False):
     """A run's identity (world -> everyone, and the world's run queryable): a new id at every run's
     start; digest = sha256 of the resolved scenario (faults included) as canonical TOML. The
     queryable's reply also carries that TOML in `scenario` (so a robot can name the first
@@ -250,7 +251,7 @@ class Run(msgspec.Struct, frozen=True):
     scenario: str
 
 
-class Progress(msgspec.Struct, frozen=True):
+class Progress(msgspec.Struct, frozen=True, gc=False):
     """A run's progress (world -> launcher, viewers; an extension key). min_distance < 0: none yet."""
 
     t: float
@@ -291,7 +292,7 @@ class Event(msgspec.Struct, frozen=True):
     detail: str
 
 
-class Claim(msgspec.Struct, frozen=True):
+class Claim(msgspec.Struct, frozen=True, gc=False):
     """The world's answer to a robot started with --id auto (reply of world/claim/<claim key>): the id it
     may take (granted), or why not. The id is provisional until that robot's liveliness token appears
     (world.claims)."""

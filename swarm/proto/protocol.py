@@ -177,8 +177,8 @@ def _wire_struct(kind: str, limits: Limits | None = None, *, typed: bool = True)
 
     spec: list[Any] = [("v", Literal[VERSION] if typed else Any), ("kind", Literal[kind] if typed else Any)]
     for _, wire in _WIRE_NAMES[kind]:
-        if wire in optional:
-            spec.append((wire, typ(wire) | msgspec.UnsetType if typed else Any, msgspec.UNSET))
+        if wire in optional:  # absent: None when read (an explicit nil is refused: not of the type), left out written
+            spec.append((wire, typ(wire) | msgspec.UnsetType, None) if typed else (wire, Any, msgspec.UNSET))
         else:
             spec.append((wire, typ(wire)))
     return msgspec.defstruct(f"Wire_{kind}", spec, forbid_unknown_fields=True, gc=False)
@@ -422,8 +422,11 @@ def _compile_flat(kind: str, limits: Limits | None) -> Decoder[Any]:
             return _decode_checked(payload, kind, key_id, limits)
         return general
     required = len(_SPEC[kind]) - len(optional) + 2  # the map's entries but the optional ones ("v" and "kind" too)
-    size = f"{required}" + "".join(f" + (w.{o} is not UNSET)" for o in optional)
-    cond = [f"entries(payload) == {size}"]
+    present = "".join(f" + (w.{o} is not None)" for o in optional)
+    if required + len(optional) <= 15:  # a fixmap: its first byte is 0x80 + its entry count
+        cond = [f"payload[0] == {0x80 + required}{present}"]
+    else:
+        cond = [f"entries(payload) == {required}{present}"]
     if kind == "state":
         cond.append("0.0 < w.r < w.R")
     if kind in ("state", "config"):
@@ -431,18 +434,21 @@ def _compile_flat(kind: str, limits: Limits | None) -> Decoder[Any]:
     types = dict(_SPEC[kind])
 
     def value(wire: str) -> str:
-        got = f"w.{wire}" if types[wire] != "f" else f"tuple(w.{wire})"
-        return got if wire not in optional else f"(None if w.{wire} is UNSET else {got})"
+        if types[wire] == "f":
+            return f"tuple(w.{wire})" if wire not in optional else f"(None if w.{wire} is None else tuple(w.{wire}))"
+        return f"w.{wire}"
 
     args = ", ".join(value(wire) for _, wire in _WIRE_NAMES[kind])
     check = kind not in _HOT_BOUNDS and kind in _CHECK  # the kinds of every period: their bounds are the struct's
     ns: dict[str, Any] = {"read": msgspec.msgpack.Decoder(_wire_struct(kind, limits)).decode, "entries": _entries,
                           "slow": _decode_checked, "cls": cls, "limits": limits, "UNSET": msgspec.UNSET,
                           "check": _CHECK.get(kind)}
+    # a kind of numbers only needs no size check: msgspec stops at the first thing that is not one of its fields
+    numbers = all(t in ("n", "i", "id", "b") for t in types.values())
     body = ["def dec(payload, key_id=None):",
             "    try:",
-            f"        if len(payload) > {MAX_LARGE_PAYLOAD if kind in LARGE_KINDS else MAX_PAYLOAD}:",
-            "            raise ValueError",
+            *([] if numbers else [f"        if len(payload) > {MAX_LARGE_PAYLOAD if kind in LARGE_KINDS else MAX_PAYLOAD}:",
+                                  "            raise ValueError"]),
             "        w = read(payload)",
             "    except Exception:",
             f"        return slow(payload, {kind!r}, key_id, limits)",

@@ -1,6 +1,6 @@
 """Windows, not "newest wins": how a receiver adopts a sender's time and sequence number.
 
-    w = Window(t_span=2.0, seq_span=101)
+    w = new(t_span=2.0, seq_span=101)      # compiled where it was built, else Window
     w.check(t, seq)      # -> OK, DUPLICATE, STALE or JUMP; only OK moves the window forward
     w.reset()            # the sender's liveliness token is new, or a new run started
     Window(t_span, seq_span, dt=0.02)   # lock-step: t must also be seq's tick time, seq x dt (else FORGED)
@@ -21,6 +21,8 @@ next seq and t = 1e8 would otherwise be adopted, and every true state after it r
 from __future__ import annotations
 
 import math
+import os
+from typing import cast
 
 OK = "ok"
 DUPLICATE = "duplicate"
@@ -97,3 +99,21 @@ class Window:
         if v == OK:
             self.t, self.seq, self._cand, self._run = t, seq, None, 0
         return v
+
+
+try:  # the same window compiled (swarm/proto/_wire.c), where it was built: new() makes one of those
+    from swarm.proto import _wire as _compiled
+except ImportError:
+    _compiled = None
+if os.environ.get("SWARM_PURE_PYTHON"):
+    _compiled = None
+
+COMPILED = _compiled is not None
+
+
+def new(t_span: float, seq_span: int, dt: float = 0.0) -> Window:
+    """A sender's window: the compiled one where it was built (the robots' loops take a state's window from it
+    without a Python call), else this module's Window; the same rules either way (tests/protocol/test_window.py)."""
+    if _compiled is not None:
+        return cast(Window, _compiled.Window(t_span, seq_span, dt))
+    return Window(t_span, seq_span, dt)
