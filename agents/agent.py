@@ -53,7 +53,7 @@ class Agent(Lockstep, Realtime):
         drive = self.drive
         if inline and self.view is None and counters is None and (cfg.lockstep or (drive is not None and drive.takes_callback)):
             self.kick = Runner(self._ticks if cfg.lockstep else self._step_inline, self.wake)
-        # lock-step, no faults: neighbour states taken in C on the bus's thread (swarm/proto/_wire.c, StateSink;
+        # lock-step, no faults: neighbour states taken in C on the bus's thread (swarm/proto/_wire_states.c, StateSink;
         # anything but the common case goes to _on_state_msg)
         wire = protocol._wire
         if wire is not None and cfg.lockstep and self.view is None and hasattr(bus, "subscribe_sink"):

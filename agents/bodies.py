@@ -42,7 +42,7 @@ class Bodies(Links):
         (ages, all 0) and the numbers of robots and stale robots used. Real time: _rt_bodies."""
         r2 = self.side * self.side
         wire = protocol._wire
-        if wire is not None:  # the loop below over the table, compiled (swarm/proto/_wire.c)
+        if wire is not None:  # the loop below over the table, compiled (swarm/proto/_wire_states.c)
             nx, ny, nr, nR, nk, na, robots, stale, oldest, dead_near = wire.lock_bodies(
                 self.table, self.dead, self.waiting, seq, x, y, r2, law.KIND_ROBOT)
             if dead_near or self.obstacles:

@@ -129,7 +129,7 @@ class Lockstep(Bodies):
             dead = self.dead
             reach2 = self._wait_reach * self._wait_reach
             wire = protocol._wire if view is None else None
-            if wire is not None:  # the two loops below, compiled (swarm/proto/_wire.c)
+            if wire is not None:  # the two loops below, compiled (swarm/proto/_wire_states.c)
                 self.waiting = wire.wait_for(self.table, dead, k, px, py, reach2)
             else:
                 self.waiting = set()

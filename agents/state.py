@@ -2,7 +2,7 @@
 every concern asks (is a step due, which tick comes next, what time is it on the swarm's clock).
 
 The layers of the agent, each a module and a class on the one below (agents.agent assembles them):
-  state     AgentState: the attributes (one object: the compiled sink, swarm/proto/_wire.c, reads them)
+  state     AgentState: the attributes (one object; the compiled sink is handed the ones it reads)
   intake    Intake: the messages that come (bus callbacks, windows on t and seq)
   links     Links: subscriptions by cell and what goes out (state, command, status)
   bodies    Bodies: the obstacles near and the static part of the law's bodies

@@ -1,7 +1,6 @@
 """The wire format's numbers and tables: the protocol version, the size and value bounds, every flat kind's fields
 (wire name and type, and those a sender may leave out), the wire names of Python's fields, and the bounds the hot
-decoders check. swarm.proto.protocol generates its encoders and decoders from these tables, and builds the compiled
-ones (swarm/proto/_wire.c) from them."""
+decoders check. swarm.proto.protocol generates its encoders and decoders (msgspec's wire structs) from these tables."""
 
 from __future__ import annotations
 

@@ -101,7 +101,7 @@ class Window:
         return v
 
 
-try:  # the same window compiled (swarm/proto/_wire.c), where it was built: new() makes one of those
+try:  # the same window compiled (swarm/proto/_wire_window.c), where it was built: new() makes one of those
     from swarm.proto import _wire as _compiled
 except ImportError:
     _compiled = None

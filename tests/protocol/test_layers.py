@@ -171,7 +171,7 @@ CLASS_LINES_MAX = 400
 
 @pytest.mark.unit
 def test_no_module_or_class_outgrows_a_reading():
-    """Every module of swarm/, agents/ and world/ under MODULE_LINES_MAX lines and every class under
+    """Every module of swarm/, agents/ and world/ (and every C file) under MODULE_LINES_MAX lines and every class under
     CLASS_LINES_MAX: a concern that outgrows that is split into a layer of its own (as agents/ and world/ are)."""
     big = []
     for name, path in MODULES.items():
@@ -181,4 +181,7 @@ def test_no_module_or_class_outgrows_a_reading():
         for node in ast.walk(ast.parse(text)):
             if isinstance(node, ast.ClassDef) and node.end_lineno - node.lineno + 1 > CLASS_LINES_MAX:
                 big.append(f"class {name}.{node.name}: {node.end_lineno - node.lineno + 1} lines")
+    for path in [*ROOT.glob("swarm/**/*.c"), *ROOT.glob("swarm/**/*.h")]:  # the compiled parts too
+        if len(path.read_text(encoding="utf-8").splitlines()) > MODULE_LINES_MAX:
+            big.append(f"{path.relative_to(ROOT)}: {len(path.read_text(encoding='utf-8').splitlines())} lines")
     assert not big, "; ".join(big)

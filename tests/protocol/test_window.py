@@ -12,7 +12,7 @@ from swarm.proto.window import CONFIRM, DUPLICATE, JUMP, OK, STALE
 
 pytestmark = pytest.mark.unit
 
-# every test runs on the Python window and on the compiled one (swarm/proto/_wire.c) where it was built
+# every test runs on the Python window and on the compiled one (swarm/proto/_wire_window.c) where it was built
 KINDS = [window.Window] + ([window._compiled.Window] if window.COMPILED else [])
 
 

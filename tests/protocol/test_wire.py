@@ -134,8 +134,8 @@ def test_no_compiled_code_reads_a_python_attribute_by_name():
     from pathlib import Path
 
     root = Path(p.__file__).resolve().parents[2]
-    sources = sorted(root.glob("swarm/**/*.c"))
-    assert {s.name for s in sources} >= {"_wire.c", "_law.c"}
+    sources = sorted([*root.glob("swarm/**/*.c"), *root.glob("swarm/**/*.h")])
+    assert {s.name for s in sources} >= {"_wire.c", "_wire_states.c", "_wire_window.c", "_wire.h", "_law.c"}
     found = [f"{s.relative_to(root)}:{n}: {m.group(0)}" for s in sources
              for n, line in enumerate(s.read_text().splitlines(), 1)
              for m in re.finditer(r"\b(" + "|".join(BY_NAME) + r")\w*", line)]

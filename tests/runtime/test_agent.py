@@ -487,7 +487,7 @@ def test_the_compiled_state_batch_takes_what_the_python_one_takes():
     """Real time: a batch of neighbour states with every case the sender windows and the agent tell apart
     (new senders, in order, duplicates, stale, far jumps repeated until they re-anchor, its own id, ahead of
     its clock, a robot whose token came back) leaves the same table, ages, windows and counts whether the
-    compiled loop (swarm/proto/_wire.c, take_states) or the Python one takes it."""
+    compiled loop (swarm/proto/_wire_states.c, take_states) or the Python one takes it."""
     from swarm.core.clock import FakeClock
 
     cfg = protocol.replace(CFG, lockstep=False)
@@ -565,7 +565,7 @@ def test_the_compiled_lockstep_bodies_are_the_python_ones():
     """Lock-step: bodies() over a table of live robots with this tick's state, awaited ones with an older
     state (stale), unawaited ones with an older state (left out) and dead ones, near and far, with obstacles:
     the same bodies in the same order, bit for bit, and the same counts, whether the compiled loop
-    (swarm/proto/_wire.c, lock_bodies) or Python runs; 40 seeded tables."""
+    (swarm/proto/_wire_states.c, lock_bodies) or Python runs; 40 seeded tables."""
     k, seen = 50, {"fresh": 0, "stale": 0, "static": 0}
 
     def fill(agent, rng) -> None:
@@ -592,7 +592,7 @@ def test_the_compiled_lockstep_bodies_are_the_python_ones():
 def test_the_compiled_wait_set_is_the_python_one():
     """Lock-step, as a tick starts: the robots it waits for (live, with a state of the tick before, near where
     it was) and the states it forgets (live ones older than that), whether the compiled pass
-    (swarm/proto/_wire.c, wait_for) or Python runs; 40 seeded tables."""
+    (swarm/proto/_wire_states.c, wait_for) or Python runs; 40 seeded tables."""
     k, seen = 50, {"waited": 0, "forgotten": 0, "kept": 0}
 
     def fill(agent, rng) -> None:
@@ -616,7 +616,7 @@ def test_the_compiled_wait_set_is_the_python_one():
 
 def _lockstep_run(sink: bool, seed: int) -> tuple:
     """A lock-step agent fed 12 ticks of hostile neighbour traffic (seeded) through its bus: the compiled sink
-    (swarm/proto/_wire.c, StateSink) or, with the sink taken away before start(), _on_state_msg. What it ends
+    (swarm/proto/_wire_states.c, StateSink) or, with the sink taken away before start(), _on_state_msg. What it ends
     with, and the ticks it computed."""
     import random
 
