@@ -77,7 +77,7 @@ class SimDrive(DriveBase):
 
     def _poses(self, items: list[tuple[str, bytes]]) -> list[Pose]:
         out = []
-        dec = protocol.decoder("pose", self.limits)  # generated once per limits (protocol.decode's own)
+        dec = protocol.decoder("pose", self.limits)  # made once per limits (protocol.decode's own)
         for key, data in items:
             try:
                 out.append(dec(data))

@@ -129,7 +129,8 @@ _packb = msgspec.msgpack.Encoder(enc_hook=_enc_hook).encode  # the bytes msgpack
 
 def _wire_struct(kind: str, limits: Limits | None = None, *, typed: bool = True) -> type[msgspec.Struct]:
     """A flat kind's map on the wire as a msgspec struct: "v" and "kind", then its fields by wire name in the
-    encoder's order (the dataclass's), the optional ones last with UNSET (left out when written, absent when read).
+    encoder's order (the message's), the optional ones last (typed: None when absent, an explicit nil refused;
+    else UNSET, left out when written).
     typed: every field's type and bound as decode() holds them (numbers finite and, for the kinds of every period,
     within _HOT_BOUNDS and the scenario's `limits`; ints in range; strings bounded), for decoding; else Any, for
     writing (what a message holds is written as it is)."""

@@ -47,8 +47,7 @@ _SPEC: dict[str, tuple[tuple[str, str], ...]] = {
     "proc": (("role", "s"), ("id", "i"), ("host", "s"), ("pid", "i"), ("started", "n"), ("run", "s"), ("version", "s")),
 }
 # Fields a sender may leave out (the real-time safety fields: docs/protocol.md); absent, the message's field is
-# None. Encoders leave out a None one; a message that has them all takes the fast paths (generated and compiled
-# decoders, which know the full layout only), one without them the general path.
+# None. Encoders leave out a None one; the decoders take a map with or without them (an explicit nil is refused).
 _OPTIONAL: dict[str, tuple[str, ...]] = {"pose": ("cmd",), "cmd": ("until",), "state": ("stop", "still"),
                                          "status": ("held",),
                                          "config": ("law", "law_sha256", "law_params", "law_memory")}
