@@ -217,7 +217,9 @@ PyObject *wire_lock_bodies(PyObject *module, PyObject *const *args, Py_ssize_t n
             continue;
         long long nseq;
         double bx, by;
+        Py_INCREF(nb); /* borrowed from the table: held while the getter runs */
         PyObject *f = state_xy(nb, &nseq, &bx, &by, "lock_bodies");
+        Py_DECREF(nb);
         if (f == NULL)
             goto done;
         int is_stale = nseq != seq;
@@ -276,7 +278,9 @@ PyObject *wire_wait_for(PyObject *module, PyObject *const *args, Py_ssize_t narg
             continue;
         long long nseq;
         double bx, by;
+        Py_INCREF(nb); /* borrowed from the table: held while the getter runs */
         PyObject *f = state_xy(nb, &nseq, &bx, &by, "wait_for");
+        Py_DECREF(nb);
         if (f == NULL)
             goto done;
         Py_DECREF(f);
