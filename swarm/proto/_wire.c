@@ -203,7 +203,9 @@ static PyObject *wire_decode_states(PyObject *module, PyObject *const *args, Py_
                 return NULL;
         }
         PyObject *call[2] = {payload, j};
+        Py_INCREF(j); /* borrowed from ids: held while dec runs */
         PyObject *m = PyObject_Vectorcall(dec, call, 2, NULL);
+        Py_DECREF(j);
         PyObject *t;
         if (m == NULL) {
             if (!PyErr_ExceptionMatches(error))

@@ -331,6 +331,8 @@ static PyObject *StateSink_vectorcall(PyObject *callable, PyObject *const *args,
 static PyObject *StateSink_new(PyTypeObject *tp, PyObject *args, PyObject *kw) {
     long long me;
     PyObject *o[11];
+    if (wire_ready() < 0)
+        return NULL;
     if (!PyArg_ParseTuple(args, "LO!OOOOOOOO!O!O!", &me, &PyDict_Type, &o[0], &o[1], &o[2], &o[3], &o[4], &o[5],
                           &o[6], &o[7], &PyDict_Type, &o[8], &PyDict_Type, &o[9], &PySet_Type, &o[10]))
         return NULL;
@@ -420,10 +422,10 @@ static int sink_take(StateSink *k, PyObject *st, int *due) {
     if (rc != 1)
         goto done;
     /* taken: from here on every step must happen (an error is reported, not undone) */
-    k->taken += 1;
     rc = -1;
     if (PyObject_SetItem(k->table, j, st) < 0)
         goto done;
+    k->taken += 1;
     int removed = q == k->started ? PySet_Discard(k->waiting, j) : 0;
     if (removed < 0)
         goto done;

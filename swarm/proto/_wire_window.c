@@ -159,7 +159,9 @@ PyTypeObject WindowType = {
 /* 1: the sender's window w took (t, seq) in its common case (window_take(w, t, seq) is true); 0: it is not that
  * case, and nothing changed (the full check decides); -1: an error. */
 int window_take(PyObject *w, PyObject *tt, PyObject *seq) {
-    if (Py_IS_TYPE(w, &WindowType) && PyFloat_CheckExact(tt) && PyLong_CheckExact(seq)) {
+    if (Py_IS_TYPE(w, &WindowType)) {
+        if (!PyFloat_CheckExact(tt) || !PyLong_CheckExact(seq))
+            return 0; /* not the common case: the full check decides */
         int overflow;
         long long q = PyLong_AsLongLongAndOverflow(seq, &overflow);
         if (!overflow && !(q == -1 && PyErr_Occurred()))

@@ -116,11 +116,13 @@ def encode(msg: Any) -> bytes:
 
 def _enc_hook(obj: Any) -> Any:
     """What msgspec does not write itself, as msgpack.packb writes it: a float subclass (numpy's float64) as a float,
-    an int subclass as an int; anything else is not a field of a message."""
+    an int subclass as an int, a str subclass as a str; anything else is not a field of a message."""
     if isinstance(obj, float):
         return float(obj)
     if isinstance(obj, int):
         return int(obj)
+    if isinstance(obj, str):
+        return str(obj)
     raise TypeError(f"a message field cannot be a {type(obj).__name__}")
 
 
@@ -138,15 +140,15 @@ def _wire_struct(kind: str, limits: Limits | None = None, *, typed: bool = True)
     optional = _OPTIONAL.get(kind, ())
     bounds = {_WIRE.get(n, n): b for n, b in _HOT_BOUNDS.get(kind, ())}
     lims: dict[str, tuple[float, float]] = {}
-    if limits is not None:
+    if limits is not None:  # as plain floats (a bound of 9 and one of 9.0 are one Meta to typing's cache)
         tol = 1 + 1e-9  # as Limits.check
         if kind == "state":
-            lims["R"] = (-math.inf, limits.radius * tol)
+            lims["R"] = (-_FINITE, float(limits.radius) * tol)
         if kind == "cmd":
-            lims["vel"] = (-(limits.v_max * tol), limits.v_max * tol)
-            lims["w"] = (-(limits.w_max * tol), limits.w_max * tol)
+            lims["vel"] = (-(float(limits.v_max) * tol), float(limits.v_max) * tol)
+            lims["w"] = (-(float(limits.w_max) * tol), float(limits.w_max) * tol)
         if limits.bounds is not None and kind in ("state", "pose"):
-            xmin, xmax, ymin, ymax = limits.bounds
+            xmin, xmax, ymin, ymax = map(float, limits.bounds)
             lims["x"], lims["y"] = (xmin, xmax), (ymin, ymax)
 
     def typ(wire: str) -> Any:
@@ -165,7 +167,7 @@ def _wire_struct(kind: str, limits: Limits | None = None, *, typed: bool = True)
         if t in ("i", "id"):
             top = 2**53 if t == "i" else MAX_ROBOTS - 1
             if t == "id" and limits is not None:
-                top = min(top, limits.robots - 1)
+                top = min(top, int(limits.robots) - 1)
             return Annotated[int, msgspec.Meta(ge=0, le=top)]
         if t == "b":
             return bool
@@ -417,9 +419,10 @@ def decoder(kind: str, limits: Limits | None = None) -> Decoder[Any]:
 def _compile_flat(kind: str, limits: Limits | None) -> Decoder[Any]:
     cls = KINDS[kind]
     optional = _OPTIONAL.get(kind, ())
-    if limits is not None and kind in _HOT_BOUNDS and any(
-            math.isnan(x) for x in (limits.radius, limits.v_max, limits.w_max, *(limits.bounds or ()))):
-        def general(payload: bytes, key_id: int | None = None, /) -> Any:  # a bound no number meets or fails alike
+    if limits is not None and kind in _HOT_BOUNDS and not (
+            all(math.isfinite(x) for x in (limits.radius, limits.v_max, limits.w_max, *(limits.bounds or ())))
+            and float(limits.robots).is_integer()):
+        def general(payload: bytes, key_id: int | None = None, /) -> Any:  # an odd bound: the general path judges
             return _decode_checked(payload, kind, key_id, limits)
         return general
     required = len(_SPEC[kind]) - len(optional) + 2  # the map's entries but the optional ones ("v" and "kind" too)
@@ -447,6 +450,8 @@ def _compile_flat(kind: str, limits: Limits | None) -> Decoder[Any]:
     # a kind of numbers only needs no size check: msgspec stops at the first thing that is not one of its fields
     numbers = all(t in ("n", "i", "id", "b") for t in types.values())
     body = ["def dec(payload, key_id=None):",
+            "    if type(payload) is not bytes:  # another buffer: the general path says what it takes",
+            f"        return slow(payload, {kind!r}, key_id, limits)",
             "    try:",
             *([] if numbers else [f"        if len(payload) > {MAX_LARGE_PAYLOAD if kind in LARGE_KINDS else MAX_PAYLOAD}:",
                                   "            raise ValueError"]),

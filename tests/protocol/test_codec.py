@@ -394,3 +394,32 @@ def test_a_key_twice_inside_a_nested_map_is_refused():
     payload = _map([("v", 1), ("kind", "obstacles"), ("obstacles", bytes([0x91]) + entry)])
     with pytest.raises(p.ProtocolError, match="a map holds a key twice"):
         p.decode(payload, "obstacles")
+
+
+def test_the_fast_path_takes_what_the_general_one_takes_of_odd_buffers_and_odd_limits():
+    """Another buffer (an array) is refused as the general path refuses it; limits of floats, numpy numbers or
+    infinite bounds give a message or a ProtocolError, never another exception, and leave later decoders sound."""
+    import array
+
+    import numpy as np
+
+    s = p.State(id=3, t=1.0, seq=2, x=0.5, y=-1.0, theta=0.1, r=0.3, R=1.2, frozen=False)
+    good = p.encode(s)
+    with pytest.raises(p.ProtocolError, match="payload must be bytes, got array"):
+        p.decode(array.array("B", good), "state", 3)
+    assert p.decode(bytearray(good), "state", 3) == p.decode(memoryview(good), "state", 3) == s
+    for lim in (p.Limits(10.0, 1.5), p.Limits(np.int64(10), np.float64(1.5)), p.Limits(10, math.inf),
+                p.Limits(10, 1.5, -math.inf), p.Limits(10, 1.5, bounds=(math.inf, math.inf, 0.0, 1.0))):
+        try:
+            assert p.decode(good, "state", 3, lim) == s
+        except p.ProtocolError:
+            pass
+    assert p.decoder("state", p.Limits(10, 1.5))(good, 3) == s
+
+
+def test_a_str_subclass_is_written_as_msgpack_writes_a_str():
+    import numpy as np
+
+    run = p.Run(run=np.str_("r1"), digest="d", robots=3, lockstep=True, scenario="")
+    assert p.encode(run) == msgpack.packb({"v": 1, "kind": "run", "run": "r1", "digest": "d", "robots": 3,
+                                           "lockstep": True, "scenario": ""}, use_bin_type=True)
