@@ -25,7 +25,6 @@ turn), which refuses naming the reason. No msgpack is parsed by hand.
 from __future__ import annotations
 
 import math
-import os
 from operator import attrgetter, methodcaller
 from typing import TYPE_CHECKING, Annotated, Any, Literal, overload
 
@@ -54,6 +53,7 @@ from swarm.proto.spec import (LARGE_KINDS as LARGE_KINDS, MAX_ANGLE as MAX_ANGLE
 from swarm.proto.checks import _CHECK, _READ, _bodies, _event, _obstacles, _snapshot, _spec_fields
 from swarm.proto.messages import _KIND_OF
 from swarm.proto.spec import _FIELD, _HOT_BOUNDS, _OPTIONAL, _SNAP_FIELDS, _SPEC, _WIRE, _WIRE_NAMES
+from swarm.proto import window as _window
 from swarm.proto.window import Window
 
 if TYPE_CHECKING:
@@ -62,14 +62,9 @@ if TYPE_CHECKING:
 
     from swarm.proto.messages import HotMessage, Message
 
-try:  # a robot's loops over its messages, compiled (setup.py builds them where a C compiler is found)
-    from swarm.proto import _wire as _wire  # re-exported: the agent and the bus read protocol._wire
-    # (and tests set it, to None for the Python loops)
-except ImportError:
-    _wire = None
-
-if os.environ.get("SWARM_PURE_PYTHON"):  # the Python loops alone (tests compare the two)
-    _wire = None
+# a robot's loops over its messages, compiled where setup.py found a C compiler (None: the Python loops; so under
+# SWARM_PURE_PYTHON): swarm.proto.window decides it, once; the agent and the bus read protocol._wire (tests set it)
+_wire = _window.LOOPS
 
 if _wire is not None:  # what the loops read of Python objects, handed over here (they look nothing up by name)
     _wire.setup(attrgetter("id", "t", "seq", "x", "y", "r", "R"), Window.take,
@@ -190,11 +185,17 @@ def _wire_struct(kind: str, limits: Limits | None = None, *, typed: bool = True)
 _FINITE = 1.7976931348623157e308  # the largest float: bounds of [-it, it] refuse inf and nan
 
 
+def _wire_args(kind: str, prefix: str) -> str:
+    """The arguments of a flat kind's wire struct after "v" and "kind", as source: each field `prefix + name`, a
+    None optional one UNSET (left out when written)."""
+    optional = _OPTIONAL.get(kind, ())
+    return ", ".join(f"{prefix}{name}" if wire not in optional else f"(UNSET if {prefix}{name} is None else {prefix}{name})"
+                     for name, wire in _WIRE_NAMES[kind])
+
+
 def _compile_encode(kind: str) -> Callable[[Message], bytes]:
     """encode() for a flat kind: its wire struct (a None optional field left out) written by msgspec."""
-    optional = _OPTIONAL.get(kind, ())
-    items = ", ".join(f"m.{name}" if wire not in optional else f"(UNSET if m.{name} is None else m.{name})"
-                      for name, wire in _WIRE_NAMES[kind])
+    items = _wire_args(kind, "m.")
     ns: dict[str, Any] = {"W": _wire_struct(kind, typed=False), "packb": _packb, "UNSET": msgspec.UNSET}
     src = f"def enc(m):\n    return packb(W({VERSION}, {kind!r}, {items}))"
     exec(compile(src, f"<protocol encoder for {kind}>", "exec"), ns)
@@ -211,11 +212,9 @@ def encoder(kind: str) -> Callable[..., bytes]:
     if got is not None:
         return got
     cls = KINDS[kind]
-    optional = _OPTIONAL.get(kind, ())
     declared = msgspec.structs.fields(cls)
     params = [f.name if f.required else f"{f.name}=D_{f.name}" for f in declared]
-    items = ", ".join(f"{name}" if wire not in optional else f"(UNSET if {name} is None else {name})"
-                      for name, wire in _WIRE_NAMES[kind])
+    items = _wire_args(kind, "")
     ns: dict[str, Any] = {"W": _wire_struct(kind, typed=False), "packb": _packb, "UNSET": msgspec.UNSET,
                           **{f"D_{f.name}": f.default for f in declared if not f.required}}
     src = f"def enc({', '.join(params)}):\n    return packb(W({VERSION}, {kind!r}, {items}))"

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import os
-from typing import cast
+from typing import Any, cast
 
 OK = "ok"
 DUPLICATE = "duplicate"
@@ -76,7 +76,8 @@ class Window:
     def take(self, t: float, seq: int) -> bool:
         """check()'s common case alone: adopt (t, seq) and say True if it moves the anchored window forward within
         its spans (and is its tick's time in lock-step); else False, with nothing changed (check() decides). The
-        compiled loops call it (swarm/proto/_wire.c, handed over by swarm.proto.protocol)."""
+        compiled loops call it for a window of this class (swarm/proto/_wire_window.c, handed over by
+        swarm.proto.protocol)."""
         t0 = self.t
         if t0 is not None and self.seq < seq <= self.seq + self.seq_span and t0 <= t <= t0 + self.t_span and \
                 (not self.dt or abs(t - seq * self.dt) <= TICK_EPS):
@@ -101,7 +102,8 @@ class Window:
         return v
 
 
-try:  # the same window compiled (swarm/proto/_wire_window.c), where it was built: new() makes one of those
+try:  # the compiled loops, this window among them (swarm/proto/_wire_window.c), where they were built: new() makes
+    # one of those; swarm.proto.protocol takes the module from here (one place decides it)
     from swarm.proto import _wire as _compiled
 except ImportError:
     _compiled = None
@@ -109,6 +111,7 @@ if os.environ.get("SWARM_PURE_PYTHON"):
     _compiled = None
 
 COMPILED = _compiled is not None
+LOOPS: Any = _compiled  # the module of the compiled loops (swarm.proto._wire), or None: swarm.proto.protocol's _wire
 
 
 def new(t_span: float, seq_span: int, dt: float = 0.0) -> Window:
