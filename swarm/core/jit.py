@@ -33,9 +33,9 @@ class Jit(Protocol):
     def __call__(self, fn: _F, /) -> _F: ...
 
 
-# Every module whose source ends up inside a compiled kernel.
-KERNEL_SOURCES = ("swarm.core.law", "swarm.core.kinematics", "swarm.core.grid", "swarm.core.kernel", "swarm.core.metrics",
-                  "swarm.core.faultgen", "swarm.core.faultkernel", "swarm.core.lawplug")
+# Every module whose source ends up inside a compiled kernel, and this one (how they are compiled).
+KERNEL_SOURCES = ("swarm.core.jit", "swarm.core.law", "swarm.core.kinematics", "swarm.core.grid", "swarm.core.kernel",
+                  "swarm.core.metrics", "swarm.core.faultgen", "swarm.core.faultkernel", "swarm.core.lawplug")
 
 
 def _source_path(name: str) -> Path:
@@ -86,6 +86,18 @@ def njit(fn: _F) -> _F:
     return cast(_F, numba.njit(cache=_caching, error_model="numpy")(fn))
 
 
+def njit_leaf(fn: _F) -> _F:
+    """njit without numba's reference counting, for functions that only read and write arrays they are given."""
+    _setup_numba()
+    import numba
+
+    return cast(_F, numba.njit(cache=_caching, error_model="numpy", _nrt=False)(fn))
+
+
+# The scalar-style modules compiled with njit_leaf: none allocates, slices or returns an array.
+LEAVES = ("swarm.core.law", "swarm.core.kinematics", "swarm.core.grid", "swarm.core.faultgen")
+
+
 def compiled(name: str, suffix: str = "_jit", bind: dict[str, Any] | None = None) -> ModuleType:
     """Return the compiled twin of scalar-style module `name` (e.g. "swarm.core.law").
 
@@ -99,7 +111,7 @@ def compiled(name: str, suffix: str = "_jit", bind: dict[str, Any] | None = None
     spec = importlib.util.spec_from_file_location(jit_name, _source_path(name))
     assert spec is not None and spec.loader is not None
     mod = importlib.util.module_from_spec(spec)
-    mod.__dict__["__swarm_jit__"] = njit
+    mod.__dict__["__swarm_jit__"] = njit_leaf if name in LEAVES else njit
     mod.__dict__.update(bind or {})
     # numba's cache re-imports a function's module by name when it loads compiled code.
     sys.modules[jit_name] = mod

@@ -77,13 +77,18 @@ I_SIZE = 10
 FREEZE_MERGE_S = 0.1
 
 
-@jit.njit
+# The paper's loop allocates nothing, so it runs without numba's reference counts (swarm.core.jit.njit_leaf:
+# a count is an atomic add on every array a call is handed); a user's law may allocate (swarm.core.lawplug).
+_kernel_jit = jit.njit if "__swarm_command__" in globals() else jit.njit_leaf
+
+
+@_kernel_jit
 def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _Floats, cmd: _Floats, offsets: _Floats,
               radius: _Floats, obstacles: _Floats, ocells: _Ints, ohead: _Ints, oorder: _Ints, cells: _Ints,
               head: _Ints, order: _Ints, table: _Floats, p: _Floats, acc: _Floats, iacc: _Ints, pairs: _Ints,
               last_frozen: _Ints, buf: _Ints, nx: _Floats, ny: _Floats, nr: _Floats, nR: _Floats, nk: _Ints,
               na: _Floats, rec_every: int, rec_t: _Floats, rec_q: _Floats, rec_err: _Floats, rec_cmd: _Floats,
-              rec_frozen: _Bools, rec_leader: _Floats) -> int:
+              rec_frozen: _Bools, rec_leader: _Floats, cur: _Ints) -> int:
     """Evaluate steps k0 <= k < k1 (k1 <= n_steps + 1); see the module docstring. Returns the next k.
 
     q (N, 3) poses, comp (N, 3) their Kahan compensations, mem (N, M_SIZE) law memory,
@@ -92,7 +97,8 @@ def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _F
     order) scratch for the robots' grid, table the leader's segments, p the law's
     parameters, pairs (cap, 2) the pairs in collision at the previous step, last_frozen
     (N) the last step each robot was frozen (-1 never), buf/nx/ny/nr/nR/nk scratch of
-    size N + M, na (N + M) zeros (no body is stale without faults), rec_* sample arrays written every rec_every steps and at the last one.
+    size N + M, na (N + M) zeros (no body is stale without faults), rec_* sample arrays written every rec_every steps and at the last one,
+    cur scratch shaped like pairs.
     """
     n = q.shape[0]
     m = obstacles.shape[0]
@@ -100,7 +106,6 @@ def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _F
     sense = p[P_SENSE]
     merge_steps = FREEZE_MERGE_S / dt
     cap = pairs.shape[0]
-    cur = np.empty((cap, 2), np.int64)
     xs = q[:, 0]
     ys = q[:, 1]
     oxs = obstacles[:, 0]

@@ -111,6 +111,7 @@ class Simulation:
         self.table = scn.leader.table()
         self.acc, self.iacc = kernel.new_accumulators()
         self.pairs = np.zeros((8 * (n + m) + 16, 2), np.int64)
+        self.cur = np.zeros_like(self.pairs)  # the kernel's scratch: the pairs in collision at this step
         self.last_frozen = np.full(n, -1, np.int64)
         size = n + m
         self.buf = np.zeros(size, np.int64)
@@ -176,7 +177,7 @@ class Simulation:
             self.next_k, k_end, self.n_steps, self.q, self.comp, self.mem, self.cmd, self.offsets, self.radius,
             self.obstacles, self.ocells, self.ohead, self.oorder, self.cells, self.head, self.order, self.table,
             self.p, self.acc, self.iacc, self.pairs, self.last_frozen, self.buf, self.nx, self.ny, self.nr, self.nR,
-            self.nk, self.na, self.rec_every, r.t, r.q, r.err, r.cmd, r.frozen, r.leader,
+            self.nk, self.na, self.rec_every, r.t, r.q, r.err, r.cmd, r.frozen, r.leader, self.cur,
         )
         self._check_finite()
 
