@@ -91,7 +91,8 @@ def njit_leaf(fn: _F) -> _F:
     _setup_numba()
     import numba
 
-    return cast(_F, numba.njit(cache=_caching, error_model="numpy", _nrt=False)(fn))
+    options: dict[str, Any] = {"cache": _caching, "error_model": "numpy", "_nrt": False}  # _nrt: not in numba's stubs
+    return cast(_F, numba.njit(**options)(fn))
 
 
 # The scalar-style modules compiled with njit_leaf: none allocates, slices or returns an array.
