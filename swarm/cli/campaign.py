@@ -68,7 +68,8 @@ def run_point(task: tuple[int, str, Overrides]) -> tuple[int, dict | None, str |
     index, source, ov = task
     try:
         scn = scenario_file.load(source, ov, progress=scenario_file.silent)
-        return index, Simulation(scn).run().metrics, None
+        # one thread a run: a campaign is parallel across runs (a worker a core), never inside one
+        return index, Simulation(scn, threads=1).run().metrics, None
     except (SimulationError, ScenarioError) as e:
         return index, None, str(e)
     except Exception as e:  # anything else ends this run, not the campaign: it is reported with the run
@@ -264,7 +265,7 @@ def _warm_kernels(scns, quiet: bool) -> None:
     for scn in scns:
         kinds.setdefault(bool(scn.faults), scn)
     for scn in kinds.values():
-        Simulation(scn).advance(1)
+        Simulation(scn, threads=1).advance(1)
 
 
 GRID_FLAGS = (("scenario", "--scenario"), ("seeds", "--seeds"), ("drop", "--drop"), ("robots", "--robots"),

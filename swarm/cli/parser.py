@@ -115,6 +115,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--python-law", action="store_true",
                      help="run a law of your own (control.law) as plain Python instead of compiling it with numba: "
                           "for a law numba cannot compile; far slower, and says how much")
+    sim.add_argument("--threads", type=count_arg, metavar="T",
+                     help="threads of the paper's kernel without faults (default: every core from 256 robots, else "
+                          "1); every count gives the same bits")
     add_viz_flags(sim, "--viz")
     sim.set_defaults(func="swarm.cli.sim:cmd_sim")
 

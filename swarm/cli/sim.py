@@ -79,13 +79,15 @@ def _simulation(args: argparse.Namespace, scn):
     if scn.control.law is None and args.python_law:
         raise BadInput("--python-law: the scenario runs the paper's law (control.law = \"paper\"); the flag is for "
                        "a law of your own")
+    if args.threads is not None and args.threads > 1 and (scn.faults or scn.control.law is not None) and not args.quiet:
+        print(f"--threads {args.threads}: a run with faults or a law of its own runs on one thread", file=sys.stderr)
     if scn.control.law is not None and not args.quiet:
         how = "as plain Python" if args.python_law else "compiled by numba (cached after the first run)"
         print(f"law: {scn.control.law.text} (sha256 {scn.control.law.sha256[:16]}...), {how}", file=sys.stderr)
     try:
         if period is None:
-            return Simulation(scn, python_law=args.python_law)
-        return Simulation(scn, record_period=period, python_law=args.python_law)
+            return Simulation(scn, python_law=args.python_law, threads=args.threads)
+        return Simulation(scn, record_period=period, python_law=args.python_law, threads=args.threads)
     except LawError as e:
         raise BadInput(str(e)) from None
 

@@ -20,6 +20,8 @@ import hashlib
 import importlib.util
 import os
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from types import ModuleType
 from typing import Any, Callable, Protocol, TypeVar, cast
@@ -95,8 +97,53 @@ def njit_leaf(fn: _F) -> _F:
     return cast(_F, numba.njit(**options)(fn))
 
 
+def njit_inlined(fn: _F) -> _F:
+    """njit_leaf, inlined into every caller by LLVM (a call of many arrays copies them all)."""
+    _setup_numba()
+    import numba
+
+    options: dict[str, Any] = {"cache": _caching, "error_model": "numpy", "_nrt": False, "forceinline": True}
+    return cast(_F, numba.njit(**options)(fn))
+
+
+def njit_parallel(fn: _F) -> _F:
+    """njit with numba's parallel loops (prange), on all the threads numba is allowed."""
+    _setup_numba()
+    import numba
+
+    return cast(_F, numba.njit(cache=_caching, error_model="numpy", parallel=True)(fn))
+
+
 # The scalar-style modules compiled with njit_leaf: none allocates, slices or returns an array.
 LEAVES = ("swarm.core.law", "swarm.core.kinematics", "swarm.core.grid", "swarm.core.faultgen")
+
+
+@contextmanager
+def cache_in(path: Path, cached: bool = True) -> Iterator[None]:
+    """numba's cache directory is `path` for the functions decorated inside (a dispatcher reads it then); where
+    that cannot be (NUMBA_CACHE_DIR set, no directory), or cached is False, they are not cached at all: numba
+    tells a cached function by its source file and name, which every twin of a module shares (a law's kernels
+    and the parallel kernel with the paper's)."""
+    global _caching
+    _setup_numba()
+    import numba
+
+    config: Any = numba.config
+    before, caching = config.CACHE_DIR, _caching
+    own = False
+    if cached and not os.environ.get("NUMBA_CACHE_DIR"):
+        try:
+            path.mkdir(parents=True, exist_ok=True)
+            config.CACHE_DIR = str(path)
+            own = True
+        except OSError:
+            pass
+    _caching = own
+    try:
+        yield
+    finally:
+        config.CACHE_DIR = before
+        _caching = caching
 
 
 def compiled(name: str, suffix: str = "_jit", bind: dict[str, Any] | None = None) -> ModuleType:

@@ -6,11 +6,14 @@ The per-robot law is the compiled copy of swarm.core.law, the same source a robo
 
 Step k (time t_k = k dt), for k = 0 .. K (K = number of steps):
   1. the live leader reference at t_k (exact), a grid of the robots;
-  2. per robot i, ascending: its known bodies (closer than the cell side: robots by id,
-     then obstacles by index), the metrics of the state at t_k (distances, collisions,
-     errors against the live reference), the command (freeze rule, law, threshold,
-     governor);
-  3. if k < K, every robot moves one exact arc with its command.
+  2. per robot i: its known bodies (closer than the cell side: robots by id, then
+     obstacles by index), its metrics of the state at t_k (distances, collisions, errors
+     against the live reference), its command (freeze rule, law, threshold, governor);
+     each robot reads only the state at t_k, so the robots run in blocks, in parallel in
+     the twin compiled with __swarm_parallel__;
+  3. the step's metrics, reduced robot by robot in id order (the same bits on any number
+     of threads);
+  4. if k < K, every robot moves one exact arc with its command.
 State arrays are updated in place, so the loop can run in chunks (progress bars).
 """
 
@@ -20,6 +23,7 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numba import prange
 
 from swarm.core import jit
 from swarm.core.metrics import CONVERGED_ANGLE_RAD, CONVERGED_POSITION_M
@@ -77,18 +81,144 @@ I_SIZE = 10
 FREEZE_MERGE_S = 0.1
 
 
-# The paper's loop allocates nothing, so it runs without numba's reference counts (swarm.core.jit.njit_leaf:
-# a count is an atomic add on every array a call is handed); a user's law may allocate (swarm.core.lawplug).
-_kernel_jit = jit.njit if "__swarm_command__" in globals() else jit.njit_leaf
+# Per-robot results of a step's robot phase (rout, (N, R_SIZE)), reduced in id order afterwards.
+R_MIN_RR = 0  # smallest distance to a known robot of a higher id (inf: none)
+R_MIN_RO = 1  # smallest distance to a known obstacle (inf: none)
+R_PE = 2  # position error against the live reference [m]
+R_EE = 3  # |orientation error| [rad]
+R_COLLIDING = 4  # 1.0 when some pair of this robot (a higher id, or an obstacle) is inside its r
+R_CONVERGED = 5  # 1.0 when within the convergence bounds
+R_SIZE = 6
+
+# The paper's loop allocates nothing, so its per-robot parts run without numba's reference counts
+# (swarm.core.jit.njit_leaf: a count is an atomic add on every array a call is handed); a user's law may
+# allocate (swarm.core.lawplug). The loop itself is parallel (numba's prange over blocks of robots) in
+# the twin compiled with __swarm_parallel__ (swarm.core.sim picks it for large swarms).
+_user = "__swarm_command__" in globals()
+_parallel = bool(globals().get("__swarm_parallel__", False))
+_robot_jit = jit.njit if _user else jit.njit_inlined
+_loop_jit = jit.njit_parallel if _parallel else _robot_jit
 
 
-@_kernel_jit
+@_robot_jit
+def _robot(i: int, b: int, k: int, t: float, xl: float, yl: float, thl: float, vl: float, wl: float, q: _Floats,
+           mem: _Floats, cmd: _Floats, offsets: _Floats, radius: _Floats, obstacles: _Floats, ocells: _Ints,
+           ohead: _Ints, oorder: _Ints, cells: _Ints, head: _Ints, order: _Ints, p: _Floats, box: _Floats,
+           buf: _Ints, nx: _Floats, ny: _Floats, nr: _Floats, nR: _Floats, nk: _Ints, na: _Floats, rout: _Floats,
+           rec: int, rec_err: _Floats) -> None:
+    """Robot i's part of step k at t: its known bodies (into scratch row b), its metrics (rout[i]) and its
+    command (cmd[i], mem[i]); its errors into rec_err[rec] when rec >= 0. Reads only the state at t."""
+    n = q.shape[0]
+    m = obstacles.shape[0]
+    sense = p[P_SENSE]
+    xs = q[:, 0]
+    ys = q[:, 1]
+    bb = buf[b]
+    bx = nx[b]
+    by = ny[b]
+    br = nr[b]
+    bR = nR[b]
+    bk = nk[b]
+    x = q[i, 0]
+    y = q[i, 1]
+    th = q[i, 2]
+    min_rr = math.inf
+    min_ro = math.inf
+    colliding = 0.0
+    cnt = _near(x, y, sense, xs, ys, cells, head, order, sense, i, bb)
+    for a in range(cnt):
+        j = bb[a]
+        bx[a] = q[j, 0]
+        by[a] = q[j, 1]
+        br[a] = radius[j, 0]
+        bR[a] = radius[j, 1]
+        bk[a] = KIND_ROBOT
+        if j > i:
+            d = math.sqrt((x - bx[a]) ** 2 + (y - by[a]) ** 2)
+            if d < min_rr:
+                min_rr = d
+            if d < max(radius[i, 0], radius[j, 0]):
+                colliding = 1.0
+    if m > 0 and box[0] < x < box[1] and box[2] < y < box[3]:
+        c2 = _near(x, y, sense, obstacles[:, 0], obstacles[:, 1], ocells, ohead, oorder, sense, -1, bb[cnt:])
+        for a in range(cnt, cnt + c2):
+            o = bb[a]
+            bx[a] = obstacles[o, 0]
+            by[a] = obstacles[o, 1]
+            br[a] = obstacles[o, 2]
+            bR[a] = obstacles[o, 3]
+            bk[a] = KIND_OBSTACLE
+            d = math.sqrt((x - bx[a]) ** 2 + (y - by[a]) ** 2)
+            if d < min_ro:
+                min_ro = d
+            if d < br[a]:
+                colliding = 1.0
+        cnt += c2
+    # errors against the live reference (never the frozen snapshot)
+    px = xl + offsets[i, 0] - x
+    py = yl + offsets[i, 1] - y
+    pe = math.sqrt(px * px + py * py)
+    ee = _wrap(thl - th)
+    rout[i, R_MIN_RR] = min_rr
+    rout[i, R_MIN_RO] = min_ro
+    rout[i, R_PE] = pe
+    rout[i, R_EE] = abs(ee)
+    rout[i, R_COLLIDING] = colliding
+    rout[i, R_CONVERGED] = 1.0 if pe < CONVERGED_POSITION_M and abs(ee) < CONVERGED_ANGLE_RAD else 0.0
+    v, w = _robot_command(x, y, th, offsets[i, 0], offsets[i, 1], radius[i, 0], t, xl, yl, thl, vl, wl,
+                          bx, by, br, bR, bk, na, cnt, mem[i], p)
+    cmd[i, 0] = v
+    cmd[i, 1] = w
+    if rec >= 0:
+        rec_err[rec, i, 0] = px
+        rec_err[rec, i, 1] = py
+        rec_err[rec, i, 2] = ee
+
+
+@_robot_jit
+def _collisions(i: int, q: _Floats, radius: _Floats, obstacles: _Floats, ocells: _Ints, ohead: _Ints,
+                oorder: _Ints, cells: _Ints, head: _Ints, order: _Ints, sense: float, box: _Floats, buf: _Ints,
+                cur: _Ints, n_cur: int) -> int:
+    """Append robot i's pairs inside r to cur (robots of a higher id ascending, then obstacles ascending,
+    as many as cur holds); returns the new count. Body j >= N in a pair is obstacle j - N."""
+    n = q.shape[0]
+    m = obstacles.shape[0]
+    cap = cur.shape[0]
+    bb = buf[0]
+    x = q[i, 0]
+    y = q[i, 1]
+    cnt = _near(x, y, sense, q[:, 0], q[:, 1], cells, head, order, sense, i, bb)
+    for a in range(cnt):
+        j = bb[a]
+        d = math.sqrt((x - q[j, 0]) ** 2 + (y - q[j, 1]) ** 2)
+        if j > i and d < max(radius[i, 0], radius[j, 0]) and n_cur < cap:
+            cur[n_cur, 0] = i
+            cur[n_cur, 1] = j
+            n_cur += 1
+    if m > 0 and box[0] < x < box[1] and box[2] < y < box[3]:
+        c2 = _near(x, y, sense, obstacles[:, 0], obstacles[:, 1], ocells, ohead, oorder, sense, -1, bb)
+        for a in range(c2):
+            o = bb[a]
+            d = math.sqrt((x - obstacles[o, 0]) ** 2 + (y - obstacles[o, 1]) ** 2)
+            if d < obstacles[o, 2] and n_cur < cap:
+                cur[n_cur, 0] = i
+                cur[n_cur, 1] = n + o
+                n_cur += 1
+    return n_cur
+
+
+@_robot_jit
+def _move(i: int, q: _Floats, comp: _Floats, cmd: _Floats, dt: float) -> None:
+    _step_pose(q[i], comp[i], cmd[i, 0], cmd[i, 1], dt)
+
+
+@_loop_jit
 def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _Floats, cmd: _Floats, offsets: _Floats,
               radius: _Floats, obstacles: _Floats, ocells: _Ints, ohead: _Ints, oorder: _Ints, cells: _Ints,
               head: _Ints, order: _Ints, table: _Floats, p: _Floats, acc: _Floats, iacc: _Ints, pairs: _Ints,
               last_frozen: _Ints, buf: _Ints, nx: _Floats, ny: _Floats, nr: _Floats, nR: _Floats, nk: _Ints,
               na: _Floats, rec_every: int, rec_t: _Floats, rec_q: _Floats, rec_err: _Floats, rec_cmd: _Floats,
-              rec_frozen: _Bools, rec_leader: _Floats, cur: _Ints) -> int:
+              rec_frozen: _Bools, rec_leader: _Floats, cur: _Ints, rout: _Floats, box: _Floats) -> int:
     """Evaluate steps k0 <= k < k1 (k1 <= n_steps + 1); see the module docstring. Returns the next k.
 
     q (N, 3) poses, comp (N, 3) their Kahan compensations, mem (N, M_SIZE) law memory,
@@ -96,88 +226,50 @@ def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _F
     obstacles (M, 4) with their static grid (ocells, ohead, oorder), (cells, head,
     order) scratch for the robots' grid, table the leader's segments, p the law's
     parameters, pairs (cap, 2) the pairs in collision at the previous step, last_frozen
-    (N) the last step each robot was frozen (-1 never), buf/nx/ny/nr/nR/nk scratch of
-    size N + M, na (N + M) zeros (no body is stale without faults), rec_* sample arrays written every rec_every steps and at the last one,
-    cur scratch shaped like pairs.
+    (N) the last step each robot was frozen (-1 never), buf/nx/ny/nr/nR/nk (B, N + M)
+    scratch, a row for each of B blocks of robots (B = 1 serially; the parallel twin runs
+    the blocks at once), na (N + M) zeros (no body is stale without faults), rec_* sample
+    arrays written every rec_every steps and at the last one, cur scratch shaped like
+    pairs, rout (N, R_SIZE) scratch, box the obstacles' (obstacle_box).
     """
     n = q.shape[0]
     m = obstacles.shape[0]
     dt = p[P_DT]
     sense = p[P_SENSE]
     merge_steps = FREEZE_MERGE_S / dt
-    cap = pairs.shape[0]
-    xs = q[:, 0]
-    ys = q[:, 1]
+    blocks = buf.shape[0]
     oxs = obstacles[:, 0]
     oys = obstacles[:, 1]
-    # bounding box of the obstacles grown by the sense range: robots outside skip the obstacle grid
-    bx0, bx1, by0, by1 = math.inf, -math.inf, math.inf, -math.inf
-    for o in range(m):
-        bx0 = min(bx0, oxs[o] - sense)
-        bx1 = max(bx1, oxs[o] + sense)
-        by0 = min(by0, oys[o] - sense)
-        by1 = max(by1, oys[o] + sense)
     for k in range(k0, k1):
         t = k * dt
         xl, yl, thl, vl, wl = _leader_state(table, t)
-        _build(xs, ys, n, sense, cells, head, order)
+        _build(q[:, 0], q[:, 1], n, sense, cells, head, order)
+        record = k % rec_every == 0 or k == n_steps
+        rec = iacc[I_RECORDED] if record else -1
+        for b in prange(blocks):
+            for i in range(b * n // blocks, (b + 1) * n // blocks):
+                _robot(i, b, k, t, xl, yl, thl, vl, wl, q, mem, cmd, offsets, radius, obstacles, ocells, ohead,
+                       oorder, cells, head, order, p, box, buf, nx, ny, nr, nR, nk, na, rout, rec, rec_err)
+        # the step's metrics, robot by robot in id order
         n_cur = 0
         converged = 0
         frozen_now = 0
         pmax = 0.0
         emax = 0.0
         for i in range(n):
-            x = q[i, 0]
-            y = q[i, 1]
-            th = q[i, 2]
-            cnt = _near(x, y, sense, xs, ys, cells, head, order, sense, i, buf)
-            for a in range(cnt):
-                j = buf[a]
-                nx[a] = q[j, 0]
-                ny[a] = q[j, 1]
-                nr[a] = radius[j, 0]
-                nR[a] = radius[j, 1]
-                nk[a] = KIND_ROBOT
-                if j > i:
-                    d = math.sqrt((x - nx[a]) ** 2 + (y - ny[a]) ** 2)
-                    if d < acc[A_MIN_RR]:
-                        acc[A_MIN_RR] = d
-                    if d < max(radius[i, 0], radius[j, 0]) and n_cur < cap:
-                        cur[n_cur, 0] = i
-                        cur[n_cur, 1] = j
-                        n_cur += 1
-            if m > 0 and bx0 < x < bx1 and by0 < y < by1:
-                c2 = _near(x, y, sense, oxs, oys, ocells, ohead, oorder, sense, -1, buf[cnt:])
-                for a in range(cnt, cnt + c2):
-                    o = buf[a]
-                    nx[a] = obstacles[o, 0]
-                    ny[a] = obstacles[o, 1]
-                    nr[a] = obstacles[o, 2]
-                    nR[a] = obstacles[o, 3]
-                    nk[a] = KIND_OBSTACLE
-                    d = math.sqrt((x - nx[a]) ** 2 + (y - ny[a]) ** 2)
-                    if d < acc[A_MIN_RO]:
-                        acc[A_MIN_RO] = d
-                    if d < nr[a] and n_cur < cap:
-                        cur[n_cur, 0] = i
-                        cur[n_cur, 1] = n + o
-                        n_cur += 1
-                cnt += c2
-            # errors against the live reference (never the frozen snapshot)
-            px = xl + offsets[i, 0] - x
-            py = yl + offsets[i, 1] - y
-            pe = math.sqrt(px * px + py * py)
-            ee = _wrap(thl - th)
-            if pe > pmax:
-                pmax = pe
-            if abs(ee) > emax:
-                emax = abs(ee)
-            if pe < CONVERGED_POSITION_M and abs(ee) < CONVERGED_ANGLE_RAD:
+            if rout[i, R_MIN_RR] < acc[A_MIN_RR]:
+                acc[A_MIN_RR] = rout[i, R_MIN_RR]
+            if rout[i, R_MIN_RO] < acc[A_MIN_RO]:
+                acc[A_MIN_RO] = rout[i, R_MIN_RO]
+            if rout[i, R_COLLIDING] != 0.0:
+                n_cur = _collisions(i, q, radius, obstacles, ocells, ohead, oorder, cells, head, order, sense, box,
+                                    buf, cur, n_cur)
+            if rout[i, R_PE] > pmax:
+                pmax = rout[i, R_PE]
+            if rout[i, R_EE] > emax:
+                emax = rout[i, R_EE]
+            if rout[i, R_CONVERGED] != 0.0:
                 converged += 1
-            v, w = _robot_command(x, y, th, offsets[i, 0], offsets[i, 1], radius[i, 0], t, xl, yl, thl, vl, wl,
-                                  nx, ny, nr, nR, nk, na, cnt, mem[i], p)
-            cmd[i, 0] = v
-            cmd[i, 1] = w
             if mem[i, M_SCALE] < 1.0:
                 iacc[I_GOVERNED] += 1
             if mem[i, M_FROZEN] != 0.0:
@@ -185,11 +277,6 @@ def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _F
                 if last_frozen[i] < 0 or k - last_frozen[i] > merge_steps + 0.5:
                     iacc[I_FREEZE_INTERVALS] += 1
                 last_frozen[i] = k
-            if k % rec_every == 0 or k == n_steps:
-                s = iacc[I_RECORDED]
-                rec_err[s, i, 0] = px
-                rec_err[s, i, 1] = py
-                rec_err[s, i, 2] = ee
         # nobody within the cell side so far: the smallest distance is that of the farther pairs
         if acc[A_MIN_RR] == math.inf and n * (n - 1) // 2 <= FAR_PAIRS_MAX:
             for i in range(n):
@@ -225,27 +312,40 @@ def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _F
         iacc[I_FROZEN_NOW] = frozen_now
         acc[A_PMAX] = pmax
         acc[A_EMAX] = emax
-        if k % rec_every == 0 or k == n_steps:
-            s = iacc[I_RECORDED]
-            rec_t[s] = t
-            rec_leader[s, 0] = xl
-            rec_leader[s, 1] = yl
-            rec_leader[s, 2] = thl
+        if record:
+            rec_t[rec] = t
+            rec_leader[rec, 0] = xl
+            rec_leader[rec, 1] = yl
+            rec_leader[rec, 2] = thl
             for i in range(n):
-                rec_q[s, i, 0] = q[i, 0]
-                rec_q[s, i, 1] = q[i, 1]
-                rec_q[s, i, 2] = q[i, 2]
-                rec_cmd[s, i, 0] = cmd[i, 0]
-                rec_cmd[s, i, 1] = cmd[i, 1]
-                rec_frozen[s, i] = mem[i, M_FROZEN] != 0.0
-            iacc[I_RECORDED] = s + 1
+                rec_q[rec, i, 0] = q[i, 0]
+                rec_q[rec, i, 1] = q[i, 1]
+                rec_q[rec, i, 2] = q[i, 2]
+                rec_cmd[rec, i, 0] = cmd[i, 0]
+                rec_cmd[rec, i, 1] = cmd[i, 1]
+                rec_frozen[rec, i] = mem[i, M_FROZEN] != 0.0
+            iacc[I_RECORDED] = rec + 1
         if k < n_steps:
+            for b in prange(blocks):
+                for i in range(b * n // blocks, (b + 1) * n // blocks):
+                    _move(i, q, comp, cmd, dt)
             for i in range(n):
-                _step_pose(q[i], comp[i], cmd[i, 0], cmd[i, 1], dt)
                 if not (math.isfinite(q[i, 0]) and math.isfinite(q[i, 1]) and math.isfinite(q[i, 2])):
                     iacc[I_NONFINITE] = i + 1
                     return k + 1
     return k1
+
+
+def obstacle_box(obstacles: _Floats, sense: float) -> _Floats:
+    """[x0, x1, y0, y1]: the obstacles' bounding box grown by the sense range (robots outside it skip the
+    obstacle grid); empty (inf, -inf, inf, -inf) without obstacles."""
+    box = np.array([math.inf, -math.inf, math.inf, -math.inf])
+    for o in range(obstacles.shape[0]):
+        box[0] = min(box[0], obstacles[o, 0] - sense)
+        box[1] = max(box[1], obstacles[o, 0] + sense)
+        box[2] = min(box[2], obstacles[o, 1] - sense)
+        box[3] = max(box[3], obstacles[o, 1] + sense)
+    return box
 
 
 def new_accumulators() -> tuple[np.ndarray, np.ndarray]:

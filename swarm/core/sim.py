@@ -24,6 +24,9 @@ from swarm.core.errors import SwarmError
 
 # Samples kept for plots and recordings: one every RECORD_PERIOD_S of simulated time.
 RECORD_PERIOD_S = 0.05
+# From this many robots a run without faults or a law of one's own takes the parallel kernel on every thread numba
+# may use: below it the kernel's two thread launches a step (a few microseconds) cost more than they save.
+PARALLEL_MIN_ROBOTS = 256
 
 
 @dataclass
@@ -65,10 +68,12 @@ class Simulation:
     """All robots of one scenario, stepped by the compiled kernel."""
 
     def __init__(self, scn: Scenario, record_period: float = RECORD_PERIOD_S, python_law: bool = False,
-                 loaded: Any = None):
+                 loaded: Any = None, threads: int | None = None):
         """python_law: a user's law (control.law) runs as plain Python, called from the compiled loop (swarm sim
         --python-law: for a law numba cannot compile; far slower). loaded: that law already loaded (a
-        swarm.core.userlaw.Law: swarm.simulate(law=function)); None: loaded from scn.control.law."""
+        swarm.core.userlaw.Law: swarm.simulate(law=function)); None: loaded from scn.control.law. threads: how
+        many threads the paper's kernel without faults runs on (None: all numba may use from
+        PARALLEL_MIN_ROBOTS robots, else 1; every count gives the same bits)."""
         self.law = None
         faultkernel = None
         if scn.control.law is not None:
@@ -85,6 +90,14 @@ class Simulation:
         else:
             from swarm.core import kernel  # compiles (or loads from cache) on first use
 
+        blocks = 1
+        if self.law is None and not scn.faults:
+            blocks = _threads(scn.n) if threads is None else max(1, int(threads))
+            if blocks > 1:
+                from swarm.core import jit
+
+                with jit.cache_in(jit.cache_dir() / "parallel"):
+                    kernel = jit.compiled("swarm.core.kernel", "_parallel", {"__swarm_parallel__": True})
         self.k = kernel
         self.scn = scn
         n, m = scn.n, len(scn.obstacles)
@@ -118,6 +131,11 @@ class Simulation:
         self.nx, self.ny, self.nr, self.nR = (np.zeros(size) for _ in range(4))
         self.nk = np.zeros(size, np.int64)
         self.na = np.zeros(size)  # ages of the known bodies: all current without faults
+        # the kernel's scratch: the known bodies of a block of robots a row, what each robot found at a step
+        self.scratch = (np.zeros((blocks, size), np.int64), *(np.zeros((blocks, size)) for _ in range(4)),
+                        np.zeros((blocks, size), np.int64))
+        self.rout = np.zeros((n, kernel.R_SIZE))
+        self.box = kernel.obstacle_box(self.obstacles, self.sense)
         self.rec_every = max(1, int(round(record_period / scn.dt)))
         s = self.n_steps // self.rec_every + 2
         self.rec = Recording(np.zeros(s), np.zeros((s, n, 3)), np.zeros((s, n, 3)), np.zeros((s, n, 2)),
@@ -176,8 +194,8 @@ class Simulation:
         self.next_k = self.k.run_steps(
             self.next_k, k_end, self.n_steps, self.q, self.comp, self.mem, self.cmd, self.offsets, self.radius,
             self.obstacles, self.ocells, self.ohead, self.oorder, self.cells, self.head, self.order, self.table,
-            self.p, self.acc, self.iacc, self.pairs, self.last_frozen, self.buf, self.nx, self.ny, self.nr, self.nR,
-            self.nk, self.na, self.rec_every, r.t, r.q, r.err, r.cmd, r.frozen, r.leader, self.cur,
+            self.p, self.acc, self.iacc, self.pairs, self.last_frozen, *self.scratch, self.na, self.rec_every, r.t,
+            r.q, r.err, r.cmd, r.frozen, r.leader, self.cur, self.rout, self.box,
         )
         self._check_finite()
 
@@ -274,6 +292,18 @@ class Simulation:
             ok = (pe < metrics.CONVERGED_POSITION_M) & (np.abs(err[:, 2]) < metrics.CONVERGED_ANGLE_RAD)
             strands.sample(float(t), pe, live, int(np.count_nonzero(ok)))
         return strands.keys()
+
+
+def _threads(n: int) -> int:
+    """The parallel kernel's thread count for n robots (1: the serial kernel)."""
+    if n < PARALLEL_MIN_ROBOTS:
+        return 1
+    from swarm.core import jit
+
+    jit._setup_numba()
+    import numba
+
+    return int(numba.get_num_threads())
 
 
 def _step_time(k: int, dt: float) -> float:

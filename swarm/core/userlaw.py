@@ -27,10 +27,9 @@ import math
 import os
 import sys
 import types
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterator, cast
+from typing import TYPE_CHECKING, Any, Callable, cast
 
 import numpy as np
 
@@ -213,32 +212,6 @@ def signature_extras(fn: Callable[..., Any], what: str) -> tuple[str, ...]:
     return tuple(extras)
 
 
-@contextmanager
-def _numba_cache(path: Path, cached: bool = True) -> Iterator[None]:
-    """numba's cache directory is `path` for the functions decorated inside (a dispatcher reads it then); where
-    that cannot be (NUMBA_CACHE_DIR set, no directory), or cached is False, they are not cached at all: numba
-    tells a cached function by its source file and name, which a law's kernels share with the paper's."""
-    from swarm.core import jit
-
-    jit._setup_numba()
-    import numba
-
-    config: Any = numba.config
-    before, caching = config.CACHE_DIR, jit._caching
-    own = False
-    if cached and not os.environ.get("NUMBA_CACHE_DIR"):
-        try:
-            path.mkdir(parents=True, exist_ok=True)
-            config.CACHE_DIR = str(path)
-            own = True
-        except OSError:
-            pass
-    jit._caching = own
-    try:
-        yield
-    finally:
-        config.CACHE_DIR = before
-        jit._caching = caching
 
 
 @dataclass
@@ -293,7 +266,7 @@ class Law:
 
             from swarm.core import jit
 
-            with _numba_cache(self.cache_dir(), self.cached):
+            with jit.cache_in(self.cache_dir(), self.cached):
                 law = numba.njit(error_model="numpy")(law)
                 fn = None
                 if jit._caching:  # its own cache directory: the adapter from a file there, which numba can cache
@@ -346,7 +319,7 @@ class Law:
         if compiled:
             from swarm.core import jit
 
-            with _numba_cache(self.cache_dir(), self.cached):
+            with jit.cache_in(self.cache_dir(), self.cached):
                 mod = jit.compiled("swarm.core.lawplug", suffix + "_jit", self._bound(True))
         else:
             spec = importlib.util.find_spec("swarm.core.lawplug")
@@ -366,7 +339,7 @@ class Law:
 
         command = self.command(True)
         suffix = f"_{self.key}_jit"
-        with _numba_cache(self.cache_dir(), self.cached):
+        with jit.cache_in(self.cache_dir(), self.cached):
             kernel = jit.compiled("swarm.core.kernel", suffix, {"__swarm_command__": command})
             faultkernel = jit.compiled("swarm.core.faultkernel", suffix, {"__swarm_command__": command})
         return kernel, faultkernel
