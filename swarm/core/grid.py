@@ -4,8 +4,10 @@ Cells are (cx, cy) = (floor(x / side), floor(y / side)), the same cells as the z
 space of docs/protocol.md. A spatial hash maps a cell to one of H buckets (H a power
 of two >= 2 N), so the grid needs no bounds and costs O(N) to build whatever the
 swarm's extent. Every body within `side` of a point lies in the 3x3 cells around the
-point's cell. Bucket collisions are harmless: an entry is accepted only for its own
-cell, so no body is visited twice.
+point's cell; the hash keeps the three cells of a row in consecutive buckets, so a
+search reads three runs of the table. Bucket collisions are harmless: an entry is
+accepted only in its own row's run and only for a cell of the 3x3, so no body is
+counted twice.
 
 A grid is three arrays: cells (n, 2) int64, head (H + 1) int64 (bucket b holds
 order[head[b]:head[b + 1]]), order (n) int64 (ids in ascending order within a bucket).
@@ -38,9 +40,14 @@ def cell_index(v: float, side: float) -> int:
     return int(math.floor(v / side))
 
 
+# Cells of one row lie in consecutive buckets (cx + cy ROW_STRIDE mod H), so the three cells of a row around a
+# point are one run of the table; the rows themselves are spread over it by the odd stride.
+ROW_STRIDE = 2654435761
+
+
 @_jit
 def bucket(cx: int, cy: int, mask: int) -> int:
-    return ((cx * 73856093) ^ (cy * 19349663)) & mask
+    return (cx + cy * ROW_STRIDE) & mask
 
 
 @_jit
@@ -69,6 +76,25 @@ def build(xs: npt.NDArray[np.float64], ys: npt.NDArray[np.float64], n: int, side
 
 
 @_jit
+def _scan(lo: int, hi: int, x: float, y: float, cx: int, cy: int, r2: float, xs: npt.NDArray[np.float64],
+          ys: npt.NDArray[np.float64], cells: npt.NDArray[np.int64], order: npt.NDArray[np.int64], skip: int,
+          out: npt.NDArray[np.int64], n: int) -> int:
+    """The bodies of order[lo:hi] in the cells (cx - 1 .. cx + 1, cy) and closer than sqrt(r2) to (x, y), but
+    `skip`, appended to out[n:]; returns the new count. Without branches on the data: every entry is written,
+    the count moves on a hit."""
+    size = out.shape[0]
+    for idx in range(lo, hi):
+        j = order[idx]
+        dx = x - xs[j]
+        dy = y - ys[j]
+        hit = (dx * dx + dy * dy < r2) & (cells[j, 1] == cy) & (abs(cells[j, 0] - cx) <= 1) & (j != skip)
+        if n < size:
+            out[n] = j
+        n += int(hit)
+    return n
+
+
+@_jit
 def near(x: float, y: float, side: float, xs: npt.NDArray[np.float64], ys: npt.NDArray[np.float64],
          cells: npt.NDArray[np.int64], head: npt.NDArray[np.int64], order: npt.NDArray[np.int64], radius: float,
          skip: int, out: npt.NDArray[np.int64]) -> int:
@@ -76,25 +102,20 @@ def near(x: float, y: float, side: float, xs: npt.NDArray[np.float64], ys: npt.N
 
     `skip` is an id to leave out (the querying robot), or -1. radius must be <= side.
     """
-    mask = head.shape[0] - 2
+    nb = head.shape[0] - 1
+    mask = nb - 1
     cx = cell_index(x, side)
     cy = cell_index(y, side)
     r2 = radius * radius
     n = 0
-    for ddx in range(-1, 2):
-        for ddy in range(-1, 2):
-            ccx = cx + ddx
-            ccy = cy + ddy
-            b = bucket(ccx, ccy, mask)
-            for idx in range(head[b], head[b + 1]):
-                j = order[idx]
-                if j == skip or cells[j, 0] != ccx or cells[j, 1] != ccy:
-                    continue
-                dx = x - xs[j]
-                dy = y - ys[j]
-                if dx * dx + dy * dy < r2:
-                    out[n] = j
-                    n += 1
+    for ddy in range(-1, 2):
+        ccy = cy + ddy
+        b0 = bucket(cx - 1, ccy, mask)
+        if b0 + 3 <= nb:
+            n = _scan(head[b0], head[b0 + 3], x, y, cx, ccy, r2, xs, ys, cells, order, skip, out, n)
+        else:  # the row's run wraps around the table's end
+            n = _scan(head[b0], head[nb], x, y, cx, ccy, r2, xs, ys, cells, order, skip, out, n)
+            n = _scan(head[0], head[b0 + 3 - nb], x, y, cx, ccy, r2, xs, ys, cells, order, skip, out, n)
     # insertion sort: a handful of ids
     for a in range(1, n):
         v = out[a]

@@ -295,15 +295,28 @@ class Simulation:
 
 
 def _threads(n: int) -> int:
-    """The parallel kernel's thread count for n robots (1: the serial kernel)."""
+    """The parallel kernel's thread count for n robots (1: the serial kernel). Only on numba's OpenMP or TBB
+    threading layer: its own workqueue layer, the one left without either library, costs more a step than a
+    second thread saves (measured: 1000 robots, 2 cores, slower than one thread)."""
     if n < PARALLEL_MIN_ROBOTS:
         return 1
+    import importlib
+
     from swarm.core import jit
 
     jit._setup_numba()
     import numba
 
-    return int(numba.get_num_threads())
+    config: Any = numba.config  # numba sets its config names through globals()
+    if numba.get_num_threads() < 2 or str(config.THREADING_LAYER) == "workqueue":
+        return 1
+    for pool in ("omppool", "tbbpool"):
+        try:
+            importlib.import_module(f"numba.np.ufunc.{pool}")
+        except ImportError:
+            continue
+        return int(numba.get_num_threads())
+    return 1
 
 
 def _step_time(k: int, dt: float) -> float:
