@@ -54,16 +54,39 @@ def bucket(cx: int, cy: int, mask: int) -> int:
 def build(xs: npt.NDArray[np.float64], ys: npt.NDArray[np.float64], n: int, side: float,
           cells: npt.NDArray[np.int64], head: npt.NDArray[np.int64], order: npt.NDArray[np.int64]) -> None:
     """Fill cells, head and order for the first n bodies at (xs, ys): a counting sort by bucket."""
+    for i in range(n):
+        cells[i, 0] = cell_index(xs[i], side)
+        cells[i, 1] = cell_index(ys[i], side)
+    _sort(n, cells, head, order)
+
+
+@_jit
+def update(xs: npt.NDArray[np.float64], ys: npt.NDArray[np.float64], n: int, side: float,
+           cells: npt.NDArray[np.int64], head: npt.NDArray[np.int64], order: npt.NDArray[np.int64]) -> None:
+    """build(), but the sort only when some body changed cell since the grid was last built for these n bodies
+    (head and order are a function of the cells alone): at 1 mm a step, a body of a small swarm keeps its
+    cell for thousands of steps."""
+    changed = head[head.shape[0] - 1] != n
+    for i in range(n):
+        cx = cell_index(xs[i], side)
+        cy = cell_index(ys[i], side)
+        if cx != cells[i, 0] or cy != cells[i, 1]:
+            cells[i, 0] = cx
+            cells[i, 1] = cy
+            changed = True
+    if changed:
+        _sort(n, cells, head, order)
+
+
+@_jit
+def _sort(n: int, cells: npt.NDArray[np.int64], head: npt.NDArray[np.int64], order: npt.NDArray[np.int64]) -> None:
+    """head and order from the cells of the first n bodies: a counting sort by bucket, ids ascending within one."""
     nb = head.shape[0] - 1
     mask = nb - 1
     for b in range(nb + 1):
         head[b] = 0
     for i in range(n):
-        cx = cell_index(xs[i], side)
-        cy = cell_index(ys[i], side)
-        cells[i, 0] = cx
-        cells[i, 1] = cy
-        head[bucket(cx, cy, mask) + 1] += 1
+        head[bucket(cells[i, 0], cells[i, 1], mask) + 1] += 1
     for b in range(1, nb + 1):
         head[b] += head[b - 1]
     for i in range(n):  # ascending i: ids stay sorted within a bucket

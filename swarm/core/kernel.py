@@ -44,15 +44,17 @@ _robot_command = globals().get("__swarm_command__", law.robot_command)
 _wrap = law.wrap_angle
 _step_pose = kin.step_pose
 _leader_state = kin.leader_state
-_build = grid.build
+_grid = grid.update
 _near = grid.near
 
 KIND_ROBOT = law.KIND_ROBOT
 KIND_OBSTACLE = law.KIND_OBSTACLE
 M_FROZEN = law.M_FROZEN
+M_ETH = law.M_ETH
 M_SCALE = law.M_SCALE
 P_DT = law.P_DT
 P_SENSE = law.P_SENSE
+P_REACH = law.P_REACH
 
 # Float accumulators (acc).
 A_MIN_RR = 0  # smallest robot-robot distance seen [m] (inf: none within the cell side)
@@ -125,50 +127,64 @@ def _robot(i: int, b: int, k: int, t: float, xl: float, yl: float, thl: float, v
     min_rr = math.inf
     min_ro = math.inf
     colliding = 0.0
-    cnt = _near(x, y, sense, xs, ys, cells, head, order, sense, i, bb)
-    for a in range(cnt):
+    reach = p[P_REACH]
+    found = _near(x, y, sense, xs, ys, cells, head, order, sense, i, bb)
+    cnt = 0  # the bodies handed to the law
+    for a in range(found):
         j = bb[a]
-        bx[a] = q[j, 0]
-        by[a] = q[j, 1]
-        br[a] = radius[j, 0]
-        bR[a] = radius[j, 1]
-        bk[a] = KIND_ROBOT
         if j > i:
-            d = math.sqrt((x - bx[a]) ** 2 + (y - by[a]) ** 2)
+            d = math.sqrt((x - q[j, 0]) ** 2 + (y - q[j, 1]) ** 2)
             if d < min_rr:
                 min_rr = d
             if d < max(radius[i, 0], radius[j, 0]):
                 colliding = 1.0
+        if not _user:
+            # the paper's law: a robot at reach or farther, not inside its R, acts on nothing (zero repulsion,
+            # no freeze, left out by the governor); the same expressions as the law's, so the same bits
+            dx = x - q[j, 0]
+            dy = y - q[j, 1]
+            d2 = dx * dx + dy * dy
+            if d2 >= radius[j, 1] * radius[j, 1] and math.sqrt(d2) >= reach:
+                continue
+        bx[cnt] = q[j, 0]
+        by[cnt] = q[j, 1]
+        br[cnt] = radius[j, 0]
+        bR[cnt] = radius[j, 1]
+        bk[cnt] = KIND_ROBOT
+        cnt += 1
     if m > 0 and box[0] < x < box[1] and box[2] < y < box[3]:
-        c2 = _near(x, y, sense, obstacles[:, 0], obstacles[:, 1], ocells, ohead, oorder, sense, -1, bb[cnt:])
-        for a in range(cnt, cnt + c2):
+        c2 = _near(x, y, sense, obstacles[:, 0], obstacles[:, 1], ocells, ohead, oorder, sense, -1, bb[found:])
+        for a in range(found, found + c2):
             o = bb[a]
-            bx[a] = obstacles[o, 0]
-            by[a] = obstacles[o, 1]
-            br[a] = obstacles[o, 2]
-            bR[a] = obstacles[o, 3]
-            bk[a] = KIND_OBSTACLE
-            d = math.sqrt((x - bx[a]) ** 2 + (y - by[a]) ** 2)
+            bx[cnt] = obstacles[o, 0]
+            by[cnt] = obstacles[o, 1]
+            br[cnt] = obstacles[o, 2]
+            bR[cnt] = obstacles[o, 3]
+            bk[cnt] = KIND_OBSTACLE
+            d = math.sqrt((x - bx[cnt]) ** 2 + (y - by[cnt]) ** 2)
             if d < min_ro:
                 min_ro = d
-            if d < br[a]:
+            if d < br[cnt]:
                 colliding = 1.0
-        cnt += c2
+            cnt += 1
     # errors against the live reference (never the frozen snapshot)
     px = xl + offsets[i, 0] - x
     py = yl + offsets[i, 1] - y
     pe = math.sqrt(px * px + py * py)
-    ee = _wrap(thl - th)
+    v, w = _robot_command(x, y, th, offsets[i, 0], offsets[i, 1], radius[i, 0], t, xl, yl, thl, vl, wl,
+                          bx, by, br, bR, bk, na, cnt, mem[i], p)
+    cmd[i, 0] = v
+    cmd[i, 1] = w
+    if _user or mem[i, M_FROZEN] != 0.0:
+        ee = _wrap(thl - th)
+    else:  # the paper's law, not frozen: its e_theta is this same wrap of this same difference
+        ee = mem[i, M_ETH]
     rout[i, R_MIN_RR] = min_rr
     rout[i, R_MIN_RO] = min_ro
     rout[i, R_PE] = pe
     rout[i, R_EE] = abs(ee)
     rout[i, R_COLLIDING] = colliding
     rout[i, R_CONVERGED] = 1.0 if pe < CONVERGED_POSITION_M and abs(ee) < CONVERGED_ANGLE_RAD else 0.0
-    v, w = _robot_command(x, y, th, offsets[i, 0], offsets[i, 1], radius[i, 0], t, xl, yl, thl, vl, wl,
-                          bx, by, br, bR, bk, na, cnt, mem[i], p)
-    cmd[i, 0] = v
-    cmd[i, 1] = w
     if rec >= 0:
         rec_err[rec, i, 0] = px
         rec_err[rec, i, 1] = py
@@ -243,7 +259,7 @@ def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _F
     for k in range(k0, k1):
         t = k * dt
         xl, yl, thl, vl, wl = _leader_state(table, t)
-        _build(q[:, 0], q[:, 1], n, sense, cells, head, order)
+        _grid(q[:, 0], q[:, 1], n, sense, cells, head, order)
         record = k % rec_every == 0 or k == n_steps
         rec = iacc[I_RECORDED] if record else -1
         for b in prange(blocks):
@@ -254,13 +270,16 @@ def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _F
         n_cur = 0
         converged = 0
         frozen_now = 0
+        governed = 0
         pmax = 0.0
         emax = 0.0
+        min_rr = acc[A_MIN_RR]
+        min_ro = acc[A_MIN_RO]
         for i in range(n):
-            if rout[i, R_MIN_RR] < acc[A_MIN_RR]:
-                acc[A_MIN_RR] = rout[i, R_MIN_RR]
-            if rout[i, R_MIN_RO] < acc[A_MIN_RO]:
-                acc[A_MIN_RO] = rout[i, R_MIN_RO]
+            if rout[i, R_MIN_RR] < min_rr:
+                min_rr = rout[i, R_MIN_RR]
+            if rout[i, R_MIN_RO] < min_ro:
+                min_ro = rout[i, R_MIN_RO]
             if rout[i, R_COLLIDING] != 0.0:
                 n_cur = _collisions(i, q, radius, obstacles, ocells, ohead, oorder, cells, head, order, sense, box,
                                     buf, cur, n_cur)
@@ -271,12 +290,15 @@ def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _F
             if rout[i, R_CONVERGED] != 0.0:
                 converged += 1
             if mem[i, M_SCALE] < 1.0:
-                iacc[I_GOVERNED] += 1
+                governed += 1
             if mem[i, M_FROZEN] != 0.0:
                 frozen_now += 1
                 if last_frozen[i] < 0 or k - last_frozen[i] > merge_steps + 0.5:
                     iacc[I_FREEZE_INTERVALS] += 1
                 last_frozen[i] = k
+        acc[A_MIN_RR] = min_rr
+        acc[A_MIN_RO] = min_ro
+        iacc[I_GOVERNED] += governed
         # nobody within the cell side so far: the smallest distance is that of the farther pairs
         if acc[A_MIN_RR] == math.inf and n * (n - 1) // 2 <= FAR_PAIRS_MAX:
             for i in range(n):

@@ -120,3 +120,25 @@ def test_near_after_rebuild_with_moved_points():
 @pytest.mark.parametrize("n, size", [(0, 16), (1, 16), (8, 16), (9, 32), (16, 32), (17, 64), (37, 128), (1000, 2048)])
 def test_table_size_is_a_power_of_two_at_least_twice_n(n, size):
     assert grid.table_size(n) == size
+
+
+def test_update_sorts_only_when_a_body_changed_cell_and_equals_build():
+    """update() equals build() after every move, those that change no cell (no sort) and those that do."""
+    rng = np.random.default_rng(16)
+    n, side = 120, 1.5
+    xs, ys = rng.uniform(-10, 10, (2, n))
+    cells = np.zeros((n, 2), np.int64)
+    head = np.zeros(grid.table_size(n) + 1, np.int64)
+    order = np.zeros(n, np.int64)
+    grid.update(xs, ys, n, side, cells, head, order)  # a new grid: always sorted
+    sorts = 0
+    for step in range(40):
+        scale = 0.3 if step % 2 else 1e-4  # every other step a move too small to change any cell (mostly)
+        xs = xs + rng.normal(0, scale, n)
+        ys = ys + rng.normal(0, scale, n)
+        moved = (np.floor(xs / side) != cells[:, 0]) | (np.floor(ys / side) != cells[:, 1])
+        grid.update(xs, ys, n, side, cells, head, order)
+        want = build(xs, ys, side)
+        assert (cells == want[0]).all() and (head == want[1]).all() and (order == want[2]).all()
+        sorts += int(moved.any())
+    assert 0 < sorts < 40
