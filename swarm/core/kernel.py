@@ -78,7 +78,16 @@ I_CONVERGED_NOW = 6  # robots converged at the last evaluated step
 I_FROZEN_NOW = 7
 I_GOVERNED = 8  # robot-steps in which the governor scaled the command
 I_RECORDED = 9  # samples written
-I_SIZE = 10
+I_LISTS = 10  # 1 while the candidate lists are built (0: build them at the next step)
+I_GROW_R = 11  # entries the robots' candidate lists need (set when lcand is too small)
+I_GROW_O = 12  # the same for the obstacles' (ocand)
+I_SIZE = 13
+
+# Candidate lists (Verlet lists): each robot's robots and obstacles closer than the cell side times
+# (1 + SKIN), built from a grid of that side and kept while no two robots together moved SKIN_USE of
+# the skin; a step tests only the candidates with grid.near's own test, so it finds the same bodies.
+SKIN = 0.2
+SKIN_USE = 0.9  # the share of the skin the anchors' test lets robots use (the rest: rounding's margin)
 
 FREEZE_MERGE_S = 0.1
 
@@ -104,18 +113,14 @@ _loop_jit = jit.njit_parallel if _parallel else _robot_jit
 
 @_robot_jit
 def _robot(i: int, b: int, k: int, t: float, xl: float, yl: float, thl: float, vl: float, wl: float, q: _Floats,
-           mem: _Floats, cmd: _Floats, offsets: _Floats, radius: _Floats, obstacles: _Floats, ocells: _Ints,
-           ohead: _Ints, oorder: _Ints, cells: _Ints, head: _Ints, order: _Ints, p: _Floats, box: _Floats,
-           buf: _Ints, nx: _Floats, ny: _Floats, nr: _Floats, nR: _Floats, nk: _Ints, na: _Floats, rout: _Floats,
-           rec: int, rec_err: _Floats) -> None:
+           mem: _Floats, cmd: _Floats, offsets: _Floats, radius: _Floats, obstacles: _Floats, lstart: _Ints,
+           lcand: _Ints, ostart: _Ints, ocand: _Ints, p: _Floats, nx: _Floats, ny: _Floats, nr: _Floats,
+           nR: _Floats, nk: _Ints, na: _Floats, rout: _Floats, rec: int, rec_err: _Floats) -> None:
     """Robot i's part of step k at t: its known bodies (into scratch row b), its metrics (rout[i]) and its
     command (cmd[i], mem[i]); its errors into rec_err[rec] when rec >= 0. Reads only the state at t."""
-    n = q.shape[0]
-    m = obstacles.shape[0]
     sense = p[P_SENSE]
-    xs = q[:, 0]
-    ys = q[:, 1]
-    bb = buf[b]
+    reach = p[P_REACH]
+    r2 = sense * sense
     bx = nx[b]
     by = ny[b]
     br = nr[b]
@@ -127,46 +132,47 @@ def _robot(i: int, b: int, k: int, t: float, xl: float, yl: float, thl: float, v
     min_rr = math.inf
     min_ro = math.inf
     colliding = 0.0
-    reach = p[P_REACH]
-    found = _near(x, y, sense, xs, ys, cells, head, order, sense, i, bb)
     cnt = 0  # the bodies handed to the law
-    for a in range(found):
-        j = bb[a]
+    for a in range(lstart[i], lstart[i + 1]):  # its candidates, ascending: those closer than the cell side
+        j = lcand[a]
+        dx = x - q[j, 0]
+        dy = y - q[j, 1]
+        d2 = dx * dx + dy * dy
+        if not d2 < r2:  # grid.near's test
+            continue
         if j > i:
             d = math.sqrt((x - q[j, 0]) ** 2 + (y - q[j, 1]) ** 2)
             if d < min_rr:
                 min_rr = d
             if d < max(radius[i, 0], radius[j, 0]):
                 colliding = 1.0
-        if not _user:
-            # the paper's law: a robot at reach or farther, not inside its R, acts on nothing (zero repulsion,
-            # no freeze, left out by the governor); the same expressions as the law's, so the same bits
-            dx = x - q[j, 0]
-            dy = y - q[j, 1]
-            d2 = dx * dx + dy * dy
-            if d2 >= radius[j, 1] * radius[j, 1] and math.sqrt(d2) >= reach:
-                continue
+        # the paper's law: a robot at reach or farther, not inside its R, acts on nothing (zero repulsion, no
+        # freeze, left out by the governor); the same expressions as the law's, so the same bits
+        if not _user and d2 >= radius[j, 1] * radius[j, 1] and math.sqrt(d2) >= reach:
+            continue
         bx[cnt] = q[j, 0]
         by[cnt] = q[j, 1]
         br[cnt] = radius[j, 0]
         bR[cnt] = radius[j, 1]
         bk[cnt] = KIND_ROBOT
         cnt += 1
-    if m > 0 and box[0] < x < box[1] and box[2] < y < box[3]:
-        c2 = _near(x, y, sense, obstacles[:, 0], obstacles[:, 1], ocells, ohead, oorder, sense, -1, bb[found:])
-        for a in range(found, found + c2):
-            o = bb[a]
-            bx[cnt] = obstacles[o, 0]
-            by[cnt] = obstacles[o, 1]
-            br[cnt] = obstacles[o, 2]
-            bR[cnt] = obstacles[o, 3]
-            bk[cnt] = KIND_OBSTACLE
-            d = math.sqrt((x - bx[cnt]) ** 2 + (y - by[cnt]) ** 2)
-            if d < min_ro:
-                min_ro = d
-            if d < br[cnt]:
-                colliding = 1.0
-            cnt += 1
+    for a in range(ostart[i], ostart[i + 1]):
+        o = ocand[a]
+        dx = x - obstacles[o, 0]
+        dy = y - obstacles[o, 1]
+        if not dx * dx + dy * dy < r2:
+            continue
+        bx[cnt] = obstacles[o, 0]
+        by[cnt] = obstacles[o, 1]
+        br[cnt] = obstacles[o, 2]
+        bR[cnt] = obstacles[o, 3]
+        bk[cnt] = KIND_OBSTACLE
+        d = math.sqrt((x - bx[cnt]) ** 2 + (y - by[cnt]) ** 2)
+        if d < min_ro:
+            min_ro = d
+        if d < br[cnt]:
+            colliding = 1.0
+        cnt += 1
     # errors against the live reference (never the frozen snapshot)
     px = xl + offsets[i, 0] - x
     py = yl + offsets[i, 1] - y
@@ -192,35 +198,90 @@ def _robot(i: int, b: int, k: int, t: float, xl: float, yl: float, thl: float, v
 
 
 @_robot_jit
-def _collisions(i: int, q: _Floats, radius: _Floats, obstacles: _Floats, ocells: _Ints, ohead: _Ints,
-                oorder: _Ints, cells: _Ints, head: _Ints, order: _Ints, sense: float, box: _Floats, buf: _Ints,
-                cur: _Ints, n_cur: int) -> int:
+def _collisions(i: int, q: _Floats, radius: _Floats, obstacles: _Floats, lstart: _Ints, lcand: _Ints,
+                ostart: _Ints, ocand: _Ints, sense: float, cur: _Ints, n_cur: int) -> int:
     """Append robot i's pairs inside r to cur (robots of a higher id ascending, then obstacles ascending,
     as many as cur holds); returns the new count. Body j >= N in a pair is obstacle j - N."""
     n = q.shape[0]
-    m = obstacles.shape[0]
     cap = cur.shape[0]
-    bb = buf[0]
+    r2 = sense * sense
     x = q[i, 0]
     y = q[i, 1]
-    cnt = _near(x, y, sense, q[:, 0], q[:, 1], cells, head, order, sense, i, bb)
-    for a in range(cnt):
-        j = bb[a]
-        d = math.sqrt((x - q[j, 0]) ** 2 + (y - q[j, 1]) ** 2)
-        if j > i and d < max(radius[i, 0], radius[j, 0]) and n_cur < cap:
-            cur[n_cur, 0] = i
-            cur[n_cur, 1] = j
-            n_cur += 1
-    if m > 0 and box[0] < x < box[1] and box[2] < y < box[3]:
-        c2 = _near(x, y, sense, obstacles[:, 0], obstacles[:, 1], ocells, ohead, oorder, sense, -1, bb)
-        for a in range(c2):
-            o = bb[a]
+    for a in range(lstart[i], lstart[i + 1]):
+        j = lcand[a]
+        dx = x - q[j, 0]
+        dy = y - q[j, 1]
+        if j > i and dx * dx + dy * dy < r2:
+            d = math.sqrt((x - q[j, 0]) ** 2 + (y - q[j, 1]) ** 2)
+            if d < max(radius[i, 0], radius[j, 0]) and n_cur < cap:
+                cur[n_cur, 0] = i
+                cur[n_cur, 1] = j
+                n_cur += 1
+    for a in range(ostart[i], ostart[i + 1]):
+        o = ocand[a]
+        dx = x - obstacles[o, 0]
+        dy = y - obstacles[o, 1]
+        if dx * dx + dy * dy < r2:
             d = math.sqrt((x - obstacles[o, 0]) ** 2 + (y - obstacles[o, 1]) ** 2)
             if d < obstacles[o, 2] and n_cur < cap:
                 cur[n_cur, 0] = i
                 cur[n_cur, 1] = n + o
                 n_cur += 1
     return n_cur
+
+
+@_robot_jit
+def _stale(q: _Floats, anchor: _Floats, skin: float) -> bool:
+    """Whether the candidate lists may miss a pair: two robots together moved SKIN_USE of the skin since they
+    were built (a pair closer than the cell side now was closer than side + skin then, while they did not)."""
+    top1 = 0.0
+    top2 = 0.0
+    for i in range(q.shape[0]):
+        d2 = (q[i, 0] - anchor[i, 0]) ** 2 + (q[i, 1] - anchor[i, 1]) ** 2
+        if d2 > top2:
+            if d2 > top1:
+                top2 = top1
+                top1 = d2
+            else:
+                top2 = d2
+    return math.sqrt(top1) + math.sqrt(top2) >= SKIN_USE * skin
+
+
+@_robot_jit
+def _build_lists(q: _Floats, obstacles: _Floats, side: float, cells: _Ints, head: _Ints, order: _Ints,
+                 ocells: _Ints, ohead: _Ints, oorder: _Ints, box: _Floats, buf: _Ints, lstart: _Ints, lcand: _Ints,
+                 ostart: _Ints, ocand: _Ints, anchor: _Floats) -> tuple[int, int]:
+    """Every robot's candidates: the robots and obstacles closer than `side` (the cell side plus the skin), in
+    ascending order, from grids of that side; anchors the robots where they are. Returns the entries needed
+    (robots, obstacles): when one is more than its array holds, the lists are incomplete."""
+    n = q.shape[0]
+    m = obstacles.shape[0]
+    xs = q[:, 0]
+    ys = q[:, 1]
+    _grid(xs, ys, n, side, cells, head, order)
+    pos = 0
+    opos = 0
+    for i in range(n):
+        x = xs[i]
+        y = ys[i]
+        lstart[i] = pos
+        ostart[i] = opos
+        c = _near(x, y, side, xs, ys, cells, head, order, side, i, buf)
+        for a in range(c):
+            if pos < lcand.shape[0]:
+                lcand[pos] = buf[a]
+            pos += 1
+        if m > 0 and box[0] < x < box[1] and box[2] < y < box[3]:
+            c = _near(x, y, side, obstacles[:, 0], obstacles[:, 1], ocells, ohead, oorder, side, -1, buf)
+            for a in range(c):
+                if opos < ocand.shape[0]:
+                    ocand[opos] = buf[a]
+                opos += 1
+        anchor[i, 0] = x
+        anchor[i, 1] = y
+    lstart[n] = pos
+    ostart[n] = opos
+    return pos, opos
 
 
 @_robot_jit
@@ -234,19 +295,24 @@ def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _F
               head: _Ints, order: _Ints, table: _Floats, p: _Floats, acc: _Floats, iacc: _Ints, pairs: _Ints,
               last_frozen: _Ints, buf: _Ints, nx: _Floats, ny: _Floats, nr: _Floats, nR: _Floats, nk: _Ints,
               na: _Floats, rec_every: int, rec_t: _Floats, rec_q: _Floats, rec_err: _Floats, rec_cmd: _Floats,
-              rec_frozen: _Bools, rec_leader: _Floats, cur: _Ints, rout: _Floats, box: _Floats) -> int:
-    """Evaluate steps k0 <= k < k1 (k1 <= n_steps + 1); see the module docstring. Returns the next k.
+              rec_frozen: _Bools, rec_leader: _Floats, cur: _Ints, rout: _Floats, box: _Floats, lstart: _Ints,
+              lcand: _Ints, ostart: _Ints, ocand: _Ints, anchor: _Floats) -> int:
+    """Evaluate steps k0 <= k < k1 (k1 <= n_steps + 1); see the module docstring. Returns the next k (a
+    step not evaluated when the candidate lists outgrew lcand or ocand: iacc[I_GROW_R] or [I_GROW_O] says
+    how many entries they need; grow them and call again).
 
     q (N, 3) poses, comp (N, 3) their Kahan compensations, mem (N, M_SIZE) law memory,
     cmd (N, 2) last commands, offsets (N, 2), radius (N, 2) r and R of each robot,
-    obstacles (M, 4) with their static grid (ocells, ohead, oorder), (cells, head,
-    order) scratch for the robots' grid, table the leader's segments, p the law's
+    obstacles (M, 4) with their static grid (ocells, ohead, oorder) of side list_side,
+    (cells, head, order) scratch for the robots' grid, table the leader's segments, p the law's
     parameters, pairs (cap, 2) the pairs in collision at the previous step, last_frozen
     (N) the last step each robot was frozen (-1 never), buf/nx/ny/nr/nR/nk (B, N + M)
     scratch, a row for each of B blocks of robots (B = 1 serially; the parallel twin runs
     the blocks at once), na (N + M) zeros (no body is stale without faults), rec_* sample
     arrays written every rec_every steps and at the last one, cur scratch shaped like
-    pairs, rout (N, R_SIZE) scratch, box the obstacles' (obstacle_box).
+    pairs, rout (N, R_SIZE) scratch, box the obstacles' (obstacle_box with list_side), the
+    candidate lists (robot i's: lcand[lstart[i]:lstart[i + 1]], ocand[ostart[i]:ostart[i + 1]])
+    and where each robot was when they were built (anchor (N, 2)), kept between calls.
     """
     n = q.shape[0]
     m = obstacles.shape[0]
@@ -256,16 +322,25 @@ def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _F
     blocks = buf.shape[0]
     oxs = obstacles[:, 0]
     oys = obstacles[:, 1]
+    side = list_side(sense)
     for k in range(k0, k1):
         t = k * dt
         xl, yl, thl, vl, wl = _leader_state(table, t)
-        _grid(q[:, 0], q[:, 1], n, sense, cells, head, order)
+        if iacc[I_LISTS] == 0 or _stale(q, anchor, side - sense):
+            need, oneed = _build_lists(q, obstacles, side, cells, head, order, ocells, ohead, oorder, box, buf[0],
+                                       lstart, lcand, ostart, ocand, anchor)
+            iacc[I_LISTS] = 1
+            if need > lcand.shape[0] or oneed > ocand.shape[0]:
+                iacc[I_LISTS] = 0
+                iacc[I_GROW_R] = need
+                iacc[I_GROW_O] = oneed
+                return k
         record = k % rec_every == 0 or k == n_steps
         rec = iacc[I_RECORDED] if record else -1
         for b in prange(blocks):
             for i in range(b * n // blocks, (b + 1) * n // blocks):
-                _robot(i, b, k, t, xl, yl, thl, vl, wl, q, mem, cmd, offsets, radius, obstacles, ocells, ohead,
-                       oorder, cells, head, order, p, box, buf, nx, ny, nr, nR, nk, na, rout, rec, rec_err)
+                _robot(i, b, k, t, xl, yl, thl, vl, wl, q, mem, cmd, offsets, radius, obstacles, lstart, lcand,
+                       ostart, ocand, p, nx, ny, nr, nR, nk, na, rout, rec, rec_err)
         # the step's metrics, robot by robot in id order
         n_cur = 0
         converged = 0
@@ -281,8 +356,7 @@ def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _F
             if rout[i, R_MIN_RO] < min_ro:
                 min_ro = rout[i, R_MIN_RO]
             if rout[i, R_COLLIDING] != 0.0:
-                n_cur = _collisions(i, q, radius, obstacles, ocells, ohead, oorder, cells, head, order, sense, box,
-                                    buf, cur, n_cur)
+                n_cur = _collisions(i, q, radius, obstacles, lstart, lcand, ostart, ocand, sense, cur, n_cur)
             if rout[i, R_PE] > pmax:
                 pmax = rout[i, R_PE]
             if rout[i, R_EE] > emax:
@@ -356,6 +430,12 @@ def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _F
                     iacc[I_NONFINITE] = i + 1
                     return k + 1
     return k1
+
+
+@_robot_jit
+def list_side(sense: float) -> float:
+    """The side of the grids the candidate lists are built from [m]: the cell side and the skin."""
+    return sense * (1.0 + SKIN)
 
 
 def obstacle_box(obstacles: _Floats, sense: float) -> _Floats:

@@ -115,9 +115,9 @@ class Simulation:
         self.ocells = np.zeros((m, 2), np.int64)
         self.ohead = np.zeros(grid_py.table_size(m) + 1, np.int64)
         self.oorder = np.zeros(m, np.int64)
+        side = float(kernel.list_side(self.sense))  # the kernel's grids, of the cell side and its lists' skin
         if m:
-            grid_py.build(self.obstacles[:, 0], self.obstacles[:, 1], m, self.sense, self.ocells, self.ohead,
-                          self.oorder)
+            grid_py.build(self.obstacles[:, 0], self.obstacles[:, 1], m, side, self.ocells, self.ohead, self.oorder)
         self.cells = np.zeros((n, 2), np.int64)
         self.head = np.zeros(grid_py.table_size(n) + 1, np.int64)
         self.order = np.zeros(n, np.int64)
@@ -135,7 +135,11 @@ class Simulation:
         self.scratch = (np.zeros((blocks, size), np.int64), *(np.zeros((blocks, size)) for _ in range(4)),
                         np.zeros((blocks, size), np.int64))
         self.rout = np.zeros((n, kernel.R_SIZE))
-        self.box = kernel.obstacle_box(self.obstacles, self.sense)
+        self.box = kernel.obstacle_box(self.obstacles, side)
+        # the candidate lists (kernel.SKIN): grown when the kernel says they need more
+        self.lstart, self.ostart = np.zeros(n + 1, np.int64), np.zeros(n + 1, np.int64)
+        self.lcand, self.ocand = np.zeros(16 * n + 64, np.int64), np.zeros(4 * n + 64, np.int64)
+        self.anchor = np.zeros((n, 2))
         self.rec_every = max(1, int(round(record_period / scn.dt)))
         s = self.n_steps // self.rec_every + 2
         self.rec = Recording(np.zeros(s), np.zeros((s, n, 3)), np.zeros((s, n, 3)), np.zeros((s, n, 2)),
@@ -191,12 +195,22 @@ class Simulation:
                 r.err, r.cmd, r.frozen, r.leader)
             self._check_finite()
             return
-        self.next_k = self.k.run_steps(
-            self.next_k, k_end, self.n_steps, self.q, self.comp, self.mem, self.cmd, self.offsets, self.radius,
-            self.obstacles, self.ocells, self.ohead, self.oorder, self.cells, self.head, self.order, self.table,
-            self.p, self.acc, self.iacc, self.pairs, self.last_frozen, *self.scratch, self.na, self.rec_every, r.t,
-            r.q, r.err, r.cmd, r.frozen, r.leader, self.cur, self.rout, self.box,
-        )
+        k, iacc = self.k, self.iacc
+        while True:
+            self.next_k = k.run_steps(
+                self.next_k, k_end, self.n_steps, self.q, self.comp, self.mem, self.cmd, self.offsets, self.radius,
+                self.obstacles, self.ocells, self.ohead, self.oorder, self.cells, self.head, self.order, self.table,
+                self.p, self.acc, iacc, self.pairs, self.last_frozen, *self.scratch, self.na, self.rec_every, r.t,
+                r.q, r.err, r.cmd, r.frozen, r.leader, self.cur, self.rout, self.box, self.lstart, self.lcand,
+                self.ostart, self.ocand, self.anchor,
+            )
+            if not (iacc[k.I_GROW_R] or iacc[k.I_GROW_O]):
+                break
+            if iacc[k.I_GROW_R] > len(self.lcand):  # the lists outgrew their arrays: twice what they need
+                self.lcand = np.zeros(2 * int(iacc[k.I_GROW_R]), np.int64)
+            if iacc[k.I_GROW_O] > len(self.ocand):
+                self.ocand = np.zeros(2 * int(iacc[k.I_GROW_O]), np.int64)
+            iacc[k.I_GROW_R] = iacc[k.I_GROW_O] = 0
         self._check_finite()
 
     def _check_finite(self) -> None:
