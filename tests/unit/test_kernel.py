@@ -106,6 +106,30 @@ def test_batched_simulation_equals_the_single_robot_law(overrides, steps, govern
     assert np.max(np.hypot(*(ref.q[:, :2] - scn.poses[:, :2]).T)) > 0.1 * steps * scn.dt
 
 
+@pytest.mark.timeout(120)
+def test_a_crowd_grows_the_candidate_lists_and_still_equals_the_single_robot_law():
+    """64 robots 0.4 m apart beside a cluster of 36 obstacles: each robot has some 60 candidate robots and many
+    have tens of obstacles, more than the lists' first arrays hold; the kernel asks for more, and every step
+    equals the brute-force reference."""
+    base = sf.load("paper-50hz", sf.Overrides(robots=64, seed=2))
+    g = np.arange(8) * 0.4
+    xy = np.array([(x, y) for x in g for y in g])
+    poses = np.column_stack([xy, np.zeros(64)])
+    offsets = np.column_stack([np.arange(64) * 1.6 - 50.0, np.full(64, 10.0)])
+    ob = np.array([(3.3 + 0.5 * (c % 6), 0.5 * (c // 6), 0.2, 1.5) for c in range(36)])
+    scn = base.replace(poses=poses, offsets=offsets, obstacles=ob, duration=4.0)
+    sim = Simulation(scn)
+    first = (len(sim.lcand), len(sim.ocand))
+    ref = Reference(scn)
+    for chunk in (1, 60, 139):
+        sim.advance(sim.next_k + chunk)
+        ref.advance(chunk)
+        assert_allclose(sim.q, ref.q, rtol=0, atol=1e-12)
+        assert_allclose(sim.cmd, ref.cmd, rtol=0, atol=1e-12)
+    assert len(sim.lcand) > first[0] and len(sim.ocand) > first[1]  # both lists grew
+    assert ref.frozen_steps > 0
+
+
 def _law_inputs(rng, count):
     for _ in range(count):
         yield rng.uniform(-10, 10), rng.uniform(0.1, 0.5), rng.uniform(0.6, 2.0)
