@@ -86,7 +86,7 @@ I_SIZE = 13
 # Candidate lists (Verlet lists): each robot's robots and obstacles closer than the cell side times
 # (1 + SKIN), built from a grid of that side and kept while no two robots together moved SKIN_USE of
 # the skin; a step tests only the candidates with grid.near's own test, so it finds the same bodies.
-SKIN = 0.2
+SKIN = 0.3
 SKIN_USE = 0.9  # the share of the skin the anchors' test lets robots use (the rest: rounding's margin)
 
 FREEZE_MERGE_S = 0.1
@@ -100,6 +100,17 @@ R_EE = 3  # |orientation error| [rad]
 R_COLLIDING = 4  # 1.0 when some pair of this robot (a higher id, or an obstacle) is inside its r
 R_CONVERGED = 5  # 1.0 when within the convergence bounds
 R_SIZE = 6
+# A block's tally of a step (bacc, (B, B_SIZE)): its robots' metrics, combined in block order afterwards.
+B_MIN_RR = 0
+B_MIN_RO = 1
+B_PMAX = 2
+B_EMAX = 3
+B_CONVERGED = 4  # counts, as floats (exact far beyond any swarm)
+B_FROZEN = 5
+B_GOVERNED = 6
+B_INTERVALS = 7  # freeze intervals begun
+B_COLLIDING = 8  # robots with a pair inside
+B_SIZE = 9
 
 # The paper's loop allocates nothing, so its per-robot parts run without numba's reference counts
 # (swarm.core.jit.njit_leaf: a count is an atomic add on every array a call is handed); a user's law may
@@ -113,11 +124,12 @@ _loop_jit = jit.njit_parallel if _parallel else _robot_jit
 
 @_robot_jit
 def _robot(i: int, b: int, k: int, t: float, xl: float, yl: float, thl: float, vl: float, wl: float, q: _Floats,
-           mem: _Floats, cmd: _Floats, offsets: _Floats, radius: _Floats, obstacles: _Floats, lstart: _Ints,
-           lcand: _Ints, ostart: _Ints, ocand: _Ints, p: _Floats, nx: _Floats, ny: _Floats, nr: _Floats,
-           nR: _Floats, nk: _Ints, na: _Floats, rout: _Floats, rec: int, rec_err: _Floats) -> None:
+           mem: _Floats, cmd: _Floats, offsets: _Floats, radius: _Floats, obstacles: _Floats, lspan: _Ints,
+           lcand: _Ints, ospan: _Ints, ocand: _Ints, p: _Floats, nx: _Floats, ny: _Floats, nr: _Floats,
+           nR: _Floats, nk: _Ints, na: _Floats, rout: _Floats, rec: int, rec_err: _Floats, rec_q: _Floats,
+           rec_cmd: _Floats, rec_frozen: _Bools) -> None:
     """Robot i's part of step k at t: its known bodies (into scratch row b), its metrics (rout[i]) and its
-    command (cmd[i], mem[i]); its errors into rec_err[rec] when rec >= 0. Reads only the state at t."""
+    command (cmd[i], mem[i]); its sample into rec_*[rec] when rec >= 0. Reads only the state at t."""
     sense = p[P_SENSE]
     reach = p[P_REACH]
     r2 = sense * sense
@@ -133,7 +145,7 @@ def _robot(i: int, b: int, k: int, t: float, xl: float, yl: float, thl: float, v
     min_ro = math.inf
     colliding = 0.0
     cnt = 0  # the bodies handed to the law
-    for a in range(lstart[i], lstart[i + 1]):  # its candidates, ascending: those closer than the cell side
+    for a in range(lspan[i, 0], lspan[i, 1]):  # its candidates, ascending: those closer than the cell side
         j = lcand[a]
         dx = x - q[j, 0]
         dy = y - q[j, 1]
@@ -156,7 +168,7 @@ def _robot(i: int, b: int, k: int, t: float, xl: float, yl: float, thl: float, v
         bR[cnt] = radius[j, 1]
         bk[cnt] = KIND_ROBOT
         cnt += 1
-    for a in range(ostart[i], ostart[i + 1]):
+    for a in range(ospan[i, 0], ospan[i, 1]):
         o = ocand[a]
         dx = x - obstacles[o, 0]
         dy = y - obstacles[o, 1]
@@ -195,11 +207,41 @@ def _robot(i: int, b: int, k: int, t: float, xl: float, yl: float, thl: float, v
         rec_err[rec, i, 0] = px
         rec_err[rec, i, 1] = py
         rec_err[rec, i, 2] = ee
+        rec_q[rec, i, 0] = x
+        rec_q[rec, i, 1] = y
+        rec_q[rec, i, 2] = th
+        rec_cmd[rec, i, 0] = v
+        rec_cmd[rec, i, 1] = w
+        rec_frozen[rec, i] = mem[i, M_FROZEN] != 0.0
 
 
 @_robot_jit
-def _collisions(i: int, q: _Floats, radius: _Floats, obstacles: _Floats, lstart: _Ints, lcand: _Ints,
-                ostart: _Ints, ocand: _Ints, sense: float, cur: _Ints, n_cur: int) -> int:
+def _account(i: int, k: int, merge_steps: float, rout: _Floats, mem: _Floats, last_frozen: _Ints, bacc: _Floats,
+             b: int) -> None:
+    """Robot i's metrics of step k into its block's tally bacc[b] (B_* layout); its freeze interval bookkeeping.
+    (The row is indexed here: a view of it made in the parallel loop costs two atomic operations a robot.)"""
+    if rout[i, R_MIN_RR] < bacc[b, B_MIN_RR]:
+        bacc[b, B_MIN_RR] = rout[i, R_MIN_RR]
+    if rout[i, R_MIN_RO] < bacc[b, B_MIN_RO]:
+        bacc[b, B_MIN_RO] = rout[i, R_MIN_RO]
+    if rout[i, R_PE] > bacc[b, B_PMAX]:
+        bacc[b, B_PMAX] = rout[i, R_PE]
+    if rout[i, R_EE] > bacc[b, B_EMAX]:
+        bacc[b, B_EMAX] = rout[i, R_EE]
+    bacc[b, B_CONVERGED] += rout[i, R_CONVERGED]
+    bacc[b, B_COLLIDING] += rout[i, R_COLLIDING]
+    if mem[i, M_SCALE] < 1.0:
+        bacc[b, B_GOVERNED] += 1.0
+    if mem[i, M_FROZEN] != 0.0:
+        bacc[b, B_FROZEN] += 1.0
+        if last_frozen[i] < 0 or k - last_frozen[i] > merge_steps + 0.5:
+            bacc[b, B_INTERVALS] += 1.0
+        last_frozen[i] = k
+
+
+@_robot_jit
+def _collisions(i: int, q: _Floats, radius: _Floats, obstacles: _Floats, lspan: _Ints, lcand: _Ints,
+                ospan: _Ints, ocand: _Ints, sense: float, cur: _Ints, n_cur: int) -> int:
     """Append robot i's pairs inside r to cur (robots of a higher id ascending, then obstacles ascending,
     as many as cur holds); returns the new count. Body j >= N in a pair is obstacle j - N."""
     n = q.shape[0]
@@ -207,7 +249,7 @@ def _collisions(i: int, q: _Floats, radius: _Floats, obstacles: _Floats, lstart:
     r2 = sense * sense
     x = q[i, 0]
     y = q[i, 1]
-    for a in range(lstart[i], lstart[i + 1]):
+    for a in range(lspan[i, 0], lspan[i, 1]):
         j = lcand[a]
         dx = x - q[j, 0]
         dy = y - q[j, 1]
@@ -217,7 +259,7 @@ def _collisions(i: int, q: _Floats, radius: _Floats, obstacles: _Floats, lstart:
                 cur[n_cur, 0] = i
                 cur[n_cur, 1] = j
                 n_cur += 1
-    for a in range(ostart[i], ostart[i + 1]):
+    for a in range(ospan[i, 0], ospan[i, 1]):
         o = ocand[a]
         dx = x - obstacles[o, 0]
         dy = y - obstacles[o, 1]
@@ -231,62 +273,88 @@ def _collisions(i: int, q: _Floats, radius: _Floats, obstacles: _Floats, lstart:
 
 
 @_robot_jit
-def _stale(q: _Floats, anchor: _Floats, skin: float) -> bool:
-    """Whether the candidate lists may miss a pair: two robots together moved SKIN_USE of the skin since they
-    were built (a pair closer than the cell side now was closer than side + skin then, while they did not)."""
+def _move(i: int, q: _Floats, comp: _Floats, cmd: _Floats, dt: float) -> None:
+    _step_pose(q[i], comp[i], cmd[i, 0], cmd[i, 1], dt)
+
+
+@_robot_jit
+def _top2(d2: float, top: _Floats) -> None:
+    """Keep in top[0] >= top[1] the two largest values seen."""
+    if d2 > top[1]:
+        if d2 > top[0]:
+            top[1] = top[0]
+            top[0] = d2
+        else:
+            top[1] = d2
+
+
+@_robot_jit
+def _moved(q: _Floats, anchor: _Floats, lo: int, hi: int, top: _Floats) -> None:
+    """top[0], top[1]: the two largest squared distances robots lo..hi - 1 are from their anchors."""
+    top[0] = 0.0
+    top[1] = 0.0
+    for i in range(lo, hi):
+        _top2((q[i, 0] - anchor[i, 0]) ** 2 + (q[i, 1] - anchor[i, 1]) ** 2, top)
+
+
+@_robot_jit
+def _stale(btop: _Floats, skin: float) -> bool:
+    """Whether the candidate lists may miss a pair, from each block's two largest squared moves (btop (B, 4),
+    columns 0 and 1): two robots together moved SKIN_USE of the skin since the lists were built (a pair
+    closer than the cell side now was closer than side + skin then, while they did not)."""
     top1 = 0.0
     top2 = 0.0
-    for i in range(q.shape[0]):
-        d2 = (q[i, 0] - anchor[i, 0]) ** 2 + (q[i, 1] - anchor[i, 1]) ** 2
-        if d2 > top2:
-            if d2 > top1:
-                top2 = top1
-                top1 = d2
-            else:
-                top2 = d2
+    for b in range(btop.shape[0]):
+        for c in range(2):
+            d2 = btop[b, c]
+            if d2 > top2:
+                if d2 > top1:
+                    top2 = top1
+                    top1 = d2
+                else:
+                    top2 = d2
     return math.sqrt(top1) + math.sqrt(top2) >= SKIN_USE * skin
 
 
 @_robot_jit
-def _build_lists(q: _Floats, obstacles: _Floats, side: float, cells: _Ints, head: _Ints, order: _Ints,
-                 ocells: _Ints, ohead: _Ints, oorder: _Ints, box: _Floats, buf: _Ints, lstart: _Ints, lcand: _Ints,
-                 ostart: _Ints, ocand: _Ints, anchor: _Floats) -> tuple[int, int]:
-    """Every robot's candidates: the robots and obstacles closer than `side` (the cell side plus the skin), in
-    ascending order, from grids of that side; anchors the robots where they are. Returns the entries needed
-    (robots, obstacles): when one is more than its array holds, the lists are incomplete."""
+def _block_lists(b: int, blocks: int, q: _Floats, obstacles: _Floats, side: float, cells: _Ints, head: _Ints,
+                 order: _Ints, ocells: _Ints, ohead: _Ints, oorder: _Ints, box: _Floats, buf: _Ints, lspan: _Ints,
+                 lcand: _Ints, ospan: _Ints, ocand: _Ints, anchor: _Floats, btop: _Floats) -> None:
+    """Block b's candidate lists: for each of its robots, the robots and obstacles closer than `side` (the cell
+    side plus the skin), ascending, from the grids of that side, into the block's own share of lcand and
+    ocand; anchors its robots where they are. btop[b, 2] and [b, 3]: the entries it needed (more than its
+    share: its lists are incomplete)."""
     n = q.shape[0]
     m = obstacles.shape[0]
     xs = q[:, 0]
     ys = q[:, 1]
-    _grid(xs, ys, n, side, cells, head, order)
-    pos = 0
-    opos = 0
-    for i in range(n):
+    bb = buf[b]
+    share = lcand.shape[0] // blocks
+    oshare = ocand.shape[0] // blocks
+    pos = b * share
+    opos = b * oshare
+    for i in range(b * n // blocks, (b + 1) * n // blocks):
         x = xs[i]
         y = ys[i]
-        lstart[i] = pos
-        ostart[i] = opos
-        c = _near(x, y, side, xs, ys, cells, head, order, side, i, buf)
+        lspan[i, 0] = pos
+        ospan[i, 0] = opos
+        c = _near(x, y, side, xs, ys, cells, head, order, side, i, bb)
         for a in range(c):
-            if pos < lcand.shape[0]:
-                lcand[pos] = buf[a]
+            if pos < (b + 1) * share:
+                lcand[pos] = bb[a]
             pos += 1
         if m > 0 and box[0] < x < box[1] and box[2] < y < box[3]:
-            c = _near(x, y, side, obstacles[:, 0], obstacles[:, 1], ocells, ohead, oorder, side, -1, buf)
+            c = _near(x, y, side, obstacles[:, 0], obstacles[:, 1], ocells, ohead, oorder, side, -1, bb)
             for a in range(c):
-                if opos < ocand.shape[0]:
-                    ocand[opos] = buf[a]
+                if opos < (b + 1) * oshare:
+                    ocand[opos] = bb[a]
                 opos += 1
+        lspan[i, 1] = pos
+        ospan[i, 1] = opos
         anchor[i, 0] = x
         anchor[i, 1] = y
-    lstart[n] = pos
-    ostart[n] = opos
-    return pos, opos
-
-
-@_robot_jit
-def _move(i: int, q: _Floats, comp: _Floats, cmd: _Floats, dt: float) -> None:
-    _step_pose(q[i], comp[i], cmd[i, 0], cmd[i, 1], dt)
+    btop[b, 2] = pos - b * share
+    btop[b, 3] = opos - b * oshare
 
 
 @_loop_jit
@@ -295,8 +363,8 @@ def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _F
               head: _Ints, order: _Ints, table: _Floats, p: _Floats, acc: _Floats, iacc: _Ints, pairs: _Ints,
               last_frozen: _Ints, buf: _Ints, nx: _Floats, ny: _Floats, nr: _Floats, nR: _Floats, nk: _Ints,
               na: _Floats, rec_every: int, rec_t: _Floats, rec_q: _Floats, rec_err: _Floats, rec_cmd: _Floats,
-              rec_frozen: _Bools, rec_leader: _Floats, cur: _Ints, rout: _Floats, box: _Floats, lstart: _Ints,
-              lcand: _Ints, ostart: _Ints, ocand: _Ints, anchor: _Floats) -> int:
+              rec_frozen: _Bools, rec_leader: _Floats, cur: _Ints, rout: _Floats, box: _Floats, lspan: _Ints,
+              lcand: _Ints, ospan: _Ints, ocand: _Ints, anchor: _Floats, btop: _Floats, bacc: _Floats) -> int:
     """Evaluate steps k0 <= k < k1 (k1 <= n_steps + 1); see the module docstring. Returns the next k (a
     step not evaluated when the candidate lists outgrew lcand or ocand: iacc[I_GROW_R] or [I_GROW_O] says
     how many entries they need; grow them and call again).
@@ -311,8 +379,11 @@ def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _F
     the blocks at once), na (N + M) zeros (no body is stale without faults), rec_* sample
     arrays written every rec_every steps and at the last one, cur scratch shaped like
     pairs, rout (N, R_SIZE) scratch, box the obstacles' (obstacle_box with list_side), the
-    candidate lists (robot i's: lcand[lstart[i]:lstart[i + 1]], ocand[ostart[i]:ostart[i + 1]])
-    and where each robot was when they were built (anchor (N, 2)), kept between calls.
+    candidate lists (robot i's: lcand[lspan[i, 0]:lspan[i, 1]], ocand[ospan[i, 0]:ospan[i, 1]], each
+    block of robots in its share of the array) and where each robot was when they were built (anchor
+    (N, 2)), kept between calls, btop (B, 5) a block's scratch (its robots' two largest moves from their
+    anchors, the entries its lists need, its first robot whose state is not finite), bacc (B, B_SIZE) the
+    blocks' tallies.
     """
     n = q.shape[0]
     m = obstacles.shape[0]
@@ -326,53 +397,57 @@ def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _F
     for k in range(k0, k1):
         t = k * dt
         xl, yl, thl, vl, wl = _leader_state(table, t)
-        if iacc[I_LISTS] == 0 or _stale(q, anchor, side - sense):
-            need, oneed = _build_lists(q, obstacles, side, cells, head, order, ocells, ohead, oorder, box, buf[0],
-                                       lstart, lcand, ostart, ocand, anchor)
+        if k == k0:  # (later steps: the move phase measured the moves)
+            for b in range(blocks):
+                _moved(q, anchor, b * n // blocks, (b + 1) * n // blocks, btop[b])
+        if iacc[I_LISTS] == 0 or _stale(btop, side - sense):
+            _grid(q[:, 0], q[:, 1], n, side, cells, head, order)
+            for b in prange(blocks):
+                _block_lists(b, blocks, q, obstacles, side, cells, head, order, ocells, ohead, oorder, box, buf,
+                             lspan, lcand, ospan, ocand, anchor, btop)
             iacc[I_LISTS] = 1
-            if need > lcand.shape[0] or oneed > ocand.shape[0]:
+            need = 0
+            oneed = 0
+            for b in range(blocks):
+                need = max(need, int(btop[b, 2]))
+                oneed = max(oneed, int(btop[b, 3]))
+                btop[b, 0] = 0.0
+                btop[b, 1] = 0.0
+            if need > lcand.shape[0] // blocks or oneed > ocand.shape[0] // blocks:
                 iacc[I_LISTS] = 0
-                iacc[I_GROW_R] = need
-                iacc[I_GROW_O] = oneed
+                iacc[I_GROW_R] = need * blocks
+                iacc[I_GROW_O] = oneed * blocks
                 return k
         record = k % rec_every == 0 or k == n_steps
         rec = iacc[I_RECORDED] if record else -1
         for b in prange(blocks):
+            bacc[b, B_MIN_RR] = math.inf
+            bacc[b, B_MIN_RO] = math.inf
+            for c in range(B_PMAX, B_SIZE):
+                bacc[b, c] = 0.0
             for i in range(b * n // blocks, (b + 1) * n // blocks):
-                _robot(i, b, k, t, xl, yl, thl, vl, wl, q, mem, cmd, offsets, radius, obstacles, lstart, lcand,
-                       ostart, ocand, p, nx, ny, nr, nR, nk, na, rout, rec, rec_err)
-        # the step's metrics, robot by robot in id order
+                _robot(i, b, k, t, xl, yl, thl, vl, wl, q, mem, cmd, offsets, radius, obstacles, lspan, lcand,
+                       ospan, ocand, p, nx, ny, nr, nR, nk, na, rout, rec, rec_err, rec_q, rec_cmd, rec_frozen)
+                _account(i, k, merge_steps, rout, mem, last_frozen, bacc, b)
+        # the step's metrics: the blocks' in block order (each an exact min, max or count)
         n_cur = 0
         converged = 0
         frozen_now = 0
-        governed = 0
         pmax = 0.0
         emax = 0.0
-        min_rr = acc[A_MIN_RR]
-        min_ro = acc[A_MIN_RO]
-        for i in range(n):
-            if rout[i, R_MIN_RR] < min_rr:
-                min_rr = rout[i, R_MIN_RR]
-            if rout[i, R_MIN_RO] < min_ro:
-                min_ro = rout[i, R_MIN_RO]
-            if rout[i, R_COLLIDING] != 0.0:
-                n_cur = _collisions(i, q, radius, obstacles, lstart, lcand, ostart, ocand, sense, cur, n_cur)
-            if rout[i, R_PE] > pmax:
-                pmax = rout[i, R_PE]
-            if rout[i, R_EE] > emax:
-                emax = rout[i, R_EE]
-            if rout[i, R_CONVERGED] != 0.0:
-                converged += 1
-            if mem[i, M_SCALE] < 1.0:
-                governed += 1
-            if mem[i, M_FROZEN] != 0.0:
-                frozen_now += 1
-                if last_frozen[i] < 0 or k - last_frozen[i] > merge_steps + 0.5:
-                    iacc[I_FREEZE_INTERVALS] += 1
-                last_frozen[i] = k
-        acc[A_MIN_RR] = min_rr
-        acc[A_MIN_RO] = min_ro
-        iacc[I_GOVERNED] += governed
+        for b in range(blocks):
+            acc[A_MIN_RR] = min(acc[A_MIN_RR], bacc[b, B_MIN_RR])
+            acc[A_MIN_RO] = min(acc[A_MIN_RO], bacc[b, B_MIN_RO])
+            pmax = max(pmax, bacc[b, B_PMAX])
+            emax = max(emax, bacc[b, B_EMAX])
+            converged += int(bacc[b, B_CONVERGED])
+            frozen_now += int(bacc[b, B_FROZEN])
+            iacc[I_GOVERNED] += int(bacc[b, B_GOVERNED])
+            iacc[I_FREEZE_INTERVALS] += int(bacc[b, B_INTERVALS])
+            if bacc[b, B_COLLIDING] != 0.0:  # the pairs, in robot order
+                for i in range(b * n // blocks, (b + 1) * n // blocks):
+                    if rout[i, R_COLLIDING] != 0.0:
+                        n_cur = _collisions(i, q, radius, obstacles, lspan, lcand, ospan, ocand, sense, cur, n_cur)
         # nobody within the cell side so far: the smallest distance is that of the farther pairs
         if acc[A_MIN_RR] == math.inf and n * (n - 1) // 2 <= FAR_PAIRS_MAX:
             for i in range(n):
@@ -413,21 +488,21 @@ def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _F
             rec_leader[rec, 0] = xl
             rec_leader[rec, 1] = yl
             rec_leader[rec, 2] = thl
-            for i in range(n):
-                rec_q[rec, i, 0] = q[i, 0]
-                rec_q[rec, i, 1] = q[i, 1]
-                rec_q[rec, i, 2] = q[i, 2]
-                rec_cmd[rec, i, 0] = cmd[i, 0]
-                rec_cmd[rec, i, 1] = cmd[i, 1]
-                rec_frozen[rec, i] = mem[i, M_FROZEN] != 0.0
             iacc[I_RECORDED] = rec + 1
         if k < n_steps:
             for b in prange(blocks):
-                for i in range(b * n // blocks, (b + 1) * n // blocks):
+                lo = b * n // blocks
+                hi = (b + 1) * n // blocks
+                btop[b, 4] = -1.0
+                for i in range(lo, hi):
                     _move(i, q, comp, cmd, dt)
-            for i in range(n):
-                if not (math.isfinite(q[i, 0]) and math.isfinite(q[i, 1]) and math.isfinite(q[i, 2])):
-                    iacc[I_NONFINITE] = i + 1
+                    if btop[b, 4] < 0.0 and not (math.isfinite(q[i, 0]) and math.isfinite(q[i, 1])
+                                                 and math.isfinite(q[i, 2])):
+                        btop[b, 4] = i
+                _moved(q, anchor, lo, hi, btop[b])
+            for b in range(blocks):
+                if btop[b, 4] >= 0.0:  # the first robot whose state is not finite
+                    iacc[I_NONFINITE] = int(btop[b, 4]) + 1
                     return k + 1
     return k1
 

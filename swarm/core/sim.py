@@ -137,9 +137,11 @@ class Simulation:
         self.rout = np.zeros((n, kernel.R_SIZE))
         self.box = kernel.obstacle_box(self.obstacles, side)
         # the candidate lists (kernel.SKIN): grown when the kernel says they need more
-        self.lstart, self.ostart = np.zeros(n + 1, np.int64), np.zeros(n + 1, np.int64)
-        self.lcand, self.ocand = np.zeros(16 * n + 64, np.int64), np.zeros(4 * n + 64, np.int64)
+        self.lspan, self.ospan = np.zeros((n, 2), np.int64), np.zeros((n, 2), np.int64)
+        self.lcand, self.ocand = np.zeros(16 * n + 64 * blocks, np.int64), np.zeros(4 * n + 64 * blocks, np.int64)
         self.anchor = np.zeros((n, 2))
+        self.btop = np.zeros((blocks, 5))
+        self.bacc = np.zeros((blocks, kernel.B_SIZE))
         self.rec_every = max(1, int(round(record_period / scn.dt)))
         s = self.n_steps // self.rec_every + 2
         self.rec = Recording(np.zeros(s), np.zeros((s, n, 3)), np.zeros((s, n, 3)), np.zeros((s, n, 2)),
@@ -201,8 +203,8 @@ class Simulation:
                 self.next_k, k_end, self.n_steps, self.q, self.comp, self.mem, self.cmd, self.offsets, self.radius,
                 self.obstacles, self.ocells, self.ohead, self.oorder, self.cells, self.head, self.order, self.table,
                 self.p, self.acc, iacc, self.pairs, self.last_frozen, *self.scratch, self.na, self.rec_every, r.t,
-                r.q, r.err, r.cmd, r.frozen, r.leader, self.cur, self.rout, self.box, self.lstart, self.lcand,
-                self.ostart, self.ocand, self.anchor,
+                r.q, r.err, r.cmd, r.frozen, r.leader, self.cur, self.rout, self.box, self.lspan, self.lcand,
+                self.ospan, self.ocand, self.anchor, self.btop, self.bacc,
             )
             if not (iacc[k.I_GROW_R] or iacc[k.I_GROW_O]):
                 break
