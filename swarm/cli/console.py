@@ -181,6 +181,9 @@ def summary(m: dict, name: str) -> str:
     if v:
         rows.append(("CHECKS FAILED", ", ".join(v)))
     wall = fmt(m["wall_s"], "s", 3)
+    run = m.get("run_wall_s")
+    if m.get("mode") == "lockstep" and isinstance(run, (int, float)) and run > 0 and m.get("duration_s"):
+        wall += f"  (the run {run:.1f} s of it: {m['duration_s'] / run:.2f} simulated s a wall s)"
     stolen = m.get("host_steal_pct")
     if isinstance(stolen, (int, float)) and stolen >= STEAL_NOTE_PCT:
         wall += f"  (the host took {stolen:g} % of this machine's CPU meanwhile: a slow run may be its, not swarm's)"

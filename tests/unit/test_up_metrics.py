@@ -58,6 +58,19 @@ def test_the_summary_says_when_the_host_took_the_machines_cpu():
         assert "406 s" in text
 
 
+def test_a_lock_step_summary_says_how_fast_the_run_went():
+    """The wall time of a lock-step run says the run's own share (launch excluded) and simulated s a wall s; a
+    real-time run's does not (it runs at its --speed)."""
+    from swarm.cli.console import summary
+
+    scn = scenario_file.load("paper-50hz", scenario_file.Overrides(robots=3), progress=scenario_file.silent)
+    m = {**metrics_from_progress(scn, "lockstep", None), "wall_s": 14.6, "run_wall_s": 11.72, "duration_s": 30.0,
+         "interrupted": False}
+    assert "14.6 s  (the run 11.7 s of it: 2.56 simulated s a wall s)" in summary(m, "paper-50hz")
+    assert "simulated s a wall s" not in summary({**m, "mode": "realtime"}, "paper-50hz")
+    assert "simulated s a wall s" not in summary({**m, "run_wall_s": None}, "paper-50hz")
+
+
 def test_the_summary_names_the_lost_and_stranded_robots_and_how_real_time_held_up():
     """The failed checks name the robots lost and stranded (stranded fails only a real-time run), and a real-time
     run's summary says how it held up under its load: the round trip's p99, the share of commands the safety rule
