@@ -3,6 +3,7 @@
     python bench/numpy_reference.py                 # the paper: 37 robots, 120 s at dt = 0.001 (about 2 minutes)
     python bench/numpy_reference.py --duration 20   # shorter
     python bench/numpy_reference.py --repeat 1      # one run of each (default: 3, interleaved, the best of each)
+    python bench/numpy_reference.py --write         # and write its section of docs/results.md
 
 The reference is written from the paper's equations (docs/design.md, "The law"), not from swarm's kernels:
 every robot at once, as numpy arrays, one step at a time. Per step: the leader's pose by exact arcs, every
@@ -20,13 +21,14 @@ from __future__ import annotations
 
 import argparse
 import math
-import platform
 import time
 
 import numpy as np
 
 from swarm.core import scenario_file
 from swarm.core.sim import Simulation
+
+from results_doc import machine, write_section
 
 EPS = 1e-4  # the clamp inside a body: docs/design.md
 CONVERGED_P, CONVERGED_A = 0.05, 0.05  # m, rad: docs/metrics.md
@@ -157,6 +159,7 @@ def main() -> None:
     ap.add_argument("--scenario", default="paper")
     ap.add_argument("--duration", type=float)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--write", action="store_true", help="write the figures to docs/results.md (section numpy)")
     ap.add_argument("--repeat", type=int, default=3,
                     help="runs of each, interleaved; the best wall time of each counts (default 3)")
     a = ap.parse_args()
@@ -173,17 +176,24 @@ def main() -> None:
         ref = run(scn)
         nps.append(time.perf_counter() - t0)
     t_sim, t_np = min(sims), min(nps)
-    print(f"machine: {platform.processor() or platform.machine()}, {platform.python_version()}, numpy {np.__version__}")
-    print(f"scenario {scn.name}: {scn.n} robots, {len(scn.obstacles)} obstacles, {scn.steps} steps of {scn.dt:g} s")
-    print(f"{'':24}{'swarm sim':>14}{'numpy':>14}")
-    print(f"{'wall [s], best':24}{t_sim:14.2f}{t_np:14.2f}")
-    print(f"{'wall [s], every run':24}{' '.join(f'{x:.2f}' for x in sims):>14}{' '.join(f'{x:.1f}' for x in nps):>20}")
+    lines = [f"machine: {machine()}, numpy {np.__version__}", "",
+             f"Scenario {scn.name}: {scn.n} robots, {len(scn.obstacles)} obstacles, {scn.steps} steps of {scn.dt:g} s; "
+             f"{len(sims)} runs of each, interleaved, the best counts.", "",
+             "| | swarm sim | numpy |", "|---|---:|---:|",
+             f"| wall [s], best | {t_sim:.2f} | {t_np:.2f} |",
+             f"| wall [s], every run | {' '.join(f'{x:.2f}' for x in sims)} | {' '.join(f'{x:.1f}' for x in nps)} |"]
     for key in ("converged_at_s", "min_robot_distance_m", "min_obstacle_distance_m", "collisions"):
         fmt = (lambda x: "-" if x is None else f"{x:.6g}")
-        print(f"{key:24}{fmt(m[key]):>14}{fmt(ref[key]):>14}")
-    print(f"swarm sim is {t_np / t_sim:.1f}x the numpy reference (simulated s per wall s: sim "
-          f"{scn.steps * scn.dt / t_sim:.1f}, numpy {scn.steps * scn.dt / t_np:.2f})")
-
+        lines.append(f"| {key} | {fmt(m[key])} | {fmt(ref[key])} |")
+    lines += ["", f"swarm sim is **{t_np / t_sim:.1f}x** the numpy reference (simulated s per wall s: sim "
+                  f"{scn.steps * scn.dt / t_sim:.1f}, numpy {scn.steps * scn.dt / t_np:.2f})."]
+    print("\n".join(lines))
+    if a.write:
+        write_section("numpy", "\n".join(["## The simulator against plain numpy", "",
+                                           "Written by `python bench/numpy_reference.py --write`: the paper's run "
+                                           "written in plain numpy from the paper's equations (every robot at "
+                                           "once, a step at a time), against `swarm sim`.", "", *lines]))
+        print("\nwritten: docs/results.md (section numpy)")
 
 if __name__ == "__main__":
     main()

@@ -18,6 +18,8 @@ import sys
 import time
 from pathlib import Path
 
+from results_doc import write_section
+
 
 def run_one(job: tuple[str, int]) -> dict:
     from swarm.core import scenario_file as sf
@@ -73,8 +75,8 @@ def main() -> int:
     print(file=sys.stderr)
     wall = time.perf_counter() - started
 
-    lines = ["# Results: the paper experiment", "",
-             "Written by `python bench/paper_table.py` (do not edit by hand). Metrics as in docs/metrics.md; "
+    lines = ["## The paper experiment", "",
+             "Written by `python bench/paper_table.py`. Metrics as in docs/metrics.md; "
              "errors are against the live leader reference at t = 120 s.", ""]
     for name, limit, errs, text in (
         ("paper", 60.0, True, "dt = 0.001 s, governor off. Pass: no collision, smallest robot distance > 0.4 m, "
@@ -84,9 +86,9 @@ def main() -> int:
     ):
         rows = [results[(name, s)] for s in range(10)]
         passed = sum(1 for line in seed_table(rows, limit, errs)[2:] if line.endswith("yes |"))
-        lines += [f"## `{name}`, seeds 0-9", "", text, "", *seed_table(rows, limit, errs), "",
+        lines += [f"### `{name}`, seeds 0-9", "", text, "", *seed_table(rows, limit, errs), "",
                   f"{passed} of 10 pass.", ""]
-    lines += [f"## Jam rate over seeds 0-{args.jam_seeds - 1}", "",
+    lines += [f"### Jam rate over seeds 0-{args.jam_seeds - 1}", "",
               "A run jams when it has not converged by the end of the 120 s run (a robot trapped inside the "
               "moving formation stays frozen: the paper's rare saddle points).", "",
               "| scenario | runs | not converged by 120 s | jam rate | collisions (runs with any) | "
@@ -102,8 +104,7 @@ def main() -> int:
                      f" | {100 * len(jams) / len(rows):.0f} % | {coll} | {fmt(med, 2)} | {fmt(worst)} |")
     lines += ["", f"{len(jobs)} runs in {wall:.0f} s of wall time on {args.jobs} processes "
                   f"({os.cpu_count()} cpus).", ""]
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text("\n".join(lines))
+    write_section("paper", "\n".join(lines), args.out)
     print("\n".join(lines))
     return 0
 

@@ -1,12 +1,15 @@
 """Speed and memory of the in-process simulator (`swarm sim`).
 
-    python bench/sim_speed.py            # all cases (about a minute)
+    python bench/sim_speed.py            # all cases (two or three minutes)
     python bench/sim_speed.py --quick    # shorter runs for the large swarms
+    python bench/sim_speed.py --write    # and write its section of docs/results.md
 
-Prints, per case: wall time of the run, simulated seconds per wall second, peak RSS
-of the process, and the slope of log(wall time per simulated second) against log(N).
-Each case runs in a fresh subprocess (so peak memory is its own). The first row runs
-with an empty kernel cache to show what compiling costs and what the cache saves.
+Prints, per case: wall time of the run, simulated seconds per wall second, nanoseconds a robot-step, the
+threads the kernel ran on (swarm.core.sim: the parallel kernel from 256 robots), peak RSS of the process,
+and the slope of log(wall time per simulated second) against log(N). Each case runs in a fresh subprocess
+(so peak memory is its own), the scaling rows and the whole runs twice (the faster counts: this VM's
+speed drifts). The first row runs with an empty kernel cache to show what compiling costs and what the
+cache saves.
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ import subprocess
 import sys
 import tempfile
 import time
+
+from results_doc import machine, write_section
 
 CASE = r"""
 import json, resource, sys, time
@@ -33,6 +38,7 @@ t2 = time.perf_counter()
 m = sim.run().metrics
 t3 = time.perf_counter()
 print(json.dumps({"import_and_load_s": t1 - t0, "setup_s": t2 - t1, "run_s": t3 - t2, "total_s": t3 - t0,
+                  "threads": int(sim.scratch[0].shape[0]), "steps": int(m["steps"]) + 1, "dt": scn.dt,
                   "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                   "sim_s": m["duration_s"], "converged_at_s": m["converged_at_s"], "collisions": m["collisions"]}))
 """
@@ -44,40 +50,74 @@ def run_case(name: str, n: int, duration: float, env: dict | None = None) -> dic
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def best_case(name: str, n: int, duration: float, runs: int = 2) -> dict:
+    return min((run_case(name, n, duration) for _ in range(runs)), key=lambda r: r["run_s"])
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="10 s runs for N >= 100 instead of 20 s")
+    ap.add_argument("--write", action="store_true", help="write the figures to docs/results.md (section sim-speed)")
     args = ap.parse_args()
     big = 10.0 if args.quick else 20.0
+    out: list[str] = []
 
-    print(f"python {sys.version.split()[0]}, {os.cpu_count()} cpus")
+    def say(line: str = "") -> None:
+        print(line)
+        out.append(line)
+
+    say(f"machine: {machine()}")
     with tempfile.TemporaryDirectory() as cache:
         cold = run_case("paper", 37, 120.0, env={**os.environ, "SWARM_CACHE_DIR": cache})
-    warm = run_case("paper", 37, 120.0)
-    warm2 = run_case("paper", 37, 120.0)
-    best = min(warm, warm2, key=lambda r: r["run_s"])
-    print("\n37-robot paper run (120 s simulated, dt = 0.001 s, 120 000 steps)")
-    print(f"  {'':28s}{'run':>9s}{'whole command':>16s}")
-    print(f"  {'first run (empty cache)':28s}{cold['run_s']:8.2f}s{cold['total_s']:15.2f}s")
-    print(f"  {'cached kernel':28s}{best['run_s']:8.2f}s{best['total_s']:15.2f}s")
-    print(f"  compile once: {cold['total_s'] - best['total_s']:.1f} s saved by the cache on every later run")
+    best = best_case("paper", 37, 120.0)
+    say("")
+    say("37-robot paper run (120 s simulated, dt = 0.001 s, 120 000 steps):")
+    say("")
+    say("| | run | whole command |")
+    say("|---|---:|---:|")
+    say(f"| first run (empty cache) | {cold['run_s']:.2f} s | {cold['total_s']:.2f} s |")
+    say(f"| cached kernel | {best['run_s']:.2f} s | {best['total_s']:.2f} s |")
+    say("")
+    say(f"Compiling once: {cold['total_s'] - best['total_s']:.1f} s, saved by the cache on every later run.")
 
     # The scaling rows all simulate the same first `big` seconds (the crowded part of a run:
     # every robot still moving through the barrier), so the slope compares like with like.
     rows = []
     for n in (37, 100, 300, 1000):
-        r = run_case("paper", n, big)
+        r = best_case("paper", n, big)
         rows.append((n, r["run_s"] / r["sim_s"], r))
-    print(f"\n{'N':>6s} {'sim s':>7s} {'wall s':>8s} {'sim s / wall s':>15s} {'us / step':>10s} {'peak RSS':>10s}")
+    say("")
+    say(f"The first {big:g} simulated s of the scaled paper run (dt = 0.001 s: every robot still crossing the "
+        "barrier, the most crowded part):")
+    say("")
+    say("| N | sim s | wall s | sim s / wall s | us a step | ns a robot-step | threads | peak RSS |")
+    say("|---:|---:|---:|---:|---:|---:|---:|---:|")
     for n, per_s, r in rows:
-        steps = r["sim_s"] / 0.001
-        print(f"{n:6d} {r['sim_s']:7.1f} {r['run_s']:8.2f} {1 / per_s:15.1f} {1e6 * r['run_s'] / steps:10.1f}"
-              f" {r['peak_rss_mib']:8.0f} MiB")
+        us = 1e6 * r["run_s"] / r["steps"]
+        say(f"| {n} | {r['sim_s']:.1f} | {r['run_s']:.2f} | {1 / per_s:.1f} | {us:.1f} | {1e3 * us / n:.0f} | "
+            f"{r['threads']} | {r['peak_rss_mib']:.0f} MiB |")
     xs = [math.log(n) for n, _, _ in rows]
     ys = [math.log(per_s) for _, per_s, _ in rows]
     mx, my = sum(xs) / len(xs), sum(ys) / len(ys)
     slope = sum((x - mx) * (y - my) for x, y in zip(xs, ys)) / sum((x - mx) ** 2 for x in xs)
-    print(f"\nslope of log(wall time) against log(N), N = 37..1000 (equal {big:g} s runs): {slope:.2f}")
+    say("")
+    say(f"Slope of log(wall time) against log(N), N = 37..1000 (equal {big:g} s runs): {slope:.2f}.")
+
+    say("")
+    say("Whole runs of 1000 robots (120 simulated s):")
+    say("")
+    say("| scenario | dt | wall s | sim s / wall s | ns a robot-step | threads | converged at | collisions |")
+    say("|---|---:|---:|---:|---:|---:|---:|---:|")
+    for name in ("paper", "paper-50hz"):
+        r = best_case(name, 1000, 120.0)
+        ns = 1e9 * r["run_s"] / r["steps"] / 1000
+        conv = "-" if r["converged_at_s"] is None else f"{r['converged_at_s']:g} s"
+        say(f"| {name} | {r['dt']:g} s | {r['run_s']:.2f} | {r['sim_s'] / r['run_s']:.1f} | {ns:.0f} | "
+            f"{r['threads']} | {conv} | {r['collisions']} |")
+    if args.write:
+        write_section("sim-speed", "\n".join(["## The simulator's speed", "",
+                                               "Written by `python bench/sim_speed.py --write`.", "", *out]))
+        print("\nwritten: docs/results.md (section sim-speed)")
     return 0
 
 
