@@ -5,15 +5,18 @@ step costs a few microseconds; a numpy version spends ~100 us a step on call ove
 The per-robot law is the compiled copy of swarm.core.law, the same source a robot process runs.
 
 Step k (time t_k = k dt), for k = 0 .. K (K = number of steps):
-  1. the live leader reference at t_k (exact), a grid of the robots;
-  2. per robot i: its known bodies (closer than the cell side: robots by id, then
-     obstacles by index), its metrics of the state at t_k (distances, collisions, errors
+  1. the live leader reference at t_k (exact); the candidate lists built again if robots
+     moved too far since (see SKIN);
+  2. per robot i: its known bodies (closer than the cell side, from its candidates:
+     robots by id, then obstacles by index), its metrics of the state at t_k (distances, collisions, errors
      against the live reference), its command (freeze rule, law, threshold, governor);
      each robot reads only the state at t_k, so the robots run in blocks, in parallel in
      the twin compiled with __swarm_parallel__;
-  3. the step's metrics, reduced robot by robot in id order (the same bits on any number
-     of threads);
-  4. if k < K, every robot moves one exact arc with its command.
+  3. the step's metrics: each block's tallied by the thread that ran it, the tallies
+     combined in block order, the collision pairs listed in id order (each an exact min,
+     max, count or list: the same bits on any number of threads);
+  4. if k < K, every robot moves one exact arc with its command (how far it has moved from
+     its anchor measured there).
 State arrays are updated in place, so the loop can run in chunks (progress bars).
 """
 
@@ -92,7 +95,7 @@ SKIN_USE = 0.9  # the share of the skin the anchors' test lets robots use (the r
 FREEZE_MERGE_S = 0.1
 
 
-# Per-robot results of a step's robot phase (rout, (N, R_SIZE)), reduced in id order afterwards.
+# Per-robot results of a step's robot phase (rout, (N, R_SIZE)), tallied into its block's (bacc) at once.
 R_MIN_RR = 0  # smallest distance to a known robot of a higher id (inf: none)
 R_MIN_RO = 1  # smallest distance to a known obstacle (inf: none)
 R_PE = 2  # position error against the live reference [m]
