@@ -58,6 +58,7 @@ M_SCALE = law.M_SCALE
 P_DT = law.P_DT
 P_SENSE = law.P_SENSE
 P_REACH = law.P_REACH
+P_GOVERNOR = law.P_GOVERNOR
 
 # Float accumulators (acc).
 A_MIN_RR = 0  # smallest robot-robot distance seen [m] (inf: none within the cell side)
@@ -135,6 +136,7 @@ def _robot(i: int, b: int, k: int, t: float, xl: float, yl: float, thl: float, v
     command (cmd[i], mem[i]); its sample into rec_*[rec] when rec >= 0. Reads only the state at t."""
     sense = p[P_SENSE]
     reach = p[P_REACH]
+    governor = p[P_GOVERNOR]
     r2 = sense * sense
     bx = nx[b]
     by = ny[b]
@@ -155,15 +157,15 @@ def _robot(i: int, b: int, k: int, t: float, xl: float, yl: float, thl: float, v
         d2 = dx * dx + dy * dy
         if not d2 < r2:  # grid.near's test
             continue
+        d = math.sqrt(d2)
         if j > i:
-            d = math.sqrt((x - q[j, 0]) ** 2 + (y - q[j, 1]) ** 2)
             if d < min_rr:
                 min_rr = d
             if d < max(radius[i, 0], radius[j, 0]):
                 colliding = 1.0
         # the paper's law: a robot at reach or farther, not inside its R, acts on nothing (zero repulsion, no
         # freeze, left out by the governor); the same expressions as the law's, so the same bits
-        if not _user and d2 >= radius[j, 1] * radius[j, 1] and math.sqrt(d2) >= reach:
+        if not _user and d2 >= radius[j, 1] * radius[j, 1] and d >= reach:
             continue
         bx[cnt] = q[j, 0]
         by[cnt] = q[j, 1]
@@ -175,18 +177,23 @@ def _robot(i: int, b: int, k: int, t: float, xl: float, yl: float, thl: float, v
         o = ocand[a]
         dx = x - obstacles[o, 0]
         dy = y - obstacles[o, 1]
-        if not dx * dx + dy * dy < r2:
+        d2 = dx * dx + dy * dy
+        if not d2 < r2:
+            continue
+        d = math.sqrt(d2)
+        if d < min_ro:
+            min_ro = d
+        if d < obstacles[o, 2]:
+            colliding = 1.0
+        # the paper's law without the governor: an obstacle at its R or farther acts on nothing (zero repulsion;
+        # only the governor counts obstacles up to the cell side)
+        if not _user and governor == 0.0 and d >= obstacles[o, 3]:
             continue
         bx[cnt] = obstacles[o, 0]
         by[cnt] = obstacles[o, 1]
         br[cnt] = obstacles[o, 2]
         bR[cnt] = obstacles[o, 3]
         bk[cnt] = KIND_OBSTACLE
-        d = math.sqrt((x - bx[cnt]) ** 2 + (y - by[cnt]) ** 2)
-        if d < min_ro:
-            min_ro = d
-        if d < br[cnt]:
-            colliding = 1.0
         cnt += 1
     # errors against the live reference (never the frozen snapshot)
     px = xl + offsets[i, 0] - x
