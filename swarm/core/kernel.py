@@ -127,6 +127,17 @@ _loop_jit = jit.njit_parallel if _parallel else _robot_jit
 
 
 @_robot_jit
+def _hand(nx: _Floats, ny: _Floats, nr: _Floats, nR: _Floats, nk: _Ints, c: int, x: float, y: float, r: float,
+          R: float, kind: int) -> None:
+    """Body c of the law's arrays: at (x, y), radii r and R, of kind `kind`."""
+    nx[c] = x
+    ny[c] = y
+    nr[c] = r
+    nR[c] = R
+    nk[c] = kind
+
+
+@_robot_jit
 def _robot(i: int, b: int, k: int, t: float, xl: float, yl: float, thl: float, vl: float, wl: float, q: _Floats,
            mem: _Floats, cmd: _Floats, offsets: _Floats, radius: _Floats, obstacles: _Floats, lspan: _Ints,
            lcand: _Ints, ospan: _Ints, ocand: _Ints, p: _Floats, nx: _Floats, ny: _Floats, nr: _Floats,
@@ -167,11 +178,7 @@ def _robot(i: int, b: int, k: int, t: float, xl: float, yl: float, thl: float, v
         # freeze, left out by the governor); the same expressions as the law's, so the same bits
         if not _user and d2 >= radius[j, 1] * radius[j, 1] and d >= reach:
             continue
-        bx[cnt] = q[j, 0]
-        by[cnt] = q[j, 1]
-        br[cnt] = radius[j, 0]
-        bR[cnt] = radius[j, 1]
-        bk[cnt] = KIND_ROBOT
+        _hand(bx, by, br, bR, bk, cnt, q[j, 0], q[j, 1], radius[j, 0], radius[j, 1], KIND_ROBOT)
         cnt += 1
     for a in range(ospan[i, 0], ospan[i, 1]):
         o = ocand[a]
@@ -189,11 +196,8 @@ def _robot(i: int, b: int, k: int, t: float, xl: float, yl: float, thl: float, v
         # only the governor counts obstacles up to the cell side)
         if not _user and governor == 0.0 and d >= obstacles[o, 3]:
             continue
-        bx[cnt] = obstacles[o, 0]
-        by[cnt] = obstacles[o, 1]
-        br[cnt] = obstacles[o, 2]
-        bR[cnt] = obstacles[o, 3]
-        bk[cnt] = KIND_OBSTACLE
+        _hand(bx, by, br, bR, bk, cnt, obstacles[o, 0], obstacles[o, 1], obstacles[o, 2], obstacles[o, 3],
+              KIND_OBSTACLE)
         cnt += 1
     # errors against the live reference (never the frozen snapshot)
     px = xl + offsets[i, 0] - x
