@@ -39,6 +39,7 @@ m = sim.run().metrics
 t3 = time.perf_counter()
 print(json.dumps({"import_and_load_s": t1 - t0, "setup_s": t2 - t1, "run_s": t3 - t2, "total_s": t3 - t0,
                   "threads": int(sim.scratch[0].shape[0]), "steps": int(m["steps"]) + 1, "dt": scn.dt,
+                  "builds": int(sim.iacc[sim.k.I_BUILDS]),
                   "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                   "sim_s": m["duration_s"], "converged_at_s": m["converged_at_s"], "collisions": m["collisions"]}))
 """
@@ -90,12 +91,13 @@ def main() -> int:
     say(f"The first {big:g} simulated s of the scaled paper run (dt = 0.001 s: every robot still crossing the "
         "barrier, the most crowded part):")
     say("")
-    say("| N | sim s | wall s | sim s / wall s | us a step | ns a robot-step | threads | peak RSS |")
-    say("|---:|---:|---:|---:|---:|---:|---:|---:|")
+    say("| N | sim s | wall s | sim s / wall s | us a step | ns a robot-step | threads | steps a list build | "
+        "peak RSS |")
+    say("|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for n, per_s, r in rows:
         us = 1e6 * r["run_s"] / r["steps"]
         say(f"| {n} | {r['sim_s']:.1f} | {r['run_s']:.2f} | {1 / per_s:.1f} | {us:.1f} | {1e3 * us / n:.0f} | "
-            f"{r['threads']} | {r['peak_rss_mib']:.0f} MiB |")
+            f"{r['threads']} | {r['steps'] / max(1, r['builds']):.0f} | {r['peak_rss_mib']:.0f} MiB |")
     xs = [math.log(n) for n, _, _ in rows]
     ys = [math.log(per_s) for _, per_s, _ in rows]
     mx, my = sum(xs) / len(xs), sum(ys) / len(ys)
@@ -106,14 +108,15 @@ def main() -> int:
     say("")
     say("Whole runs of 1000 robots (120 simulated s):")
     say("")
-    say("| scenario | dt | wall s | sim s / wall s | ns a robot-step | threads | converged at | collisions |")
-    say("|---|---:|---:|---:|---:|---:|---:|---:|")
+    say("| scenario | dt | wall s | sim s / wall s | ns a robot-step | threads | steps a list build | converged at | "
+        "collisions |")
+    say("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for name in ("paper", "paper-50hz"):
         r = best_case(name, 1000, 120.0)
         ns = 1e9 * r["run_s"] / r["steps"] / 1000
         conv = "-" if r["converged_at_s"] is None else f"{r['converged_at_s']:g} s"
         say(f"| {name} | {r['dt']:g} s | {r['run_s']:.2f} | {r['sim_s'] / r['run_s']:.1f} | {ns:.0f} | "
-            f"{r['threads']} | {conv} | {r['collisions']} |")
+            f"{r['threads']} | {r['steps'] / max(1, r['builds']):.0f} | {conv} | {r['collisions']} |")
     if args.write:
         write_section("sim-speed", "\n".join(["## The simulator's speed", "",
                                                "Written by `python bench/sim_speed.py --write`.", "", *out]))

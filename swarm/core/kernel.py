@@ -85,7 +85,8 @@ I_RECORDED = 9  # samples written
 I_LISTS = 10  # 1 while the candidate lists are built (0: build them at the next step)
 I_GROW_R = 11  # entries the robots' candidate lists need (set when lcand is too small)
 I_GROW_O = 12  # the same for the obstacles' (ocand)
-I_SIZE = 13
+I_BUILDS = 13  # times the candidate lists were built
+I_SIZE = 14
 
 # Candidate lists (Verlet lists): each robot's robots and obstacles closer than the cell side times
 # (1 + SKIN), built from a grid of that side and kept while no two robots together moved SKIN_USE of
@@ -420,6 +421,7 @@ def run_steps(k0: int, k1: int, n_steps: int, q: _Floats, comp: _Floats, mem: _F
                 _block_lists(b, blocks, q, obstacles, side, cells, head, order, ocells, ohead, oorder, box, buf,
                              lspan, lcand, ospan, ocand, anchor, btop)
             iacc[I_LISTS] = 1
+            iacc[I_BUILDS] += 1
             need = 0
             oneed = 0
             for b in range(blocks):
