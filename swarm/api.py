@@ -46,13 +46,15 @@ def simulate(scenario: str | Path | Scenario = "paper", *, law: str | Callable[.
              params: Sequence[float] | None = None, memory: int | None = None, robots: int | None = None,
              seed: int | None = None, duration: float | None = None, dt: float | None = None,
              governor: bool | None = None, faults: str | Path | None = None, drop: float | None = None,
-             kill: str | None = None, record_period: float = RECORD_PERIOD_S, python_law: bool = False) -> Run:
+             kill: str | None = None, record_period: float = RECORD_PERIOD_S, python_law: bool = False,
+             threads: int | None = None) -> Run:
     """Run a scenario (a built-in name, a TOML file or a Scenario) in this process and return its Run.
 
     law: the scenario's own (None), "FILE.py:NAME" (relative to the working directory), "package.module:NAME"
     or a function in the contract's signature (docs/control.md); params and memory replace the scenario's
     [control] params and memory. robots, seed, duration, dt, governor, faults (a faults TOML file), drop and
-    kill are swarm sim's flags. A bad scenario or law raises swarm.core.errors.SwarmError (a ScenarioError or a
+    kill are swarm sim's flags; threads, swarm sim's --threads (None: every core from 256 robots; the same bits
+    on any count). A bad scenario or law raises swarm.core.errors.SwarmError (a ScenarioError or a
     LawError, naming what is wrong); a law that raises or goes non-finite, SimulationError."""
     if isinstance(scenario, Scenario):
         scn = scenario
@@ -80,8 +82,11 @@ def simulate(scenario: str | Path | Scenario = "paper", *, law: str | Callable[.
         else:
             raise userlaw.LawError("params and memory are for a law of your own: give law= too")
         scn = scn.replace(control=replace(scn.control, law=spec))
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
+        raise ValueError(f"threads must be an int >= 1 (or None), got {threads!r}")
     started = time.perf_counter()
-    result = Simulation(scn, record_period=record_period, python_law=python_law, loaded=loaded).run(started=started)
+    result = Simulation(scn, record_period=record_period, python_law=python_law, loaded=loaded,
+                        threads=threads).run(started=started)
     rec = result.recording
     return Run(scn, result.metrics, rec.t, rec.q, rec.err, rec.cmd, rec.leader)
 

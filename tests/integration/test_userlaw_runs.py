@@ -78,3 +78,18 @@ def test_swarm_simulate_gives_swarm_sims_metrics_for_the_paper(tmp_path):
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=240)
     assert done.returncode == 0, done.stderr
     same_run(sim_metrics(tmp_path, "--scenario", "paper-50hz", *SMALL, "--seed", "2"), json.loads(done.stdout))
+
+
+@pytest.mark.integration
+def test_swarm_simulate_takes_a_thread_count_and_refuses_a_bad_one():
+    """threads=2 runs the parallel loop with the same bits as threads=1; 0, 1.5 and True are refused by name."""
+    import swarm
+
+    one = swarm.simulate("paper-50hz", robots=5, duration=2, seed=1, threads=1)
+    two = swarm.simulate("paper-50hz", robots=5, duration=2, seed=1, threads=2)
+    assert (one.q == two.q).all() and (one.cmd == two.cmd).all()
+    assert {k: v for k, v in one.metrics.items() if "wall" not in k} == \
+        {k: v for k, v in two.metrics.items() if "wall" not in k}
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="threads must be an int >= 1"):
+            swarm.simulate("paper-50hz", robots=5, duration=1, threads=bad)
