@@ -39,8 +39,11 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
     if viz is not None:
         check_viz_port(viz)
     status = console.StatusLine(enabled=not args.quiet, log_every=2.0)  # a line every 2 s in a log, as swarm up
-    if not args.quiet and not _kernel_cached():
-        print("compiling the simulation kernel (first run after install only, ~5-10 s)...", file=sys.stderr)
+    parallel = _parallel(args, scn)
+    if not args.quiet and not _kernel_cached(parallel):
+        what = "the simulation kernel and its parallel twin" if parallel else "the simulation kernel"
+        print(f"compiling {what} (first run after install only, ~{'10-25' if parallel else '5-10'} s)...",
+              file=sys.stderr)
     sim = _simulation(args, scn)
 
     def show(p) -> None:
@@ -222,10 +225,22 @@ def _fault_fields(sim) -> str:
                                 int((f.proc == fg.PROC_HUNG).sum()))
 
 
-def _kernel_cached() -> bool:
+def _parallel(args: argparse.Namespace, scn) -> bool:
+    """Whether this run takes the parallel kernel (swarm.core.sim.Simulation decides the same way)."""
+    from swarm.core import sim
+
+    if scn.faults or scn.control.law is not None:
+        return False
+    return (sim._threads(scn.n) if args.threads is None else args.threads) > 1
+
+
+def _kernel_cached(parallel: bool = False) -> bool:
     from swarm.core import jit
 
-    d = jit.cache_dir()
-    return d.is_dir() and any(d.rglob("*.nbi"))
+    d = jit.cache_dir()  # numba's index of the loop: kernel.run_steps-LINE.pyXY.nbi
+    if not d.is_dir():
+        return False
+    loops = [f.relative_to(d).parts[0] == "parallel" for f in d.rglob("*run_steps*.nbi")]
+    return parallel in loops
 
 

@@ -192,3 +192,20 @@ def test_scenario_scale_writes_a_scenario_that_fits_and_says_its_time_scale(tmp_
     f.write_text(p.stdout)
     check = run(["scenario", "check", str(f)])
     assert check.returncode == 0 and "warning" not in check.stdout, check.stdout
+
+
+@pytest.mark.integration
+@pytest.mark.timeout(300)
+def test_swarm_sim_says_when_it_compiles_the_loop_it_is_about_to_run(tmp_path):
+    """A first run says it compiles (the parallel twin from 256 robots too); the same run again does not; a run that
+    needs the other loop says so again."""
+    env = {**os.environ, "SWARM_CACHE_DIR": str(tmp_path / "cache")}
+
+    def said(*flags: str) -> bool:
+        done = subprocess.run([*swarm_cmd(), "sim", "--duration", "0.2", *flags], env=env,
+                              capture_output=True, text=True, timeout=240)
+        assert done.returncode == 0, done.stderr
+        return "compiling the simulation kernel" in done.stderr
+
+    assert said("--robots", "300") and not said("--robots", "300")
+    assert said("--robots", "300", "--threads", "1") and not said("--robots", "20")
