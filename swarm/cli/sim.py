@@ -39,7 +39,9 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
     if viz is not None:
         check_viz_port(viz)
     status = console.StatusLine(enabled=not args.quiet, log_every=2.0)  # a line every 2 s in a log, as swarm up
-    parallel = _parallel(args, scn)
+    from swarm.core.sim import kernel_threads
+
+    parallel = kernel_threads(scn, args.threads) > 1
     if not args.quiet and not _kernel_cached(parallel):
         what = "the simulation kernel and its parallel twin" if parallel else "the simulation kernel"
         print(f"compiling {what} (first run after install only, ~{'10-25' if parallel else '5-10'} s)...",
@@ -223,15 +225,6 @@ def _fault_fields(sim) -> str:
 
     return console.fault_fields(f.metrics(0.0)["messages_dropped"], int((f.proc == fg.PROC_DEAD).sum()),
                                 int((f.proc == fg.PROC_HUNG).sum()))
-
-
-def _parallel(args: argparse.Namespace, scn) -> bool:
-    """Whether this run takes the parallel kernel (swarm.core.sim.Simulation decides the same way)."""
-    from swarm.core import sim
-
-    if scn.faults or scn.control.law is not None:
-        return False
-    return (sim._threads(scn.n) if args.threads is None else args.threads) > 1
 
 
 def _kernel_cached(parallel: bool = False) -> bool:

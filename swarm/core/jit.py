@@ -80,38 +80,33 @@ def _setup_numba() -> None:
 _caching = True  # off while compiling what must not be cached (a kernel calling Python: swarm.core.userlaw)
 
 
-def njit(fn: _F) -> _F:
-    """numba.njit with the on-disk cache (the kernel's own decorator)."""
+def _njit(fn: _F, **options: Any) -> _F:
+    """numba.njit with the on-disk cache and numpy's error model, plus `options`."""
     _setup_numba()
     import numba
 
-    return cast(_F, numba.njit(cache=_caching, error_model="numpy")(fn))
+    return cast(_F, numba.njit(cache=_caching, error_model="numpy", **options)(fn))
+
+
+def njit(fn: _F) -> _F:
+    """numba.njit with the on-disk cache (the kernel's own decorator)."""
+    return _njit(fn)
 
 
 def njit_leaf(fn: _F) -> _F:
-    """njit without numba's reference counting, for functions that only read and write arrays they are given."""
-    _setup_numba()
-    import numba
-
-    options: dict[str, Any] = {"cache": _caching, "error_model": "numpy", "_nrt": False}  # _nrt: not in numba's stubs
-    return cast(_F, numba.njit(**options)(fn))
+    """njit without numba's reference counting (_nrt, not in numba's stubs), for functions that only read and
+    write arrays they are given."""
+    return _njit(fn, _nrt=False)
 
 
 def njit_inlined(fn: _F) -> _F:
     """njit_leaf, inlined into every caller by LLVM (a call of many arrays copies them all)."""
-    _setup_numba()
-    import numba
-
-    options: dict[str, Any] = {"cache": _caching, "error_model": "numpy", "_nrt": False, "forceinline": True}
-    return cast(_F, numba.njit(**options)(fn))
+    return _njit(fn, _nrt=False, forceinline=True)
 
 
 def njit_parallel(fn: _F) -> _F:
     """njit with numba's parallel loops (prange), on all the threads numba is allowed."""
-    _setup_numba()
-    import numba
-
-    return cast(_F, numba.njit(cache=_caching, error_model="numpy", parallel=True)(fn))
+    return _njit(fn, parallel=True)
 
 
 # The scalar-style modules compiled with njit_leaf: none allocates, slices or returns an array.

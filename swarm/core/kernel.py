@@ -293,41 +293,36 @@ def _move(i: int, q: _Floats, comp: _Floats, cmd: _Floats, dt: float) -> None:
 
 
 @_robot_jit
-def _top2(d2: float, top: _Floats) -> None:
-    """Keep in top[0] >= top[1] the two largest values seen."""
-    if d2 > top[1]:
-        if d2 > top[0]:
-            top[1] = top[0]
-            top[0] = d2
-        else:
-            top[1] = d2
+def _top2(d2: float, top1: float, top2: float) -> tuple[float, float]:
+    """The two largest of d2, top1 and top2 (top1 >= top2), largest first."""
+    if d2 > top1:
+        return d2, top1
+    if d2 > top2:
+        return top1, d2
+    return top1, top2
 
 
 @_robot_jit
 def _moved(q: _Floats, anchor: _Floats, lo: int, hi: int, top: _Floats) -> None:
     """top[0], top[1]: the two largest squared distances robots lo..hi - 1 are from their anchors."""
-    top[0] = 0.0
-    top[1] = 0.0
+    top1 = 0.0
+    top2 = 0.0
     for i in range(lo, hi):
-        _top2((q[i, 0] - anchor[i, 0]) ** 2 + (q[i, 1] - anchor[i, 1]) ** 2, top)
+        top1, top2 = _top2((q[i, 0] - anchor[i, 0]) ** 2 + (q[i, 1] - anchor[i, 1]) ** 2, top1, top2)
+    top[0] = top1
+    top[1] = top2
 
 
 @_robot_jit
 def _stale(btop: _Floats, skin: float) -> bool:
-    """Whether the candidate lists may miss a pair, from each block's two largest squared moves (btop (B, 4),
+    """Whether the candidate lists may miss a pair, from each block's two largest squared moves (btop (B, 5),
     columns 0 and 1): two robots together moved SKIN_USE of the skin since the lists were built (a pair
     closer than the cell side now was closer than side + skin then, while they did not)."""
     top1 = 0.0
     top2 = 0.0
     for b in range(btop.shape[0]):
-        for c in range(2):
-            d2 = btop[b, c]
-            if d2 > top2:
-                if d2 > top1:
-                    top2 = top1
-                    top1 = d2
-                else:
-                    top2 = d2
+        top1, top2 = _top2(btop[b, 0], top1, top2)
+        top1, top2 = _top2(btop[b, 1], top1, top2)
     return math.sqrt(top1) + math.sqrt(top2) >= SKIN_USE * skin
 
 

@@ -90,14 +90,12 @@ class Simulation:
         else:
             from swarm.core import kernel  # compiles (or loads from cache) on first use
 
-        blocks = 1
-        if self.law is None and not scn.faults:
-            blocks = _threads(scn.n) if threads is None else max(1, int(threads))
-            if blocks > 1:
-                from swarm.core import jit
+        blocks = kernel_threads(scn, threads)
+        if blocks > 1:
+            from swarm.core import jit
 
-                with jit.cache_in(jit.cache_dir() / "parallel"):
-                    kernel = jit.compiled("swarm.core.kernel", "_parallel", {"__swarm_parallel__": True})
+            with jit.cache_in(jit.cache_dir() / "parallel"):
+                kernel = jit.compiled("swarm.core.kernel", "_parallel", {"__swarm_parallel__": True})
         self.k = kernel
         self.scn = scn
         n, m = scn.n, len(scn.obstacles)
@@ -127,7 +125,6 @@ class Simulation:
         self.cur = np.zeros_like(self.pairs)  # the kernel's scratch: the pairs in collision at this step
         self.last_frozen = np.full(n, -1, np.int64)
         size = n + m
-        self.buf = np.zeros(size, np.int64)
         self.nx, self.ny, self.nr, self.nR = (np.zeros(size) for _ in range(4))
         self.nk = np.zeros(size, np.int64)
         self.na = np.zeros(size)  # ages of the known bodies: all current without faults
@@ -308,6 +305,14 @@ class Simulation:
             ok = (pe < metrics.CONVERGED_POSITION_M) & (np.abs(err[:, 2]) < metrics.CONVERGED_ANGLE_RAD)
             strands.sample(float(t), pe, live, int(np.count_nonzero(ok)))
         return strands.keys()
+
+
+def kernel_threads(scn: Scenario, threads: int | None = None) -> int:
+    """The threads a Simulation of scn runs its loop on (1: the serial kernel): `threads` (None: _threads's
+    choice) for the paper's law without faults, else 1."""
+    if scn.control.law is not None or scn.faults:
+        return 1
+    return _threads(scn.n) if threads is None else max(1, int(threads))
 
 
 def _threads(n: int) -> int:
