@@ -168,6 +168,8 @@ class Simulation:
             return
         try:
             self._advance(k_end)
+        except SimulationError:  # said already (a non-finite state: _check_finite)
+            raise
         except Exception as e:  # raised in the user's law: name it, the robot and the step
             raise SimulationError(self._law_failure(f"raised {type(e).__name__}: {e}")) from None
 
@@ -216,8 +218,9 @@ class Simulation:
         bad = int(self.iacc[self.k.I_NONFINITE])
         if bad and self.law is not None:  # its law's command (the state of a bounded one stays finite)
             t = max(self.next_k - 1, 0) * self.scn.dt
-            raise SimulationError(f"the law {self.law.label!r} gave robot {bad - 1} a non-finite command: its state "
-                                  f"was not finite at t = {t:g} s (step {max(self.next_k - 1, 0)})")
+            raise SimulationError(f"the law {self.law.label!r} gave robot {bad - 1} a command at t = {t:g} s (step "
+                                  f"{max(self.next_k - 1, 0)}) that made its pose non-finite: v or w was inf or nan, "
+                                  "or so large that the step overflowed")
         if bad:
             raise SimulationError(f"robot {bad - 1} reached a non-finite state at t = {(self.next_k - 1) * self.scn.dt:g} s")
 

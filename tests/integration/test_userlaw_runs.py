@@ -71,6 +71,24 @@ def test_a_law_that_raises_ends_the_run_naming_the_law_the_robot_and_the_step(tm
 
 
 @pytest.mark.integration
+def test_a_law_that_returns_inf_ends_the_run_saying_so_not_that_it_raised(tmp_path):
+    (tmp_path / "laws").mkdir()
+    (tmp_path / "laws" / "inf.py").write_text(
+        "def inf(me, ref, bodies, params, *, t):\n"
+        "    if t >= 1.0:\n"
+        "        return float('inf'), 0.0\n"
+        "    return 0.1, 0.0\n")
+    scn = (EXAMPLES / "goto_slot.toml").read_text().replace("laws/goto_slot.py:goto_slot", "laws/inf.py:inf")
+    (tmp_path / "inf.toml").write_text(scn)
+    done = subprocess.run([sys.executable, "-m", "swarm.cli", "sim", "--scenario", str(tmp_path / "inf.toml"),
+                           *SMALL, "--quiet"], capture_output=True, text=True, timeout=240)
+    assert done.returncode == 1, done.stderr
+    assert ("the law 'laws/inf.py:inf' gave robot 0 a command at t = 1 s (step 50) that made its pose non-finite"
+            in done.stderr), done.stderr
+    assert "raised" not in done.stderr and "Traceback" not in done.stderr
+
+
+@pytest.mark.integration
 def test_swarm_simulate_gives_swarm_sims_metrics_for_the_paper(tmp_path):
     code = ("import json, sys, swarm; run = swarm.simulate('paper-50hz', robots=5, duration=4, seed=2); "
             "json.dump(run.metrics, sys.stdout); "
