@@ -255,15 +255,15 @@ def _resolve_grid(args: argparse.Namespace, points: list[Point]):
 def _warm_kernels(scns, quiet: bool) -> None:
     """Compile (or load) every kernel the runs need here, once, so the workers load it from the cache
     instead of each compiling it: the plain kernel, and the fault kernel when a run has faults."""
-    from swarm.core import jit
-    from swarm.core.sim import Simulation
+    from swarm.core.sim import Simulation, kernel_cached
 
-    cache = jit.cache_dir()
-    if not quiet and not (cache.is_dir() and any(cache.rglob("*.nbi"))):
-        print("compiling the simulation kernel (first run after install only, ~5-10 s)...", file=sys.stderr)
     kinds: dict[bool, Scenario] = {}
     for scn in scns:
         kinds.setdefault(bool(scn.faults), scn)
+    missing = [faults for faults, scn in kinds.items() if scn.control.law is None and not kernel_cached(faults=faults)]
+    if not quiet and missing:
+        what = " and ".join("the kernel for faults" if f else "the simulation kernel" for f in sorted(missing))
+        print(f"compiling {what} (once: numba caches it; ~10-30 s each)...", file=sys.stderr)
     for scn in kinds.values():
         Simulation(scn, threads=1).advance(1)
 

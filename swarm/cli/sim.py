@@ -39,13 +39,13 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
     if viz is not None:
         check_viz_port(viz)
     status = console.StatusLine(enabled=not args.quiet, log_every=2.0)  # a line every 2 s in a log, as swarm up
-    from swarm.core.sim import kernel_threads
+    from swarm.core.sim import kernel_cached, kernel_threads
 
     parallel = kernel_threads(scn, args.threads) > 1
-    if not args.quiet and not _kernel_cached(parallel):
-        what = "the simulation kernel and its parallel twin" if parallel else "the simulation kernel"
-        print(f"compiling {what} (first run after install only, ~{'10-25' if parallel else '5-10'} s)...",
-              file=sys.stderr)
+    if not args.quiet and scn.control.law is None and not kernel_cached(parallel, bool(scn.faults)):
+        what = ("the simulation kernel for faults" if scn.faults else
+                "the simulation kernel's parallel twin" if parallel else "the simulation kernel")
+        print(f"compiling {what} (once: numba caches it; ~10-30 s)...", file=sys.stderr)
     sim = _simulation(args, scn)
 
     def show(p) -> None:
@@ -225,15 +225,3 @@ def _fault_fields(sim) -> str:
 
     return console.fault_fields(f.metrics(0.0)["messages_dropped"], int((f.proc == fg.PROC_DEAD).sum()),
                                 int((f.proc == fg.PROC_HUNG).sum()))
-
-
-def _kernel_cached(parallel: bool = False) -> bool:
-    from swarm.core import jit
-
-    d = jit.cache_dir()  # numba's index of the loop: kernel.run_steps-LINE.pyXY.nbi
-    if not d.is_dir():
-        return False
-    loops = [f.relative_to(d).parts[0] == "parallel" for f in d.rglob("*run_steps*.nbi")]
-    return parallel in loops
-
-

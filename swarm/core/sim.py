@@ -310,6 +310,17 @@ class Simulation:
         return strands.keys()
 
 
+def kernel_cached(parallel: bool = False, faults: bool = False) -> bool:
+    """Whether numba's cache holds the loop a run of the paper's law takes: the fault kernel's (serial), else
+    the kernel's serial or parallel twin. Its index is CACHE/[parallel/]core_HASH/MODULE.FUNCTION-LINE.pyXY.nbi
+    (a law of one's own has its own directory, law-HASH, and its own note)."""
+    from swarm.core import jit
+
+    loop = "faultkernel.run_fault_steps" if faults else "kernel.run_steps"
+    where = jit.cache_dir() / "parallel" if parallel and not faults else jit.cache_dir()
+    return where.is_dir() and any(where.glob(f"core_*/{loop}-*.nbi"))
+
+
 def kernel_threads(scn: Scenario, threads: int | None = None) -> int:
     """The threads a Simulation of scn runs its loop on (1: the serial kernel): `threads` (None: _threads's
     choice) for the paper's law without faults, else 1."""
