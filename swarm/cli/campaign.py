@@ -69,7 +69,9 @@ def run_point(task: tuple[int, str, Overrides]) -> tuple[int, dict | None, str |
     try:
         scn = scenario_file.load(source, ov, progress=scenario_file.silent)
         # one thread a run: a campaign is parallel across runs (a worker a core), never inside one
-        return index, Simulation(scn, threads=1).run().metrics, None
+        m = Simulation(scn, threads=1).run().metrics
+        m.setdefault("robots_alive_at_end", scn.n)  # no faults: every robot (as swarm up's world counts them too)
+        return index, m, None
     except (SimulationError, ScenarioError) as e:
         return index, None, str(e)
     except Exception as e:  # anything else ends this run, not the campaign: it is reported with the run

@@ -224,7 +224,7 @@ def open_bus(args, mode: str = "client", listen: list[str] | None = None, timeou
                 if hopeless:
                     end = now  # no router will change that: say it now
                 if now < end and not (stop is not None and stop.is_set()):
-                    log.warning("still no router after %g s, waiting up to %g s more: %s", SAY_WAIT_S, end - now,
+                    log.warning("still no router after %g s, waiting up to %.1f s more: %s", SAY_WAIT_S, end - now,
                                 why or zenoh_error(e))
                     told = True
                 else:
@@ -344,9 +344,13 @@ def write_metrics(metrics_path: Path, log_dir: Path, metrics: dict) -> None:
 
 
 def record_rate(args) -> float:
-    """--record-hz (default swarm.view.record.DEFAULT_RECORD_HZ), refused without --record rather than ignored."""
+    """--record-hz (default swarm.view.record.DEFAULT_RECORD_HZ), refused without --record rather than ignored; a
+    --record path not named *.mcap refused."""
     if args.record_hz is not None and args.record is None:
         raise BadInput("--record-hz needs --record PATH.mcap")
+    if args.record is not None and args.record.suffix.lower() != ".mcap":
+        raise BadInput(f"--record {args.record}: a recording is an MCAP file, name it *.mcap (swarm report, swarm "
+                       "replay and Foxglove know it by that)")
     if args.record_hz is None:
         from swarm.view.record import DEFAULT_RECORD_HZ
 

@@ -25,6 +25,7 @@ class StatusLine:
         self.min_gap = 1.0 / hz if self.tty else log_every
         self.last = -1e9
         self.width = 0
+        self.pending: str | None = None  # the last text not shown (too soon after the one before): close() shows it
         self._lock = threading.RLock()
 
     def update(self, text: str, force: bool = False) -> None:
@@ -36,7 +37,9 @@ class StatusLine:
     def _update(self, text: str, force: bool) -> None:
         now = time.monotonic()
         if not force and now - self.last < self.min_gap:
+            self.pending = text
             return
+        self.pending = None
         self.last = now
         if self.tty:
             cols = shutil.get_terminal_size((100, 20)).columns
@@ -70,11 +73,15 @@ class StatusLine:
             self.last = -1e9
 
     def close(self) -> None:
-        """End the line (on a terminal) so later output starts on a fresh line."""
-        if self.enabled and self.tty and self.width:
-            self.stream.write("\n")
-            self.stream.flush()
-            self.width = 0
+        """Show the last update if it was held back (the run's final state), then end the line (on a terminal) so
+        later output starts on a fresh line."""
+        with self._lock:
+            if self.enabled and self.pending is not None:
+                self._update(self.pending, force=True)
+            if self.enabled and self.tty and self.width:
+                self.stream.write("\n")
+                self.stream.flush()
+                self.width = 0
 
 
 def bar(fraction: float, width: int = 24) -> str:
@@ -137,7 +144,7 @@ def summary(m: dict, name: str) -> str:
         conv_text = fmt(conv, "s")
     rows = [
         ("scenario", f"{name}  ({m['robots']} robots, {m['obstacles']} obstacles, seed {m['seed']}, dt {m['dt']:g} s"
-                     f"{', governor on' if m.get('governor') else ''})"),
+                     f"{', governor on' if m.get('governor') else ', governor off'})"),
         ("simulated", fmt(m["duration_s"], "s") + ("  (interrupted)" if m["interrupted"] else "")),
         ("converged at", conv_text),
         ("final errors", f"position {fmt(m['final_position_error_max_m'], 'm', 3)}, "

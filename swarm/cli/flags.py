@@ -320,10 +320,13 @@ def add_ros2_flags(g, world: bool | str = False) -> None:
                                                                       if world == "up" else ""))
 
 
-def add_net_flags(p: argparse.ArgumentParser, listen: bool = False, connect_help: str | None = None) -> None:
+def add_net_flags(p: argparse.ArgumentParser, listen: bool = False, connect_help: str | None = None,
+                  starts: bool = False) -> None:
+    """The flags of a command on the bus: --log-level, and zenoh's (--listen when it may run a router, --connect,
+    --fleet, --zenoh-config, --secure). starts: it starts the other processes (swarm up)."""
     p.add_argument("--log-level", choices=("debug", "info", "warning", "error"), metavar="LEVEL",
-                   help="what the process logs on stderr: debug, info (default), warning or error; swarm up passes "
-                        "it to every process it starts (their logs are in its log folder)")
+                   help="what the process logs on stderr: debug, info (default), warning or error" +
+                        ("; passed to every process it starts (their logs are in its log folder)" if starts else ""))
     g = p.add_argument_group("network (zenoh)")
     if listen:
         g.add_argument("--listen", action="append", metavar="ENDPOINT",

@@ -69,19 +69,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     if getattr(args, "log_level", None):  # for this process and every process it starts (their environment)
         os.environ["SWARM_LOG_LEVEL"] = args.log_level
 
+    name = " ".join(w for w in (args.command, getattr(args, "action", None)) if w)  # "scenario check" too
     try:
         return run_command(args.func, args, started)
     except (ScenarioError, BadInput) as e:
-        print(f"swarm {args.command}: error: {e}", file=sys.stderr)
+        print(f"swarm {name}: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except Refused as e:
-        print(f"swarm {args.command}: refused: {e}", file=sys.stderr)
+        print(f"swarm {name}: refused: {e}", file=sys.stderr)
         return EXIT_REFUSED
     except Failure as e:
-        print(f"swarm {args.command}: failed: {e}", file=sys.stderr)
+        print(f"swarm {name}: failed: {e}", file=sys.stderr)
         return EXIT_FAILURE
     except KeyboardInterrupt:
-        print(f"swarm {args.command}: interrupted", file=sys.stderr)
+        print(f"swarm {name}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     except BrokenPipeError:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
@@ -93,7 +94,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             what = f"{e.filename}" + (f" -> {e.filename2}" if e.filename2 is not None else "") + f": {e.strerror or e}"
         else:
             what = f"{type(e).__name__}: {e}"
-        print(f"swarm {args.command}: failed: {what} (set SWARM_DEBUG=1 for a traceback)", file=sys.stderr)
+        print(f"swarm {name}: failed: {what} (set SWARM_DEBUG=1 for a traceback)", file=sys.stderr)
         return EXIT_FAILURE
 
 

@@ -86,8 +86,35 @@ def given(args, *dests: str) -> list[str]:
     return [f"--{d.replace('_', '-')}" for d in dests if d in got]
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse's parser with a short error: the reason and where the flags are listed, not the whole usage (19
+    lines for swarm up) above it. Every subcommand's parser is one too (add_parser makes its parent's class)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message}\n({self.prog} --help lists its flags)\n")
+
+    def parse_known_args(self, args=None, namespace=None):
+        parsed, rest = super().parse_known_args(args, namespace)
+        vars(parsed).pop(GIVEN, None)  # _StoreOnce's bookkeeping
+        return parsed, rest
+
+
+class _StoreOnce(argparse._StoreAction):
+    """A flag with a value that may be given once: `--seed 1 --seed 2` is refused, not the first dropped."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        given = namespace.__dict__.setdefault(GIVEN, set())
+        if self.dest in given:
+            parser.error(f"{option_string} given twice (the second would replace the first): give it once")
+        given.add(self.dest)
+        super().__call__(parser, namespace, values, option_string)
+
+
+GIVEN = "_given_once"  # the namespace's set of _StoreOnce flags met so far (left out of the parsed arguments)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="swarm",
         description="Decentralized formation control of differential-drive robots (Eclipse Zenoh, meshcat).",
         epilog="Exit codes: 0 done, 1 runtime failure, 2 bad input, 3 finished but a check failed (collisions, "
@@ -190,4 +217,8 @@ def build_parser() -> argparse.ArgumentParser:
     sec_init.set_defaults(func="swarm.cli.secure:cmd_secure_init")
     add_runtime_parsers(sub)
     add_campaign_parser(sub)
+    for p in all_parsers(parser):  # every plain flag with a value: given once
+        for action in p._actions:
+            if type(action) is argparse._StoreAction and action.option_strings:
+                action.__class__ = _StoreOnce
     return parser

@@ -34,7 +34,7 @@ def add_runtime_parsers(sub) -> None:
                "swarm up --listen tcp/0.0.0.0:7447 (robots on other machines: docs/runtime.md, \"Running across machines\")")
     add_scenario_flags(up, "paper-50hz")
     add_run_flags(up, up=True)
-    add_net_flags(up, listen=True, connect_help="join the router at ENDPOINT instead of starting one")
+    add_net_flags(up, listen=True, connect_help="join the router at ENDPOINT instead of starting one", starts=True)
     g = up.add_argument_group("drive")
     g.add_argument("--drive", choices=("sim", "ros2"), default="sim",
                    help="ros2: the world simulates a ROS 2 fleet (cmd_vel and odometry in CDR on ROS 2 keys) and every "

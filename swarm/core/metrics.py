@@ -98,6 +98,7 @@ class Strands:
     def __init__(self, n: int) -> None:
         self._far_since = np.full(n, math.nan)  # since when each robot is beyond STRANDED_M (nan: it is not)
         self.stranded: dict[int, tuple[float, float]] = {}
+        self.ended: dict[int, float] = {}  # robot -> when it stopped being stranded (absent: it still is)
         self.now = 0  # robots stranded at the last sample
 
     def sample(self, t: float, pe: np.ndarray, live: np.ndarray, converged: int) -> None:
@@ -111,15 +112,21 @@ class Strands:
         since[~far] = math.nan
         since[far & np.isnan(since)] = t
         self.now = 0
+        for r in self.stranded:
+            if not far[r] and r not in self.ended:
+                self.ended[r] = t
         for i in np.flatnonzero(far & (t - since >= STRANDED_S - 1e-9)):
             self.stranded[int(i)] = (float(since[i]), float(pe[i]))
+            self.ended.pop(int(i), None)
             self.now += 1
 
     def keys(self) -> dict[str, Any]:
-        """The metrics' keys: `stranded` (ids) and `stranded_detail` (a line each)."""
+        """The metrics' keys: `stranded` (ids) and `stranded_detail` (a line each: since when, and until when if
+        it came back within 1 m of its slot or the rest of the swarm left the converged share)."""
         return {"stranded": sorted(self.stranded),
-                "stranded_detail": [f"robot {i} stranded {d:.1f} m from its slot since t = {since:g} s"
-                                    for i, (since, d) in sorted(self.stranded.items())]}
+                "stranded_detail": [f"robot {i} stranded {d:.1f} m from its slot " +
+                                    (f"from t = {since:g} s to {self.ended[i]:g} s" if i in self.ended else
+                                     f"since t = {since:g} s") for i, (since, d) in sorted(self.stranded.items())]}
 
 
 def in_contract_order(m: dict[str, Any]) -> dict[str, Any]:

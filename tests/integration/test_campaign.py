@@ -75,6 +75,7 @@ def test_a_campaign_writes_every_file_with_the_grid_values(small):
         dropping = r["drop"] == "0.3"
         assert (int(r["messages_dropped"]) > 0) == dropping
         assert (r["faults.dropped.state"] != "") == dropping  # the faults object, flattened, under faults only
+        assert r["robots_alive_at_end"] == "7"  # without faults too: every robot
         assert float(r["wallclock.wall_s"]) > 0
     scols, summ = read_csv(small / "summary.csv")
     assert [s["drop"] for s in summ] == ["0.0", "0.3"] and all(s["runs"] == "2" for s in summ)
@@ -83,7 +84,7 @@ def test_a_campaign_writes_every_file_with_the_grid_values(small):
         assert int(s["converged_runs"]) + int(s["not_converged_runs"]) == 2
         assert int(s["not_converged_runs"]) == sum(1 for r in mine if r["converged_at_s"] == "")
         assert float(s["min_robot_distance_m_min"]) == min(float(r["min_robot_distance_m"]) for r in mine)
-        assert s["collided_runs"] == "0"
+        assert s["collided_runs"] == "0" and s["robots_alive_at_end_min"] == "7"
     page = (small / "index.html").read_text()
     assert "swarm campaign --scenario paper-50hz --seeds 0-1 --drop 0.0,0.3 --robots 7 --duration 20.0" in page
     for name in ("convergence.png", "distance.png", "error.png", "summary.csv", "runs.csv"):

@@ -132,6 +132,7 @@ def test_sim_record_every_step_and_report(tmp_path):
     (("sim", "--record", "x.mcap", "--record-hz", "-1"), "must be a finite number >= 0"),
     (("up", "--record", "no/such/dir/x.mcap", "--robots", "3"), "does not exist"),
     (("sim", "--record-hz", "5"), "--record-hz needs --record"),
+    (("sim", "--record", "x.txt"), "--record x.txt: a recording is an MCAP file, name it *.mcap"),
     (("up", "--record-hz", "5", "--dry-run"), "--record-hz needs --record"),
 ])
 def test_bad_recording_input_is_refused_with_exit_2(tmp_path, args, message):

@@ -71,3 +71,39 @@ def test_a_robot_model_tightens_the_runs_limits_through_its_drive():
     slow = within_limits(replace(cfg, v_max=0.1, w_max=1.0), drive.speed_limits)
     assert (slow.v_max, slow.w_max) == (0.1, 1.0)
     assert within_limits(cfg, None) is cfg
+
+
+@pytest.mark.parametrize("argv", [["sim", "--seed", "1", "--seed", "2"], ["sim", "--robots", "5", "--robots=6"],
+                                  ["campaign", "--seeds", "0-1", "--seeds", "2", "-o", "x"],
+                                  ["scenario", "show", "paper", "--robots", "7", "--robots", "9"]])
+def test_a_flag_with_a_value_given_twice_is_refused_in_two_lines(argv, capsys):
+    """argparse keeps the last; the first would be dropped without a word. The error is the reason and where
+    the flags are listed, not the whole usage."""
+    with pytest.raises(SystemExit) as done:
+        main(argv)
+    assert done.value.code == 2
+    err = capsys.readouterr().err
+    assert "given twice (the second would replace the first)" in err and "usage:" not in err
+    assert len(err.strip().splitlines()) == 2 and "--help lists its flags" in err
+
+
+def test_a_repeatable_flag_may_still_be_repeated():
+    from swarm.cli.parser import build_parser, given_flags
+
+    args = build_parser().parse_args(["sim", "--kill", "1@2", "--kill", "2@3", "--quiet"])
+    assert args.kill == "1@2,2@3" and "_given_once" not in vars(args)
+    assert given_flags(["sim", "--seed", "3"]) == {"seed"}
+
+
+def test_the_status_line_shows_the_final_state_it_held_back():
+    import io
+
+    from swarm.cli.console import StatusLine
+
+    out = io.StringIO()
+    line = StatusLine(stream=out, log_every=60.0)
+    line.update("t 1/20")
+    line.update("t 20/20")  # within log_every of the first: held back
+    assert out.getvalue() == "t 1/20\n"
+    line.close()
+    assert out.getvalue() == "t 1/20\nt 20/20\n"

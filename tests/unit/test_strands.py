@@ -41,3 +41,9 @@ def test_a_dead_robot_is_never_stranded_and_a_robot_back_in_time_is_not():
     assert run(lambda t: [30.0] + [0.01] * 9, live=live).stranded == {}
     s = run(lambda t: [3.0 if t % 15.0 < 9.0 else 0.01] + [0.01] * 9)  # far for 9 s at a time, never 10
     assert s.stranded == {}
+
+
+def test_a_robot_that_comes_back_is_still_said_to_have_been_stranded_and_until_when():
+    s = run(lambda t: [2.0 if t < 25.0 else 0.01] + [0.01] * 9)
+    assert list(s.stranded) == [0] and s.now == 0
+    assert s.keys()["stranded_detail"] == ["robot 0 stranded 2.0 m from its slot from t = 0 s to 25 s"]
