@@ -41,8 +41,9 @@ def wait_until(pred, timeout_s: float, what: str, poke=None, every_s: float = 0.
 
 def up(tmp_path: Path, *args: str, fleet: str = "t") -> tuple[list[str], Path]:
     metrics = tmp_path / "metrics.json"
+    timeout = () if "--start-timeout" in args else ("--start-timeout", "60")  # a flag given twice is refused
     cmd = [sys.executable, "-m", "swarm.cli", "up", "--listen", f"tcp/127.0.0.1:{free_port()}", "--fleet", fleet,
-           "--metrics", str(metrics), "--log-dir", str(tmp_path / "logs"), "--start-timeout", "60", "--no-viz", *args]
+           "--metrics", str(metrics), "--log-dir", str(tmp_path / "logs"), *timeout, "--no-viz", *args]
     return cmd, metrics
 
 

@@ -168,7 +168,11 @@ def test_bad_input_is_refused_before_any_run(tmp_path, args, said):
     out = tmp_path / "out"
     if "-o" not in args:
         args += ["-o", str(out)]
-    p = swarm("campaign", *SMALL, *args)
+    base = list(SMALL)
+    for flag in set(args) & set(base[::2]):  # a flag the case sets itself (a flag given twice is refused)
+        at = base.index(flag)
+        del base[at:at + 2]
+    p = swarm("campaign", *base, *args)
     assert p.returncode == 2, (p.returncode, p.stderr)
     assert said in p.stderr, p.stderr
     assert not out.exists()  # refused before anything was written
