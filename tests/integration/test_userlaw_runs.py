@@ -46,22 +46,29 @@ def test_lockstep_up_equals_sim_with_a_law_of_ones_own(tmp_path, faults):
     assert m["mode"] == "lockstep" and m["collisions"] == 0 and m["freeze_intervals"] == 0
 
 
+def failing_law(tmp_path: Path, name: str, failure: str) -> tuple[Path, subprocess.CompletedProcess]:
+    """examples/goto_slot.toml with laws/NAME.py:NAME, a law that does `failure` from t = 1 s (moves at 0.1 m/s
+    before), and the `swarm sim` run of it."""
+    (tmp_path / "laws").mkdir()
+    (tmp_path / "laws" / f"{name}.py").write_text(
+        f"def {name}(me, ref, bodies, params, *, t):\n"
+        "    if t >= 1.0 and me[0] > -1e9:\n"
+        f"        {failure}\n"
+        "    return 0.1, 0.0\n")
+    scn = tmp_path / f"{name}.toml"
+    scn.write_text((EXAMPLES / "goto_slot.toml").read_text().replace("laws/goto_slot.py:goto_slot",
+                                                                       f"laws/{name}.py:{name}"))
+    return scn, subprocess.run([sys.executable, "-m", "swarm.cli", "sim", "--scenario", str(scn), *SMALL, "--quiet"],
+                               capture_output=True, text=True, timeout=240)
+
+
 @pytest.mark.integration
 def test_a_law_that_raises_ends_the_run_naming_the_law_the_robot_and_the_step(tmp_path):
-    (tmp_path / "laws").mkdir()
-    (tmp_path / "laws" / "late.py").write_text(
-        "def late(me, ref, bodies, params, *, t):\n"
-        "    if t >= 1.0 and me[0] > -1e9:\n"
-        "        raise ValueError('too late')\n"
-        "    return 0.1, 0.0\n")
-    scn = (EXAMPLES / "goto_slot.toml").read_text().replace("laws/goto_slot.py:goto_slot", "laws/late.py:late")
-    (tmp_path / "late.toml").write_text(scn)
-    done = subprocess.run([sys.executable, "-m", "swarm.cli", "sim", "--scenario", str(tmp_path / "late.toml"),
-                           *SMALL, "--quiet"], capture_output=True, text=True, timeout=240)
+    scn, done = failing_law(tmp_path, "late", "raise ValueError('too late')")
     assert done.returncode == 1, done.stderr
     assert "the law 'laws/late.py:late' raised ValueError: too late for robot 0 at step 50 (t = 1 s)" in done.stderr
     # swarm up: the robots' processes stop with that line (never restarted) and the run ends with it
-    cmd, metrics = up(tmp_path, "--scenario", str(tmp_path / "late.toml"), *SMALL, "--quiet")
+    cmd, metrics = up(tmp_path, "--scenario", str(scn), *SMALL, "--quiet")
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
     assert done.returncode == 1, done.stderr
     said = re.search(r"robot \d refused to go on \(robot (\d): the law '(\S+)' raised ValueError: too late at step 50 "
@@ -72,16 +79,7 @@ def test_a_law_that_raises_ends_the_run_naming_the_law_the_robot_and_the_step(tm
 
 @pytest.mark.integration
 def test_a_law_that_returns_inf_ends_the_run_saying_so_not_that_it_raised(tmp_path):
-    (tmp_path / "laws").mkdir()
-    (tmp_path / "laws" / "inf.py").write_text(
-        "def inf(me, ref, bodies, params, *, t):\n"
-        "    if t >= 1.0:\n"
-        "        return float('inf'), 0.0\n"
-        "    return 0.1, 0.0\n")
-    scn = (EXAMPLES / "goto_slot.toml").read_text().replace("laws/goto_slot.py:goto_slot", "laws/inf.py:inf")
-    (tmp_path / "inf.toml").write_text(scn)
-    done = subprocess.run([sys.executable, "-m", "swarm.cli", "sim", "--scenario", str(tmp_path / "inf.toml"),
-                           *SMALL, "--quiet"], capture_output=True, text=True, timeout=240)
+    _, done = failing_law(tmp_path, "inf", "return float('inf'), 0.0")
     assert done.returncode == 1, done.stderr
     assert ("the law 'laws/inf.py:inf' gave robot 0 a command at t = 1 s (step 50) that made its pose non-finite"
             in done.stderr), done.stderr
