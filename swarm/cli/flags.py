@@ -181,16 +181,6 @@ def _probability(text: str) -> float:
     return value
 
 
-class Once(argparse.Action):
-    """A flag that may be given once: a second one would silently replace the first (a fault the user asked for
-    would not happen), so it is refused."""
-
-    def __call__(self, parser, namespace, values, option_string=None):
-        if getattr(namespace, self.dest, None) is not None:
-            parser.error(f"{option_string} given twice (the second would replace the first): give it once")
-        setattr(namespace, self.dest, values)
-
-
 class Joined(argparse.Action):
     """A comma-list flag that may be repeated: `--kill 2@5 --kill 3@6` is `--kill 2@5,3@6`."""
 
@@ -201,9 +191,9 @@ class Joined(argparse.Action):
 
 def add_fault_flags(g) -> None:
     """Faults (docs/faults.md): a table of their own, and the two shorthands."""
-    g.add_argument("--faults", metavar="FILE", action=Once,
+    g.add_argument("--faults", metavar="FILE",
                    help="a TOML file holding a [faults] table: it replaces the scenario's (docs/faults.md)")
-    g.add_argument("--drop", type=_probability, metavar="P", action=Once,
+    g.add_argument("--drop", type=_probability, metavar="P",
                    help="lose every message (state, pose, cmd, ref) with probability P: one drop rule of class all")
     g.add_argument("--kill", metavar="ID@T,...", action=Joined,
                    help="kill robot ID's process at T s (for example 2@15,5@15; repeatable): one kill rule a robot. "

@@ -7,7 +7,6 @@ from pathlib import Path
 
 from swarm.cli.flags import (
     Joined,
-    Once,
     add_violation_flag,
     count_arg,
     drop_list,
@@ -42,7 +41,7 @@ def add_campaign_parser(sub) -> None:
     g.add_argument("--seeds", type=seed_list, metavar="A-B",
                    help="the seeds: A-B (both included), A, or a comma list of those (e.g. 0-9); required "
                         "unless --from")
-    g.add_argument("--drop", type=drop_list, metavar="P1,P2,...", action=Once,
+    g.add_argument("--drop", type=drop_list, metavar="P1,P2,...",
                    help="drop probabilities: each adds one drop rule of class all (every message) to the faults; "
                         "0: no rule (default: 0 only)")
     g = c.add_argument_group("every run (a flag beats the scenario file, which beats the built-in default)")
@@ -51,7 +50,7 @@ def add_campaign_parser(sub) -> None:
     g.add_argument("--dt", type=positive_float, metavar="DT", help="control period [s]")
     g.add_argument("--governor", action=argparse.BooleanOptionalAction, default=None,
                    help="the discrete-time safety governor (default: the scenario's control.governor)")
-    g.add_argument("--faults", metavar="FILE", action=Once,
+    g.add_argument("--faults", metavar="FILE",
                    help="a TOML file holding a [faults] table: it replaces the scenario's in every run; the --drop "
                         "rule is added to it")
     g.add_argument("--kill", metavar="ID@T,...", action=Joined,
