@@ -198,7 +198,7 @@ def test_scenario_scale_writes_a_scenario_that_fits_and_says_its_time_scale(tmp_
 @pytest.mark.timeout(300)
 def test_swarm_sim_says_when_it_compiles_the_loop_it_is_about_to_run(tmp_path):
     """A first run says it compiles (the parallel twin from 256 robots too); the same run again does not; a run that
-    needs another loop (the other twin, the fault kernel) says so again."""
+    needs the other loop says so again (the fault kernel's: tests/unit/test_cli_args.py)."""
     env = {**os.environ, "SWARM_CACHE_DIR": str(tmp_path / "cache")}
 
     def said(*flags: str) -> bool:
@@ -209,4 +209,3 @@ def test_swarm_sim_says_when_it_compiles_the_loop_it_is_about_to_run(tmp_path):
 
     assert said("--robots", "300") and not said("--robots", "300")
     assert said("--robots", "300", "--threads", "1") and not said("--robots", "20")
-    assert said("--robots", "20", "--drop", "0.1") and not said("--robots", "20", "--drop", "0.2")

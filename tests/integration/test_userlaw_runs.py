@@ -46,42 +46,45 @@ def test_lockstep_up_equals_sim_with_a_law_of_ones_own(tmp_path, faults):
     assert m["mode"] == "lockstep" and m["collisions"] == 0 and m["freeze_intervals"] == 0
 
 
-def failing_law(tmp_path: Path, name: str, failure: str) -> tuple[Path, subprocess.CompletedProcess]:
-    """examples/goto_slot.toml with laws/NAME.py:NAME, a law that does `failure` from t = 1 s (moves at 0.1 m/s
-    before), and the `swarm sim` run of it."""
+def failing_law(tmp_path: Path, k1: float) -> tuple[Path, subprocess.CompletedProcess]:
+    """examples/goto_slot.toml with laws/fail.py:fail, a law that moves at 0.1 m/s until t = 1 s, then raises
+    ValueError (params[0] = k1 > 0.25) or returns v = inf; and the `swarm sim` run of it. One law for both cases:
+    numba compiles it once (its cache is per law file and name)."""
     (tmp_path / "laws").mkdir()
-    (tmp_path / "laws" / f"{name}.py").write_text(
-        f"def {name}(me, ref, bodies, params, *, t):\n"
+    (tmp_path / "laws" / "fail.py").write_text(
+        "def fail(me, ref, bodies, params, *, t):\n"
         "    if t >= 1.0 and me[0] > -1e9:\n"
-        f"        {failure}\n"
+        "        if params[0] > 0.25:\n"
+        "            raise ValueError('too late')\n"
+        "        return float('inf'), 0.0\n"
         "    return 0.1, 0.0\n")
-    scn = tmp_path / f"{name}.toml"
-    scn.write_text((EXAMPLES / "goto_slot.toml").read_text().replace("laws/goto_slot.py:goto_slot",
-                                                                       f"laws/{name}.py:{name}"))
+    scn = tmp_path / "fail.toml"
+    text = (EXAMPLES / "goto_slot.toml").read_text().replace("laws/goto_slot.py:goto_slot", "laws/fail.py:fail")
+    scn.write_text(text.replace("params = [0.5,", f"params = [{k1},"))
     return scn, subprocess.run([sys.executable, "-m", "swarm.cli", "sim", "--scenario", str(scn), *SMALL, "--quiet"],
                                capture_output=True, text=True, timeout=240)
 
 
 @pytest.mark.integration
 def test_a_law_that_raises_ends_the_run_naming_the_law_the_robot_and_the_step(tmp_path):
-    scn, done = failing_law(tmp_path, "late", "raise ValueError('too late')")
+    scn, done = failing_law(tmp_path, 0.5)
     assert done.returncode == 1, done.stderr
-    assert "the law 'laws/late.py:late' raised ValueError: too late for robot 0 at step 50 (t = 1 s)" in done.stderr
+    assert "the law 'laws/fail.py:fail' raised ValueError: too late for robot 0 at step 50 (t = 1 s)" in done.stderr
     # swarm up: the robots' processes stop with that line (never restarted) and the run ends with it
     cmd, metrics = up(tmp_path, "--scenario", str(scn), *SMALL, "--quiet")
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
     assert done.returncode == 1, done.stderr
     said = re.search(r"robot \d refused to go on \(robot (\d): the law '(\S+)' raised ValueError: too late at step 50 "
                      r"\(t = 1 s\); log: ", done.stderr + done.stdout)
-    assert said and said.group(2).endswith("late.py:late"), done.stderr + done.stdout
+    assert said and said.group(2).endswith("fail.py:fail"), done.stderr + done.stdout
     assert "refused to go on" in json.loads(metrics.read_text())["failure"]
 
 
 @pytest.mark.integration
 def test_a_law_that_returns_inf_ends_the_run_saying_so_not_that_it_raised(tmp_path):
-    _, done = failing_law(tmp_path, "inf", "return float('inf'), 0.0")
+    _, done = failing_law(tmp_path, 0.1)
     assert done.returncode == 1, done.stderr
-    assert ("the law 'laws/inf.py:inf' gave robot 0 a command at t = 1 s (step 50) that made its pose non-finite"
+    assert ("the law 'laws/fail.py:fail' gave robot 0 a command at t = 1 s (step 50) that made its pose non-finite"
             in done.stderr), done.stderr
     assert "raised" not in done.stderr and "Traceback" not in done.stderr
 
