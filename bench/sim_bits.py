@@ -15,6 +15,8 @@ import argparse
 import subprocess
 import sys
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -46,28 +48,39 @@ def run(tree: Path, cache: Path, name: str, n: int, duration: float) -> str:
     return done.stdout.strip()
 
 
+def build(tree: Path) -> None:
+    """The C modules of `tree`, built in place (setup.py), so both trees run the same kind of robot code."""
+    subprocess.run([sys.executable, "setup.py", "-q", "build_ext", "--inplace"], cwd=tree, check=True,
+                   capture_output=True)
+
+
+@contextmanager
+def worktree(commit: str, tmp: Path) -> Iterator[Path]:
+    """COMMIT checked out in a temporary git worktree under tmp, its C modules built; removed afterwards."""
+    old = tmp / "old"
+    subprocess.run(["git", "worktree", "add", "--detach", "-q", str(old), commit], cwd=ROOT, check=True)
+    try:
+        build(old)
+        yield old
+    finally:
+        subprocess.run(["git", "worktree", "remove", "--force", str(old)], cwd=ROOT, check=False)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--old", required=True, help="the commit to compare this tree with")
     a = ap.parse_args(argv)
     differ = 0
-    with tempfile.TemporaryDirectory(prefix="swarm-bits-") as tmp:
-        old = Path(tmp) / "old"
-        subprocess.run(["git", "worktree", "add", "--detach", "-q", str(old), a.old], cwd=ROOT, check=True)
-        try:
-            for tree in (ROOT, old):
-                subprocess.run([sys.executable, "setup.py", "-q", "build_ext", "--inplace"], cwd=tree, check=True,
-                               capture_output=True)
-            print(f"{'case':22} {'this tree (samples, metrics, collisions)':44} {a.old}")
-            for name, n, duration in CASES:
-                new = run(ROOT, Path(tmp) / "cache-new", name, n, duration)
-                was = run(old, Path(tmp) / "cache-old", name, n, duration)
-                same = new == was
-                differ += not same
-                print(f"{name + ' ' + str(n) + ' ' + format(duration, 'g') + ' s':22} {new:44} {was}"
-                      f"{'' if same else '   DIFFERENT'}", flush=True)
-        finally:
-            subprocess.run(["git", "worktree", "remove", "--force", str(old)], cwd=ROOT, check=False)
+    with tempfile.TemporaryDirectory(prefix="swarm-bits-") as tmp, worktree(a.old, Path(tmp)) as old:
+        build(ROOT)
+        print(f"{'case':22} {'this tree (samples, metrics, collisions)':44} {a.old}")
+        for name, n, duration in CASES:
+            new = run(ROOT, Path(tmp) / "cache-new", name, n, duration)
+            was = run(old, Path(tmp) / "cache-old", name, n, duration)
+            same = new == was
+            differ += not same
+            print(f"{name + ' ' + str(n) + ' ' + format(duration, 'g') + ' s':22} {new:44} {was}"
+                  f"{'' if same else '   DIFFERENT'}", flush=True)
     print("the same bits" if not differ else f"{differ} of {len(CASES)} cases differ")
     return 1 if differ else 0
 

@@ -86,6 +86,9 @@ def given(args, *dests: str) -> list[str]:
     return [f"--{d.replace('_', '-')}" for d in dests if d in got]
 
 
+GIVEN = "_given_once"  # the namespace's set of _StoreOnce flags met so far (left out of the parsed arguments)
+
+
 class Parser(argparse.ArgumentParser):
     """argparse's parser with a short error: the reason and where the flags are listed, not the whole usage (19
     lines for swarm up) above it. Every subcommand's parser is one too (add_parser makes its parent's class)."""
@@ -108,9 +111,6 @@ class _StoreOnce(argparse._StoreAction):
             parser.error(f"{option_string} given twice (the second would replace the first): give it once")
         given.add(self.dest)
         super().__call__(parser, namespace, values, option_string)
-
-
-GIVEN = "_given_once"  # the namespace's set of _StoreOnce flags met so far (left out of the parsed arguments)
 
 
 def build_parser() -> argparse.ArgumentParser:

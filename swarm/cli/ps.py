@@ -50,6 +50,6 @@ def cmd_ps(args, started: float) -> int:
         return EXIT_OK
     print(table(rows, now))
     fleets = sorted({r["fleet"] for r in rows})
-    print(f"{len(rows)} process{'es' if len(rows) != 1 else ''} in {len(fleets)} fleet{'s' if len(fleets) != 1 else ''} ({', '.join(fleets)}) "
-          f"on {where}")
+    processes = f"{len(rows)} process{'es' if len(rows) != 1 else ''}"
+    print(f"{processes} in {len(fleets)} fleet{'s' if len(fleets) != 1 else ''} ({', '.join(fleets)}) on {where}")
     return EXIT_OK
