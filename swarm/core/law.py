@@ -94,7 +94,17 @@ def wrap_angle(a: float) -> float:
     """Wrap an angle [rad] into (-pi, pi]."""
     if -PI < a <= PI:
         return a  # exact: no rounding for angles already in range
-    w = a % TWO_PI  # Python's float modulo is exact: [0, 2 pi) for every finite a
+    if -2.0 * TWO_PI < a < 2.0 * TWO_PI:
+        # Python's a % TWO_PI without fmod (a call): fmod(a, TWO_PI) is a, or a -+ TWO_PI for |a| >= TWO_PI,
+        # which is exact there (Sterbenz: TWO_PI <= |a| <= 2 TWO_PI); then float % 's own step to [0, TWO_PI)
+        # (and fmod's -0.0 made +0.0) as in CPython's float_rem: the same bits as the line below
+        w = a - TWO_PI if a >= TWO_PI else (a + TWO_PI if a <= -TWO_PI else a)
+        if w < 0.0:
+            w += TWO_PI
+        elif w == 0.0:
+            w = 0.0
+    else:
+        w = a % TWO_PI  # Python's float modulo is exact: [0, 2 pi) for every finite a
     if w > PI:
         w -= TWO_PI
     return w
@@ -173,7 +183,13 @@ def tracking_command(x: float, y: float, th: float, xd: float, yd: float, thd: f
     s = math.sin(th)
     ex = c * cx + s * cy
     ey = -s * cx + c * cy
-    v = vl * math.cos(eth) + k1 * ex
+    kx = k1 * ex
+    if vl == 0.0 and kx != 0.0 and eth == eth:
+        # frozen (the law then takes v_l = 0): v_l cos(e_theta) is a signed zero, and kx plus a zero is kx, bit
+        # for bit (round to nearest); so no cos, the cost of most robot-steps in a crowd (NaN e_theta: below)
+        v = kx
+    else:
+        v = vl * math.cos(eth) + kx
     w = wl + k2 * sgn_gain(vl) * ey + k3 * eth
     return v, w, ex, ey, eth
 

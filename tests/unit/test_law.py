@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from swarm.core import kinematics, law
+from swarm.core import jit, kinematics, law
 from swarm.core import scenario_file as sf
 from swarm.core.scenario import Control, Leader, Segment
 
@@ -198,6 +198,28 @@ def test_wrap_angle_of_large_values_is_in_range_and_congruent(scale):
         assert d <= np.spacing(abs(a)) + 1e-15
 
 
+def test_wrap_angle_without_fmod_gives_the_modulo_s_bits():
+    """Below 2 TWO_PI in size wrap_angle subtracts instead of calling fmod: the same bits as Python's %."""
+    def by_modulo(a: float) -> float:
+        if -law.PI < a <= law.PI:
+            return a
+        w = a % law.TWO_PI
+        return w - law.TWO_PI if w > law.PI else w
+
+    rng = np.random.default_rng(7)
+    edges = [law.PI, law.TWO_PI, 2 * law.TWO_PI, 3 * law.PI]
+    values = list(rng.uniform(-2.5 * law.TWO_PI, 2.5 * law.TWO_PI, 20000))
+    for e in edges:
+        for x in (e, -e):
+            values += [x, np.nextafter(x, 0.0), np.nextafter(x, 2 * x), x + 1e-9, x - 1e-9]
+    for a in map(float, values):
+        w, m = law.wrap_angle(a), by_modulo(a)
+        assert w == m and math.copysign(1.0, w) == math.copysign(1.0, m), f"wrap_angle({a!r}) = {w!r}, % gives {m!r}"
+    compiled = jit.compiled("swarm.core.law").wrap_angle  # numba's float ops, the simulator's copy
+    for a in map(float, values):
+        assert compiled(a) == law.wrap_angle(a), a
+
+
 @pytest.mark.parametrize("a", [1e18, -1e18])
 def test_wrap_angle_of_huge_values_is_in_range(a):
     rng = np.random.default_rng(6)
@@ -226,6 +248,31 @@ def test_omega_uses_k2_sgn_vl_ey_and_plain_k2_ey_when_vl_is_zero(vl, sgn):
         assert_allclose([ex, ey, eth], [ex_hand, ey_hand, eth_hand], rtol=1e-12, atol=1e-12)
         assert_allclose(w, wl + K2 * sgn * ey_hand + K3 * eth_hand, rtol=1e-12, atol=1e-12)
         assert_allclose(v, vl * math.cos(eth_hand) + K1 * ex_hand, rtol=1e-12, atol=1e-12)
+
+
+def test_v_without_the_cos_at_a_zero_vl_has_the_bits_of_the_plain_formula():
+    """v_l = +-0 (frozen) skips cos(e_theta): v = k1 E_x has the bits of v_l cos(e_theta) + k1 E_x, signed zeros
+    (E_x = 0, k1 = 0) and a NaN e_theta included."""
+    def plain(x, y, th, xd, yd, thd, vl, gx, gy, k1):
+        cx, cy = xd - x - gx, yd - y - gy
+        ex = math.cos(th) * cx + math.sin(th) * cy
+        return vl * math.cos(law.wrap_angle(thd - th)) + k1 * ex
+
+    rng = np.random.default_rng(8)
+    cases = [(0.0, 0.0, 0.0, 0.0, 0.0, thd, vl, 0.0, 0.0, k1)  # E_x = +-0: the sign of v is the zeros'
+             for thd in (0.3, -0.3, 2.0, -2.0, math.pi, math.nan) for vl in (0.0, -0.0) for k1 in (K1, 0.0, -K1)]
+    for _ in range(300):
+        x, y, xd, yd, gx, gy = rng.uniform(-5, 5, 6)
+        th, thd = rng.uniform(-7, 7, 2)
+        vl = float(rng.choice([0.0, -0.0, 0.5]))
+        cases += [(x, y, th, xd, yd, thd, vl, gx, gy, K1), (x, y, th, xd, yd, math.nan, vl, gx, gy, K1)]
+    compiled = jit.compiled("swarm.core.law").tracking_command
+    for x, y, th, xd, yd, thd, vl, gx, gy, k1 in cases:
+        want = plain(x, y, th, xd, yd, thd, vl, gx, gy, k1)
+        for f in (law.tracking_command, compiled):
+            v = f(x, y, th, xd, yd, thd, vl, 0.1, gx, gy, k1, K2, K3)[0]
+            assert (v == want and math.copysign(1.0, v) == math.copysign(1.0, want)) or (v != v and want != want), \
+                (f, x, y, th, xd, yd, thd, vl, k1, v, want)
 
 
 def test_frozen_robot_steers_with_plain_k2_ey_even_when_the_leader_reverses():
