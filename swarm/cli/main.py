@@ -1,6 +1,7 @@
 """`swarm`'s entry point: parse the command line, run the command, turn errors into exit codes.
 
-Exit codes (every command): 0 done, 1 runtime failure, 2 bad input, 130 interrupted.
+Exit codes: 0 done, 1 runtime failure, 2 bad input, 3 finished but a check failed, 4 `swarm robot` refused
+its run (its law failed), 130 interrupted (docs/metrics.md).
 A command-line flag beats the scenario file, which beats the built-in default.
 """
 

@@ -118,7 +118,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="swarm",
         description="Decentralized formation control of differential-drive robots (Eclipse Zenoh, meshcat).",
         epilog="Exit codes: 0 done, 1 runtime failure, 2 bad input, 3 finished but a check failed (collisions, "
-               "missed commands, lock-step overruns, robots lost; --allow-violations: 0), 130 interrupted. "
+               "missed commands, lock-step overruns, robots lost; --allow-violations: 0), 4 swarm robot refused "
+               "its run (its law failed), 130 interrupted. "
                "Docs: README.md and docs/ in the repository.",
     )
     parser.add_argument("--version", action=VersionAction, help="print swarm's version and exit")
