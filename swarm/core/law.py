@@ -96,13 +96,11 @@ def wrap_angle(a: float) -> float:
         return a  # exact: no rounding for angles already in range
     if -2.0 * TWO_PI < a < 2.0 * TWO_PI:
         # Python's a % TWO_PI without fmod (a call): fmod(a, TWO_PI) is a, or a -+ TWO_PI for |a| >= TWO_PI,
-        # which is exact there (Sterbenz: TWO_PI <= |a| <= 2 TWO_PI); then float % 's own step to [0, TWO_PI)
-        # (and fmod's -0.0 made +0.0) as in CPython's float_rem: the same bits as the line below
+        # which is exact there (Sterbenz: TWO_PI <= |a| <= 2 TWO_PI); then float %'s own step to [0, TWO_PI)
+        # as in CPython's float_rem: the same bits as the line below (a zero here is +0.0, as %'s)
         w = a - TWO_PI if a >= TWO_PI else (a + TWO_PI if a <= -TWO_PI else a)
         if w < 0.0:
             w += TWO_PI
-        elif w == 0.0:
-            w = 0.0
     else:
         w = a % TWO_PI  # Python's float modulo is exact: [0, 2 pi) for every finite a
     if w > PI:
