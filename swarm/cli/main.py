@@ -52,10 +52,41 @@ def _dash_values(argv: Sequence[str], takes_value: set[str] | None = None) -> li
     return out
 
 
+class _PipeSafe:
+    """A console stream that outlives a closed pipe (`swarm sim ... | head -1`): the run goes on, and its files
+    and exit code are those it would have had; what it would still print goes to /dev/null."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            self._mute()
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._mute()
+
+    def _mute(self) -> None:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, self._stream.fileno())
+        os.close(devnull)
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     # wall_s runs from the command's start (docs/metrics.md): the interpreter's start and the
     # imports count too when this is the command (argv None); a caller in-process counts from here
     started = time.perf_counter() - (_process_age_s() if argv is None else 0.0)
+    if argv is None:  # the command itself (not a caller in-process): its console may be a pipe that closes
+        sys.stdout, sys.stderr = _PipeSafe(sys.stdout), _PipeSafe(sys.stderr)  # type: ignore[assignment]
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     if any(re.match(r"-[\d.]", a) for a in argv):  # rare: only then are the options walked
@@ -85,7 +116,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"swarm {name}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except BrokenPipeError:
+    except BrokenPipeError:  # a caller in-process whose own stream broke (the command's own: _PipeSafe)
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
     except Exception as e:  # a runtime failure: one line, plus the traceback on request

@@ -142,9 +142,27 @@ def test_interrupt_writes_metrics_and_exits_130(tmp_path, sig):
 def test_help_lists_commands_and_exit_codes():
     p = run(["--help"])
     assert p.returncode == 0
-    assert "sim" in p.stdout and "scenario" in p.stdout and "130 interrupted" in p.stdout
+    text = " ".join(p.stdout.split())  # argparse wraps the epilog at the terminal's width
+    assert "sim" in text and "scenario" in text and "130 interrupted" in text and "4 swarm robot refused" in text
     p = run(["sim", "--help"])
     assert "--governor" in p.stdout and "--plots" in p.stdout
+
+
+@pytest.mark.timeout(180)
+def test_a_console_pipe_that_closes_leaves_the_run_whole(tmp_path):
+    """`swarm sim ... | head -1`: the reader goes after one line; the run still ends, writes its metrics and exits
+    as it would have (not 0 at the first line it could not print)."""
+    out = tmp_path / "m.json"
+    p = subprocess.Popen(swarm_cmd() + ["sim", "--robots", "7", "--duration", "2", "--seed", "3", "--metrics",
+                                        str(out)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        assert p.stdout is not None and p.stdout.readline()
+        p.stdout.close()  # the pipe's reader is gone: every later write of the command's breaks
+        assert p.wait(timeout=150) == 0
+    finally:
+        p.kill()
+    m = json.loads(out.read_text())
+    assert m["duration_s"] == 2.0 and m["interrupted"] is False
 
 
 @pytest.mark.skipif(shutil.which("swarm") is None and not Path(sys.executable).with_name("swarm").exists(),
