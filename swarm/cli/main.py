@@ -86,7 +86,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # imports count too when this is the command (argv None); a caller in-process counts from here
     started = time.perf_counter() - (_process_age_s() if argv is None else 0.0)
     if argv is None:  # the command itself (not a caller in-process): its console may be a pipe that closes
-        sys.stdout, sys.stderr = _PipeSafe(sys.stdout), _PipeSafe(sys.stderr)  # type: ignore[assignment]
+        sys.stdout, sys.stderr = _PipeSafe(sys.stdout), _PipeSafe(sys.stderr)
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     if any(re.match(r"-[\d.]", a) for a in argv):  # rare: only then are the options walked
