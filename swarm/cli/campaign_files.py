@@ -56,9 +56,10 @@ def replay_command(args: argparse.Namespace, point: Point) -> str:
 
 def campaign_command(args: argparse.Namespace) -> str:
     """This campaign's command line, every flag spelled out (for index.html)."""
+    cluster = getattr(args, "cluster", None)  # where the runs ran: a Dask cluster's address, else -j processes
     out = ["swarm", "campaign", "--scenario", args.scenario, "--seeds", _seeds_text(args.seeds),
-           "--drop", ",".join(repr(p) for p in args.drop), *scenario_flags(args), "-j", str(args.jobs),
-           "-o", str(args.out)]
+           "--drop", ",".join(repr(p) for p in args.drop), *scenario_flags(args),
+           *(["--cluster", cluster] if cluster is not None else ["-j", str(args.jobs)]), "-o", str(args.out)]
     if args.allow_violations:
         out.append("--allow-violations")
     return shlex.join(out)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from swarm.cli.campaign import _worst
-from swarm.cli.campaign_files import cell, read_campaign, write_campaign_json
+from swarm.cli.campaign_files import campaign_command, cell, read_campaign, write_campaign_json
 from swarm.cli.campaign_up import Check, TraceDiff, compare_traces, line, metric_differences, row_differences
 from swarm.cli.common import BadInput
 
@@ -100,3 +100,15 @@ def test_campaign_json_reads_back_with_files_as_absolute_paths(tmp_path, monkeyp
     (tmp_path / "campaign.json").write_text('{"v": 1, "scenario": "paper"}')
     with pytest.raises(BadInput, match="not a campaign file of version 1 \\(missing: seeds, drop"):
         read_campaign(tmp_path)
+
+
+def test_the_campaign_s_command_names_where_its_runs_ran():
+    """campaign.json and index.html give the command that ran: --cluster ADDRESS for a Dask cluster (never -j,
+    which --cluster refuses), else -j N."""
+    args = argparse.Namespace(scenario="paper-50hz", seeds=(0, 1, 2, 3), drop=(0.0, 0.1), robots=None, duration=20.0,
+                              dt=None, governor=None, faults=None, kill=None, jobs=2, out="out", allow_violations=False,
+                              cluster="local:2")
+    assert campaign_command(args).endswith("--duration 20.0 --cluster local:2 -o out") and " -j " not in \
+        campaign_command(args)
+    args.cluster = None
+    assert campaign_command(args).endswith("--duration 20.0 -j 2 -o out")
