@@ -35,6 +35,9 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
                        "does not exist (the plots' folder itself is made if missing)"))
     if args.plots is not None:
         check_writable("--plots", args.plots, args.plots if args.plots.exists() else cast("Path", parent))
+    if args.threads is not None and args.threads > 1 and (scn.faults or scn.control.law is not None):
+        raise BadInput(f"--threads {args.threads}: a run with faults or a law of its own takes the serial loop, "
+                       "on one thread; leave --threads out")
     viz = viz_options(args, args.viz, "needs --viz", extra=(("--speed", args.speed),))
     if viz is not None:
         check_viz_port(viz)
@@ -84,8 +87,6 @@ def _simulation(args: argparse.Namespace, scn):
     if scn.control.law is None and args.python_law:
         raise BadInput("--python-law: the scenario runs the paper's law (control.law = \"paper\"); the flag is for "
                        "a law of your own")
-    if args.threads is not None and args.threads > 1 and (scn.faults or scn.control.law is not None) and not args.quiet:
-        print(f"--threads {args.threads}: a run with faults or a law of its own runs on one thread", file=sys.stderr)
     if scn.control.law is not None and not args.quiet:
         how = "as plain Python" if args.python_law else "compiled by numba (cached after the first run)"
         print(f"law: {scn.control.law.text} (sha256 {scn.control.law.sha256[:16]}...), {how}", file=sys.stderr)

@@ -140,8 +140,8 @@ def cmd_up(args, started: float) -> int:
         if note is not None:
             print(f"swarm up: warning: {note}", file=sys.stderr)
     if args.mode == "lockstep" and args.speed != 1.0:
-        log.warning("--speed %g has no effect in lock-step, which runs as fast as the robots answer; "
-                    "it applies with --mode realtime", args.speed)
+        raise BadInput(f"--speed {args.speed:g}: lock-step runs as fast as the robots answer, so it takes no speed; "
+                       "--speed applies with --mode realtime")
     if args.log_dir is not None and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
         raise BadInput(f"--log-dir {args.log_dir}: exists and is not a directory")
     if args.log_dir is not None and not Path(args.log_dir).absolute().parent.is_dir():

@@ -79,6 +79,7 @@ def test_paper_seed_through_cli_writes_contract_metrics(tmp_path):
         (["scenario", "scale", "paper-50hz"], "--v-max"),
         (["up", "--robots", "2", "--listen", "tcp/0.0.0.0:7500", "--viz-port", "7500", "--dry-run"],
          "--viz-port 7500: the router listens on"),
+        (["sim", "--duration", "1", "--drop", "0.1", "--threads", "2"], "--threads 2: a run with faults"),
     ],
 )
 def test_bad_command_line_exits_2_with_a_clear_message(args, needle):

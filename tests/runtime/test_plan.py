@@ -69,12 +69,12 @@ def test_dry_run_prints_the_plan_and_starts_nothing():
 
 
 @pytest.mark.integration
-def test_speed_in_lockstep_is_said_to_have_no_effect():
+def test_speed_in_lockstep_is_refused():
     base = [sys.executable, "-m", "swarm.cli", "up", "--robots", "2", "--dry-run", "--speed", "3"]
     out = subprocess.run(base, capture_output=True, text=True, timeout=60)
-    assert out.returncode == 0 and "--speed 3 has no effect in lock-step" in out.stderr
+    assert out.returncode == 2 and "--speed 3: lock-step runs as fast as the robots answer" in out.stderr
     out = subprocess.run(base + ["--mode", "realtime"], capture_output=True, text=True, timeout=60)
-    assert out.returncode == 0 and "no effect" not in out.stderr
+    assert out.returncode == 0 and "--speed" not in out.stderr
 
 
 @pytest.mark.unit
