@@ -101,6 +101,20 @@ class Parser(argparse.ArgumentParser):
         vars(parsed).pop(GIVEN, None)  # _StoreOnce's bookkeeping
         return parsed, rest
 
+    def parse_args(self, args=None, namespace=None):
+        """argparse's, but a word left over is the subcommand's error (`swarm sim: error: unrecognized
+        arguments: extra`), not the top parser's, which names no subcommand."""
+        parsed, rest = self.parse_known_args(args, namespace)
+        if rest:
+            target: argparse.ArgumentParser = self
+            for name in (getattr(parsed, "command", None), getattr(parsed, "action", None)):
+                subs = [a for a in target._actions if isinstance(a, argparse._SubParsersAction)]
+                if not subs or name not in subs[0].choices:
+                    break
+                target = subs[0].choices[name]
+            target.error(f"unrecognized arguments: {' '.join(rest)}")
+        return parsed
+
 
 class _StoreOnce(argparse._StoreAction):
     """A flag with a value that may be given once: `--seed 1 --seed 2` is refused, not the first dropped."""

@@ -87,6 +87,17 @@ def test_a_flag_with_a_value_given_twice_is_refused_in_two_lines(argv, capsys):
     assert len(err.strip().splitlines()) == 2 and "--help lists its flags" in err
 
 
+@pytest.mark.parametrize("argv, who", [(["sim", "extra"], "swarm sim"), (["up", "--threads", "1"], "swarm up"),
+                                       (["scenario", "check", "paper", "--bogus"], "swarm scenario check"),
+                                       (["--bogus"], "swarm")])
+def test_a_word_left_over_is_the_subcommand_s_error(argv, who, capsys):
+    with pytest.raises(SystemExit) as done:
+        main(argv)
+    assert done.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"{who}: error: unrecognized arguments: ") and argv[-1] in err and f"({who} --help" in err
+
+
 def test_a_repeatable_flag_may_still_be_repeated():
     from swarm.cli.parser import build_parser, given_flags
 
