@@ -84,6 +84,11 @@ class StatusLine:
                 self.width = 0
 
 
+def counted(n: int, noun: str) -> str:
+    """`1 obstacle`, `2 obstacles`: a count and its noun (an English plural in s)."""
+    return f"{n} {noun}" + ("" if n == 1 else "s")
+
+
 def bar(fraction: float, width: int = 24) -> str:
     fraction = min(max(fraction, 0.0), 1.0)
     full = int(round(fraction * width))
@@ -139,11 +144,11 @@ def summary(m: dict, name: str) -> str:
     conv = m["converged_at_s"]
     alive = m.get("robots_alive_at_end")
     if conv is None:
-        conv_text = "not converged" + (" (no robot alive)" if alive == 0 else "")
+        conv_text = "never (not by the end of the run)" if alive != 0 else "never (no robot alive)"
     else:
         conv_text = fmt(conv, "s")
     rows = [
-        ("scenario", f"{name}  ({m['robots']} robots, {m['obstacles']} obstacles, seed {m['seed']}, dt {m['dt']:g} s"
+        ("scenario", f"{name}  ({counted(m['robots'], 'robot')}, {counted(m['obstacles'], 'obstacle')}, seed {m['seed']}, dt {m['dt']:g} s"
                      f"{', governor on' if m.get('governor') else ', governor off'})"),
         ("simulated", fmt(m["duration_s"], "s") + ("  (interrupted)" if m["interrupted"] else "")),
         ("converged at", conv_text),
@@ -240,8 +245,8 @@ def realtime_text(m: dict) -> str:
     if isinstance(held, (int, float)):
         parts.append(f"robots held back {100 * held:.1f} % of the time")
     text = ": ".join(parts)
-    late = [f"{m[k]} {what}" for k, what in (("cmd_braked", "commands ran out (braked)"),
-                                             ("cmd_expired", "came too late")) if m.get(k)]
+    late = [f"{counted(m[k], 'command')} {what}" for k, what in (("cmd_braked", "ran out (braked)"),
+                                                                 ("cmd_expired", "came too late")) if m.get(k)]
     text += f"; {', '.join(late)}" if late else ""
     faults = m.get("faults")
     delayed = faults.get("delayed") if isinstance(faults, dict) else None

@@ -181,7 +181,8 @@ def cmd_scenario_check(args: argparse.Namespace, started: float) -> int:
         scn = scenario_file.load(f)
         if scn.control.law is not None:
             _check_law(f, scn.control.law, args.python_law, scn.dt)
-        print(f"{f}: ok ({scn.n} robots, {len(scn.obstacles)} obstacles, {scn.steps} steps of {scn.dt:g} s)")
+        print(f"{f}: ok ({console.counted(scn.n, 'robot')}, {console.counted(len(scn.obstacles), 'obstacle')}, "
+              f"{scn.steps} steps of {scn.dt:g} s)")
         for note in scenario_file.advisories(scn):
             print(f"{f}: warning: {note}")
     return EXIT_OK

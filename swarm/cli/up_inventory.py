@@ -257,8 +257,10 @@ def cmd_world_referee(args, started: float) -> int:
         import numpy as np
 
         np.savez_compressed(args.trace, q=np.array(ref.trace).reshape(-1, fleet.scenario.n, 3), dt=fleet.scenario.dt)
-    log.info("referee: done at t = %s s, converged at %s s, %d collisions, largest pose age %s s%s",
-             metrics["duration_s"], metrics["converged_at_s"], metrics["collisions"], metrics["max_pose_age_s"],
+    conv = metrics["converged_at_s"]
+    log.info("referee: done at t = %s s, %s, %d collisions, largest pose age %s s%s", metrics["duration_s"],
+             "not converged" if conv is None else f"converged at {conv} s", metrics["collisions"],
+             metrics["max_pose_age_s"],
              f"; FAILED: {metrics['failure']}" if metrics.get("failure") else "")
     bad = violations(metrics)
     if bad and not metrics["interrupted"] and not metrics.get("failure"):

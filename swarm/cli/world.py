@@ -72,8 +72,9 @@ def cmd_world(args, started: float) -> int:
 
         np.savez_compressed(args.trace, q=np.array(world.trace).reshape(-1, scn.n, 3), t=np.array(world.trace_t),
                             dt=scn.dt)
-    log.info("world: done at t = %s s, converged at %s s, %d collisions, %d misses%s",
-             metrics["duration_s"], metrics["converged_at_s"], metrics["collisions"], metrics["cmd_misses"],
+    conv = metrics["converged_at_s"]
+    log.info("world: done at t = %s s, %s, %d collisions, %d misses%s", metrics["duration_s"],
+             "not converged" if conv is None else f"converged at {conv} s", metrics["collisions"], metrics["cmd_misses"],
              f"; FAILED: {metrics['failure']}" if metrics.get("failure") else "")
     bad = violations(metrics)
     if bad and not metrics["interrupted"] and not metrics.get("failure"):

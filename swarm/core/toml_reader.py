@@ -92,7 +92,8 @@ class Reader:
 
     def integer(self, value: Any, key: str, *, ge: int = 0) -> int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise self.fail(key, f"must be an integer, got {kind(value)}")
+            raise self.fail(key, f"must be an integer, got {kind(value)}"
+                                 + (f" ({show(value)})" if isinstance(value, (float, str)) else ""))
         if value < ge:
             raise self.fail(key, f"must be >= {ge}, got {value}")
         return value

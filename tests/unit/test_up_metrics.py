@@ -71,6 +71,17 @@ def test_a_lock_step_summary_says_how_fast_the_run_went():
     assert "simulated s a wall s" not in summary({**m, "run_wall_s": None}, "paper-50hz")
 
 
+def test_the_summary_counts_in_words_and_says_never_for_a_run_that_did_not_converge():
+    from swarm.cli.console import summary
+
+    scn = scenario_file.load("paper-50hz", scenario_file.Overrides(robots=1), progress=scenario_file.silent)
+    m = {**metrics_from_progress(scn, "lockstep", None), "obstacles": 1, "duration_s": 3.0, "interrupted": False,
+         "converged_at_s": None, "cmd_braked": 1}
+    text = summary(m, "paper-50hz")
+    assert "(1 robot, 1 obstacle," in text and "converged at     never (not by the end of the run)" in text
+    assert "(2 robots, 3 obstacles," in summary({**m, "robots": 2, "obstacles": 3}, "paper-50hz")
+
+
 def test_the_summary_names_the_lost_and_stranded_robots_and_how_real_time_held_up():
     """The failed checks name the robots lost and stranded (stranded fails only a real-time run), and a real-time
     run's summary says how it held up under its load: the round trip's p99, the share of commands the safety rule
@@ -85,7 +96,7 @@ def test_the_summary_names_the_lost_and_stranded_robots_and_how_real_time_held_u
          "robot_restarts": 2, "leader_restarts": 1}
     text = summary(m, "paper-50hz")
     assert "robot restarts   2" in text and "leader restarts  1" in text  # every supervisor action
-    assert "round trip p99 41 ms: robots held back 2.7 % of the time; 250 commands ran out (braked), 12 came too late" \
+    assert "round trip p99 41 ms: robots held back 2.7 % of the time; 250 commands ran out (braked), 12 commands came too late" \
         in text
     assert "robot 0 stranded 21.8 m from its slot since t = 43 s" in text
     assert violations(m) == ["3 robots lost (1, 3, 5)", "robot 0 stranded"] and exit_status(m) == 3
