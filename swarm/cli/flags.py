@@ -162,10 +162,15 @@ def add_scenario_flags(p: argparse.ArgumentParser, default: str) -> None:
     g.add_argument("--scenario", default=default, metavar="NAME|FILE",
                    help=f"built-in name (paper, paper-50hz, turtlebot3) or a TOML file (default: {default})")
     g.add_argument("--robots", type=count_arg, metavar="N",
-                   help="number of robots (resizes built-in and generated scenarios)")
-    g.add_argument("--seed", type=seed_arg, metavar="S", help="random seed for starts and slot assignment")
-    g.add_argument("--duration", type=positive_float, metavar="T", help="simulated seconds to run")
-    g.add_argument("--dt", type=positive_float, metavar="DT", help="control period [s]")
+                   help="number of robots (resizes built-in and generated scenarios; default: the scenario's, 37 "
+                        "for paper)")
+    g.add_argument("--seed", type=seed_arg, metavar="S",
+                   help="random seed for starts and slot assignment (default: the scenario's run.seed, 0 for the "
+                        "built-ins)")
+    g.add_argument("--duration", type=positive_float, metavar="T",
+                   help="simulated seconds to run (default: the scenario's run.duration, 120 for paper)")
+    g.add_argument("--dt", type=positive_float, metavar="DT",
+                   help="control period [s] (default: the scenario's run.dt, 0.001 for paper, 0.02 for paper-50hz)")
     g.add_argument("--governor", action=argparse.BooleanOptionalAction, default=None,
                    help="the discrete-time safety governor (default: the scenario's control.governor)")
     add_fault_flags(g)

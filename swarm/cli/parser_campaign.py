@@ -46,7 +46,8 @@ def add_campaign_parser(sub) -> None:
                         "0: no rule (default: 0 only)")
     g = c.add_argument_group("every run (a flag beats the scenario file, which beats the built-in default)")
     g.add_argument("--robots", type=count_arg, metavar="N", help="number of robots (resizes built-in and generated scenarios)")
-    g.add_argument("--duration", type=positive_float, metavar="T", help="simulated seconds to run")
+    g.add_argument("--duration", type=positive_float, metavar="T",
+                   help="simulated seconds to run (default: the scenario's run.duration)")
     g.add_argument("--dt", type=positive_float, metavar="DT", help="control period [s]")
     g.add_argument("--governor", action=argparse.BooleanOptionalAction, default=None,
                    help="the discrete-time safety governor (default: the scenario's control.governor)")
