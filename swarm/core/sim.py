@@ -312,13 +312,18 @@ class Simulation:
 
 def kernel_cached(parallel: bool = False, faults: bool = False) -> bool:
     """Whether numba's cache holds the loop a run of the paper's law takes: the fault kernel's (serial), else
-    the kernel's serial or parallel twin. Its index is CACHE/[parallel/]core_HASH/MODULE.FUNCTION-LINE.pyXY.nbi
-    (a law of one's own has its own directory, law-HASH, and its own note)."""
+    the kernel's serial or parallel twin. Its index is CACHE/[parallel/]core_HASH/MODULE.FUNCTION-LINE.pyXY.nbi,
+    HASH numba's of the source's folder (another checkout of the same sources compiles its own; a law of one's
+    own has its own directory, law-HASH, and its own note)."""
+    from numba.core.caching import _CacheLocator
+
     from swarm.core import jit
 
+    module = "swarm.core.faultkernel" if faults else "swarm.core.kernel"
     loop = "faultkernel.run_fault_steps" if faults else "kernel.run_steps"
     where = jit.cache_dir() / "parallel" if parallel and not faults else jit.cache_dir()
-    return where.is_dir() and any(where.glob(f"core_*/{loop}-*.nbi"))
+    folder = where / _CacheLocator.get_suitable_cache_subpath(str(jit._source_path(module)))
+    return folder.is_dir() and any(folder.glob(f"{loop}-*.nbi"))
 
 
 def kernel_threads(scn: Scenario, threads: int | None = None) -> int:

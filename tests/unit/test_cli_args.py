@@ -121,21 +121,26 @@ def test_the_status_line_shows_the_final_state_it_held_back():
 
 
 def test_the_compile_note_asks_the_cache_for_the_loop_the_run_takes(tmp_path, monkeypatch):
-    """numba's index of a loop is CACHE/[parallel/]core_HASH/MODULE.FUNCTION-LINE.pyXY.nbi; a law of one's own
-    has its own directory (law-HASH), which says nothing of the paper's loops."""
+    """numba's index of a loop is CACHE/[parallel/]core_HASH/MODULE.FUNCTION-LINE.pyXY.nbi, HASH of the source's
+    folder; a law of one's own has its own directory (law-HASH), and another checkout of the same sources its own
+    core_HASH: neither says anything of this checkout's loops."""
+    from numba.core.caching import _CacheLocator
+
     from swarm.core.sim import kernel_cached
 
     monkeypatch.setenv("SWARM_CACHE_DIR", str(tmp_path))
     from swarm.core import jit
 
     cache = jit.cache_dir()
-    index = {(False, False): "core_1/kernel.run_steps-370.py311.nbi",
-             (True, False): "parallel/core_1/kernel.run_steps-370.py311.nbi",
-             (False, True): "core_1/faultkernel.run_fault_steps-116.py311.nbi"}
-    law = cache / "law-2f98/core_1"
-    law.mkdir(parents=True)
-    for name in index.values():
-        (law / name.split("/")[-1]).write_text("")
+    core = _CacheLocator.get_suitable_cache_subpath(str(jit._source_path("swarm.core.kernel")))
+    assert core.startswith("core_")
+    index = {(False, False): f"{core}/kernel.run_steps-370.py311.nbi",
+             (True, False): f"parallel/{core}/kernel.run_steps-370.py311.nbi",
+             (False, True): f"{core}/faultkernel.run_fault_steps-116.py311.nbi"}
+    for other in (cache / "law-2f98/core_1", cache / "core_1", cache / "parallel/core_1"):  # a law; another checkout
+        other.mkdir(parents=True)
+        for name in index.values():
+            (other / name.split("/")[-1]).write_text("")
     for (parallel, faults), name in index.items():
         assert not kernel_cached(parallel, faults)
         (cache / name).parent.mkdir(parents=True, exist_ok=True)
