@@ -148,8 +148,8 @@ def summary(m: dict, name: str) -> str:
     else:
         conv_text = fmt(conv, "s")
     rows = [
-        ("scenario", f"{name}  ({counted(m['robots'], 'robot')}, {counted(m['obstacles'], 'obstacle')}, seed {m['seed']}, dt {m['dt']:g} s"
-                     f"{', governor on' if m.get('governor') else ', governor off'})"),
+        ("scenario", f"{name}  ({counted(m['robots'], 'robot')}, {counted(m['obstacles'], 'obstacle')}, "
+                     f"seed {m['seed']}, dt {m['dt']:g} s{', governor on' if m.get('governor') else ', governor off'})"),
         ("simulated", fmt(m["duration_s"], "s") + ("  (interrupted)" if m["interrupted"] else "")),
         ("converged at", conv_text),
         ("final errors", f"position {fmt(m['final_position_error_max_m'], 'm', 3)}, "

@@ -322,7 +322,7 @@ def kernel_cached(parallel: bool = False, faults: bool = False) -> bool:
     module = "swarm.core.faultkernel" if faults else "swarm.core.kernel"
     loop = "faultkernel.run_fault_steps" if faults else "kernel.run_steps"
     where = jit.cache_dir() / "parallel" if parallel and not faults else jit.cache_dir()
-    folder = where / _CacheLocator.get_suitable_cache_subpath(str(jit._source_path(module)))
+    folder = where / _CacheLocator.get_suitable_cache_subpath(str(jit._source_path(module)))  # type: ignore[no-untyped-call]
     return folder.is_dir() and any(folder.glob(f"{loop}-*.nbi"))
 
 
