@@ -10,6 +10,7 @@ import time
 import msgspec
 
 from swarm.cli.common import EXIT_FAILURE, EXIT_OK, BadInput, StopEvent, fleet_of, open_bus
+from swarm.net.presence import collect
 from swarm.proto import keys, protocol
 from swarm.proto.protocol import ProtocolError
 
@@ -99,11 +100,16 @@ def cmd_echo(args, started: float) -> int:
                         bad += not ok
                 finally:
                     handle.close()
+            live = len(collect(bus, fleet, 0.5, stop)) if printed == 0 and not stop.is_set() else 0
         finally:
             bus.close()
     if printed == 0 and not stop.is_set():
-        print(f"swarm echo: nothing on {expr}" + (f" within {args.timeout:g} s" if args.timeout else "") +
-              f" (is a swarm of fleet {fleet} running there? `swarm ps` lists them)")
+        if live:  # the fleet runs: the key is quiet (estop, events: only when something happens)
+            why = (f"; fleet {fleet} has {live} live process{'es' if live != 1 else ''} (`swarm ps` lists them), "
+                   "so nothing was put on this key in that time")
+        else:
+            why = f" (no process of fleet {fleet} is live there: `swarm ps` lists the fleets a router has)"
+        print(f"swarm echo: nothing on {expr}" + (f" within {args.timeout:g} s" if args.timeout else "") + why)
         return EXIT_FAILURE
     if bad:
         print(f"swarm echo: {bad} of {printed} messages did not decode")

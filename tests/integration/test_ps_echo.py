@@ -89,6 +89,11 @@ def test_ps_lists_two_fleets_on_one_router_with_pids_and_echo_asks_and_follows(s
     out = subprocess.run(CLI + ["echo", "leader/ref", "--fleet", "psc", "--connect", ep, "--timeout", "0.5"],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 1 and "nothing on swarm/psc/leader/ref within 0.5 s" in out.stdout
+    assert "no process of fleet psc is live there" in out.stdout
+    # a fleet that runs, on a quiet key: said so (not "is a swarm running?")
+    out = subprocess.run(CLI + ["echo", "leader/ref", "--fleet", "psa", "--connect", ep, "--timeout", "0.5"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1 and "fleet psa has 2 live processes" in out.stdout, out.stdout
 
 
 def test_ps_and_echo_under_secure_with_the_operators_identity(started, tmp_path):
