@@ -32,8 +32,9 @@ REF_PERIOD_S = 0.1  # real time: simulated seconds between references (plus one 
 
 class Leader:
     def __init__(self, bus, table, dt: float, fleet: str = "default", lockstep: bool = True, rate_hz: float | None = None,
-                 clock=WALL):
+                 clock=WALL, run_id: str = ""):
         self.bus, self.table, self.dt, self.fleet, self.lockstep = bus, table, dt, fleet, lockstep
+        self.run_id = run_id  # the run it serves, for `swarm ps` ("": none named)
         self.clock = clock
         self.period = 1.0 / rate_hz if rate_hz else REF_PERIOD_S  # simulated seconds between real-time refs
         self.switches = [float(t0) for t0 in table[1:, kinematics.SEG_T0]]  # segment starts after the first
@@ -53,7 +54,7 @@ class Leader:
                                                 lambda k, b: self.inbox.put((k, b))))
         self._handles.append(self.bus.watch_alive(keys.alive(self.fleet, "world"),
                                                   lambda k, up: self.inbox.put((_WORLD_BACK, _CLOCK0)) if up else None))
-        self._handles.append(presence.announce(self.bus, self.fleet, "leader"))
+        self._handles.append(presence.announce(self.bus, self.fleet, "leader", run=lambda: self.run_id))
 
     def close(self) -> None:
         for h in self._handles[::-1]:
@@ -145,7 +146,7 @@ def run_leader(bus, clock, scn, fleet: str = "default", lockstep: bool | None = 
                 log.warning("leader: --mode says %s but run %s is %s; following the run", "lockstep" if mode else
                             "realtime", run.run, "lock-step" if run.lockstep else "real time")
                 mode = run.lockstep
-            lead = Leader(bus, scn.leader.table(), scn.dt, fleet, lockstep=mode, clock=clock)
+            lead = Leader(bus, scn.leader.table(), scn.dt, fleet, lockstep=mode, clock=clock, run_id=run.run)
             current[:] = [lead]
             if runs.latest is not None and runs.latest.run != run.run:
                 lead.ended = True

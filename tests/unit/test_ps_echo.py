@@ -178,3 +178,18 @@ def test_a_process_waiting_for_a_world_says_what_is_on_the_router_instead(monkey
     assert "fleet 'lab' has no world on this router (there: 1 robot)" in str(e.value)
     assert any("no answer for the current run after 0.1 s: fleet 'lab' has no world" in r.getMessage()
                for r in caplog.records)
+
+
+def test_the_leader_says_its_run_to_swarm_ps():
+    import numpy as np
+
+    from agents.leader import Leader
+
+    net = MemoryNet()
+    lead = Leader(MemoryBus(net), np.array([[0.0, 0.0, 0.0, 0.0, 0.5, 0.0]]), 0.02, "lr", run_id="run-7")
+    lead.start()
+    try:
+        (row,) = presence.collect(MemoryBus(net), "lr", wait_s=1.0)
+        assert (row["role"], row["run"], row["alive"]) == ("leader", "run-7", True)
+    finally:
+        lead.close()
