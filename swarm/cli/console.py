@@ -84,9 +84,14 @@ class StatusLine:
                 self.width = 0
 
 
-def counted(n: int, noun: str) -> str:
-    """`1 obstacle`, `2 obstacles`: a count and its noun (an English plural in s)."""
-    return f"{n} {noun}" + ("" if n == 1 else "s")
+def counted(n: int, noun: str, plural: str = "") -> str:
+    """`1 obstacle`, `2 obstacles`: a count and its noun (its plural: `plural`, else the noun and s)."""
+    return f"{n} {noun if n == 1 else plural or noun + 's'}"
+
+
+def converged_phrase(at_s: float | None) -> str:
+    """A run's convergence for a log line: `converged at 40.68 s` or `not converged`."""
+    return "not converged" if at_s is None else f"converged at {at_s} s"
 
 
 def bar(fraction: float, width: int = 24) -> str:

@@ -10,6 +10,7 @@ import time
 import msgspec
 
 from swarm.cli.common import EXIT_FAILURE, EXIT_OK, BadInput, StopEvent, fleet_of, open_bus
+from swarm.cli.console import counted
 from swarm.net.presence import collect
 from swarm.proto import keys, protocol
 from swarm.proto.protocol import ProtocolError
@@ -105,7 +106,7 @@ def cmd_echo(args, started: float) -> int:
             bus.close()
     if printed == 0 and not stop.is_set():
         if live:  # the fleet runs: the key is quiet (estop, events: only when something happens)
-            why = (f"; fleet {fleet} has {live} live process{'es' if live != 1 else ''} (`swarm ps` lists them), "
+            why = (f"; fleet {fleet} has {counted(live, 'live process', 'live processes')} (`swarm ps` lists them), "
                    "so nothing was put on this key in that time")
         else:
             why = f" (no process of fleet {fleet} is live there: `swarm ps` lists the fleets a router has)"

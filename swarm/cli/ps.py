@@ -7,6 +7,7 @@ import json
 import time
 
 from swarm.cli.common import EXIT_OK, BadInput, StopEvent, fleet_of, open_bus
+from swarm.cli.console import counted
 from swarm.net.presence import collect
 
 def _age(started: float | None, now: float) -> str:
@@ -50,6 +51,6 @@ def cmd_ps(args, started: float) -> int:
         return EXIT_OK
     print(table(rows, now))
     fleets = sorted({r["fleet"] for r in rows})
-    processes = f"{len(rows)} process{'es' if len(rows) != 1 else ''}"
-    print(f"{processes} in {len(fleets)} fleet{'s' if len(fleets) != 1 else ''} ({', '.join(fleets)}) on {where}")
+    print(f"{counted(len(rows), 'process', 'processes')} in {counted(len(fleets), 'fleet')} ({', '.join(fleets)}) "
+          f"on {where}")
     return EXIT_OK

@@ -29,7 +29,7 @@ from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, EXIT_OK, Bad
                               check_endpoint, check_listen_free, check_out_dir, check_resources, check_viz_apart,
                               check_viz_port, clear_metrics, load_scenario, make_log_dir, open_bus, record_rate,
                               scenario_args, setup_logging, viz_options, write_json, write_metrics, Refused)
-from swarm.cli.console import EstopFollower, exit_status, progress_line, summary
+from swarm.cli.console import EstopFollower, converged_phrase, exit_status, progress_line, summary
 from swarm.core import inventory
 from swarm.core.clock import WALL
 from swarm.core.metrics import violations
@@ -257,10 +257,8 @@ def cmd_world_referee(args, started: float) -> int:
         import numpy as np
 
         np.savez_compressed(args.trace, q=np.array(ref.trace).reshape(-1, fleet.scenario.n, 3), dt=fleet.scenario.dt)
-    conv = metrics["converged_at_s"]
     log.info("referee: done at t = %s s, %s, %d collisions, largest pose age %s s%s", metrics["duration_s"],
-             "not converged" if conv is None else f"converged at {conv} s", metrics["collisions"],
-             metrics["max_pose_age_s"],
+             converged_phrase(metrics["converged_at_s"]), metrics["collisions"], metrics["max_pose_age_s"],
              f"; FAILED: {metrics['failure']}" if metrics.get("failure") else "")
     bad = violations(metrics)
     if bad and not metrics["interrupted"] and not metrics.get("failure"):

@@ -7,7 +7,7 @@ import logging
 from swarm.cli.parser import given
 from swarm.cli.common import (CHILD_EXIT_AFTER_S, BadInput, Failure, StopEvent, check_out_dir,
                               fleet_of, load_scenario, open_bus, setup_logging, write_json)
-from swarm.cli.console import exit_status
+from swarm.cli.console import converged_phrase, exit_status
 from swarm.core.clock import WALL
 from swarm.core.metrics import violations
 from swarm.process import die_with_parent
@@ -72,9 +72,8 @@ def cmd_world(args, started: float) -> int:
 
         np.savez_compressed(args.trace, q=np.array(world.trace).reshape(-1, scn.n, 3), t=np.array(world.trace_t),
                             dt=scn.dt)
-    conv = metrics["converged_at_s"]
     log.info("world: done at t = %s s, %s, %d collisions, %d misses%s", metrics["duration_s"],
-             "not converged" if conv is None else f"converged at {conv} s", metrics["collisions"], metrics["cmd_misses"],
+             converged_phrase(metrics["converged_at_s"]), metrics["collisions"], metrics["cmd_misses"],
              f"; FAILED: {metrics['failure']}" if metrics.get("failure") else "")
     bad = violations(metrics)
     if bad and not metrics["interrupted"] and not metrics.get("failure"):
