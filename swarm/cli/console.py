@@ -141,9 +141,10 @@ def fmt(value: object, unit: str = "", digits: int = 4) -> str:
     return f"{text} {unit}".rstrip()
 
 
-def summary(m: dict, name: str) -> str:
+def summary(m: dict, name: str, compile_s: float | None = None) -> str:
     """The end-of-run table: the contract's results, then every counter that makes this run differ
-    from a clean one (or a lock-step run from swarm sim), then what the exit code will say."""
+    from a clean one (or a lock-step run from swarm sim), then what the exit code will say. compile_s: the
+    seconds of the wall time spent compiling the simulator's loop (a first run), said beside it."""
     from swarm.core.metrics import nondeterminism, violations
 
     conv = m["converged_at_s"]
@@ -201,6 +202,8 @@ def summary(m: dict, name: str) -> str:
     run = m.get("run_wall_s")
     if m.get("mode") == "lockstep" and isinstance(run, (int, float)) and run > 0 and m.get("duration_s"):
         wall += f"  (the run {run:.1f} s of it: {m['duration_s'] / run:.2f} simulated s a wall s)"
+    if compile_s:
+        wall += f"  ({compile_s:.1f} s of it compiling the loop, once: later runs load it from numba's cache)"
     stolen = m.get("host_steal_pct")
     if isinstance(stolen, (int, float)) and stolen >= STEAL_NOTE_PCT:
         wall += f"  (the host took {stolen:g} % of this machine's CPU meanwhile: a slow run may be its, not swarm's)"

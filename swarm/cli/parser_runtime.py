@@ -160,7 +160,8 @@ def add_runtime_parsers(sub) -> None:
                                     "token (router, swarm up, world, leader, robots, viewers) or robot process "
                                     "waiting for a run, with what the process says of itself (host, pid, age, the "
                                     "run it is in). Every fleet on the router, or only --fleet's. Under --secure it "
-                                    "uses the fleet's operator identity.",
+                                    "uses the fleet's operator identity. Exit 1 when no process answered (a script "
+                                    "can wait for a fleet: until swarm ps --fleet NAME; do sleep 1; done).",
                         epilog="Example: swarm ps --connect tcp/192.168.1.10:7447")
     ps.add_argument("--wait", type=positive_float, default=2.0, metavar="S",
                     help="wait at most S seconds for the processes to answer (default 2)")

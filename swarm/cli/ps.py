@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import time
 
-from swarm.cli.common import EXIT_OK, BadInput, StopEvent, fleet_of, open_bus
+from swarm.cli.common import EXIT_FAILURE, EXIT_OK, BadInput, StopEvent, fleet_of, open_bus
 from swarm.cli.console import counted
 from swarm.net.presence import collect
 
@@ -28,6 +28,7 @@ def table(rows: list[dict], now: float) -> str:
 
 
 def cmd_ps(args, started: float) -> int:
+    """List the processes; exit 1 when none answered (as swarm echo when nothing came: a script can wait on it)."""
     if args.wait <= 0:
         raise BadInput(f"--wait: must be > 0 seconds, got {args.wait:g}")
     fleet = None if args.fleet is None else fleet_of(args)
@@ -44,11 +45,11 @@ def cmd_ps(args, started: float) -> int:
     now = time.time()
     if args.json:
         print(json.dumps(rows, indent=2))
-        return EXIT_OK
+        return EXIT_OK if rows else EXIT_FAILURE
     where = ", ".join(args.connect or ["tcp/127.0.0.1:7447"]) if not args.secure else f"the router of {args.secure}"
     if not rows:
         print(f"swarm ps: no swarm process on {where}{'' if fleet is None else f' in fleet {fleet}'}")
-        return EXIT_OK
+        return EXIT_FAILURE
     print(table(rows, now))
     fleets = sorted({r["fleet"] for r in rows})
     print(f"{counted(len(rows), 'process', 'processes')} in {counted(len(fleets), 'fleet')} ({', '.join(fleets)}) "

@@ -45,11 +45,16 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
     from swarm.core.sim import kernel_cached, kernel_threads
 
     parallel = kernel_threads(scn, args.threads) > 1
-    if not args.quiet and scn.control.law is None and not kernel_cached(parallel, bool(scn.faults)):
+    compiling = scn.control.law is None and not kernel_cached(parallel, bool(scn.faults))
+    if compiling and not args.quiet:
         what = ("the simulation kernel for faults" if scn.faults else
                 "the simulation kernel's parallel twin" if parallel else "the simulation kernel")
         print(f"compiling {what} (once: numba caches it; ~10-30 s)...", file=sys.stderr)
+    t_build = time.perf_counter()
     sim = _simulation(args, scn)
+    if compiling:
+        sim.compile()
+    compile_s = time.perf_counter() - t_build if compiling else None
 
     def show(p) -> None:
         dist = "-" if p.min_distance is None else f"{p.min_distance:.3f} m"
@@ -58,7 +63,7 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
                       f"  min distance {dist}")
 
     if viz is not None:
-        return _sim_in_viewer(args, viz, scn, sim, show, status, started)
+        return _sim_in_viewer(args, viz, scn, sim, show, status, started, compile_s)
     with StopEvent() as stop:
         t0 = time.perf_counter()
         try:
@@ -71,7 +76,7 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
         rate = sim.progress().t / max(time.perf_counter() - t0, 1e-9)
         print(f"swarm sim: the law ran as plain Python (--python-law): {rate:.3g} simulated s per wall s; compiled "
               "by numba a law runs 100-1000 times faster", file=sys.stderr)
-    return _sim_report(args, scn, result)
+    return _sim_report(args, scn, result, compile_s)
 
 
 def _simulation(args: argparse.Namespace, scn):
@@ -98,7 +103,9 @@ def _simulation(args: argparse.Namespace, scn):
         raise BadInput(str(e)) from None
 
 
-def _sim_report(args: argparse.Namespace, scn, result) -> int:
+def _sim_report(args: argparse.Namespace, scn, result, compile_s: float | None = None) -> int:
+    """Write what the flags ask for, print the summary (compile_s: the seconds of a first run spent compiling
+    the loop), and return the exit code."""
     m = result.metrics
     if args.metrics is not None:
         args.metrics.write_text(json.dumps(m, indent=2, allow_nan=False) + "\n")
@@ -114,7 +121,7 @@ def _sim_report(args: argparse.Namespace, scn, result) -> int:
         except RecordError as e:
             raise Failure(str(e)) from None
     if not args.quiet:
-        print(summary(m, scn.name))
+        print(summary(m, scn.name, compile_s))
         if args.metrics is not None:
             print(f"metrics: {args.metrics}")
         if args.plots is not None:
@@ -124,7 +131,8 @@ def _sim_report(args: argparse.Namespace, scn, result) -> int:
     return exit_status(m, args.allow_violations)
 
 
-def _sim_in_viewer(args: argparse.Namespace, viz, scn, sim, show, status, started: float) -> int:
+def _sim_in_viewer(args: argparse.Namespace, viz, scn, sim, show, status, started: float,
+                   compile_s: float | None = None) -> int:
     """`swarm sim --viz`: the run paced at --speed in the viewer, then the viewer stays up until Ctrl-C."""
     from swarm.view.meshcat_server import MeshcatServer, ServerError
     from swarm.core.sim import Result
@@ -140,7 +148,7 @@ def _sim_in_viewer(args: argparse.Namespace, viz, scn, sim, show, status, starte
             interrupted = play_simulation(sim, viewer, args.speed or 1.0, should_stop=stop.is_set, progress=show)
             result = Result(sim.metrics(time.perf_counter() - started, interrupted), sim.recording())
             status.close()
-            code = _sim_report(args, scn, result)
+            code = _sim_report(args, scn, result, compile_s)
             if not interrupted:
                 print(f"viewer: the run is over; the viewer stays at {server.web_url} until Ctrl-C", flush=True)
                 while not stop.wait(0.25):

@@ -158,6 +158,11 @@ class Simulation:
     def done(self) -> bool:
         return self.next_k > self.n_steps
 
+    def compile(self) -> None:
+        """Compile the loop now (or load it from numba's cache), by a call that evaluates no step: what the
+        first advance() would otherwise spend before its first step."""
+        self._advance(self.next_k)
+
     def advance(self, k_end: int) -> None:
         """Evaluate steps up to (not including) k_end, capped at the last step."""
         k_end = min(k_end, self.n_steps + 1)

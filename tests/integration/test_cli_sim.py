@@ -216,15 +216,19 @@ def test_scenario_scale_writes_a_scenario_that_fits_and_says_its_time_scale(tmp_
 @pytest.mark.integration
 @pytest.mark.timeout(300)
 def test_swarm_sim_says_when_it_compiles_the_loop_it_is_about_to_run(tmp_path):
-    """A first run says it compiles (the parallel twin from 256 robots too); the same run again does not; a run that
-    needs the other loop says so again (the fault kernel's: tests/unit/test_cli_args.py)."""
+    """A first run says it compiles (the parallel twin from 256 robots too), and its summary how much of its wall
+    time that took; the same run again does neither; a run that needs the other loop says so again (the fault
+    kernel's: tests/unit/test_cli_args.py)."""
     env = {**os.environ, "SWARM_CACHE_DIR": str(tmp_path / "cache")}
 
     def said(*flags: str) -> bool:
         done = subprocess.run([*swarm_cmd(), "sim", "--duration", "0.2", *flags], env=env,
                               capture_output=True, text=True, timeout=240)
         assert done.returncode == 0, done.stderr
-        return "compiling the simulation kernel" in done.stderr
+        compiling = "compiling the simulation kernel" in done.stderr
+        wall = next(line for line in done.stdout.splitlines() if line.strip().startswith("wall time"))
+        assert ("s of it compiling the loop, once" in wall) == compiling, wall
+        return compiling
 
     assert said("--robots", "300") and not said("--robots", "300")
     assert said("--robots", "300", "--threads", "1") and not said("--robots", "20")

@@ -37,8 +37,9 @@ def started():
 
 def _ps(*args: str) -> list[dict]:
     out = subprocess.run(CLI + ["ps", "--json", "--wait", "2", *args], capture_output=True, text=True, timeout=60)
-    assert out.returncode == 0, out.stderr
-    return json.loads(out.stdout)
+    rows = json.loads(out.stdout)
+    assert out.returncode == (0 if rows else 1), out.stderr  # 1: no process answered
+    return rows
 
 
 def _listed(rows: list[dict]) -> set[tuple]:
@@ -64,6 +65,8 @@ def test_ps_lists_two_fleets_on_one_router_with_pids_and_echo_asks_and_follows(s
     text = subprocess.run(CLI + ["ps", "--connect", ep], capture_output=True, text=True, timeout=60).stdout
     assert text.splitlines()[0].split() == ["FLEET", "ROLE", "ID", "HOST", "PID", "AGE", "RUN"]
     assert f"3 processes in 2 fleets (psa, psb) on {ep}" in text
+    none = subprocess.run(CLI + ["ps", "--connect", ep, "--fleet", "psc"], capture_output=True, text=True, timeout=60)
+    assert none.returncode == 1 and none.stdout == f"swarm ps: no swarm process on {ep} in fleet psc\n"
 
     # a served key: asked once, each reply decoded
     out = subprocess.run(CLI + ["echo", "proc/robot/*", "--fleet", "psa", "--connect", ep, "--timeout", "5"],
