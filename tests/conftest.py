@@ -19,6 +19,9 @@ from typing import Any, Callable
 
 import pytest
 
+# a helper module whose asserts fail inside a test: pytest rewrites them, so a failure shows the values
+pytest.register_assert_rewrite("tests.runtime.agent_helpers")
+
 
 def _value(v: Any) -> str:
     if isinstance(v, bool):

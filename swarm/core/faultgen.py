@@ -17,7 +17,7 @@ SplitMix64's output function over the counter k, whose streams pass BigCrush.
 wrap. So every value here is a signed 64-bit word: constants above 2^63 are written as their
 negative two's complement, every sum and product goes through _wrap (exact in Python, a no-op
 under numba), and right shifts are logical (_srl masks off the bits an arithmetic shift copies
-from the sign). Both executions give the same words bit for bit (tests/unit/test_faults.py).
+from the sign). Both executions give the same words bit for bit (tests/unit/test_faults_decisions.py).
 """
 
 from __future__ import annotations

@@ -150,7 +150,7 @@ class Link:
     """faultgen.decide for one (class, sender, receiver), prepared for plain Python: the rules that can
     match the link, their stream keys and a burst chain cache are worked out once, so a message costs a
     few microseconds (decide over the whole table: ~40 us with four rules). Same answers as decide
-    (tests/unit/test_faults.py); keep one Link per link and class in a process."""
+    (tests/unit/test_faults_decisions.py); keep one Link per link and class in a process."""
 
     def __init__(self, table: FaultTable, cls: int, sender: int, receiver: int):
         if cls not in range(fg.N_CLASSES):

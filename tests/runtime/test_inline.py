@@ -16,7 +16,7 @@ from swarm.core.wake import Runner, Wake
 from swarm.net.bus import MemoryBus, MemoryNet
 from swarm.proto import keys, protocol
 from swarm.proto.protocol import Clock, Pose, Ref, State
-from tests.runtime.test_agent import CFG, F, Wire
+from tests.runtime.agent_helpers import CFG, F, Wire
 
 pytestmark = pytest.mark.unit
 

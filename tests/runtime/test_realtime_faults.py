@@ -138,7 +138,7 @@ def test_a_lost_robot_is_a_static_body_for_the_law_and_keeps_its_motion_bound_un
     """A robot whose token goes is a static body for the law at its last state; the safety rule keeps its motion
     bound, the speed bound over its age, whatever it announced: this robot's newest state of it need not be its
     last (a later one, and the commands after it, may not have come), and the world, which stopped it, lists
-    where (test_agent: the listing wins)."""
+    where (test_agent_realtime: the listing wins)."""
     rig = Rig()
     other = MemoryBus(rig.net)
     tok = other.token(keys.alive(F_, "robot", 5))

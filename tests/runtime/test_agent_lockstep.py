@@ -1,0 +1,217 @@
+"""The robot agent in lock-step on the in-memory bus: its command is the core law (bit for bit, its freeze memory
+carried over ticks), whom it waits for at each tick, a robot whose token goes taken as a static obstacle, its
+traffic following its cells (the subscribed block, the cell keys hinted to its bus), bad messages dropped and
+counted; and, in either mode, the emergency stop (an engage always obeyed, a release only when newer) and the
+agent module importing nothing of the world nor numpy. Real time: test_agent_realtime.py; the compiled loops
+against the Python ones: test_agent_compiled.py."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+from pathlib import Path
+import sys
+
+import pytest
+
+from agents import robot
+from swarm.proto import keys, protocol
+from swarm.core import law
+from swarm.net.bus import MemoryBus
+from swarm.proto.protocol import Clock, Pose, Ref, State
+from tests.runtime.agent_helpers import CFG, F, Wire, law_command
+
+
+@pytest.mark.unit
+def test_command_is_the_core_law_with_neighbours_and_an_obstacle():
+    w = Wire(obstacles=[(0.9, 0.8, 0.3, 1.2)])
+    pose, ref = (0.2, 0.1, 0.4), (1.0, 0.5, 0.2, 0.5, 0.05)
+    nbs = [(7, (1.1, -0.3, 0.0)), (1, (-0.8, 0.2, 1.0)), (9, (5.0, 5.0, 0.0))]  # 9 is out of range
+    assert w.tick(0, pose, ref, nbs)
+    assert len(w.cmds) == 1 and w.cmds[0].seq == 0
+    # summation order: robots by ascending id (1, 7), then the obstacle
+    bodies = [(-0.8, 0.2, 0.3, 1.2, law.KIND_ROBOT), (1.1, -0.3, 0.3, 1.2, law.KIND_ROBOT),
+              (0.9, 0.8, 0.3, 1.2, law.KIND_OBSTACLE)]
+    v, om = law_command(pose, ref, 0.0, bodies)
+    assert (w.cmds[0].v, w.cmds[0].w) == (v, om)  # bit for bit
+    assert w.agent.neighbours == 2
+    assert w.statuses and w.statuses[0].neighbours == 2 and w.statuses[0].frozen
+
+
+@pytest.mark.unit
+def test_freeze_memory_carries_over_ticks_like_the_law():
+    w = Wire()
+    mem = [0.0] * law.M_SIZE
+    mem[law.M_SCALE] = 1.0
+    for k in range(5):
+        pose, ref = (0.01 * k, 0.0, 0.0), (0.02 * k, 0.0, 0.0, 0.5, 0.0)
+        nb = (0.8, 0.1, 0.0)
+        w.tick(k, pose, ref, [(4, nb)])
+        expected = law_command(pose, ref, k * CFG.dt, [(*nb[:2], 0.3, 1.2, law.KIND_ROBOT)], mem)
+        assert (w.cmds[-1].v, w.cmds[-1].w) == expected
+
+
+@pytest.mark.unit
+def test_waits_for_neighbours_known_at_the_previous_tick():
+    w = Wire()
+    ref = (0.0, 0.0, 0.0, 0.5, 0.0)
+    w.tick(0, (0.0, 0.0, 0.0), ref, [(5, (1.0, 0.0, 0.0))])
+    assert len(w.cmds) == 1
+    # tick 1: robot 5 was within R + 2L at tick 0, so the agent waits for its state_1
+    w.put(keys.leader_ref(F), Ref(t=0.02, seq=1, x=0.0, y=0.0, theta=0.0, v=0.5, w=0.0))
+    w.put(keys.robot_pose(F, CFG.id), Pose(t=0.02, seq=1, x=0.0, y=0.0, theta=0.0))
+    assert not w.agent.tick_lockstep()
+    assert w.agent.waiting == {5}
+    w.put(keys.cell(F, 0, 0, 5), State(id=5, t=0.02, seq=1, x=1.0, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False))
+    assert w.agent.tick_lockstep()
+    assert len(w.cmds) == 2
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("distance, awaited", [(2.15, True), (2.25, False)])
+def test_the_wait_reach_follows_the_largest_R_of_any_body(distance, awaited):
+    """An obstacle with R = 2 makes the law's reach 2 m (the governor counts robots that close), so
+    with cells of 2.3 m (L = 0.1 m) the agent waits for robots within 2.2 m at the previous tick."""
+    cfg = protocol.replace(CFG, sense=2.3, reach=2.0)
+    w = Wire(cfg)
+    ref = (0.0, 0.0, 0.0, 0.5, 0.0)
+    w.put(keys.leader_ref(F), Ref(t=0.0, seq=0, x=0.0, y=0.0, theta=0.0, v=0.5, w=0.0))
+    w.put(keys.robot_pose(F, cfg.id), Pose(t=0.0, seq=0, x=0.0, y=0.0, theta=0.0))
+    w.agent.tick_lockstep()
+    w.put(keys.cell(F, *keys.cell_of(distance, 0.0, 2.3), 5),
+          State(id=5, t=0.0, seq=0, x=distance, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False))
+    w.put(keys.world_clock(F), Clock(t=0.0, seq=0, epoch=0.0, speed=1.0))
+    assert w.agent.tick_lockstep()
+    w.put(keys.leader_ref(F), Ref(t=0.02, seq=1, x=0.0, y=0.0, theta=0.0, v=ref[3], w=0.0))
+    w.put(keys.robot_pose(F, cfg.id), Pose(t=0.02, seq=1, x=0.0, y=0.0, theta=0.0))
+    assert w.agent.tick_lockstep() is not awaited
+    assert w.agent.waiting == ({5} if awaited else set())
+
+
+@pytest.mark.unit
+def test_a_robot_whose_token_goes_is_a_static_obstacle_and_not_awaited():
+    w = Wire()
+    tok = w.probe.token(keys.alive(F, "robot", 5))
+    ref = (0.0, 0.0, 0.0, 0.5, 0.0)
+    w.tick(0, (0.0, 0.0, 0.0), ref, [(5, (1.0, 0.2, 0.0))])
+    tok.close()  # robot 5 dies
+    assert w.tick(1, (0.0, 0.0, 0.0), ref, [])
+    mem = [0.0] * law.M_SIZE
+    mem[law.M_SCALE] = 1.0
+    law_command((0.0, 0.0, 0.0), ref, 0.0, [(1.0, 0.2, 0.3, 1.2, law.KIND_ROBOT)], mem)
+    expected = law_command((0.0, 0.0, 0.0), ref, CFG.dt, [(1.0, 0.2, 0.3, 1.2, law.KIND_OBSTACLE)], mem)
+    assert (w.cmds[1].v, w.cmds[1].w) == expected
+    assert w.agent.neighbours == 0  # robots counted; the dead one is a body, not a neighbour
+
+
+@pytest.mark.unit
+def test_subscriptions_follow_the_cell_and_keep_the_old_block_one_tick():
+    w = Wire()
+    ref = (0.0, 0.0, 0.0, 0.5, 0.0)
+    w.tick(0, (0.1, 0.1, 0.0), ref)
+    assert w.agent.subscribed_cells == robot.block(0, 0)
+    w.tick(1, (1.6, 0.1, 0.0), ref)  # moved into cell (1, 0)
+    assert w.agent.subscribed_cells == robot.block(0, 0) | robot.block(1, 0)
+    assert w.states[-1].seq == 1  # and published its state on the new cell
+    w.tick(2, (1.7, 0.1, 0.0), ref)
+    assert w.agent.subscribed_cells == robot.block(1, 0)
+
+
+class HintBus(MemoryBus):
+    def __init__(self, net):
+        super().__init__(net)
+        self.hinted: list[str] = []
+
+    def hint(self, key):
+        self.hinted.append(key)
+
+
+@pytest.mark.unit
+def test_the_cell_keys_a_robot_hears_are_hinted_to_its_bus_once_each():
+    """ZenohBus.hint: zenoh resolves a hinted key's route once. Every neighbour's cell key the agent
+    heard goes to its bus at its next tick, once; a key it never heard does not."""
+    w = Wire()
+    w.agent.close()
+    bus = HintBus(w.net)
+    w.agent = robot.Agent(bus, CFG, F, wait_timeout=60.0)
+    w.agent.start([])
+    ref = (0.0, 0.0, 0.0, 0.5, 0.0)
+    nbs = [(7, (1.1, -0.3, 0.0)), (1, (-0.8, 0.2, 1.0))]
+    w.tick(0, (0.1, 0.1, 0.0), ref, nbs)
+    assert bus.hinted == []  # heard during tick 0: hinted when the next tick starts
+    w.tick(1, (0.1, 0.1, 0.0), ref, nbs)
+    heard = {keys.cell(F, *keys.cell_of(x, y, CFG.sense), j) for j, (x, y, _) in nbs}
+    assert sorted(bus.hinted) == sorted(heard)
+    w.tick(2, (0.1, 0.1, 0.0), ref, [(7, (1.6, -0.3, 0.0))] + nbs[1:])  # robot 7 moved into the next cell
+    w.tick(3, (0.1, 0.1, 0.0), ref, nbs[1:])
+    assert sorted(bus.hinted) == sorted(heard | {keys.cell(F, 1, -1, 7)}) and len(bus.hinted) == 3
+    # a stranger's flood of new keys in its cells (each a robot id in each cell): hinted HINTS_PER_TICK a tick
+    # at most, in the order they came
+    flood = [keys.cell(F, cx, cy, j) for j in (0, 2, 4, 5, 6, 8, 9, 10, 11, 12) for cx in (-1, 0, 1) for cy in (-1, 0, 1)]
+    flood = [key for key in flood if key not in bus.hinted][:robot.HINTS_PER_TICK + 10]
+    for key in flood:
+        w.probe.put(key, b"\xc1")  # garbage: refused and counted, but its key was parsed
+    for k, total in ((4, 3 + robot.HINTS_PER_TICK), (5, 3 + len(flood)), (6, 3 + len(flood))):
+        w.tick(k, (0.1, 0.1, 0.0), ref, nbs[1:])
+        assert len(bus.hinted) == total
+    assert bus.hinted[3:] == flood
+    w.agent.close()
+
+
+@pytest.mark.unit
+def test_bad_messages_are_dropped_counted_and_never_reach_the_law():
+    w = Wire()
+    ref = (0.0, 0.0, 0.0, 0.5, 0.0)
+    w.tick(0, (0.0, 0.0, 0.0), ref)
+    bad = [
+        (keys.robot_pose(F, CFG.id), b"\xc1garbage"),
+        (keys.leader_ref(F), protocol.encode(Pose(t=0.0, seq=1, x=0.0, y=0.0, theta=0.0))),  # wrong kind
+        (keys.cell(F, 0, 0, 8), protocol.encode(State(id=9, t=0.02, seq=1, x=0.5, y=0.0, theta=0.0, r=0.3, R=1.2,
+                                                      frozen=False))),  # id in key != id in payload
+        (keys.cell(F, 0, 0, 8), b"\x81\xa1v\x01"),  # a map without kind
+    ]
+    for key, payload in bad:
+        w.probe.put(key, payload)
+    import msgpack
+
+    nan_pose = msgpack.packb({"v": 1, "kind": "pose", "t": 0.02, "seq": 1, "x": math.nan, "y": 0.0, "theta": 0.0})
+    w.probe.put(keys.robot_pose(F, CFG.id), nan_pose)
+    assert w.agent.bad.count == 5
+    assert 8 not in w.agent.table and 9 not in w.agent.table
+    assert w.agent.pose.seq == 0  # the NaN pose was refused
+    assert w.tick(1, (0.0, 0.0, 0.0), ref)  # and the agent goes on
+    assert w.statuses[-1].bad == 5 or w.agent.bad.count == 5
+
+
+@pytest.mark.integration
+def test_agent_module_imports_nothing_of_the_world_nor_numpy():
+    code = ("import sys, agents.robot; bad = [m for m in sys.modules if m.split('.')[0] in "
+            "('world', 'numpy', 'numba', 'zenoh')]; print(','.join(bad))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    assert out.stdout.strip() == ""
+    for path in Path(robot.__file__).parent.glob("*.py"):  # the process and every layer of the agent
+        src = path.read_text()
+        assert "world" not in [line.split()[1].split(".")[0] for line in src.splitlines()
+                               if line.strip().startswith(("import ", "from "))], path
+
+
+@pytest.mark.unit
+def test_an_engaged_emergency_stop_is_always_obeyed_and_a_release_only_when_newer():
+    """A forged release far ahead (seq 2^53) must not make the operator's later stop look old: an engage
+    that decodes is obeyed whatever its t and seq (and counted when out of order); a release only when it
+    moves forward and is newer than every engage obeyed."""
+    w = Wire()
+    stop = lambda t, seq, engaged: w.put(keys.estop(F), protocol.Estop(t=t, seq=seq, engaged=engaged, reason="test"))  # noqa: E731
+    stop(1.7e9 + 5, 2**53, False)  # the forged release: adopted (nothing was engaged), the window now far ahead
+    assert w.agent.estopped is None
+    stop(1.7e9 + 10, 1_700_000_010_000, True)  # the operator's stop: older by the window, obeyed all the same
+    assert w.agent.estopped == "test" and w.agent.bad.stale == 1
+    stop(1.7e9 + 11, 1_700_000_011_000, False)  # a release is refused while the window is that far ahead
+    assert w.agent.estopped == "test"
+    w2 = Wire()
+    stop2 = lambda seq, engaged: w2.put(keys.estop(F), protocol.Estop(t=1.7e9, seq=seq, engaged=engaged, reason="x"))  # noqa: E731
+    stop2(1000, True)
+    stop2(999, False)  # older than the stop obeyed: it holds
+    assert w2.agent.estopped == "x"
+    stop2(1001, False)
+    assert w2.agent.estopped is None
