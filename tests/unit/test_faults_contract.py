@@ -6,9 +6,8 @@ trip, the advisories that valid rules which never act get, and a scenario's [fau
 
 from __future__ import annotations
 
-import os
-
 import math
+import os
 import tomllib
 
 import numpy as np
