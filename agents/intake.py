@@ -123,6 +123,13 @@ class Intake(AgentState):
         parsed = keys.parse(key)
         if parsed is None or parsed.kind != "alive" or parsed.id is None or self.ended:
             return
+        if parsed.role in ("world", "leader") and parsed.id != 0:
+            # not a world's or a leader's (they use id 0): taken, its going would halt this robot and its coming
+            # reset the windows that sender's messages are judged by
+            with self.lock:
+                self.bad.reject(key, ProtocolError(f"a liveliness token of the {parsed.role} with id {parsed.id} "
+                                                   "(the world and the leader use id 0)"))
+            return
         with self.lock:
             if parsed.role == "robot":
                 if parsed.id == self.id or parsed.id >= self.cfg.robots:
@@ -173,8 +180,30 @@ class Intake(AgentState):
         if due:
             self.kick.set()
 
+    def _judge(self, w: window.Window, t: float, seq: int) -> str:
+        """The verdict on a message of the world or the leader (its pose, its clock, the reference): by its
+        window, but first by this robot's own clock, which no message moves. Lock-step, once this robot has a
+        tick: a message of a tick more than one past the next it can hear (_next_tick; a reference is put a
+        tick ahead) is ahead, one of a tick it has done is behind; between the two, one the window refuses
+        restarts the window there (it was anchored by a crafted message before this robot's first tick).
+        Real time: t more than t_span ahead of or behind this robot's now. What is ahead or behind never
+        counts toward re-anchoring the window (window.outside)."""
+        if self.cfg.lockstep:
+            if max(self.k_started, self.pose.seq if self.pose is not None else -1) < 0:
+                return w.check(t, seq)  # no tick of its own yet: the first message anchors the window
+            if seq > self._next_tick() + 1 or seq <= self.k_done:
+                return window.outside(w, t, seq, seq > self.k_done)
+            if w.peek(t, seq) in (window.JUMP, window.STALE):
+                w.reset()
+            return w.check(t, seq)
+        now = self.sim_time(self.clock.time())
+        span = self._spans[0]
+        if now is not None and not now - span <= t <= now + span:
+            return window.outside(w, t, seq, t > now)
+        return w.check(t, seq)
+
     def _on_clock(self, c: protocol.Clock, key: str = "") -> None:
-        if not self.bad.verdict(key, self.w_clock.check(c.t, c.seq), "the clock's t or seq"):
+        if not self.bad.verdict(key, self._judge(self.w_clock, c.t, c.seq), "the clock's t or seq"):
             return
         self.clock_seq = max(self.clock_seq, c.seq)
         if c.epoch > 0 and self.epoch is None:  # real time: the run's epoch, once (a new run is a new agent)
@@ -232,7 +261,7 @@ class Intake(AgentState):
             self.waiting.discard(j)
 
     def _on_ref(self, ref: protocol.Ref, key: str = "") -> None:
-        v = self.w_ref.check(ref.t, ref.seq)
+        v = self._judge(self.w_ref, ref.t, ref.seq)
         if v == window.JUMP and self.counters is not None and self.w_ref.t is not None:
             lost = getattr(self.counters, "lost_t", (-math.inf,) * 4)[3]  # [faultgen.CLS_REF]
             if self.w_ref.t < lost < ref.t <= lost + self.w_ref.t_span:
@@ -254,7 +283,7 @@ class Intake(AgentState):
         if self.view is not None and self.view.schedule.fresh(self.id, pose.seq) is not None and \
                 pose.seq > max(self.k_started, self.pose.seq if self.pose is not None else -1):
             self.w_pose.reset()  # it returns at pose.seq (restarted or resumed): its poses resume after a gap
-        if not self.bad.verdict(key, self.w_pose.check(pose.t, pose.seq), "the pose's t or seq"):
+        if not self.bad.verdict(key, self._judge(self.w_pose, pose.t, pose.seq), "the pose's t or seq"):
             return
         if not self.cfg.lockstep:
             mono = self.clock.monotonic()

@@ -79,7 +79,14 @@ class Leader:
         if key == _WORLD_BACK:  # the world's token is new (a restarted world): its clock counts afresh
             self.w_clock.reset()
             return
-        if not self.bad.verdict(key, self.w_clock.check(c.t, c.seq), "the clock's t or seq"):
+        w = self.w_clock
+        if self.lockstep and w.t is not None and w.peek(c.t, c.seq) in (window.JUMP, window.STALE):
+            # every clock of the world comes (reliable), so a jump is a forger's: one that counted toward
+            # re-anchoring would have this leader publish a reference for every tick up to it (window.outside)
+            v = window.outside(w, c.t, c.seq, c.seq > self.next_seq)
+        else:
+            v = w.check(c.t, c.seq)
+        if not self.bad.verdict(key, v, "the clock's t or seq"):
             return
         if self.lockstep:
             if self.next_seq < c.seq:  # started (or restarted) mid-run: catch up from now

@@ -172,11 +172,17 @@ class Links(Intake):
             xl, yl, thl = ref[0], ref[1], ref[2]
             st = Status(t=t, ex=xl + self.cfg.dx - pose.x, ey=yl + self.cfg.dy - pose.y,
                         etheta=law.wrap_angle(thl - pose.theta), frozen=bool(self.mem[law.M_FROZEN]),
-                        neighbours=self.neighbours, stale=self.stale, bad=self.bad.count,
+                        neighbours=self.neighbours, stale=self.stale, bad=self.bad_count(),
                         held=None if self.cfg.lockstep else self.held / max(1, self.commanded))
             self.bus.put(self._status_key, protocol.encode(st))
             if self.counters is not None:
                 self._report(t)
+
+    def bad_count(self) -> int:
+        """The bad messages this robot refused: its own and its drive's (a pose that did not decode: real time,
+        where the drive takes the poses; a drive without a count has none to add)."""
+        drive_bad = getattr(self.drive, "bad", None)
+        return self.bad.count + int(getattr(drive_bad, "count", 0))
 
     def _report(self, t: float) -> None:
         """Real time under faults: this process's fault counters so far (its bus's), with every status, and

@@ -166,10 +166,17 @@ class Intake(WorldState):
             self.w_cmd[i].reset()
             self.w_status[i].reset()
 
-    def _after_return(self, i: int, w: window.Window, t: float, seq: int) -> str:
+    def _after_return(self, i: int, w: window.Window, t: float, seq: int, behind: bool = False) -> str:
         """w.check(t, seq) for robot i's message; but in real time under faults, a jump right after robot i's
         scheduled hang or kill ended is the schedule's gap, not a bad message: the window starts again there.
-        (Its returning token resets the window too, but its first messages can come before the token does.)"""
+        (Its returning token resets the window too, but its first messages can come before the token does.)
+        First, by this world's own clock: a t more than t_span ahead of its now (or, with `behind`, in real time,
+        more than t_span behind it) is judged without counting toward re-anchoring the window (window.outside):
+        no robot of this world can have sent it, and three of them would pin the window where a forger wants."""
+        now = self._now_rt()
+        span = self._spans[0]
+        if t > now + span or (behind and not self.lockstep and t < now - span):
+            return window.outside(w, t, seq, t > now)
         v = w.check(t, seq)
         if v == window.JUMP and self.rtf is not None and self.rtf.returned(i, self._now_rt(), self._spans[0]):
             w.reset()

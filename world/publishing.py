@@ -112,7 +112,8 @@ class Publishing(Intake):
     def bad_total(self) -> int:
         fleet = self.fleet_ros2
         ros = 0 if fleet is None else fleet.bad.count + fleet.dropped_no_attachment
-        return self.bad.count + sum(self.robot_bad.values()) + ros
+        estop = getattr(self, "estop", None)  # the world's log of the emergency stop: its refusals too
+        return self.bad.count + sum(self.robot_bad.values()) + ros + (0 if estop is None else estop.bad.count)
 
     def _report(self, force: bool = False) -> None:
         now = self.clock.monotonic()

@@ -141,7 +141,7 @@ class RealtimeLoop(Publishing):
                 self.bad.reject(key, e)
                 continue
             with self.lock:
-                fresh = self.bad.verdict(key, self._after_return(i, self.w_cmd[i], c.t, c.seq),
+                fresh = self.bad.verdict(key, self._after_return(i, self.w_cmd[i], c.t, c.seq, behind=True),
                                          f"robot {i}'s command t or seq")
                 alive = i not in self._gone
             if not fresh:

@@ -123,7 +123,7 @@ class RefereeWorld:
         self._statuses = self.bus.inbox(keys.robot_any(f, "status"), depth=8 * self.n + 64)
         self._handles += [self._states, self._statuses]
         self._handles.append(self.bus.watch_alive(keys.alive_any(f, "robot"), self._on_robot))
-        self._handles.append(self.bus.watch_alive(keys.alive_any(f, "leader"), self._on_leader))
+        self._handles.append(self.bus.watch_alive(keys.alive(f, "leader"), self._on_leader))
         self.bus.wanted(keys.world_snapshot(f))  # declare the snapshot's publisher before the first one
         self._handles.append(presence.announce(self.bus, f, "world", run=lambda: self.run_id))
         self.estop = EstopLog(self.bus, f, now=lambda: (self.t, self.k))  # logged, told, counted (world.estop)
@@ -192,6 +192,14 @@ class RefereeWorld:
 
     # ------------------------------------------------------------------ what came
 
+    def _judge(self, w: window.Window, t: float, seq: int) -> str:
+        """w.check(t, seq), but first by the referee's own clock: a t more than t_span ahead of its last period or
+        behind it never counts toward re-anchoring the window (window.outside; docs/protocol.md, "Windows")."""
+        span = self._spans[0]
+        if not self.t - span <= t <= self.t + span:
+            return window.outside(w, t, seq, t > self.t)
+        return w.check(t, seq)
+
     def take_states(self) -> None:
         """The states (and statuses) that came since the last period: each robot's newest pose."""
         for key, data in self._states.drain():
@@ -204,7 +212,7 @@ class RefereeWorld:
                 self.bad.reject(key, e)
                 continue
             with self.lock:
-                if not self.bad.verdict(key, self.w_state[i].check(s.t, s.seq), f"robot {i}'s state t or seq"):
+                if not self.bad.verdict(key, self._judge(self.w_state[i], s.t, s.seq), f"robot {i}'s state t or seq"):
                     continue
             dt = s.t - self.q_t[i]
             if self.seen[i] and dt > 0:
@@ -226,7 +234,7 @@ class RefereeWorld:
                 continue
             i = parsed.id
             with self.lock:
-                if self.bad.verdict(key, self.w_status[i].check(st.t, int(round(st.t / self.scn.dt))),
+                if self.bad.verdict(key, self._judge(self.w_status[i], st.t, int(round(st.t / self.scn.dt))),
                                     "the status's t"):
                     self.robot_bad.take(i, st.bad, self.clock.monotonic())
 
@@ -293,7 +301,8 @@ class RefereeWorld:
                                  last_freeze=-1.0 if ref.last_frozen_t is None else ref.last_frozen_t)
 
     def bad_total(self) -> int:
-        return self.bad.count + sum(self.robot_bad.values())
+        estop = self.estop  # its log of the emergency stop: its refusals too
+        return self.bad.count + sum(self.robot_bad.values()) + (0 if estop is None else estop.bad.count)
 
     def _report(self, force: bool = False) -> None:
         now = self.clock.monotonic()

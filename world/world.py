@@ -91,7 +91,7 @@ class World(LockstepLoop, RealtimeLoop):
             for key in [*self._cmd_ids, *self._status_ids]:  # (ZenohBus.hint), not for every message
                 self.bus.hint(key)
         self._handles.append(self.bus.watch_alive(keys.alive_any(f, "robot"), lambda k, up: ev(("alive", k, up))))
-        self._handles.append(self.bus.watch_alive(keys.alive_any(f, "leader"), lambda k, up: ev(("leader", k, up))))
+        self._handles.append(self.bus.watch_alive(keys.alive(f, "leader"), lambda k, up: ev(("leader", k, up))))
         if self.lockstep:  # the start barrier: every robot's state_0 (unsubscribed once passed)
             self._prime = self.bus.subscribe(keys.cell_all(f), lambda k, b: ev(("state", k, b)))
         # declare the snapshot's publisher now, so zenoh knows of the viewers and recorders already

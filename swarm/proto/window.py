@@ -102,6 +102,18 @@ class Window:
         return v
 
 
+def outside(w: Window, t: float, seq: int, ahead: bool) -> str:
+    """The verdict on a message that the receiver's own clock puts outside what its sender can have sent by now:
+    ahead of it (a jump), or behind anything still of use (the window's own verdict, adopted only when that is
+    OK). Either way it never counts toward re-anchoring the window: a run of such messages is a forger's, not a
+    sender that jumped, and three of them would otherwise pin the window where the forger wants it
+    (docs/protocol.md, "Windows")."""
+    if ahead:
+        return JUMP
+    v = w.peek(t, seq)
+    return w.check(t, seq) if v == OK else v
+
+
 try:  # the compiled loops, this window among them (swarm/proto/_wire_window.c), where they were built: new() makes
     # one of those; swarm.proto.protocol takes the module from here (one place decides it)
     from swarm.proto import _wire as _compiled

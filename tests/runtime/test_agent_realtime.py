@@ -282,3 +282,23 @@ def test_a_real_time_robot_takes_the_still_robots_the_world_lists_as_bodies():
         agent.clock.advance(robot.RT_BODIES_TTL_S)  # a list that stopped coming is dropped
         assert bodies(2.5)[0][0] == [0.6] and agent.rt_static == {}
     agent.close()
+
+
+@pytest.mark.unit
+def test_a_real_time_robot_counts_the_bad_poses_its_drive_refused_with_its_own():
+    """In real time the drive takes the poses: one that does not decode is refused and counted by the drive, and
+    the robot's count (its statuses', the world's bad_messages, its exit line) adds the drive's to its own."""
+    from swarm.drives.sim import SimDrive
+
+    cfg = protocol.replace(CFG, lockstep=False)
+    net = MemoryNet()
+    agent = robot.Agent(MemoryBus(net), cfg, F, drive=SimDrive(MemoryBus(net), F, cfg.id))
+    agent.start([])
+    try:
+        attacker = MemoryBus(net)
+        for _ in range(3):
+            attacker.put(keys.robot_pose(F, cfg.id), b"\xc1\xff")
+        assert agent.drive.drain() == [] and agent.drive.bad.count == 3  # the robot's loop drains its drive
+        assert agent.bad_count() == agent.bad.count + 3
+    finally:
+        agent.close()

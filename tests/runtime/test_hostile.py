@@ -258,3 +258,61 @@ def test_hostile_corpus_into_every_callback_is_counted():
             cb(key, payload)
     assert world.bad.count > 0 and agent.bad.count > 0 and lead.bad.count > 0
     assert agent.pose is None and agent.ref is None and not agent.table and lead.sent == 0
+
+
+class Pinner:
+    """From the pose of tick `start` on: on each pose of robot 0 (tick k), runs of 3 well-formed messages far
+    ahead, each within the window of the one before (a window re-anchors on such a run from a sender that
+    jumped): robot 1's poses, the reference and the world's clock at ticks 10^9 + m, with t = seq x dt (the
+    lock-step rule), and a run at old ticks (1, 2, 3) behind. And, once, liveliness tokens of a world and a
+    leader with ids of their own (1 and 7) that come and go."""
+
+    def __init__(self, net: MemoryNet, dt: float, start: int = 20) -> None:
+        self.bus = MemoryBus(net)
+        self.dt, self.start, self.sent, self.m = dt, start, 0, 0
+        self.bus.subscribe(keys.robot_pose(F, 0), self._pose)
+
+    def _runs(self, seq0: int):
+        dt = self.dt
+        for s in range(seq0, seq0 + 3):
+            yield keys.robot_pose(F, 1), protocol.encode(protocol.Pose(t=s * dt, seq=s, x=0.0, y=0.0, theta=0.0))
+            yield keys.leader_ref(F), protocol.encode(protocol.Ref(t=s * dt, seq=s, x=60.0, y=0.0, theta=0.0, v=0.5,
+                                                                   w=0.0))
+            yield keys.world_clock(F), protocol.encode(protocol.Clock(t=s * dt, seq=s, epoch=0.0, speed=1.0))
+
+    def _pose(self, key: str, payload: bytes) -> None:
+        try:
+            k = protocol.decode(payload, "pose").seq
+        except protocol.ProtocolError:
+            return
+        if k < self.start:
+            return
+        if k == self.start:
+            for role, i in (("world", 1), ("leader", 7)):
+                self.bus.token(keys.alive(F, role, i)).close()
+        for key, msg in [*self._runs(10**9 + self.m), *self._runs(1)]:
+            self.bus.put(key, msg)
+            self.sent += 1
+        self.m += 3
+
+
+@pytest.mark.timeout(240)
+def test_runs_of_messages_ahead_or_behind_of_a_receivers_own_tick_never_re_anchor_its_window():
+    """A window follows a sender that jumped after 3 messages in a row, each within the window of the one
+    before. A forger can send such runs too: far ahead, they would pin robot 1's pose window and the robots'
+    and the leader's reference and clock windows there (every true message after them stale: a robot without a
+    pose or a reference waits a second a tick; a leader would publish a reference for every tick up to 10^9);
+    behind, at old ticks, likewise. A receiver judges them by its own tick first, so they never count toward
+    re-anchoring; and a world's or a leader's token with another id than 0 is refused. The run equals swarm
+    sim step for step, with no missed command."""
+    scn = scenario_file.load("paper-50hz", Overrides(robots=4, duration=3.0))
+    net = MemoryNet()
+    pinner = Pinner(net, scn.dt)
+    metrics, world, agents = run_swarm(scn, net=net, timeout_s=120)
+    assert pinner.sent > 500
+    sim = Simulation(scn, record_period=scn.dt).run()
+    q = np.array(world.trace).reshape(-1, scn.n, 3)
+    assert np.abs(q - sim.recording.q).max() == 0.0
+    assert metrics["cmd_misses"] == 0 and metrics["failure"] is None
+    assert all(a.w_ref.t < 1e3 and a.w_clock.t < 1e3 and a.w_pose.t < 1e3 for a in agents)
+    assert all(a.bad.count > 0 for a in agents)

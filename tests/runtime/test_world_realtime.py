@@ -250,3 +250,23 @@ def test_the_real_time_bodies_message_lists_the_still_robots_then_clears_once(wr
         world.close()
     assert [(b.seq, [s.id for s in b.bodies]) for b in got] == [(1, []), (2, [0]), (3, [0]), (4, []), (6, []),
                                                                (7, [1])]
+
+
+@pytest.mark.unit
+def test_a_real_time_world_never_re_anchors_a_robots_window_on_commands_far_from_its_own_now():
+    """Three commands in a row, each within the window of the one before, re-anchor a robot's command window
+    (a robot that jumped). A forger's run far ahead of the world's now (t from 5e8) or far behind it would
+    then pin the window: the world would refuse the robot's own commands as stale and carry out the forger's.
+    The world judges them by its own clock first: refused (ahead: bad; behind: stale), never a re-anchoring."""
+    from swarm.proto import window
+
+    scn = scenario_file.load("paper-50hz", scenario_file.Overrides(robots=4, duration=30.0))
+    world = World(MemoryBus(MemoryNet()), scn, "t", lockstep=False)
+    world.t = 10.0
+    w = world.w_cmd[3]
+    assert world._after_return(3, w, 9.98, 499, behind=True) == window.OK
+    for m in range(5):
+        assert world._after_return(3, w, 5e8 + m * scn.dt, 10**12 + m, behind=True) == window.JUMP
+        assert world._after_return(3, w, 1.0 + m * scn.dt, 50 + m, behind=True) == window.STALE
+    assert world._after_return(3, w, 10.0, 500, behind=True) == window.OK  # the robot's own, next
+    assert (w.t, w.seq) == (10.0, 500)
