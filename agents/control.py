@@ -98,7 +98,7 @@ def _user_command(cfg: Config, law_file: str | None) -> tuple[Callable[..., tupl
                            np.asarray(nr, float), np.asarray(nR, float), np.asarray(nk, np.int64),
                            np.asarray(na, float), n, mem, p)
         except Exception as e:
-            raise LawFailure(f"robot {cfg.id}: the law {cfg.law!r} raised {type(e).__name__}: {e} at step "
+            raise LawFailure(f"robot {cfg.id}: the law {cfg.law!r} raised {userlaw.failure_text(e)} at step "
                              f"{int(round(t / dt))} (t = {t:g} s)") from None
         if not (math.isfinite(v) and math.isfinite(w)):  # swarm sim ends the run there too
             raise LawFailure(f"robot {cfg.id}: the law {cfg.law!r} gave a non-finite command (v = {v}, w = {w}) at "

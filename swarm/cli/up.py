@@ -113,6 +113,13 @@ def cmd_up(args, started: float) -> int:
         return cmd_up_inventory(args, started)
     refuse_unused_flags(args)
     scn = load_scenario(args)  # bad input is refused here, before anything starts
+    if scn.control.law is not None:  # a law of one's own that does not load (a syntax error, its signature):
+        from swarm.core import userlaw  # refused here, as swarm sim does, not by every robot once it started
+
+        try:
+            userlaw.load(scn.control.law)
+        except userlaw.LawError as e:
+            raise BadInput(str(e)) from None
     cpu0 = cpu_counters()
     from swarm.core.scenario_file import advisories
 
@@ -254,6 +261,11 @@ def cmd_up(args, started: float) -> int:
                                          f"{', '.join(names[:12])}{' ...' if len(names) > 12 else ''}{queued}", sup)
                 if sup.children["world"].proc.poll() is not None:
                     raise launch_failure("the world process exited during start-up", sup, "world")
+                notes = sup.check_restarts()  # a robot or the leader that exited: restarted, or it refused the run
+                if sup.fatal is not None:  # (its law does not load, say): no use waiting for it
+                    raise launch_failure(f"during start-up, {sup.fatal}", sup)
+                for note in notes:
+                    say(note)
                 status.update(f"starting: {len(alive & want)}/{len(want)} processes alive", force=False)
                 watch_viewer()
                 time.sleep(0.02)

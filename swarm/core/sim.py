@@ -176,7 +176,9 @@ class Simulation:
         except SimulationError:  # said already (a non-finite state: _check_finite)
             raise
         except Exception as e:  # raised in the user's law: name it, the robot and the step
-            raise SimulationError(self._law_failure(f"raised {type(e).__name__}: {e}")) from None
+            from swarm.core.userlaw import failure_text
+
+            raise SimulationError(self._law_failure(f"raised {failure_text(e)}")) from None
 
     def _law_failure(self, what: str) -> str:
         """What a user's law did wrong, with the robot and step lawplug marks while it runs."""

@@ -71,6 +71,15 @@ class LawSpec:
         return self.ref.rpartition(":")[0].endswith(".py")
 
 
+def failure_text(e: Exception) -> str:
+    """What a law's exception says in a failure line: its type and message, and for an IndexError (a compiled law
+    is bounds checked: numba's message names no array) which arrays a law indexes."""
+    text = f"{type(e).__name__}: {e}"
+    if isinstance(e, IndexError):
+        text += " (an index past the end of params: control.params's length, mem: control.memory, or bodies' rows)"
+    return text
+
+
 def sha256_of(path: str | Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
@@ -237,7 +246,7 @@ class Law:
         """What names this law's compiled modules and cache directory: the file's sha256, the function's name and
         the keyword arguments it declares (two laws of one file compile apart); a function handed over in Python
         adds its identity in this process."""
-        text = f"{self.spec.sha256}:{self.spec.name}:{','.join(self.extras)}"
+        text = f"{self.spec.sha256}:{self.spec.name}:{','.join(self.extras)}:boundscheck"
         if not self.cached:
             text += f":{id(self.fn)}"
         return hashlib.sha256(text.encode()).hexdigest()[:16]
@@ -267,7 +276,10 @@ class Law:
             from swarm.core import jit
 
             with jit.cache_in(self.cache_dir(), self.cached):
-                law = numba.njit(error_model="numpy")(law)
+                # bounds checked: compiled code reads past an array without a word (a law that reads params[3] of
+                # three got whatever lay beyond) and writes past it into the heap; checked, it raises IndexError,
+                # which ends the run naming the robot and the step, as any exception of the law
+                law = numba.njit(error_model="numpy", boundscheck=True)(law)
                 fn = None
                 if jit._caching:  # its own cache directory: the adapter from a file there, which numba can cache
                     try:

@@ -115,8 +115,9 @@ class Supervisor:
             if rc == REFUSED_EXIT:  # it refused the run: a new copy would refuse it again
                 c.given_up = True
                 said = last_error(c.log)
-                self.fatal = self.fatal or f"{name} refused to go on ({said or exit_text(rc)}; log: {c.log})"
-                notes.append(self.fatal)
+                line = f"{name} refused to go on ({said or exit_text(rc)}; log: {c.log})"
+                self.fatal = self.fatal or line  # the first one ends the run; each is said once
+                notes.append(line)
                 continue
             while c.restarts and now - c.restarts[0] > pol.window_s:
                 c.restarts.popleft()

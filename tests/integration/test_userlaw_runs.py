@@ -78,6 +78,34 @@ def test_a_law_that_raises_ends_the_run_naming_the_law_the_robot_and_the_step(tm
                      r"\(t = 1 s\); log: ", done.stderr + done.stdout)
     assert said and said.group(2).endswith("fail.py:fail"), done.stderr + done.stdout
     assert "refused to go on" in json.loads(metrics.read_text())["failure"]
+    lines = [line for line in (done.stderr + done.stdout).splitlines() if line.startswith("robot ")]
+    assert len(lines) == len(set(lines)), lines  # each robot's refusal said once
+
+
+@pytest.mark.integration
+def test_a_compiled_law_that_indexes_past_an_array_ends_the_run_and_one_that_does_not_load_is_refused(tmp_path):
+    """A compiled law is bounds checked: one that reads params[3] of three (or writes past mem) raises IndexError,
+    which ends the run naming it, instead of reading what lies beyond (a run that looked fine) or writing into
+    the heap (a crash after the summary, exit 0). A law that does not load is refused by swarm up before
+    anything starts, as by swarm sim, not by every robot after a minute's wait."""
+    (tmp_path / "laws").mkdir()
+    (tmp_path / "laws" / "past.py").write_text("def past(me, ref, bodies, params):\n    return params[3], 0.0\n")
+    (tmp_path / "laws" / "broken.py").write_text("def broken(me, ref, bodies, params):\n    return 0.1, 0.0)\n")
+    text = (EXAMPLES / "goto_slot.toml").read_text()
+    for name in ("past", "broken"):
+        (tmp_path / f"{name}.toml").write_text(text.replace("laws/goto_slot.py:goto_slot", f"laws/{name}.py:{name}")
+                                               .replace("params = [0.5, 2.0, 1.0, 0.8, 1.0]", "params = [1, 2, 3]"))
+    assert "params = [1, 2, 3]" in (tmp_path / "past.toml").read_text()
+    done = subprocess.run([sys.executable, "-m", "swarm.cli", "sim", "--scenario", str(tmp_path / "past.toml"), *SMALL,
+                           "--quiet"], capture_output=True, text=True, timeout=240)
+    assert done.returncode == 1, done.stderr
+    assert "the law 'laws/past.py:past' raised IndexError: index is out of bounds (an index past the end of params" \
+        in done.stderr, done.stderr
+    cmd, _ = up(tmp_path, "--scenario", str(tmp_path / "broken.toml"), *SMALL, "--quiet")
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2, done.stderr
+    assert "swarm up: error: law 'laws/broken.py:broken'" in done.stderr and "SyntaxError" in done.stderr
+    assert not (tmp_path / "logs").exists() or not list((tmp_path / "logs").glob("robot-*.log"))
 
 
 @pytest.mark.integration
