@@ -25,6 +25,7 @@ import inspect
 import keyword
 import math
 import os
+import re
 import sys
 import types
 from dataclasses import dataclass, field
@@ -461,21 +462,64 @@ def sample_inputs(rng: np.random.Generator, params: tuple[float, ...], memory: i
             rng.uniform(-1, 1, memory), kinds)
 
 
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def _law_lines(law: Law) -> tuple[str, list[str]] | None:
+    """(the file the law's function is in, its lines), or None where inspect cannot tell."""
+    try:
+        return inspect.getsourcefile(law.fn) or "", inspect.getsource(sys.modules[law.fn.__module__]).splitlines()
+    except (TypeError, OSError, KeyError):
+        return None
+
+
+def numba_brief(e: Exception, law: Law) -> str:
+    """What numba said about the law, without its colours, its pipeline's stages and the adapter's frame (a file
+    of swarm's cache that calls the law): its message, and where in the law's own file, found by the name it
+    could not resolve when numba does not say."""
+    lines = [line.rstrip() for line in _ANSI.sub("", str(e)).splitlines()]
+    said, where, skip = [], [], False
+    for line in lines:
+        text = line.strip()
+        if not text or text.startswith(("Failed in nopython mode pipeline", "During:")):
+            skip = False
+            continue
+        if text.startswith("File "):
+            skip = "adapter.py" in text  # its code lines follow, up to a blank line
+            if not skip:
+                where.append(text.rstrip(":"))
+            continue
+        if not skip and not where:
+            said.append(text)
+    out = " ".join(said)[:400] or type(e).__name__
+    found = re.search(r"name '(\w+)' is not defined", out)
+    src = _law_lines(law) if found and not where else None
+    if src is not None and found is not None:
+        name = found.group(1)
+        hits = [i + 1 for i, line in enumerate(src[1]) if re.search(rf"\b{name}\b", line.split("#")[0])]
+        if hits:
+            where.append(f"{src[0]}, line {hits[0]}")
+    return out + (f" ({'; '.join(where[:2])})" if where else "")
+
+
 def compile_problem(law: Law) -> str:
-    """What numba could not compile in the law ("" when it compiled): it is compiled by a first call, on sample
-    inputs; an exception the law itself raises there is not numba's (check() reports it with its inputs)."""
+    """What numba could not compile in the law, or a result that is not two numbers ("" when all is well): it is
+    compiled by a first call, on sample inputs; an exception the law itself raises there is not numba's (check()
+    reports it with its inputs)."""
     from numba.core.errors import NumbaError
 
     try:
         fn = law.call(True)
-        fn(*_sample_args(sample_inputs(np.random.default_rng(0), law.spec.params, law.spec.memory)))
+        out = fn(*_sample_args(sample_inputs(np.random.default_rng(0), law.spec.params, law.spec.memory)))
     except NumbaError as e:
-        text = str(e).strip().splitlines()
-        brief = " ".join(line.strip() for line in text if line.strip())[:600]
-        return (f"law {law.label!r}: numba cannot compile it: {type(e).__name__}: {brief} (run it as plain Python "
-                "with --python-law, or keep to what numba compiles: docs/control.md)")
+        brief = numba_brief(e, law)
+        hint = ("define it, or import what it names" if "is not defined" in brief else
+                "run it as plain Python with --python-law, or keep to what numba compiles: docs/control.md")
+        return f"law {law.label!r}: numba cannot compile it: {type(e).__name__}: {brief}; {hint}"
     except Exception:
-        pass
+        return ""
+    if not (isinstance(out, tuple) and len(out) == 2 and all(isinstance(x, (int, float)) for x in out)):
+        return f"law {law.label!r}: returned {out!r}; it must return (v, w), two numbers"
     return ""
 
 

@@ -45,6 +45,13 @@ LAWS = textwrap.dedent('''
     def single(me, ref, bodies, params):
         return 1.0
 
+    def typo(me, ref, bodies, params):
+        v = 0.1
+        return v + nosuch, 0.0
+
+    def past(me, ref, bodies, params):
+        return params[5], 0.0
+
     def slow(me, ref, bodies, params):
         x = me[0]
         for i in range(20000):
@@ -95,7 +102,9 @@ def test_a_good_law_passes_the_check_compiled_equal_to_python(laws):
 @pytest.mark.parametrize("name, said", [
     ("nan", "non-finite command"), ("three", "takes 3 positional"), ("extra", "'speed' is none of"),
     ("raises", "raised ZeroDivisionError"), ("unordered", "compiled and Python differ"),
-    ("single", "must return \\(v, w\\)|numba cannot compile"), ("missing", "defines no 'missing'"),
+    ("single", "returned 1.0; it must return \\(v, w\\), two numbers"), ("missing", "defines no 'missing'"),
+    ("typo", "name 'nosuch' is not defined \\(\\S+laws.py, line \\d+\\); define it"),
+    ("past", "raised IndexError"),
     ("NOT_A_FUNCTION", "not a function"),
 ])
 def test_every_bad_law_is_caught_and_named(laws, name, said):
