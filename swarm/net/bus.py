@@ -26,6 +26,7 @@ swarm's own messages carry none.
 
 from __future__ import annotations
 
+import secrets
 import threading
 from collections import OrderedDict, deque
 from typing import TYPE_CHECKING, Callable, Protocol, final
@@ -635,7 +636,9 @@ class _ZenohInbox:
     it first), and no other subscriber of this session on a matching key (it would get the empty
     wake-up sample as a bad message)."""
 
-    WAKE = b"swarm-inbox-wake"
+    # this process's own marker: a wake-up never leaves the session (SESSION_LOCAL), so no other process knows it,
+    # and an empty message with a marker of someone else's is a message like any other (refused and counted)
+    WAKE = b"swarm-inbox-wake-" + secrets.token_hex(16).encode()
 
     def __init__(self, sub, session, key_expr: str, zenoh) -> None:
         self.sub, self.session, self.key_expr, self._z = sub, session, key_expr, zenoh
