@@ -151,6 +151,9 @@ def build_parser() -> argparse.ArgumentParser:
     out = sim.add_argument_group("output")
     out.add_argument("--metrics", type=Path, metavar="PATH", help="write the metrics JSON (its keys: docs/metrics.md)")
     out.add_argument("--plots", type=Path, metavar="DIR", help="write the panels of the paper's Fig. 2 as PNG")
+    out.add_argument("--trace", type=Path, metavar="PATH.npz",
+                     help="write every robot's pose at every step (numpy .npz: q[k, i] = x, y, theta, t[k], dt), as "
+                          "swarm up --trace does: a lock-step run of the same scenario equals it element for element")
     out.add_argument("--quiet", action="store_true", help="no progress bar and no summary table")
     add_violation_flag(out)
     add_record_flags(out)

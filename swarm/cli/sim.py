@@ -26,6 +26,11 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
         print(f"swarm sim: warning: {note}", file=sys.stderr)
     check_out_dir("--metrics", args.metrics)
     check_out_dir("--record", args.record)
+    check_out_dir("--trace", args.trace)
+    if args.trace is not None and (scn.steps + 1) * scn.n > TRACE_MAX_POSES:
+        raise BadInput(f"--trace: {scn.steps + 1} steps of {scn.n} robots are {(scn.steps + 1) * scn.n:.3g} poses to "
+                       f"keep, more than {TRACE_MAX_POSES:,} (about 1 GiB with the samples beside them): shorten "
+                       "the run (--duration) or lengthen --dt")
     args.record_hz = record_rate(args)
     if args.plots is not None and args.plots.exists() and not args.plots.is_dir():
         raise BadInput(f"--plots {args.plots}: exists and is not a directory")
@@ -79,6 +84,9 @@ def cmd_sim(args: argparse.Namespace, started: float) -> int:
     return _sim_report(args, scn, result, compile_s)
 
 
+TRACE_MAX_POSES = 16_000_000  # --trace keeps every step: (steps + 1) x N poses, 65 bytes each with their samples
+
+
 def _simulation(args: argparse.Namespace, scn):
     """The Simulation of `swarm sim`: samples as --record asks, a user's law compiled (or --python-law)."""
     from swarm.core.sim import Simulation
@@ -89,6 +97,8 @@ def _simulation(args: argparse.Namespace, scn):
         from swarm.view import record
 
         period = record.record_period(args.record_hz, scn.dt)
+    if args.trace is not None:  # every step (the recording and the plots take theirs from these)
+        period = scn.dt
     if scn.control.law is None and args.python_law:
         raise BadInput("--python-law: the scenario runs the paper's law (control.law = \"paper\"); the flag is for "
                        "a law of your own")
@@ -109,6 +119,11 @@ def _sim_report(args: argparse.Namespace, scn, result, compile_s: float | None =
     m = result.metrics
     if args.metrics is not None:
         args.metrics.write_text(json.dumps(m, indent=2, allow_nan=False) + "\n")
+    if args.trace is not None:
+        import numpy as np
+
+        rec = result.recording
+        np.savez_compressed(args.trace, q=rec.q, t=rec.t, dt=scn.dt)
     if args.plots is not None:
         from swarm.view.plots import write_panels
 
@@ -126,6 +141,8 @@ def _sim_report(args: argparse.Namespace, scn, result, compile_s: float | None =
             print(f"metrics: {args.metrics}")
         if args.plots is not None:
             print(f"plots:   {args.plots}/")
+        if args.trace is not None:
+            print(f"trace:   {args.trace}")
         if args.record is not None:
             print(f"record:  {args.record}")
     return exit_status(m, args.allow_violations)

@@ -516,13 +516,17 @@ def _start_recorder(bus, fleet: str, scn, args):
 
 
 def _close_recorder(recorder, metrics: dict, path) -> str | None:
-    """Finish the recording with the run's final metrics (those written to --metrics)."""
+    """Finish the recording with the run's final metrics (those written to --metrics); what it holds, said:
+    snapshots received, those kept (the --record-hz grid's: 25 Hz unless said) and any lost or bad."""
+    from swarm.view.record import TOPIC_SNAPSHOT
+
     if recorder is None:
         return None
     recorder.close(metrics)
     missed = f", {recorder.snapshots_missed} lost on the way" if recorder.snapshots_missed else ""
     bad = f", {recorder.bad} bad messages dropped" if recorder.bad else ""
-    return f"record:  {path} ({recorder.snapshots} snapshots received{missed}{bad})"
+    kept = recorder.rec.counts[TOPIC_SNAPSHOT]
+    return f"record:  {path} ({recorder.snapshots} snapshots received, {kept} of them kept{missed}{bad})"
 
 
 def launch_failure(text: str, sup, name: str | None = None) -> Failure:

@@ -12,7 +12,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import re
@@ -29,6 +28,7 @@ from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, EXIT_OK, Bad
                               check_endpoint, check_listen_free, check_out_dir, check_resources, check_viz_apart,
                               check_viz_port, clear_metrics, load_scenario, make_log_dir, open_bus, record_rate,
                               scenario_args, setup_logging, viz_options, write_json, write_metrics, Refused)
+from swarm.cli.up import _close_recorder, _read_metrics
 from swarm.cli.console import EstopFollower, converged_phrase, exit_status, progress_line, summary
 from swarm.core import inventory
 from swarm.core.clock import WALL
@@ -554,13 +554,6 @@ def _t(p) -> str:
     return "0 s (before the first period)" if p is None else f"{p.t:g} s"
 
 
-def _read_metrics(path: Path) -> dict | None:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-
-
 def _start_recorder(bus, fleet: str, scn, args):
     from swarm.view.record import BusRecorder, Recorder, RecordError
 
@@ -568,11 +561,3 @@ def _start_recorder(bus, fleet: str, scn, args):
         return BusRecorder(bus, fleet, Recorder(args.record, scn, args.record_hz, source="realtime", fleet=fleet))
     except RecordError as e:
         raise Failure(str(e)) from None
-
-
-def _close_recorder(recorder, metrics: dict, path) -> str | None:
-    if recorder is None:
-        return None
-    recorder.close(metrics)
-    missed = f", {recorder.snapshots_missed} lost on the way" if recorder.snapshots_missed else ""
-    return f"record:  {path} ({recorder.snapshots} snapshots received{missed})"

@@ -67,6 +67,7 @@ def test_up_records_a_37_robot_run_that_mcap_reads_back(up37):
     off_grid = [t for t in times if round(t / 0.04, 6) % 1]
     assert len(off_grid) <= len(missed) <= 3
     assert all(len(s["x"]) == 37 for s in snaps)
+    assert f"snapshots received, {len(snaps)} of them kept" in stdout  # what the file holds, said
     assert msgs["/metrics"] == [metrics]  # the stored metrics are the run's --metrics, exactly
     assert {c["id"] for c in msgs["/robot/cmd"]} == set(range(37))
 

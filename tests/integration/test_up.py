@@ -38,6 +38,14 @@ def test_up_lockstep_equals_sim_step_for_step(tmp_path):
     assert q.shape == sim.recording.q.shape == (301, 7, 3)
     assert np.abs(q - sim.recording.q).max() <= 1e-9
     assert {k: m[k] for k in METRIC_KEYS} == {k: sim.metrics[k] for k in METRIC_KEYS}
+    # as a user compares them: swarm sim --trace writes the same file, equal element for element
+    done = subprocess.run([sys.executable, "-m", "swarm.cli", "sim", "--robots", "7", "--duration", "6", "--scenario",
+                           "paper-50hz", "--trace", str(tmp_path / "sim.npz"), "--quiet"], capture_output=True,
+                          text=True, timeout=180)
+    assert done.returncode == 0, done.stderr
+    up_trace, sim_trace = np.load(tmp_path / "trace.npz"), np.load(tmp_path / "sim.npz")
+    assert np.array_equal(up_trace["q"], sim_trace["q"]) and np.array_equal(up_trace["t"], sim_trace["t"])
+    assert float(sim_trace["dt"]) == scn.dt
     assert m["mode"] == "lockstep" and m["cmd_misses"] == 0 and m["bad_messages"] == 0
     assert m["interrupted"] is False and m["processes"] == 10 and m["launch_s"] > 0
     # the contract's keys first, in docs/metrics.md's order (failure last of them), then the extra keys
