@@ -186,8 +186,9 @@ class Intake(AgentState):
         tick: a message of a tick more than one past the next it can hear (_next_tick; a reference is put a
         tick ahead) is ahead, one of a tick it has done is behind; between the two, one the window refuses
         restarts the window there (it was anchored by a crafted message before this robot's first tick).
-        Real time: t more than t_span ahead of or behind this robot's now. What is ahead or behind never
-        counts toward re-anchoring the window (window.outside)."""
+        Real time: t more than t_span ahead of or behind this robot's now, or refused by seq alone (its t
+        within the window: window.by_seq_alone). What is ahead or behind never counts toward re-anchoring the
+        window (window.outside)."""
         if self.cfg.lockstep:
             if max(self.k_started, self.pose.seq if self.pose is not None else -1) < 0:
                 return w.check(t, seq)  # no tick of its own yet: the first message anchors the window
@@ -200,6 +201,8 @@ class Intake(AgentState):
         span = self._spans[0]
         if now is not None and not now - span <= t <= now + span:
             return window.outside(w, t, seq, t > now)
+        if window.by_seq_alone(w, t, seq):
+            return window.outside(w, t, seq, seq > w.seq)
         return w.check(t, seq)
 
     def _on_clock(self, c: protocol.Clock, key: str = "") -> None:

@@ -172,11 +172,18 @@ class Intake(WorldState):
         (Its returning token resets the window too, but its first messages can come before the token does.)
         First, by this world's own clock: a t more than t_span ahead of its now (or, with `behind`, in real time,
         more than t_span behind it) is judged without counting toward re-anchoring the window (window.outside):
-        no robot of this world can have sent it, and three of them would pin the window where a forger wants."""
+        no robot of this world can have sent it, and three of them would pin the window where a forger wants.
+        Likewise one the window refuses for its seq alone (window.by_seq_alone), but for a process the schedule
+        restarted (its counter starts again from 0)."""
         now = self._now_rt()
         span = self._spans[0]
         if t > now + span or (behind and not self.lockstep and t < now - span):
             return window.outside(w, t, seq, t > now)
+        if window.by_seq_alone(w, t, seq):
+            if self.rtf is not None and self.rtf.returned(i, now, span):  # a restarted process counts from 0
+                w.reset()
+                return w.check(t, seq)
+            return window.outside(w, t, seq, seq > w.seq)
         v = w.check(t, seq)
         if v == window.JUMP and self.rtf is not None and self.rtf.returned(i, self._now_rt(), self._spans[0]):
             w.reset()

@@ -102,6 +102,15 @@ class Window:
         return v
 
 
+def by_seq_alone(w: Window, t: float, seq: int) -> bool:
+    """Whether the window refuses (t, seq) for its seq alone, its t within the window's span forward: a jump or a
+    step back that a sender's counter never makes while its clock runs on (a sender that stalls or whose clock
+    steps jumps in t; one that restarts has a new token, which resets the window). Such a message never counts
+    toward re-anchoring: a forger's run of them, seq 10^12 at the time of now, would pin the window by seq."""
+    t0 = w.t
+    return t0 is not None and t0 <= t <= t0 + w.t_span and w.peek(t, seq) in (JUMP, STALE)
+
+
 def outside(w: Window, t: float, seq: int, ahead: bool) -> str:
     """The verdict on a message that the receiver's own clock puts outside what its sender can have sent by now:
     ahead of it (a jump), or behind anything still of use (the window's own verdict, adopted only when that is

@@ -257,7 +257,8 @@ def test_a_real_time_world_never_re_anchors_a_robots_window_on_commands_far_from
     """Three commands in a row, each within the window of the one before, re-anchor a robot's command window
     (a robot that jumped). A forger's run far ahead of the world's now (t from 5e8) or far behind it would
     then pin the window: the world would refuse the robot's own commands as stale and carry out the forger's.
-    The world judges them by its own clock first: refused (ahead: bad; behind: stale), never a re-anchoring."""
+    The world judges them by its own clock first: refused (ahead: bad; behind: stale), never a re-anchoring; and
+    so is a run at the time of now whose seq alone is out of the window."""
     from swarm.proto import window
 
     scn = scenario_file.load("paper-50hz", scenario_file.Overrides(robots=4, duration=30.0))
@@ -268,5 +269,8 @@ def test_a_real_time_world_never_re_anchors_a_robots_window_on_commands_far_from
     for m in range(5):
         assert world._after_return(3, w, 5e8 + m * scn.dt, 10**12 + m, behind=True) == window.JUMP
         assert world._after_return(3, w, 1.0 + m * scn.dt, 50 + m, behind=True) == window.STALE
+        # its t that of now, its seq far ahead or behind: a sender's counter never jumps while its clock runs on
+        assert world._after_return(3, w, 9.99, 10**12 + m, behind=True) == window.JUMP
+        assert world._after_return(3, w, 9.99, 5 + m, behind=True) == window.STALE
     assert world._after_return(3, w, 10.0, 500, behind=True) == window.OK  # the robot's own, next
     assert (w.t, w.seq) == (10.0, 500)
