@@ -180,21 +180,27 @@ class Intake(AgentState):
         if due:
             self.kick.set()
 
-    def _judge(self, w: window.Window, t: float, seq: int) -> str:
+    def _judge(self, w: window.Window, t: float, seq: int) -> str | None:
         """The verdict on a message of the world or the leader (its pose, its clock, the reference): by its
-        window, but first by this robot's own clock, which no message moves. Lock-step, once this robot has a
-        tick: a message of a tick more than one past the next it can hear (_next_tick; a reference is put a
-        tick ahead) is ahead, one of a tick it has done is behind; between the two, one the window refuses
-        restarts the window there (it was anchored by a crafted message before this robot's first tick).
-        Real time: t more than t_span ahead of or behind this robot's now, or refused by seq alone (its t
-        within the window: window.by_seq_alone). What is ahead or behind never counts toward re-anchoring the
-        window (window.outside)."""
+        window, but first by what this robot itself knows of the time (lock-step: its tick, once it has one;
+        real time: its now, once it has the run's epoch). Lock-step: a message of a tick more than one past
+        the next it can hear (_next_tick; a reference is put a tick ahead) is ahead, and None (passed by,
+        uncounted, as a state) while its process is away by the fault schedule with no return before that
+        tick; one of a tick it has done is behind; between the two, the window judges, restarted first if it
+        was anchored where this robot cannot hear (a crafted message before its first tick). Real time: t
+        more than t_span ahead of or behind its now, or refused for its seq alone (window.by_seq_alone). What
+        is ahead or behind never counts toward re-anchoring the window (window.outside)."""
         if self.cfg.lockstep:
             if max(self.k_started, self.pose.seq if self.pose is not None else -1) < 0:
                 return w.check(t, seq)  # no tick of its own yet: the first message anchors the window
-            if seq > self._next_tick() + 1 or seq <= self.k_done:
-                return window.outside(w, t, seq, seq > self.k_done)
-            if w.peek(t, seq) in (window.JUMP, window.STALE):
+            nxt = self._next_tick()
+            if seq > nxt + 1:
+                if self.view is not None and not self.view.active(nxt):
+                    return None  # dead or hung by the schedule to its end: the messages pass it by
+                return window.outside(w, t, seq, True)
+            if seq <= self.k_done:
+                return window.outside(w, t, seq, False)
+            if w.t is not None and not self.k_done < w.seq <= nxt + 1 and w.peek(t, seq) in (window.JUMP, window.STALE):
                 w.reset()
             return w.check(t, seq)
         now = self.sim_time(self.clock.time())
@@ -206,7 +212,8 @@ class Intake(AgentState):
         return w.check(t, seq)
 
     def _on_clock(self, c: protocol.Clock, key: str = "") -> None:
-        if not self.bad.verdict(key, self._judge(self.w_clock, c.t, c.seq), "the clock's t or seq"):
+        v = self._judge(self.w_clock, c.t, c.seq)
+        if v is None or not self.bad.verdict(key, v, "the clock's t or seq"):
             return
         self.clock_seq = max(self.clock_seq, c.seq)
         if c.epoch > 0 and self.epoch is None:  # real time: the run's epoch, once (a new run is a new agent)
@@ -265,7 +272,10 @@ class Intake(AgentState):
 
     def _on_ref(self, ref: protocol.Ref, key: str = "") -> None:
         v = self._judge(self.w_ref, ref.t, ref.seq)
-        if v == window.JUMP and self.counters is not None and self.w_ref.t is not None:
+        if v is None:
+            return
+        if v == window.JUMP and self.counters is not None and self.w_ref.t is not None and \
+                not window.by_seq_alone(self.w_ref, ref.t, ref.seq):
             lost = getattr(self.counters, "lost_t", (-math.inf,) * 4)[3]  # [faultgen.CLS_REF]
             if self.w_ref.t < lost < ref.t <= lost + self.w_ref.t_span:
                 # real time under faults: its fault bus lost the references in between (a partition, a burst of
@@ -286,7 +296,8 @@ class Intake(AgentState):
         if self.view is not None and self.view.schedule.fresh(self.id, pose.seq) is not None and \
                 pose.seq > max(self.k_started, self.pose.seq if self.pose is not None else -1):
             self.w_pose.reset()  # it returns at pose.seq (restarted or resumed): its poses resume after a gap
-        if not self.bad.verdict(key, self._judge(self.w_pose, pose.t, pose.seq), "the pose's t or seq"):
+        v = self._judge(self.w_pose, pose.t, pose.seq)
+        if v is None or not self.bad.verdict(key, v, "the pose's t or seq"):
             return
         if not self.cfg.lockstep:
             mono = self.clock.monotonic()

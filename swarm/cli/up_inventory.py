@@ -155,7 +155,7 @@ def cmd_robot_fleet(args, started: float) -> int:
             bus.close()
     for a in agents:
         log.info("robot %d, run %s: %d ticks, %d states received, %d bad messages", rid, a.cfg.run, a.ticks,
-                 a.states_received, a.bad.count)
+                 a.states_received, a.bad_count())
     return EXIT_INTERRUPTED
 
 

@@ -113,12 +113,14 @@ def by_seq_alone(w: Window, t: float, seq: int) -> bool:
 
 def outside(w: Window, t: float, seq: int, ahead: bool) -> str:
     """The verdict on a message that the receiver's own clock puts outside what its sender can have sent by now:
-    ahead of it (a jump), or behind anything still of use (the window's own verdict, adopted only when that is
-    OK). Either way it never counts toward re-anchoring the window: a run of such messages is a forger's, not a
+    ahead of it (a jump), or behind anything still of use (stale in an empty window; else the window's own
+    verdict, adopted only when that is OK). Either way it never counts toward re-anchoring the window: a run of such messages is a forger's, not a
     sender that jumped, and three of them would otherwise pin the window where the forger wants it
     (docs/protocol.md, "Windows")."""
     if ahead:
         return JUMP
+    if w.t is None:  # nothing to be behind of but the receiver's clock: it anchors no window
+        return STALE
     v = w.peek(t, seq)
     return w.check(t, seq) if v == OK else v
 

@@ -104,3 +104,21 @@ def test_the_compiled_window_says_and_keeps_what_the_python_one_does(spans, call
         assert getattr(a, name)(*args) == getattr(b, name)(*args), (name, t, seq)
         assert repr((a.t, a.seq, a._cand, a._run)) == repr((b.t, b.seq, b._cand, b._run))  # a NaN as a NaN
     assert (b.t_span, b.seq_span, b.dt) == (a.t_span, a.seq_span, a.dt)
+
+
+def test_outside_never_counts_toward_re_anchoring_and_by_seq_alone_says_a_counter_jump(Window):
+    """window.outside: what the receiver's own clock puts ahead is a jump, and no run of such messages re-anchors
+    the window; behind, an empty window takes nothing (stale), a full one only what it takes as it is.
+    window.by_seq_alone: refused for the seq while the t is within the span forward."""
+    w = Window(2.0, 101)
+    assert window.outside(w, 1.0, 50, ahead=False) == STALE and w.t is None  # behind, nothing anchored
+    assert w.check(10.0, 500) == OK
+    for m in range(CONFIRM + 2):
+        assert window.outside(w, 5e8 + m, 10**12 + m, ahead=True) == JUMP
+        assert window.outside(w, 1.0 + m * 0.02, 50 + m, ahead=False) == STALE
+    assert (w.t, w.seq) == (10.0, 500)
+    assert window.outside(w, 10.02, 501, ahead=False) == OK and (w.t, w.seq) == (10.02, 501)  # behind now, yet next
+    assert window.by_seq_alone(w, 10.04, 10**12) and window.by_seq_alone(w, 10.04, 7)
+    assert not window.by_seq_alone(w, 10.04, 502)  # in the window
+    assert not window.by_seq_alone(w, 50.0, 10**12)  # a jump in t too: a sender that stalled may do that
+    assert not window.by_seq_alone(Window(2.0, 101), 10.0, 10**12)  # nothing anchored yet

@@ -215,3 +215,28 @@ def test_an_engaged_emergency_stop_is_always_obeyed_and_a_release_only_when_newe
     assert w2.agent.estopped == "x"
     stop2(1001, False)
     assert w2.agent.estopped is None
+
+
+@pytest.mark.unit
+def test_an_older_reference_of_the_tick_under_way_is_stale_not_a_restart_of_the_window():
+    """Lock-step: once the robot has a tick, its window restarts on a message within the ticks it can hear only
+    when the window was anchored where it cannot hear. A reference of the tick under way that comes after the
+    true next one (replayed, or forged with another pose) is stale, and the tick runs on the true reference: its
+    command is that of a robot that never saw the forged one."""
+    dt = CFG.dt
+    cmds = []
+    for forged in (False, True):
+        w = Wire()
+        ref = (1.0, 0.5, 0.0, 0.0, 0.0)
+        for k in range(5):
+            w.tick(k, (0.0, 0.0, 0.0), ref)
+        w.put(keys.leader_ref(F), Ref(t=5 * dt, seq=5, x=1.0, y=0.5, theta=0.0, v=0.0, w=0.0))
+        w.put(keys.leader_ref(F), Ref(t=6 * dt, seq=6, x=1.0, y=0.5, theta=0.0, v=0.0, w=0.0))
+        w.put(keys.robot_pose(F, CFG.id), Pose(t=5 * dt, seq=5, x=0.0, y=0.0, theta=0.0))
+        stale = w.agent.bad.stale
+        if forged:
+            w.put(keys.leader_ref(F), Ref(t=5 * dt, seq=5, x=50.0, y=50.0, theta=0.0, v=0.0, w=0.0))
+            assert w.agent.refs[5].x == 1.0 and w.agent.bad.stale == stale + 1
+        w.agent.tick_lockstep()
+        cmds.append((w.cmds[-1].t, w.cmds[-1].v, w.cmds[-1].w))
+    assert cmds[0] == cmds[1] and cmds[0][0] == 5 * dt

@@ -316,3 +316,17 @@ def test_runs_of_messages_ahead_or_behind_of_a_receivers_own_tick_never_re_ancho
     assert metrics["cmd_misses"] == 0 and metrics["failure"] is None
     assert all(a.w_ref.t < 1e3 and a.w_clock.t < 1e3 and a.w_pose.t < 1e3 for a in agents)
     assert all(a.bad.count > 0 for a in agents)
+
+
+@pytest.mark.timeout(240)
+def test_a_robot_dead_by_the_schedule_to_the_end_passes_the_later_references_by_uncounted():
+    """Played faults: a robot killed for good (and one hung past the end) keeps its process, which hears the
+    references and clocks of ticks it will never run. Past the ticks it can hear they pass it by, as states do:
+    neither bad nor taken. The run equals swarm sim."""
+    scn = scenario_file.load("paper-50hz", Overrides(robots=7, duration=4.0, kill="5@1"))
+    metrics, world, agents = run_swarm(scn, timeout_s=120)
+    sim = Simulation(scn, record_period=scn.dt).run()
+    assert np.abs(np.array(world.trace).reshape(-1, scn.n, 3) - sim.recording.q).max() == 0.0
+    dead = next(a for a in agents if a.id == 5)
+    assert dead.k_done < 60 and dead.bad.count == 0 and dead.refs_taken < 60
+    assert all(a.bad.count == 0 for a in agents) and metrics["bad_messages"] == 0
