@@ -453,3 +453,24 @@ def check_viz_port(v: VizOptions) -> None:
     error = bind_error(v.host, v.port)
     if error is not None:
         raise BadInput(f"--viz-port {v.port}: cannot listen on {v.host}:{v.port} ({error})")
+
+
+def close_recorder(recorder, metrics: dict, path) -> str | None:
+    """Finish the recording with the run's final metrics (those written to --metrics); what it holds, said:
+    snapshots received, those kept (the --record-hz grid's: 25 Hz unless said) and any lost or bad."""
+    from swarm.view.record import TOPIC_SNAPSHOT
+
+    if recorder is None:
+        return None
+    recorder.close(metrics)
+    missed = f", {recorder.snapshots_missed} lost on the way" if recorder.snapshots_missed else ""
+    bad = f", {recorder.bad} bad messages dropped" if recorder.bad else ""
+    kept = recorder.rec.counts[TOPIC_SNAPSHOT]
+    return f"record:  {path} ({recorder.snapshots} snapshots received, {kept} of them kept{missed}{bad})"
+
+
+def read_metrics(path: Path) -> dict | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None

@@ -18,7 +18,7 @@ from swarm.cli.parser import given
 from swarm.cli.common import (EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent, check_endpoint,
                               check_listen_free, check_out_dir, check_resources, check_viz_apart, check_viz_port,
                               clear_metrics, fleet_of, load_scenario, make_log_dir, open_bus, record_rate,
-                              scenario_args, viz_options, write_metrics)
+                              scenario_args, viz_options, write_metrics, close_recorder, read_metrics)
 from swarm.cli import console
 from swarm.cli.console import EstopFollower, cpu_counters, exit_status, progress_line, steal_pct, summary
 from swarm.core.clock import WALL
@@ -313,7 +313,7 @@ def cmd_up(args, started: float) -> int:
             sup.shutdown(first=("world",))
     status.close()
     interrupted = interrupted or stop.is_set()
-    metrics = _read_metrics(metrics_path)
+    metrics = read_metrics(metrics_path)
     ran = metrics is not None or last is not None  # the world started the run
     if metrics is None:  # the world wrote nothing: the run as far as the launcher saw it
         metrics = metrics_from_progress(scn, args.mode, last)
@@ -332,7 +332,7 @@ def cmd_up(args, started: float) -> int:
     metrics["leader_restarts"] = sup.leader_restarted
     metrics["host_steal_pct"] = steal_pct(cpu0, cpu_counters())
     write_metrics(metrics_path, log_dir, metrics)
-    record_note = _close_recorder(recorder, metrics, args.record)
+    record_note = close_recorder(recorder, metrics, args.record)
     if not args.quiet and ran:
         print(summary(metrics, scn.name))
         print(f"metrics: {metrics_path}")
@@ -515,33 +515,12 @@ def _start_recorder(bus, fleet: str, scn, args):
         raise Failure(str(e)) from None
 
 
-def _close_recorder(recorder, metrics: dict, path) -> str | None:
-    """Finish the recording with the run's final metrics (those written to --metrics); what it holds, said:
-    snapshots received, those kept (the --record-hz grid's: 25 Hz unless said) and any lost or bad."""
-    from swarm.view.record import TOPIC_SNAPSHOT
-
-    if recorder is None:
-        return None
-    recorder.close(metrics)
-    missed = f", {recorder.snapshots_missed} lost on the way" if recorder.snapshots_missed else ""
-    bad = f", {recorder.bad} bad messages dropped" if recorder.bad else ""
-    kept = recorder.rec.counts[TOPIC_SNAPSHOT]
-    return f"record:  {path} ({recorder.snapshots} snapshots received, {kept} of them kept{missed}{bad})"
-
-
 def launch_failure(text: str, sup, name: str | None = None) -> Failure:
     if name is not None and name in sup.children:
         tail = sup.children[name].log.read_text(errors="replace").strip().splitlines()[-5:]
         if tail:
             text += "\n  " + "\n  ".join(tail)
     return Failure(text)
-
-
-def _read_metrics(path: Path) -> dict | None:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
 
 
 def metrics_from_progress(scn, mode: str, p) -> dict:

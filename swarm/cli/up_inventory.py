@@ -27,8 +27,8 @@ from swarm.cli.parser import given
 from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent,
                               check_endpoint, check_listen_free, check_out_dir, check_resources, check_viz_apart,
                               check_viz_port, clear_metrics, load_scenario, make_log_dir, open_bus, record_rate,
-                              scenario_args, setup_logging, viz_options, write_json, write_metrics, Refused)
-from swarm.cli.up import _close_recorder, _read_metrics
+                              scenario_args, setup_logging, viz_options, write_json, write_metrics, Refused, close_recorder,
+                              read_metrics)
 from swarm.cli.console import EstopFollower, converged_phrase, exit_status, progress_line, summary
 from swarm.core import inventory
 from swarm.core.clock import WALL
@@ -486,7 +486,7 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
             sup.shutdown(first=("world", *[s.name for s in plan.robots]))
     status.close()
     interrupted = interrupted or stop.is_set()
-    metrics = _read_metrics(metrics_path)
+    metrics = read_metrics(metrics_path)
     if metrics is None:
         from world.referee import Referee
 
@@ -503,7 +503,7 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
     metrics["launch_s"] = launched_s
     metrics["processes"] = len(plan.processes)
     write_metrics(metrics_path, log_dir, metrics)
-    record_note = _close_recorder(recorder, metrics, args.record)
+    record_note = close_recorder(recorder, metrics, args.record)
     if not args.quiet:
         print(summary(metrics, scn.name))
         print(f"metrics: {metrics_path} (odometry-based; largest pose age {metrics.get('max_pose_age_s')} s)")
