@@ -180,11 +180,12 @@ class Intake(AgentState):
         if due:
             self.kick.set()
 
-    def _judge(self, w: window.Window, t: float, seq: int) -> str | None:
+    def _judge(self, w: window.Window, t: float, seq: int, lead: int) -> str | None:
         """The verdict on a message of the world or the leader (its pose, its clock, the reference): by its
         window, but first by what this robot itself knows of the time (lock-step: its tick, once it has one;
-        real time: its now, once it has the run's epoch). Lock-step: a message of a tick more than one past
-        the next it can hear (_next_tick; a reference is put a tick ahead) is ahead, and None (passed by,
+        real time: its now, once it has the run's epoch). Lock-step: a message of a tick more than `lead` past
+        the next it can hear (_next_tick; 1 for a reference, put a tick ahead; 0 for a pose or a clock) is
+        ahead, and None (passed by,
         uncounted, as a state) while its process is away by the fault schedule with no return before that
         tick; one of a tick it has done is behind; between the two, the window judges, restarted first if it
         was anchored where this robot cannot hear (a crafted message before its first tick). Real time: t
@@ -194,13 +195,13 @@ class Intake(AgentState):
             if max(self.k_started, self.pose.seq if self.pose is not None else -1) < 0:
                 return w.check(t, seq)  # no tick of its own yet: the first message anchors the window
             nxt = self._next_tick()
-            if seq > nxt + 1:
+            if seq > nxt + lead:
                 if self.view is not None and not self.view.active(nxt):
                     return None  # dead or hung by the schedule to its end: the messages pass it by
                 return window.outside(w, t, seq, True)
             if seq <= self.k_done:
                 return window.outside(w, t, seq, False)
-            if w.t is not None and not self.k_done < w.seq <= nxt + 1 and w.peek(t, seq) in (window.JUMP, window.STALE):
+            if w.t is not None and not self.k_done < w.seq <= nxt + lead and w.peek(t, seq) in (window.JUMP, window.STALE):
                 w.reset()
             return w.check(t, seq)
         now = self.sim_time(self.clock.time())
@@ -212,7 +213,12 @@ class Intake(AgentState):
         return w.check(t, seq)
 
     def _on_clock(self, c: protocol.Clock, key: str = "") -> None:
-        v = self._judge(self.w_clock, c.t, c.seq)
+        if c.epoch > 0 and self.epoch is None:
+            off = window.epoch_offset(c, self.clock.time())
+            if abs(off) > self._spans[0]:
+                self.bad.reject(key, ProtocolError(window.epoch_refusal(off)))
+                return
+        v = self._judge(self.w_clock, c.t, c.seq, lead=0)
         if v is None or not self.bad.verdict(key, v, "the clock's t or seq"):
             return
         self.clock_seq = max(self.clock_seq, c.seq)
@@ -271,7 +277,7 @@ class Intake(AgentState):
             self.waiting.discard(j)
 
     def _on_ref(self, ref: protocol.Ref, key: str = "") -> None:
-        v = self._judge(self.w_ref, ref.t, ref.seq)
+        v = self._judge(self.w_ref, ref.t, ref.seq, lead=1)
         if v is None:
             return
         if v == window.JUMP and self.counters is not None and self.w_ref.t is not None and \
@@ -296,7 +302,7 @@ class Intake(AgentState):
         if self.view is not None and self.view.schedule.fresh(self.id, pose.seq) is not None and \
                 pose.seq > max(self.k_started, self.pose.seq if self.pose is not None else -1):
             self.w_pose.reset()  # it returns at pose.seq (restarted or resumed): its poses resume after a gap
-        v = self._judge(self.w_pose, pose.t, pose.seq)
+        v = self._judge(self.w_pose, pose.t, pose.seq, lead=0)
         if v is None or not self.bad.verdict(key, v, "the pose's t or seq"):
             return
         if not self.cfg.lockstep:

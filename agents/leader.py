@@ -80,6 +80,11 @@ class Leader:
             self.w_clock.reset()
             return
         w = self.w_clock
+        if not self.lockstep and c.epoch > 0 and self.epoch is None:
+            off = window.epoch_offset(c, self.clock.time())
+            if abs(off) > w.t_span:
+                self.bad.reject(key, ProtocolError(window.epoch_refusal(off)))
+                return
         if self.lockstep and w.t is not None and w.peek(c.t, c.seq) in (window.JUMP, window.STALE):
             # every clock of the world comes (reliable), so a jump is a forger's: one that counted toward
             # re-anchoring would have this leader publish a reference for every tick up to it (window.outside)

@@ -111,6 +111,18 @@ def by_seq_alone(w: Window, t: float, seq: int) -> bool:
     return t0 is not None and t0 <= t <= t0 + w.t_span and w.peek(t, seq) in (JUMP, STALE)
 
 
+def epoch_offset(clock: Any, wall: float) -> float:
+    """How far [s] a real-time clock message's epoch puts its time from this machine's unix time `wall`:
+    epoch + t / speed - wall. The run's epoch is taken once, from the first clock: one far off (a forged epoch)
+    would put every true message of the run outside the receiver's window, and the swarm would stand still."""
+    return float(clock.epoch + clock.t / max(float(clock.speed), 1e-9) - wall)
+
+
+def epoch_refusal(off: float) -> str:
+    return (f"a clock whose epoch puts its time {off:+.4g} s from this machine's clock, more than the window's span "
+            "(a forged epoch, or machines' clocks out of sync: keep them on NTP)")
+
+
 def outside(w: Window, t: float, seq: int, ahead: bool) -> str:
     """The verdict on a message that the receiver's own clock puts outside what its sender can have sent by now:
     ahead of it (a jump), or behind anything still of use (stale in an empty window; else the window's own

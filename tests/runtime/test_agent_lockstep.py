@@ -240,3 +240,23 @@ def test_an_older_reference_of_the_tick_under_way_is_stale_not_a_restart_of_the_
         w.agent.tick_lockstep()
         cmds.append((w.cmds[-1].t, w.cmds[-1].v, w.cmds[-1].w))
     assert cmds[0] == cmds[1] and cmds[0][0] == 5 * dt
+
+
+@pytest.mark.unit
+def test_a_pose_past_the_next_tick_is_refused_though_a_reference_may_be_a_tick_early():
+    """Lock-step: the world puts a pose for the next tick only, the leader a reference a tick early.
+    A pose of the tick after next, taken, would make the robot skip the next tick (a missed command, a second's
+    wait): it is refused and counted, and the true next pose runs the tick."""
+    w = Wire()
+    ref = (1.0, 0.5, 0.0, 0.0, 0.0)
+    for k in range(5):
+        w.tick(k, (0.0, 0.0, 0.0), ref)
+    dt = CFG.dt
+    bad = w.agent.bad.count
+    w.put(keys.robot_pose(F, CFG.id), Pose(t=6 * dt, seq=6, x=0.0, y=0.0, theta=0.0))
+    assert w.agent.bad.count == bad + 1 and w.agent.pose.seq == 4
+    for k in (5, 6):  # the reference of the next tick, and the one after it a tick early: both taken
+        w.put(keys.leader_ref(F), Ref(t=k * dt, seq=k, x=1.0, y=0.5, theta=0.0, v=0.0, w=0.0))
+    assert w.agent.bad.count == bad + 1 and {5, 6} <= set(w.agent.refs)
+    w.tick(5, (0.0, 0.0, 0.0), ref)
+    assert w.cmds[-1].t == 5 * dt and w.agent.k_done == 5

@@ -302,3 +302,29 @@ def test_a_real_time_robot_counts_the_bad_poses_its_drive_refused_with_its_own()
         assert agent.bad_count() == agent.bad.count + 3
     finally:
         agent.close()
+
+
+@pytest.mark.unit
+def test_a_real_time_robot_takes_the_runs_epoch_only_from_a_clock_that_agrees_with_its_own():
+    """The run's epoch is taken once, from the first clock. A forged one far off (10^5 s) would put every true
+    pose and reference outside the robot's window for the whole run, and the swarm would stand still: it is
+    refused and counted, and the true clock's epoch is taken."""
+    from swarm.core.clock import FakeClock
+    from swarm.drives.sim import SimDrive
+
+    cfg = protocol.replace(CFG, lockstep=False)
+    net = MemoryNet()
+    clock = FakeClock()
+    agent = robot.Agent(MemoryBus(net), cfg, F, drive=SimDrive(MemoryBus(net), F, cfg.id), clock=clock)
+    agent.start([])
+    try:
+        forger = MemoryBus(net)
+        bad = agent.bad.count
+        forger.put(keys.world_clock(F), protocol.encode(protocol.Clock(t=0.0, seq=0, epoch=clock.time() + 1e5,
+                                                                       speed=1.0)))
+        assert agent.epoch is None and agent.bad.count == bad + 1
+        forger.put(keys.world_clock(F), protocol.encode(protocol.Clock(t=0.5, seq=25, epoch=clock.time() - 0.5,
+                                                                       speed=1.0)))
+        assert agent.epoch == clock.time() - 0.5 and agent.bad.count == bad + 1
+    finally:
+        agent.close()
