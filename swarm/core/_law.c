@@ -14,7 +14,7 @@
 #define MAX_BODIES 4096
 
 /* The constants of law.py (configure() sets them from the module; the values below are never used). */
-static double PI, TWO_PI, COLLISION_EPS, GOVERNOR_FRACTION, MAX_SPEED, MAX_TURN;
+static double PI, TWO_PI, LN2, COLLISION_EPS, GOVERNOR_FRACTION, MAX_SPEED, MAX_TURN;
 static long THRESHOLD_OFF, THRESHOLD_FROZEN, KIND_ROBOT;
 static Py_ssize_t P_K1, P_K2, P_K3, P_TU, P_VT, P_THRESHOLD, P_GOVERNOR, P_DT, P_SENSE, P_REACH, P_OBSTACLE_R,
     P_V_MAX, P_W_MAX, P_SIZE;
@@ -72,10 +72,17 @@ static double potential_slope(double l, double r, double R) {
         l = r + COLLISION_EPS;
     double d = l - R;
     double u = (l - r) / d;
-    double b = py_exp(u);
+    double b, one_minus_b;
+    if (u < -LN2) { /* law.exp_pair */
+        b = py_exp(u);
+        one_minus_b = 1.0 - b;
+    } else {
+        double e = py_expm1(u);
+        b = 1.0 + e;
+        one_minus_b = -e;
+    }
     if (b == 0.0)
         return 0.0;
-    double one_minus_b = -py_expm1(u);
     return b * (r - R) / (d * d * one_minus_b * one_minus_b);
 }
 
@@ -387,7 +394,7 @@ static PyObject *law_configure(PyObject *module, PyObject *law) {
         return NULL;
     }
     Py_ssize_t off, frozen, robot;
-    if (get_double(law, "PI", &PI) < 0 || get_double(law, "TWO_PI", &TWO_PI) < 0 ||
+    if (get_double(law, "PI", &PI) < 0 || get_double(law, "TWO_PI", &TWO_PI) < 0 || get_double(law, "LN2", &LN2) < 0 ||
         get_double(law, "COLLISION_EPS", &COLLISION_EPS) < 0 ||
         get_double(law, "GOVERNOR_FRACTION", &GOVERNOR_FRACTION) < 0 || get_double(law, "MAX_SPEED", &MAX_SPEED) < 0 ||
         get_double(law, "MAX_TURN", &MAX_TURN) < 0 || get_index(law, "THRESHOLD_OFF", &off) < 0 ||

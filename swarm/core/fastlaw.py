@@ -23,7 +23,7 @@ if os.environ.get("SWARM_PURE_PYTHON"):
 
 # The constants and layouts the compiled law takes from law.py (one place holds them), handed to it by name: it
 # looks up no attribute of its own.
-CONSTANTS = ("PI", "TWO_PI", "COLLISION_EPS", "GOVERNOR_FRACTION", "MAX_SPEED", "MAX_TURN", "THRESHOLD_OFF",
+CONSTANTS = ("PI", "TWO_PI", "LN2", "COLLISION_EPS", "GOVERNOR_FRACTION", "MAX_SPEED", "MAX_TURN", "THRESHOLD_OFF",
              "THRESHOLD_FROZEN", "KIND_ROBOT", "P_K1", "P_K2", "P_K3", "P_TU", "P_VT", "P_THRESHOLD", "P_GOVERNOR",
              "P_DT", "P_SENSE", "P_REACH", "P_OBSTACLE_R", "P_V_MAX", "P_W_MAX", "P_SIZE", "M_FROZEN", "M_SNAP_X",
              "M_SNAP_Y", "M_SNAP_TH", "M_T_SNAP", "M_EX", "M_EY", "M_ETH", "M_SCALE", "M_SIZE")

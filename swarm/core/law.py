@@ -32,6 +32,7 @@ _jit: Jit = globals().get("__swarm_jit__", lambda f: f)
 
 PI = math.pi
 TWO_PI = 2.0 * math.pi
+LN2 = math.log(2.0)
 
 # A centre distance below r is evaluated at r + COLLISION_EPS: inside a body the
 # repulsion stays at its (huge) value next to the border instead of vanishing (the
@@ -109,14 +110,28 @@ def wrap_angle(a: float) -> float:
 
 
 @_jit
+def exp_pair(u: float) -> tuple[float, float]:
+    """(B, 1 - B) with B = e^u, for u <= 0 (the potential's u), with one libm call and each within an ulp of
+    the exact value. Below -ln 2, B < 1/2 and 1 - B is exact enough from B (it is above 1/2: no cancellation);
+    above, expm1 gives 1 - B without the cancellation that 1 - exp(u) would have near u = 0 (a body at the
+    robot's own border), and B = 1 + expm1(u) is above 1/2. exp and expm1 both, as the paper's formula reads,
+    cost the crowded simulator a third of its time (docs/design.md, "One libm call a body")."""
+    if u < -LN2:
+        b = math.exp(u)
+        return b, 1.0 - b
+    e = math.expm1(u)
+    return 1.0 + e, -e
+
+
+@_jit
 def potential(l: float, r: float, R: float) -> float:
     """V(l) = B/(1-B) of a body with radii r < R at centre distance l [m] (>= 0, 0 beyond R)."""
     if l >= R:
         return 0.0
     if l < r + COLLISION_EPS:
         l = r + COLLISION_EPS
-    u = (l - r) / (l - R)
-    return math.exp(u) / -math.expm1(u)
+    b, one_minus_b = exp_pair((l - r) / (l - R))
+    return b / one_minus_b
 
 
 @_jit
@@ -127,11 +142,9 @@ def potential_slope(l: float, r: float, R: float) -> float:
     if l < r + COLLISION_EPS:
         l = r + COLLISION_EPS
     d = l - R
-    u = (l - r) / d
-    b = math.exp(u)
+    b, one_minus_b = exp_pair((l - r) / d)
     if b == 0.0:  # far side of the region: also avoids 0/0 when (l - R)^2 underflows
         return 0.0
-    one_minus_b = -math.expm1(u)
     return b * (r - R) / (d * d * one_minus_b * one_minus_b)
 
 

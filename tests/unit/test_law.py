@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import decimal
 import math
 
 import numpy as np
@@ -47,6 +48,41 @@ def command(pose, offset, t, ref, nb, mem, p, r_self=0.3):
 
 
 # --------------------------------------------------------------------------- potential
+
+
+def _ulps(got: float, exact: decimal.Decimal) -> float:
+    """|got - exact| in units of the last place of `exact`'s double."""
+    e = float(exact)
+    ulp = math.ulp(e) if e != 0.0 else math.ulp(0.0)
+    return float(abs(decimal.Decimal(got) - exact)) / ulp
+
+
+def test_exp_pair_gives_b_and_one_minus_b_within_an_ulp_everywhere():
+    """B and 1 - B from one libm call (exp below -ln 2, expm1 above): each within an ulp of the exact value,
+    next to u = 0 (a body at the robot's border, where 1 - exp(u) would lose every digit) and at -ln 2."""
+    decimal.getcontext().prec = 400  # 1 - B of u = -1e-200 needs 217 digits
+    rng = np.random.default_rng(7)
+    us = [0.0, -1e-200, -1e-12, -1e-6, -law.LN2, math.nextafter(-law.LN2, 0.0), math.nextafter(-law.LN2, -1.0),
+          -1.0, -37.0, -700.0, -745.0, *(-rng.exponential(3.0, 400)), *(-rng.uniform(0.0, 1e-3, 100))]
+    worst_b = worst_1mb = 0.0
+    for u in us:
+        b, one_minus_b = law.exp_pair(u)
+        exact_b = decimal.Decimal(u).exp()
+        worst_b = max(worst_b, _ulps(b, exact_b))
+        if u != 0.0:
+            worst_1mb = max(worst_1mb, _ulps(one_minus_b, 1 - exact_b))
+    assert worst_b <= 1.0
+    assert worst_1mb <= 1.0
+    # the plain 1 - exp(u) next to u = 0 is off by about 1e4 ulps: why the pair takes expm1 there
+    assert _ulps(1.0 - math.exp(-1e-12), 1 - decimal.Decimal(-1e-12).exp()) > 1e3
+    assert law.exp_pair(-800.0) == (0.0, 1.0)
+
+
+def test_exp_pair_compiled_gives_the_same_bits():
+    compiled = jit.compiled("swarm.core.law")
+    rng = np.random.default_rng(8)
+    for u in (0.0, -law.LN2, math.nextafter(-law.LN2, 0.0), -745.0, -800.0, *(-rng.exponential(3.0, 200))):
+        assert compiled.exp_pair(u) == law.exp_pair(u)
 
 
 @pytest.mark.parametrize("r, R", [(0.3, 1.2), (0.2, 0.5), (0.5, 3.0), (1.0, 1.1)])
