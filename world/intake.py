@@ -149,9 +149,9 @@ class Intake(WorldState):
             if self.wf is not None and not self.wf.running(i, self.k):  # a scheduled kill or hang: membership
                 log.info("robot %d's token is gone at t = %g s (its process is %s by the fault schedule)", i,
                          self.t, "dead" if self.wf.dead(i, self.k) else "hung")  # follows the schedule
-            elif self.rtf is not None and self.rtf.away(i, self._now_rt()):  # real time: as scheduled
+            elif self.rtf is not None and self.rtf.away(i, now := self._now_rt()):  # real time: as scheduled
                 log.info("robot %d's token is gone at t = %g s (its process is %s by the fault schedule)", i,
-                         self._now_rt(), fl.process_state(cast(fl.Faults, self.scn.faults), i, self._now_rt()))
+                         now, fl.process_state(cast(fl.Faults, self.scn.faults), i, now))
             else:
                 self.lost.add(i)
                 self.lost_events += 1
@@ -185,7 +185,7 @@ class Intake(WorldState):
                 return w.check(t, seq)
             return window.outside(w, t, seq, seq > w.seq)
         v = w.check(t, seq)
-        if v == window.JUMP and self.rtf is not None and self.rtf.returned(i, self._now_rt(), self._spans[0]):
+        if v == window.JUMP and self.rtf is not None and self.rtf.returned(i, now, span):
             w.reset()
             v = w.check(t, seq)
         return v
