@@ -99,19 +99,13 @@ class Intake(AgentState):
     def _on_estop(self, e: protocol.Estop, key: str = "") -> None:
         """The emergency stop: latched by the guard (a real drive halts within a period: the guard's
         thread); a lock-step robot commands zero while it is engaged. Safety first: an engage that decodes
-        is always obeyed, whatever its t and seq (a forged message far ahead must never make a later
-        stop look old); a release only when it moves forward and is newer than every engage obeyed."""
-        verdict = self.w_estop.check(e.t, e.seq)
-        if e.engaged:
-            if verdict not in (window.OK, window.DUPLICATE):
-                self.bad.verdict(key, verdict, "the emergency stop's t or seq")  # counted, and obeyed all the same
-            self._estop_seq = max(self._estop_seq, e.seq)
-        else:
-            if not self.bad.verdict(key, verdict, "the emergency stop's t or seq"):
-                return
-            if e.seq <= self._estop_seq:
-                self.bad.stale += 1  # older than an engage obeyed: the stop holds
-                return
+        is always obeyed, whatever its t and seq; a release only when it comes after every engage obeyed
+        (window.StopOrder: judged on this machine's clock, so no forged engage far ahead pins the stop)."""
+        act, verdict = self.estop_order.take(e.engaged, e.t, e.seq, self.clock.time())
+        if verdict != window.OK:
+            self.bad.verdict(key, verdict, "the emergency stop's t or seq")  # counted (an engage obeyed all the same)
+        if not act:
+            return
         self.estopped = e.reason or "engaged" if e.engaged else None
         if self.guard is not None:
             self.guard.estop(e.engaged, e.reason)

@@ -79,7 +79,6 @@ class AgentState:
     _batch: tuple[float | None, float, float] = (None, math.inf, 0.0)
     _hinted_n = 0  # how many of _key_ids (insertion-ordered; only added to, or cleared) went to bus.hint
     _all_sub = None
-    _estop_seq = -1  # the largest seq of an engaged emergency stop obeyed
     _idle = -1  # lock-step under faults: the tick this robot's process is dead or hung at
     _overdue = 0  # lock-step ticks computed without all their inputs (after wait_timeout)
     _world_ups = 0  # times the world's token appeared
@@ -183,7 +182,7 @@ class AgentState:
         self.w_state: dict[int, window.Window] = {}  # robot j
         self.ended = False  # the run this agent serves is over (a new run began): ignore everything
         self.belief: protocol.Pose | None = None  # lock-step under faults: its pose as it knows it at the tick
-        self.w_estop = window.new(math.inf, 2**62)  # the operator's: forward only (its clock is unix time)
+        self.estop_order = window.StopOrder(self._spans[0])  # the operator's: its t is unix time
         self.estopped: str | None = None
         self.leader_alive = False
         self.leader_ups = 0  # times the leader's token appeared (a restarted leader during a tick)

@@ -7,17 +7,19 @@
     watch.metrics()   -> {"estops": {"engaged": 1, "released": 1, "events": [{"t": 12.3, "engaged": true, ...}]}}
 
 The robots obey the stop (agents.robot, agents.guard); this only reports it. An operator repeats each message
-for a while (`swarm stop --repeat-s`): only a change (engaged <-> released) counts. As the robots do, an
-engage is taken whatever its t and seq; a release only when it is newer than every engage taken.
+for a while (`swarm stop --repeat-s`): only a change (engaged <-> released) counts. As the robots do
+(swarm.proto.window.StopOrder, on this machine's clock), an engage is taken whatever its t and seq; a release
+only when it comes after every engage taken.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+import time
 from typing import Callable
 
-from swarm.proto import keys, protocol
+from swarm.proto import keys, protocol, window
 from swarm.proto.protocol import ProtocolError
 
 log = logging.getLogger("swarm.world")
@@ -26,13 +28,14 @@ EVENTS_KEPT = 100  # the metrics list at most this many changes (the counts are 
 
 
 class EstopLog:
-    def __init__(self, bus, fleet: str, now: Callable[[], tuple[float, int]]) -> None:
-        self.bus, self.fleet, self.now = bus, fleet, now
+    def __init__(self, bus, fleet: str, now: Callable[[], tuple[float, int]], span: float = 2.0,
+                 wall: Callable[[], float] = time.time) -> None:
+        self.bus, self.fleet, self.now, self.wall = bus, fleet, now, wall
         self.bad = protocol.BadMessages(log)
         self.engaged: str | None = None  # the reason of the stop in force, None while released
         self.counts = {"engaged": 0, "released": 0}
         self.events: list[dict] = []
-        self._seq = -1  # the largest seq of an engage taken
+        self.order = window.StopOrder(span)  # span: the robots' t_span (an engage ahead of it marks no further)
         self._lock = threading.Lock()
         self._handle = None
 
@@ -46,15 +49,12 @@ class EstopLog:
             self.bad.reject(key, err)
             return
         with self._lock:
-            if e.engaged:
-                self._seq = max(self._seq, e.seq)
-                if self.engaged is not None:
-                    return  # a repeat, or another operator's: the stop is in force already
-                self.engaged = e.reason or "no reason given"
-            else:
-                if self.engaged is None or e.seq <= self._seq:
-                    return  # a repeat, or older than the engage in force
-                self.engaged = None
+            act, verdict = self.order.take(e.engaged, e.t, e.seq, self.wall())
+            if verdict == window.JUMP:
+                self.bad.verdict(key, verdict, "the emergency stop's t")
+            if not act or (self.engaged is not None) == e.engaged:
+                return  # a repeat, another operator's, or a release older than the engage in force
+            self.engaged = (e.reason or "no reason given") if e.engaged else None
             kind = "engaged" if e.engaged else "released"
             self.counts[kind] += 1
             t, seq = self.now()

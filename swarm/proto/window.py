@@ -137,6 +137,34 @@ def outside(w: Window, t: float, seq: int, ahead: bool) -> str:
     return w.check(t, seq) if v == OK else v
 
 
+class StopOrder:
+    """The emergency stop's order as one receiver takes it (the robots and the world; docs/protocol.md, "Windows").
+    Messages are ordered by (t, seq), t the operator's unix time. An engage is always obeyed; a release only when
+    it comes after every engage taken. Judged on the receiver's own unix clock first: a t more than `span` ahead
+    of it is no operator's (operators keep their clocks on NTP): it is counted bad, a release of it is refused,
+    and an engage of it is obeyed but marks the order only up to now + span. So no engage, however far ahead
+    its t or seq, holds the stop against the operator's release longer than span seconds after it came."""
+
+    __slots__ = ("span", "mark")
+
+    def __init__(self, span: float) -> None:
+        self.span = span
+        self.mark: tuple[float, int] = (-math.inf, -1)  # the latest engage taken: (t, seq)
+
+    def take(self, engaged: bool, t: float, seq: int, now: float) -> tuple[bool, str]:
+        """(act, verdict): act says to apply the message (an engage: always); verdict is OK, or JUMP (t ahead of
+        the receiver's clock: bad) or STALE (a release no later than an engage taken)."""
+        limit = now + self.span
+        if engaged:
+            self.mark = max(self.mark, (t, seq) if t <= limit else (limit, 2**62))
+            return True, OK if t <= limit else JUMP
+        if t > limit:
+            return False, JUMP
+        if (t, seq) <= self.mark:
+            return False, STALE
+        return True, OK
+
+
 try:  # the compiled loops, this window among them (swarm/proto/_wire_window.c), where they were built: new() makes
     # one of those; swarm.proto.protocol takes the module from here (one place decides it)
     from swarm.proto import _wire as _compiled

@@ -11,12 +11,14 @@ import math
 import subprocess
 from pathlib import Path
 import sys
+import time
 
 import pytest
 
 from agents import robot
 from swarm.proto import keys, protocol
 from swarm.core import law
+from swarm.core.clock import FakeClock
 from swarm.net.bus import MemoryBus
 from swarm.proto.protocol import Clock, Pose, Ref, State
 from tests.runtime.agent_helpers import CFG, F, Wire, law_command
@@ -197,17 +199,27 @@ def test_agent_module_imports_nothing_of_the_world_nor_numpy():
 
 @pytest.mark.unit
 def test_an_engaged_emergency_stop_is_always_obeyed_and_a_release_only_when_newer():
-    """A forged release far ahead (seq 2^53) must not make the operator's later stop look old: an engage
-    that decodes is obeyed whatever its t and seq (and counted when out of order); a release only when it
-    moves forward and is newer than every engage obeyed."""
+    """An engage that decodes is obeyed whatever its t and seq; a release only when it comes after every engage
+    obeyed, by (t, seq). Judged on the robot's own clock: neither a forged release nor a forged engage far ahead
+    (seq 2^53, t 1e11) pins the order, so the operator's stop and release still work."""
     w = Wire()
+    w.agent.clock = clock = FakeClock(epoch=time.time())  # the robot's own clock: the operator's is unix time
+    now = clock.time()
     stop = lambda t, seq, engaged: w.put(keys.estop(F), protocol.Estop(t=t, seq=seq, engaged=engaged, reason="test"))  # noqa: E731
-    stop(1.7e9 + 5, 2**53, False)  # the forged release: adopted (nothing was engaged), the window now far ahead
-    assert w.agent.estopped is None
-    stop(1.7e9 + 10, 1_700_000_010_000, True)  # the operator's stop: older by the window, obeyed all the same
-    assert w.agent.estopped == "test" and w.agent.bad.stale == 1
-    stop(1.7e9 + 11, 1_700_000_011_000, False)  # a release is refused while the window is that far ahead
+    stop(now + 5, 2**53, False)  # a forged release far ahead: refused, counted
+    assert w.agent.estopped is None and w.agent.bad.count == 1
+    stop(now, int(now * 1000), True)  # the operator's stop: obeyed
     assert w.agent.estopped == "test"
+    stop(now + 0.5, int(now * 1000) + 500, False)  # the operator's release
+    assert w.agent.estopped is None
+    stop(1e11, 2**53, True)  # a forged engage far ahead: obeyed (safety first), counted
+    assert w.agent.estopped == "test" and w.agent.bad.count == 2
+    stop(now + 1, int(now * 1000) + 1000, False)  # within the span it marks (now + t_span): the stop holds
+    assert w.agent.estopped == "test" and w.agent.bad.stale == 1
+    clock.advance(w.agent._spans[0] + 1)
+    later = clock.time()  # the operator's release after the span: taken (before, the forged engage held for good)
+    stop(later, int(later * 1000), False)
+    assert w.agent.estopped is None
     w2 = Wire()
     stop2 = lambda seq, engaged: w2.put(keys.estop(F), protocol.Estop(t=1.7e9, seq=seq, engaged=engaged, reason="x"))  # noqa: E731
     stop2(1000, True)

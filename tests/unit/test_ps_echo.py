@@ -120,6 +120,31 @@ def test_the_world_logs_each_change_of_the_emergency_stop_once_and_tells_it_on_i
     log.close()
 
 
+def test_a_forged_engage_far_ahead_does_not_keep_the_world_from_logging_the_operators_release():
+    """The world judges the stop on its own clock, as the robots do: an engage with t 1e11 and seq 2^53 is logged
+    (and counted bad), but marks the order only up to its clock's now + span; the operator's release after that
+    is logged. Before, every later release looked older, and the summary said "still ENGAGED"."""
+    from world.estop import EstopLog
+
+    net = MemoryNet()
+    wall = [1.8e9]
+    log = EstopLog(MemoryBus(net), "lab", now=lambda: (1.0, 50), span=2.0, wall=lambda: wall[0])
+    log.start()
+    op = MemoryBus(net)
+    op.put(keys.estop("lab"), protocol.encode(protocol.Estop(t=1e11, seq=2**53, engaged=True, reason="forged")))
+    wall[0] += 1.0
+    op.put(keys.estop("lab"), protocol.encode(protocol.Estop(t=wall[0], seq=int(wall[0] * 1000), engaged=False,
+                                                             reason="")))
+    assert log.engaged == "forged" and log.bad.count == 1  # within the span it marks: the stop holds
+    wall[0] += 2.0
+    op.put(keys.estop("lab"), protocol.encode(protocol.Estop(t=wall[0], seq=int(wall[0] * 1000), engaged=False,
+                                                             reason="")))
+    assert log.engaged is None and log.metrics()["estops"]["released"] == 1
+    op.put(keys.estop("lab"), protocol.encode(protocol.Estop(t=wall[0] + 10, seq=0, engaged=False, reason="")))
+    assert log.bad.count == 2  # a release ahead of the world's clock: refused, counted
+    log.close()
+
+
 def test_the_summary_says_when_the_emergency_stop_was_engaged_and_released():
     from swarm.cli.console import estop_text
 
