@@ -262,7 +262,7 @@ class Attack:
                     Clock(t=self.dt, seq=1, epoch=0.0, speed=1.0)), [("leader", STALE)]),
                 ("world/clock", clock, "t 1e8, seq 10^9 (jump)", protocol.encode(
                     Clock(t=1e8, seq=10**9, epoch=0.0, speed=1.0)), [("leader", BAD)])]
-        malformed("world/progress", keys.world_progress(F), [("launcher", BAD)])
+        malformed("world/progress", keys.world_progress(F), [("nobody (--no-viz)", UNCOUNTED)])  # swarm up: a pipe
         malformed("world/run", keys.world_run(F), [("run followers", UNCOUNTED)])
         malformed("world/snapshot", keys.world_snapshot(F), [("nobody (--no-viz)", UNCOUNTED)])
         malformed("estop", keys.estop(F), self._all(BAD))

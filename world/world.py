@@ -179,12 +179,17 @@ class World(LockstepLoop, RealtimeLoop):
 
 
 def run_world(bus, clock, scn: Scenario, opts: WorldOptions = WorldOptions(), stop: threading.Event | None = None,
-              fleet: str = "default", started: float | None = None) -> tuple[dict, "World"]:
+              fleet: str = "default", started: float | None = None, teller=None) -> tuple[dict, "World"]:
     """Run scenario `scn` on `bus`: serve, wait for every robot and the leader (NotReady after
-    opts.start_timeout), run, close. Returns the metrics and the world (its trace)."""
+    opts.start_timeout), run, close. Returns the metrics and the world (its trace). teller: where to tell each
+    progress message besides the bus (swarm.launch.progress_pipe.Teller: the launcher that started this world),
+    with the real-time epoch."""
     stop = stop or threading.Event()
     started = time.perf_counter() if started is None else started
     world = World(bus, scn, fleet, opts, clock=clock)
+    if teller is not None:
+        world.on_progress = lambda p: teller.progress(p, None if opts.lockstep else getattr(world, "epoch", None),
+                                                      opts.speed)
     world.start()
     try:
         log.info("world: %d robots, %d obstacles, %s, waiting for robots and leader", scn.n, len(scn.obstacles),

@@ -26,6 +26,7 @@ from swarm.core.metrics import violations
 from swarm.launch.capacity import Waves
 from swarm.launch.plan import DEFAULT_LISTEN, RestartPolicy, UpOptions, VizOptions, make_plan
 from swarm.process import die_with_parent
+from swarm.launch.progress_pipe import ProgressPipe
 from swarm.launch.supervisor import Supervisor, compile_project, exit_text
 from swarm.net import presence
 from swarm.proto import keys
@@ -224,6 +225,7 @@ def cmd_up(args, started: float) -> int:
     if note is not None:
         say(note)
     recorder = None
+    pipe = ProgressPipe()  # the world's progress, heard on a pipe only it can write (swarm.launch.progress_pipe)
     with StopEvent(hard_second=False) as stop, Supervisor(plan, log_dir) as sup:
         bus = None
         try:
@@ -242,12 +244,11 @@ def cmd_up(args, started: float) -> int:
             presence.announce(bus, fleet, "launcher")  # `swarm ps` lists this process too
             estop = EstopFollower(bus, fleet, say)  # the status line says E-STOP while it is engaged
             alive: set[str] = set()
-            progress: list = [None]
             bus.watch_alive(keys.alive_any(fleet), lambda k, up: alive.add(k) if up else alive.discard(k))
-            bus.subscribe(keys.world_progress(fleet), lambda k, b: progress.__setitem__(0, _progress(b, k)))
             if args.record is not None:  # subscribed before the world starts: its first snapshot is recorded
                 recorder = _start_recorder(bus, fleet, scn, args)
-            sup.start(plan.world)
+            sup.start(plan.world, env=pipe.env(), pass_fds=pipe.fds())  # its progress on a pipe, not the network
+            pipe.started()
             sup.start(plan.leader)
             robots = {keys.alive(fleet, "robot", i) for i in range(scn.n)}
             want = {keys.alive(fleet, "world"), keys.alive(fleet, "leader")} | robots
@@ -274,7 +275,7 @@ def cmd_up(args, started: float) -> int:
             if not stop.is_set():
                 say(f"all {len(want)} processes alive after {launched_s:.2f} s; router at {plan.endpoint}")
             world = sup.children["world"]
-            faults = FaultActor(scn, args.mode == "lockstep", bus, fleet, sup, say, log_dir)
+            faults = FaultActor(scn, args.mode == "lockstep", bus, fleet, sup, say, log_dir, pipe)
             while world.proc.poll() is None:
                 if stop.is_set():
                     interrupted = True
@@ -289,7 +290,7 @@ def cmd_up(args, started: float) -> int:
                     sup.wait("world", 3.0)
                     break
                 watch_viewer()
-                last = progress[0] or last
+                last = pipe.last or last
                 faults.act(last)
                 if last is not None:
                     status.update(progress_line(last, estop.engaged))
@@ -299,7 +300,7 @@ def cmd_up(args, started: float) -> int:
                     sup.wait("world", 3.0)
                     break
                 stop.wait(faults.wait_s(0.1))
-            last = progress[0] or last
+            last = pipe.last or last
             rc = world.proc.returncode
             if not interrupted and failure is None and rc not in (0, 1, 3, EXIT_INTERRUPTED):
                 failure = f"world lost at t = {_t(last)} ({exit_text(rc)}); see {world.log}"
@@ -311,6 +312,7 @@ def cmd_up(args, started: float) -> int:
             if bus is not None:
                 bus.close()
             sup.shutdown(first=("world",))
+            pipe.close()
     status.close()
     interrupted = interrupted or stop.is_set()
     metrics = read_metrics(metrics_path)
@@ -327,7 +329,7 @@ def cmd_up(args, started: float) -> int:
     metrics.setdefault("failure", None)
     metrics["launch_s"] = launched_s
     metrics["processes"] = len(plan.processes)
-    metrics["launcher_bad_messages"] = 0 if _BAD_PROGRESS is None else _BAD_PROGRESS.count
+    metrics["launcher_bad_messages"] = pipe.bad
     metrics["robot_restarts"] = sup.restarted
     metrics["leader_restarts"] = sup.leader_restarted
     metrics["host_steal_pct"] = steal_pct(cpu0, cpu_counters())
@@ -351,36 +353,32 @@ def cmd_up(args, started: float) -> int:
 
 class FaultActor:
     """`swarm up`: the scenario's scheduled kills and hangs done for real (swarm.launch.process_faults):
-    lock-step by the world's tick (its progress), real time by its clock (epoch + t / speed). Each is said
-    on the status line and written to faults.log in the log directory (unix time, simulated time, what)."""
+    lock-step by the world's tick, real time by its clock (epoch + t / speed), both told by the world over the
+    progress pipe (never the network: anyone on the router could say them). Each is said on the status line and
+    written to faults.log in the log directory (unix time, simulated time, what)."""
 
-    def __init__(self, scn, lockstep: bool, bus, fleet: str, sup, say, log_dir: Path) -> None:
+    def __init__(self, scn, lockstep: bool, bus, fleet: str, sup, say, log_dir: Path, pipe) -> None:
         from swarm.launch.process_faults import ProcessFaults
 
         self.pf = ProcessFaults(scn.faults, scn.dt, lockstep)
         self.lockstep, self.sup, self.say, self.dt = lockstep, sup, say, scn.dt
-        self.bus, self.fleet = bus, fleet
+        self.bus, self.fleet, self.pipe = bus, fleet, pipe
         self.path = log_dir / "faults.log"
         self.epoch: tuple[float, float] | None = None  # real time: (epoch, speed) of the world's clock
-        if self.pf and not lockstep:
-            bus.subscribe(keys.world_clock(fleet), self._on_clock)
+        self.done: list[tuple[int, str]] = []  # (robot, the action done), in order
 
-    def _on_clock(self, key: str, data: bytes) -> None:
-        from swarm.proto import protocol
-
-        try:
-            c = protocol.decode(data, "clock")
-        except protocol.ProtocolError:
-            return
-        if c.epoch > 0 and self.epoch is None:
+    def _epoch(self) -> tuple[float, float] | None:
+        if self.epoch is None and self.pipe.epoch is not None:
             WALL.anchor()  # take up a step of the system clock made before this run
-            self.epoch = (c.epoch, c.speed)
+            self.epoch = self.pipe.epoch
+        return self.epoch
 
     def now(self, last) -> float | None:
         """Lock-step: the world's tick; real time: the simulated time now (None before the world's clock)."""
         if self.lockstep:
             return None if last is None else last.seq
-        return None if self.epoch is None else (WALL.time() - self.epoch[0]) * self.epoch[1]
+        epoch = self._epoch()
+        return None if epoch is None else (WALL.time() - epoch[0]) * epoch[1]
 
     def act(self, last) -> None:
         if not self.pf:
@@ -389,6 +387,7 @@ class FaultActor:
         due = self.pf.due(tick=cast("int | None", now)) if self.lockstep else self.pf.due(t=now)  # lock-step: a tick
         for robot, action in due:
             done = self.sup.fault(f"robot {robot}", action)
+            self.done.append((robot, action))
             when = f"tick {now}" if self.lockstep else f"t = {now:.3f} s"
             self.say(f"fault: {done} at {when}")
             with open(self.path, "a") as f:
@@ -406,9 +405,10 @@ class FaultActor:
     def wait_s(self, longest: float) -> float:
         """How long the launcher's loop may sleep: until the next real-time action, at most `longest`."""
         nxt = self.pf.next_time()
-        if self.lockstep or nxt is None or self.epoch is None:
+        epoch = None if self.lockstep else self._epoch()
+        if nxt is None or epoch is None:
             return longest
-        at = self.epoch[0] + nxt / self.epoch[1]
+        at = epoch[0] + nxt / epoch[1]
         return max(0.0, min(longest, at - WALL.time()))
 
 
@@ -480,25 +480,6 @@ def _check_secure(args, robots: int) -> str:
             if not ep.startswith("tls/"):
                 raise BadInput(f"{flag} {ep}: with --secure every endpoint is tls/HOST:PORT")
     return f"tls/127.0.0.1:{manifest['port']}"
-
-
-_BAD_PROGRESS = None  # the launcher's refused progress messages (swarm.proto.protocol.BadMessages)
-
-
-def _progress(payload: bytes | None, key: str = "progress"):
-    """A progress message, decoded (None if none or bad: refused, counted and logged)."""
-    global _BAD_PROGRESS
-    from swarm.proto import protocol
-
-    if payload is None:
-        return None
-    try:
-        return protocol.decode(payload, "progress")
-    except protocol.ProtocolError as e:
-        if _BAD_PROGRESS is None:
-            _BAD_PROGRESS = protocol.BadMessages(log)
-        _BAD_PROGRESS.reject(key, e)
-        return None
 
 
 def _t(p) -> str:

@@ -53,12 +53,13 @@ def cmd_world(args, started: float) -> int:
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, role="world")
         log.info("world: connected (fleet %s)", fleet)
+        from swarm.launch.progress_pipe import Teller
         from world.claims import ClaimServer
 
         claims = ClaimServer(bus, fleet, scn.n)  # robots started with --id auto
         claims.start()
         try:
-            metrics, world = run_world(bus, WALL, scn, opts, stop, fleet, started)
+            metrics, world = run_world(bus, WALL, scn, opts, stop, fleet, started, teller=Teller.from_env())
         except NotReady as e:
             raise Failure(str(e)) from None
         finally:

@@ -84,11 +84,12 @@ class Supervisor:
         """The child's log file (appended to: a reused --log-dir keeps earlier runs' lines)."""
         return self.log_dir / (spec.name.replace(" ", "-") + ".log")
 
-    def start(self, spec: ProcSpec) -> Child:
+    def start(self, spec: ProcSpec, env: dict[str, str] | None = None, pass_fds: tuple[int, ...] = ()) -> Child:
+        """Start spec's process; env: variables for it alone, pass_fds: descriptors it inherits (a pipe)."""
         log = self.log_of(spec)
         with open(log, "ab") as out:
             proc = subprocess.Popen(spec.argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
-                                    env=self.env, process_group=0)
+                                    env={**self.env, **(env or {})}, process_group=0, pass_fds=pass_fds)
         old = self.children.get(spec.name)
         child = Child(spec, proc, log)
         if old is not None:
