@@ -47,7 +47,7 @@ class Failure(SwarmError):
 
 
 class StopEvent:
-    """SIGINT and SIGTERM set a threading.Event that the process's loop polls. A second Ctrl-C stops at
+    """SIGINT, SIGTERM and SIGHUP (the terminal closed) set a threading.Event that the process's loop polls. A second Ctrl-C stops at
     once (KeyboardInterrupt) unless hard_second is False: then the shutdown under way (bounded: it
     ends with SIGKILL) finishes, so the metrics and a recording are still written. exit_after_s
     bounds the clean shutdown: that long after the first signal, the process exits anyway.
@@ -66,7 +66,7 @@ class StopEvent:
         self._r, self._w = os.pipe()
         self._watcher = threading.Thread(target=self._watch, name="stop-signals", daemon=True)
         self._watcher.start()
-        self._old = {s: signal.signal(s, self._handle) for s in (signal.SIGINT, signal.SIGTERM)}
+        self._old = {s: signal.signal(s, self._handle) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
         return self.event
 
     def _handle(self, signum, frame) -> None:
@@ -369,6 +369,8 @@ def check_out_dir(flag: str, path: Path | None) -> None:
         raise BadInput(f"{flag} {path}: {path.parent} is not a directory")
     if path.is_dir():
         raise BadInput(f"{flag} {path}: is a directory (give a file name)")
+    if flag == "--trace" and path.suffix.lower() != ".npz":  # numpy would write PATH.npz, not the name given
+        raise BadInput(f"--trace {path}: a trace is a numpy .npz file, name it *.npz")
     check_writable(flag, path, path.parent)
 
 

@@ -186,7 +186,7 @@ def summary(m: dict, name: str, compile_s: float | None = None) -> str:
     if stop:
         rows.append(("emergency stop", stop))
     if m.get("samples_missed"):  # real time: the world fell behind its control periods
-        rows.append(("world behind", f"{m['samples_missed']} control periods not sampled (of "
+        rows.append(("world behind", f"{m['samples_missed']} control period{'s' if m['samples_missed'] != 1 else ''} not sampled (of "
                                      f"{m['samples_missed'] + m.get('samples', 0)}): the machine could not keep "
                                      "up; try a lower --speed"))
     nd = nondeterminism(m)

@@ -115,7 +115,7 @@ def test_explicit_scenario_round_trips_through_show(tmp_path):
 
 
 @pytest.mark.timeout(120)
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_interrupt_writes_metrics_and_exits_130(tmp_path, sig):
     out = tmp_path / "m.json"
     proc = subprocess.Popen(swarm_cmd() + ["sim", "--duration", "100000", "--metrics", str(out)],

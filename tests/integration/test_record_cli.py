@@ -134,6 +134,8 @@ def test_sim_record_every_step_and_report(tmp_path):
     (("up", "--record", "no/such/dir/x.mcap", "--robots", "3"), "does not exist"),
     (("sim", "--record-hz", "5"), "--record-hz needs --record"),
     (("sim", "--record", "x.txt"), "--record x.txt: a recording is an MCAP file, name it *.mcap"),
+    (("sim", "--trace", "x.txt"), "--trace x.txt: a trace is a numpy .npz file, name it *.npz"),
+    (("up", "--trace", "x.txt", "--dry-run"), "--trace x.txt: a trace is a numpy .npz file, name it *.npz"),
     (("up", "--record-hz", "5", "--dry-run"), "--record-hz needs --record"),
 ])
 def test_bad_recording_input_is_refused_with_exit_2(tmp_path, args, message):
