@@ -476,3 +476,14 @@ def read_metrics(path: Path) -> dict | None:
         return json.loads(path.read_text())
     except (OSError, ValueError):
         return None
+
+
+def refuse_a_taken_fleet(bus, fleet: str, endpoint: str) -> None:
+    """BadInput when a world of `fleet` is alive on the router: a second swarm on one fleet takes the other's
+    robots, leader and run (both runs fail, neither says why)."""
+    from swarm.proto import keys
+
+    if bus.alive_now(keys.alive_any(fleet, "world")):
+        raise BadInput(f"fleet {fleet!r} on {endpoint} already has a world running (another swarm up or swarm world; "
+                       f"`swarm ps --connect {endpoint} --fleet {fleet}` lists it): give this run its own --fleet NAME, "
+                       "or stop that one first")

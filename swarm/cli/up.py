@@ -18,7 +18,8 @@ from swarm.cli.parser import given
 from swarm.cli.common import (EXIT_INTERRUPTED, EXIT_OK, BadInput, Failure, StopEvent, check_endpoint,
                               check_listen_free, check_out_dir, check_resources, check_viz_apart, check_viz_port,
                               clear_metrics, fleet_of, load_scenario, make_log_dir, open_bus, record_rate,
-                              scenario_args, viz_options, write_metrics, close_recorder, read_metrics)
+                              scenario_args, viz_options, write_metrics, close_recorder, read_metrics,
+                              refuse_a_taken_fleet)
 from swarm.cli import console
 from swarm.cli.console import EstopFollower, cpu_counters, exit_status, progress_line, steal_pct, summary
 from swarm.core.clock import WALL
@@ -241,6 +242,8 @@ def cmd_up(args, started: float) -> int:
             bus = open_bus(argparse.Namespace(connect=[plan.endpoint], zenoh_config=opts.zenoh_config, secure=opts.secure,
                                               multicast=opts.multicast), timeout_s=15.0 if plan.router is not None else args.start_timeout,
                            stop=stop, role="launcher")
+            if plan.router is None:  # another's router: this fleet must be free there
+                refuse_a_taken_fleet(bus, fleet, plan.endpoint)
             presence.announce(bus, fleet, "launcher")  # `swarm ps` lists this process too
             estop = EstopFollower(bus, fleet, say)  # the status line says E-STOP while it is engaged
             alive: set[str] = set()

@@ -6,7 +6,7 @@ import logging
 
 from swarm.cli.parser import given
 from swarm.cli.common import (CHILD_EXIT_AFTER_S, BadInput, Failure, StopEvent, check_out_dir,
-                              fleet_of, load_scenario, open_bus, setup_logging, write_json)
+                              fleet_of, load_scenario, open_bus, refuse_a_taken_fleet, setup_logging, write_json)
 from swarm.cli.console import converged_phrase, exit_status
 from swarm.core.clock import WALL
 from swarm.core.metrics import violations
@@ -52,6 +52,11 @@ def cmd_world(args, started: float) -> int:
                         process_faults=args.process_faults)
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, role="world")
+        try:
+            refuse_a_taken_fleet(bus, fleet, ", ".join(args.connect or []) or "the router")
+        except BadInput:
+            bus.close()
+            raise
         log.info("world: connected (fleet %s)", fleet)
         from swarm.launch.progress_pipe import Teller
         from world.claims import ClaimServer

@@ -63,6 +63,7 @@ class Bus(Protocol):
     def inbox(self, key_expr: str, depth: int = 64) -> Inbox: ...
     def token(self, key: str) -> Closable: ...
     def watch_alive(self, key_expr: str, fn: AliveHandler) -> Closable: ...
+    def alive_now(self, key_expr: str, timeout_s: float = 1.0) -> list[str]: ...  # the tokens there now, sorted
     def serve(self, key_expr: str, fn: Callable[[str], bytes | None]) -> Closable: ...
     def query(self, key_expr: str, timeout_s: float = 2.0) -> list[tuple[str, bytes]]: ...
     def close(self) -> None: ...
@@ -264,6 +265,10 @@ class MemoryBus:
         for k in sorted(current):
             fn(k, True)
         return self._keep(self.net.watchers, (key_expr, fn))
+
+    def alive_now(self, key_expr: str, timeout_s: float = 1.0) -> list[str]:
+        with self.net.lock:
+            return sorted(k for k in self.net.tokens if matches(key_expr, k))
 
     def serve(self, key_expr: str, fn: Callable[[str], bytes | None]) -> Closable:
         return self._keep(self.net.queryables, (key_expr, guarded(fn, self.errors, "a queryable")))
@@ -555,6 +560,14 @@ class ZenohBus:
 
         return self._keep(_Undeclare(self.session.liveliness().declare_subscriber(key_expr, self._handler(cb),
                                                                                   history=True)))
+
+    def alive_now(self, key_expr: str, timeout_s: float = 1.0) -> list[str]:
+        """The liveliness tokens on key_expr now (a liveliness query: the router answers for the tokens it holds)."""
+        out = set()
+        for reply in self.session.liveliness().get(key_expr, timeout=timeout_s):
+            if reply.ok is not None:
+                out.add(str(reply.ok.key_expr))
+        return sorted(out)
 
     def serve(self, key_expr: str, fn: Callable[[str], bytes | None]) -> Closable:
         fn = guarded(fn, self.errors, "a queryable")

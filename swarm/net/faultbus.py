@@ -242,6 +242,9 @@ class FaultBus:
     def watch_alive(self, key_expr: str, fn) -> Closable:
         return self.inner.watch_alive(key_expr, fn)
 
+    def alive_now(self, key_expr: str, timeout_s: float = 1.0) -> list[str]:
+        return self.inner.alive_now(key_expr, timeout_s)
+
     def serve(self, key_expr: str, fn) -> Closable:
         return self.inner.serve(key_expr, fn)
 

@@ -300,3 +300,28 @@ def test_processes_say_what_they_do_and_log_level_quiets_them(tmp_path):
     assert subprocess.run(cmd, capture_output=True, text=True, timeout=120).returncode == 0
     for log in (tmp_path / "b" / "logs").glob("*.log"):
         assert " INFO: " not in log.read_text(), log.name
+
+
+@pytest.mark.integration
+def test_a_second_swarm_on_a_fleet_that_has_a_world_is_refused_and_the_first_run_goes_on(tmp_path):
+    """`swarm up --connect` to a router where the fleet already has a world: exit 2 before anything starts,
+    naming the fleet and --fleet; the first run is untouched (before, each took the other's robots and leader,
+    and both failed)."""
+    first, metrics = up(tmp_path / "a", "--robots", "3", "--duration", "12", "--quiet")
+    (tmp_path / "a").mkdir()
+    endpoint = first[first.index("--listen") + 1]
+    proc = subprocess.Popen(first, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        wait_for_ticks(first, "t", 5, proc)
+        (tmp_path / "b").mkdir()
+        second = [sys.executable, "-m", "swarm.cli", "up", "--connect", endpoint, "--fleet", "t", "--robots", "2",
+                  "--duration", "5", "--no-viz", "--log-dir", str(tmp_path / "b" / "logs")]
+        out = subprocess.run(second, capture_output=True, text=True, timeout=120)
+        assert out.returncode == 2, out.stderr
+        assert "fleet 't'" in out.stderr and "already has a world running" in out.stderr and "--fleet" in out.stderr
+        _, err = proc.communicate(timeout=180)
+    finally:
+        if proc.poll() is None:
+            kill_all([proc])
+    assert proc.returncode == 0, err
+    assert json.loads(metrics.read_text())["failure"] is None
