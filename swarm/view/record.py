@@ -59,6 +59,11 @@ DEFAULT_RECORD_HZ = 20.0
 STATUS_PERIOD_S = 0.1  # record_simulation writes statuses at the agents' status rate (agents/state.py)
 MAX_BAD_EVENTS = 100  # bad messages beyond this are counted, not written one by one
 MAX_PENDING = 200_000  # BusRecorder: received messages not yet written; a callback waits beyond this
+MAX_PENDING_BYTES = 64 << 20  # BusRecorder: and their bytes (a flood of 64 KiB messages: 200 000 would be 13 GB)
+SNAPSHOT_ROW_BYTES = 128  # a snapshot's row is at most 84 bytes encoded: one beyond 256 + this a robot is no
+# snapshot of the run's robots, and is dropped (counted bad) before it is queued or decoded (an 8 MB one cost
+# 0.6 s of decoding, and a flood of them a gigabyte)
+_OVERSIZED = "oversized snapshot"  # the queue's topic for one (its payload: the size, in decimal)
 POLL_S = 0.02  # BusRecorder: the worker's wake-up period [wall s]
 FLUSH_S = 1.0  # Recorder: wall seconds between chunk flushes (what a killed run loses at most)
 
@@ -434,6 +439,9 @@ class BusRecorder:
         self._ids: dict[str, int | None] = {}
         self._pending: collections.deque = collections.deque()
         self._max = max_pending
+        self._pending_bytes = 0  # the payload bytes in _pending (under _bytes_lock)
+        self._bytes_lock = threading.Lock()
+        self.snapshot_max = 256 + SNAPSHOT_ROW_BYTES * self.n  # bytes: a larger one is refused unread
         self._closing = threading.Event()
         self._open = True
         self._worker: threading.Thread | None = None
@@ -454,23 +462,38 @@ class BusRecorder:
         ]
 
     def _on(self, topic: str):
-        pending, limit, worker = self._pending, self._max, self._worker
+        pending, limit, worker, lock = self._pending, self._max, self._worker, self._bytes_lock
+        cap = self.snapshot_max if topic == TOPIC_SNAPSHOT else None
 
         def callback(key: str, payload: bytes) -> None:
             if not self._open:
                 return
+            size = len(payload)
+            if cap is not None and size > cap:  # no snapshot of this run: counted by the worker, never decoded
+                pending.append((_OVERSIZED, key, str(size).encode()))
+                return
+            with lock:
+                self._pending_bytes += size
             pending.append((topic, key, payload))
-            while len(pending) > limit and worker is not None and worker.is_alive():
+            while (len(pending) > limit or self._pending_bytes > MAX_PENDING_BYTES) and worker is not None and \
+                    worker.is_alive():
                 time.sleep(0.001)  # back-pressure instead of a drop
 
         return callback
+
+    def _next(self) -> tuple[str, str, bytes]:
+        topic, key, payload = self._pending.popleft()
+        if topic != _OVERSIZED:
+            with self._bytes_lock:
+                self._pending_bytes -= len(payload)
+        return topic, key, payload
 
     def drain(self) -> int:
         """Process every message received so far on the caller's thread; returns how many."""
         done = 0
         pending = self._pending
         while pending:
-            self.process(*pending.popleft())
+            self.process(*self._next())
             done += 1
         return done
 
@@ -494,6 +517,9 @@ class BusRecorder:
         """Decode and record one received message (the worker calls this; tests and benches may too)."""
         self.received += 1
         try:
+            if topic == _OVERSIZED:
+                raise ProtocolError(f"a snapshot of {int(payload)} bytes: more than {self.n} robots' can be "
+                                    f"({self.snapshot_max} bytes at most)")
             if topic == TOPIC_SNAPSHOT:
                 self._snapshot(key, payload)
             elif topic == TOPIC_REF:

@@ -172,3 +172,27 @@ def test_a_recording_without_a_faults_channel_takes_the_schedule(sim_faults_run,
     assert new == [[fr.killed.tolist(), fr.hung.tolist(), fr.cut.tolist()]
                    for fr in report.iter_frames(sim_faults_run.path, faults=True)]
     assert np.any([any(k) for k, _h, _c in new])
+
+
+def test_a_snapshot_larger_than_the_runs_robots_can_be_is_counted_bad_unread(tmp_path, monkeypatch):
+    """A snapshot of 100 000 rows on a 3-robot run (8 MB, 0.6 s to decode) is refused by its size before it is
+    queued or decoded: counted bad, the real snapshots recorded; a flood of them no longer costs a gigabyte."""
+    from swarm.proto.messages import RobotSnap, Snapshot
+    from tests.record.test_events import _snap, three_robots
+
+    decoded = []
+    real_decode = protocol.decode
+    monkeypatch.setattr(protocol, "decode", lambda b, kind=None: decoded.append(len(b)) or real_decode(b, kind))
+    net = MemoryNet()
+    path = tmp_path / "big.mcap"
+    br = record.BusRecorder(MemoryBus(net), "big", record.Recorder(path, three_robots(), 0))
+    pub = MemoryBus(net)
+    huge = protocol.encode(Snapshot(t=0.05, seq=1, robots=tuple(
+        RobotSnap(id=i % 3, x=0.0, y=0.0, theta=0.0, v=0.0, w=0.0, stopped=False, alive=True) for i in range(100_000))))
+    for k in range(10):
+        pub.put(keys.world_snapshot("big"), _snap(round(0.1 * k, 9), k, [0.0, 2.0, 5.0]))
+        pub.put(keys.world_snapshot("big"), huge)
+    br.close({"robots": 3})
+    assert br.bad == 10 and br.snapshots == 10
+    assert max(decoded) < br.snapshot_max  # the big ones were never decoded
+    assert len(list(report.iter_frames(path))) == 10
