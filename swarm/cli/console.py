@@ -232,7 +232,8 @@ def estop_text(m: dict) -> str | None:
     for ev in e.get("events") or ():
         if isinstance(ev, dict):
             what = "engaged" if ev.get("engaged") else "released"
-            said.append(f"{what} at t = {fmt(ev.get('t'), 's')}" + (f" ({ev['reason']})" if ev.get("reason") else ""))
+            said.append(f"{what} at t = {fmt(ev.get('t'), 's')}" +
+                        (f" ({printable(str(ev['reason']))})" if ev.get("reason") else ""))
     text = ", ".join(said[:6]) + (f", and {len(said) - 6} more" if len(said) > 6 else "")
     if e.get("engaged", 0) > e.get("released", 0):
         text += "; still ENGAGED at the end"
@@ -314,6 +315,15 @@ def fault_fields(dropped: int = 0, dead: int = 0, hung: int = 0) -> str:
     return "".join(f"  {name} {n}" for name, n in (("dropped", dropped), ("dead", dead), ("hung", hung)) if n)
 
 
+def printable(text: str) -> str:
+    """Text from the network, safe on a terminal: every character that is not printable (controls such as ESC,
+    which could retitle the terminal, erase lines or fake a row; bidirectional overrides; line breaks) written
+    as its escape (\\x1b), the rest as it is."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
+
+
 class EstopFollower:
     """`swarm up`'s view of the emergency stop: the world's estop and estop_release events (world/events), each said
     once (a line above the status line) and `engaged` (its reason) while in force, for the status line."""
@@ -333,7 +343,7 @@ class EstopFollower:
         except protocol.ProtocolError:
             return  # the world's events are the recorder's to count; this only follows the stop
         if e.event == "estop":
-            self.engaged = e.detail or "no reason given"
+            self.engaged = printable(e.detail) or "no reason given"
             self._say(f"emergency stop ENGAGED at t = {e.t:.2f} s: {self.engaged}")
         elif e.event == "estop_release":
             self.engaged = None

@@ -10,6 +10,7 @@ import time
 import msgspec
 
 from swarm.cli.common import EXIT_FAILURE, EXIT_OK, BadInput, StopEvent, fleet_of, open_bus
+from swarm.cli.console import printable
 from swarm.cli.console import counted
 from swarm.net.presence import collect
 from swarm.proto import keys, protocol
@@ -48,11 +49,11 @@ def line(key: str, payload: bytes) -> tuple[str, bool]:
     try:
         msg = protocol.decode(payload, kind)
     except ProtocolError as e:
-        return f"{key} ! not a {kind or 'swarm'} message: {e}", False
+        return printable(f"{key} ! not a {kind or 'swarm'} message: {e}"), False
     fields = msgspec.to_builtins(msg)
     text = json.dumps(fields, separators=(", ", ": "), default=str,
                       allow_nan=True).replace("NaN", "nan") if fields else "{}"
-    return f"{key} {protocol.kind_of(msg)} {text}", True
+    return printable(f"{key} {protocol.kind_of(msg)} {text}"), True
 
 
 def cmd_echo(args, started: float) -> int:

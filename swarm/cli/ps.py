@@ -7,7 +7,7 @@ import json
 import time
 
 from swarm.cli.common import EXIT_FAILURE, EXIT_OK, BadInput, StopEvent, fleet_of, open_bus
-from swarm.cli.console import counted
+from swarm.cli.console import counted, printable
 from swarm.net.presence import collect
 
 def _age(started: float | None, now: float) -> str:
@@ -23,6 +23,7 @@ def table(rows: list[dict], now: float) -> str:
     lines = [head] + [(r["fleet"], r["role"], str(r["id"]), r["host"] or "-", str(r["pid"] or "-"),
                        _age(r["started"], now), r["run"] or ("-" if r["alive"] else "(waiting for a run)"))
                       for r in rows]
+    lines = [tuple(printable(cell) for cell in line) for line in lines]  # what other processes said of themselves
     widths = [max(len(line[c]) for line in lines) for c in range(len(head))]
     return "\n".join("  ".join(cell.ljust(w) for cell, w in zip(line, widths)).rstrip() for line in lines)
 

@@ -218,3 +218,27 @@ def test_the_leader_says_its_run_to_swarm_ps():
         assert (row["role"], row["run"], row["alive"]) == ("leader", "run-7", True)
     finally:
         lead.close()
+
+
+def test_text_from_the_network_reaches_the_terminal_with_its_controls_escaped():
+    """A process's own word (ps), an estop reason (status line, summary) or a key (echo) with ESC, BEL, a line
+    break or a bidirectional override cannot retitle the terminal, erase a line or fake a row."""
+    from swarm.cli.console import EstopFollower, estop_text, printable
+
+    evil = "\x1b]0;pwned\x07\x1b[2K\r\nrobot 9 fake\u202e"
+    assert printable("plain text, 3.5 m") == "plain text, 3.5 m"
+    shown = printable(evil)
+    assert shown.isprintable() and "\\x1b" in shown and "\\n" in shown and "\\u202e" in shown
+    row = {"fleet": "a", "role": "robot", "id": 1, "host": evil, "pid": 5, "started": 0.0, "run": evil, "alive": True}
+    assert all(line.isprintable() for line in ps.table([row], now=10.0).splitlines())
+    assert len(ps.table([row], now=10.0).splitlines()) == 2
+    said = []
+    net = MemoryNet()
+    follower = EstopFollower(MemoryBus(net), "lab", said.append)
+    MemoryBus(net).put(keys.world_events("lab"), protocol.encode(protocol.Event(
+        t=1.0, seq=50, event="estop", robots=(), detail=evil)))
+    assert said and all(s.isprintable() for s in said) and follower.engaged is not None and follower.engaged.isprintable()
+    text = estop_text({"estops": {"engaged": 1, "released": 0, "events": [{"t": 1.0, "engaged": True, "reason": evil}]}})
+    assert text is not None and text.isprintable()
+    line, ok = echo.line(keys.estop("lab") + "\x1b[2K", b"\x93junk")
+    assert not ok and line.isprintable()
