@@ -143,6 +143,8 @@ class Intake(WorldState):
             return
         if up:
             self.token_gen[i] += 1
+            if i in self.lost and not self.alive[i] and self._running:
+                log.warning("robot %d back at t = %g s (its liveliness token is here again)", i, self.t)
         elif i in self.token_mark:
             self.lapsed.add(i)
         if not up and self.alive[i] and self._running:

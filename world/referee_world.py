@@ -163,6 +163,8 @@ class RefereeWorld:
                     log.warning("robot %d is alive but not in this run (%d robots: 0..%d); it takes no part",
                                 i, self.n, self.n - 1)
                 return
+            if up and i in self.lost and not self.alive[i] and self._running:
+                log.warning("robot %d back at t = %g s (its liveliness token is here again)", i, self.t)
             if not up and self.alive[i] and self._running:
                 self.lost.add(i)
                 self.lost_events += 1
@@ -343,6 +345,7 @@ class RefereeWorld:
         return self.referee.metrics(
             time.perf_counter() - started, interrupted, "realtime", cmd_misses=0, bad_messages=self.bad_total(),
             steps=self.k, robots_alive_at_end=alive_end, robots_lost=self.lost_events, lost_robots=sorted(self.lost),
+            lost_robots_back=sorted(i for i in self.lost if self.alive[i]),
             run_wall_s=time.perf_counter() - run_started, failure=self.failure, run_id=self.run_id,
             scenario_digest=self.digest, stale_messages=self.bad.stale, odometry_based=True,
             max_pose_age_s=self.max_pose_age, referee_only=True,

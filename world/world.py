@@ -156,6 +156,7 @@ class World(LockstepLoop, RealtimeLoop):
         extra = dict(cmd_misses=self.misses, bad_messages=self.bad_total(), steps=self.k,
                      **({"lockstep_overruns": self.overruns} if self.lockstep else {}),
                      robots_alive_at_end=int(self.alive.sum()), robots_lost=self.lost_events, lost_robots=sorted(self.lost),
+                     lost_robots_back=sorted(i for i in self.lost if self.alive[i]),
                      run_wall_s=time.perf_counter() - self._run_started, failure=self.failure, run_id=self.run_id,
                      scenario_digest=self.digest, stale_messages=self.bad.stale, **self._latency(),
                      **({} if self.lockstep else {"samples_missed": self.samples_missed}))

@@ -155,7 +155,11 @@ def violations(m: dict[str, Any]) -> list[str]:
         out.append(f"{m['lockstep_overruns']} lock-step overrun{'s' if m['lockstep_overruns'] != 1 else ''}")
     if m.get("robots_lost"):
         ids = m.get("lost_robots")
-        named = f" ({', '.join(map(str, ids))})" if isinstance(ids, list) and ids else ""
+        back = m.get("lost_robots_back")
+        back = [i for i in back if i in ids] if isinstance(back, list) and isinstance(ids, list) else []
+        came = "" if not back else ("; each came back" if isinstance(ids, list) and len(back) == len(ids) else
+                                    f"; {', '.join(map(str, back))} came back")
+        named = f" ({', '.join(map(str, ids))}{came})" if isinstance(ids, list) and ids else ""
         out.append(f"{m['robots_lost']} robot{'s' if m['robots_lost'] != 1 else ''} lost{named}")
     if m.get("mode") == "realtime" and m.get("stranded"):  # (a few seeds of the paper jam in simulation too)
         ids = ", ".join(map(str, m["stranded"]))

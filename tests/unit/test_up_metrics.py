@@ -101,6 +101,9 @@ def test_the_summary_names_the_lost_and_stranded_robots_and_how_real_time_held_u
     assert "robot 0 stranded 21.8 m from its slot since t = 43 s" in text
     assert violations(m) == ["3 robots lost (1, 3, 5)", "robot 0 stranded"] and exit_status(m) == 3
     assert violations({**m, "mode": "lockstep"}) == ["3 robots lost (1, 3, 5)"]  # (the paper jams a few seeds too)
+    # a link that dropped and came back is still a failed check, and the check says they came back
+    assert violations({**m, "lost_robots_back": [1, 5]})[0] == "3 robots lost (1, 3, 5; 1, 5 came back)"
+    assert violations({**m, "lost_robots_back": [1, 3, 5]})[0] == "3 robots lost (1, 3, 5; each came back)"
     assert "Lossy links" not in text
 
 
