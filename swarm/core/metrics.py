@@ -84,11 +84,14 @@ def record(scn: Scenario, *, duration_s: float, converged_at_s: float | None, po
     }
 
 
-# A live robot is stranded when it has been more than STRANDED_M from its slot for STRANDED_S while at least
-# STRANDED_SHARE of the live robots are converged (docs/metrics.md: a failed check in real time)
+# A live robot is stranded when it has been more than STRANDED_M from its slot for STRANDED_S, without coming
+# STRANDED_PROGRESS_M closer to it than it was when that count began, while at least STRANDED_SHARE of the live
+# robots are converged (docs/metrics.md: a failed check in real time)
 STRANDED_M = 1.0
 STRANDED_S = 10.0
 STRANDED_SHARE = 0.8
+STRANDED_PROGRESS_M = 0.5  # a straggler on its way gains this on its slot every STRANDED_S (0.05 m/s); a trapped
+# robot does not (only a new low counts: a robot that rocks back and forth gains nothing)
 
 
 class Strands:
@@ -97,20 +100,24 @@ class Strands:
 
     def __init__(self, n: int) -> None:
         self._far_since = np.full(n, math.nan)  # since when each robot is beyond STRANDED_M (nan: it is not)
+        self._far_pe = np.full(n, math.nan)  # its distance from its slot then (the count restarts below it - 0.5 m)
         self.stranded: dict[int, tuple[float, float]] = {}
         self.ended: dict[int, float] = {}  # robot -> when it stopped being stranded (absent: it still is)
         self.now = 0  # robots stranded at the last sample
 
     def sample(self, t: float, pe: np.ndarray, live: np.ndarray, converged: int) -> None:
         """pe (N,): each robot's distance from its slot at t [m]; live (N,) bool; converged: live robots converged.
-        The STRANDED_S count only while the rest have converged: a straggler still on its way while the swarm
-        converges is not stranded."""
+        The STRANDED_S count only while the rest have converged, and start again whenever the robot comes
+        STRANDED_PROGRESS_M closer to its slot than it was when they began: a straggler still on its way is not
+        stranded, whether the swarm is still converging or already has."""
         far = live & (pe > STRANDED_M)
         if converged < STRANDED_SHARE * max(1, int(np.count_nonzero(live))):
             far[:] = False
-        since = self._far_since
+        since, at = self._far_since, self._far_pe
         since[~far] = math.nan
-        since[far & np.isnan(since)] = t
+        begin = far & (np.isnan(since) | (pe < at - STRANDED_PROGRESS_M))  # far anew, or closer: on its way
+        since[begin] = t
+        at[begin] = pe[begin]
         self.now = 0
         for r in self.stranded:
             if not far[r] and r not in self.ended:
