@@ -42,12 +42,13 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm.proto import keys, protocol
+from swarm.proto import keys, protocol, window
 from swarm.core import kinematics
 from swarm.proto.protocol import EVENTS as FAULT_EVENTS
 from swarm.proto.protocol import Cmd, ProtocolError, Ref, Snapshot, Status
 from swarm.core.geometry import pairs_within
 from swarm.core.faultgen import TIME_EPS
+from swarm.core.faultsim import WATCHDOG_S
 from swarm.core.scenario import Scenario
 from swarm.view.events import Event as Event, EventDeriver as EventDeriver
 from swarm.view.faultmarks import FaultMarks
@@ -435,6 +436,9 @@ class BusRecorder:
         self.snapshots_missed = 0  # gaps in their seq (best-effort messages lost on the way)
         self.last_snapshot_t = -math.inf  # simulated time of the newest snapshot processed
         self._last_seq: int | None = None
+        # the world's snapshots pass a window as every receiver's messages do (lock-step: t is seq x dt): a forged
+        # seq 10^6 is refused, not recorded, and never counted as a million snapshots lost on the way
+        self._w_snap = window.new(*window.spans(scn.dt, WATCHDOG_S), dt=scn.dt if commands_from_snapshots else 0.0)
         self._frozen = [False] * self.n
         self._ids: dict[str, int | None] = {}
         self._pending: collections.deque = collections.deque()
@@ -574,6 +578,12 @@ class BusRecorder:
 
     def _snapshot(self, key: str, payload: bytes) -> None:
         s: Snapshot = protocol.decode(payload, "snapshot")
+        verdict = self._w_snap.check(s.t, s.seq)
+        if verdict in (window.STALE, window.DUPLICATE):
+            return  # best effort: an older one that came late is not recorded again
+        if verdict != window.OK:
+            raise ProtocolError(f"snapshot t = {s.t:g} s, seq {s.seq}: {verdict} (beyond the window of the world's "
+                                "snapshots)")
         self.snapshots += 1
         self.last_snapshot_t = max(self.last_snapshot_t, s.t)
         if self._last_seq is None:

@@ -196,3 +196,21 @@ def test_a_snapshot_larger_than_the_runs_robots_can_be_is_counted_bad_unread(tmp
     assert br.bad == 10 and br.snapshots == 10
     assert max(decoded) < br.snapshot_max  # the big ones were never decoded
     assert len(list(report.iter_frames(path))) == 10
+
+
+def test_forged_snapshots_far_ahead_are_counted_bad_not_recorded_nor_counted_as_lost(tmp_path):
+    """A snapshot with seq 10^6 among the world's is refused by the recorder's window: counted bad, never
+    written, and the world's next snapshots are not '999 990 lost on the way'."""
+    from tests.record.test_events import _snap, three_robots
+
+    net = MemoryNet()
+    path = tmp_path / "forged.mcap"
+    br = record.BusRecorder(MemoryBus(net), "fs", record.Recorder(path, three_robots(), 0))
+    pub = MemoryBus(net)
+    for k in range(10):
+        pub.put(keys.world_snapshot("fs"), _snap(round(0.1 * k, 9), k, [0.0, 2.0, 5.0]))
+        if k == 4:
+            pub.put(keys.world_snapshot("fs"), _snap(1e5, 10**6, [9.0, 9.0, 9.0]))
+    br.close({"robots": 3})
+    assert br.bad == 1 and br.snapshots == 10 and br.snapshots_missed == 0
+    assert [round(f.t, 9) for f in report.iter_frames(path)] == [round(0.1 * k, 9) for k in range(10)]
