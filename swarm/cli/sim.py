@@ -102,9 +102,16 @@ def _simulation(args: argparse.Namespace, scn):
     if scn.control.law is None and args.python_law:
         raise BadInput("--python-law: the scenario runs the paper's law (control.law = \"paper\"); the flag is for "
                        "a law of your own")
-    if scn.control.law is not None and not args.quiet:
-        how = "as plain Python" if args.python_law else "compiled by numba (cached after the first run)"
-        print(f"law: {scn.control.law.text} (sha256 {scn.control.law.sha256[:16]}...), {how}", file=sys.stderr)
+    if scn.control.law is not None:
+        from swarm.core import userlaw
+
+        try:
+            userlaw.load(scn.control.law)  # one that does not load (a syntax error) is refused before any note
+        except LawError as e:
+            raise BadInput(str(e)) from None
+        if not args.quiet:
+            how = "as plain Python" if args.python_law else "compiled by numba (cached after the first run)"
+            print(f"law: {scn.control.law.text} (sha256 {scn.control.law.sha256[:16]}...), {how}", file=sys.stderr)
     try:
         if period is None:
             return Simulation(scn, python_law=args.python_law, threads=args.threads)
