@@ -182,7 +182,7 @@ class AgentState:
         self.w_state: dict[int, window.Window] = {}  # robot j
         self.ended = False  # the run this agent serves is over (a new run began): ignore everything
         self.belief: protocol.Pose | None = None  # lock-step under faults: its pose as it knows it at the tick
-        self.estop_order = window.StopOrder(self._spans[0])  # the operator's: its t is unix time
+        self.estop_order = window.StopOrder()  # the operator's: its t is unix time (window.ESTOP_SPAN_S)
         self.estopped: str | None = None
         self.leader_alive = False
         self.leader_ups = 0  # times the leader's token appeared (a restarted leader during a tick)

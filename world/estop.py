@@ -28,14 +28,14 @@ EVENTS_KEPT = 100  # the metrics list at most this many changes (the counts are 
 
 
 class EstopLog:
-    def __init__(self, bus, fleet: str, now: Callable[[], tuple[float, int]], span: float = 2.0,
+    def __init__(self, bus, fleet: str, now: Callable[[], tuple[float, int]], span: float = window.ESTOP_SPAN_S,
                  wall: Callable[[], float] = time.time) -> None:
         self.bus, self.fleet, self.now, self.wall = bus, fleet, now, wall
         self.bad = protocol.BadMessages(log)
         self.engaged: str | None = None  # the reason of the stop in force, None while released
         self.counts = {"engaged": 0, "released": 0}
         self.events: list[dict] = []
-        self.order = window.StopOrder(span)  # span: the robots' t_span (an engage ahead of it marks no further)
+        self.order = window.StopOrder(span)  # the robots' span (window.ESTOP_SPAN_S): the same order as theirs
         self._lock = threading.Lock()
         self._handle = None
 

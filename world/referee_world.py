@@ -126,7 +126,7 @@ class RefereeWorld:
         self._handles.append(self.bus.watch_alive(keys.alive(f, "leader"), self._on_leader))
         self.bus.wanted(keys.world_snapshot(f))  # declare the snapshot's publisher before the first one
         self._handles.append(presence.announce(self.bus, f, "world", run=lambda: self.run_id))
-        self.estop = EstopLog(self.bus, f, now=lambda: (self.t, self.k), span=self._spans[0], wall=self.clock.time)  # logged, told, counted (world.estop)
+        self.estop = EstopLog(self.bus, f, now=lambda: (self.t, self.k), wall=self.clock.time)  # logged, told, counted (world.estop)
         self.estop.start()
         self._handles.append(self.estop)
         self.bus.put(keys.world_run(f), protocol.encode(Run(self.run_id, self.digest, self.n, False, "")),

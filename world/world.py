@@ -98,7 +98,7 @@ class World(LockstepLoop, RealtimeLoop):
         # subscribed by tick 0 (wanted() would otherwise say no for the first snapshot)
         self.bus.wanted(keys.world_snapshot(f))
         self._handles.append(presence.announce(self.bus, f, "world", run=lambda: self.run_id))
-        self.estop = EstopLog(self.bus, f, now=lambda: (self.t, self.k), span=self._spans[0], wall=self.clock.time)  # logged, told, counted (world.estop)
+        self.estop = EstopLog(self.bus, f, now=lambda: (self.t, self.k), wall=self.clock.time)  # logged, told, counted (world.estop)
         self.estop.start()
         self._handles.append(self.estop)
         self.publish_run()

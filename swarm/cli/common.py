@@ -47,7 +47,7 @@ class Failure(SwarmError):
 
 
 class StopEvent:
-    """SIGINT, SIGTERM and SIGHUP (the terminal closed) set a threading.Event that the process's loop polls. A second Ctrl-C stops at
+    """SIGINT, SIGTERM and SIGHUP (the terminal closed; not under nohup) set a threading.Event that the process's loop polls. A second Ctrl-C stops at
     once (KeyboardInterrupt) unless hard_second is False: then the shutdown under way (bounded: it
     ends with SIGKILL) finishes, so the metrics and a recording are still written. exit_after_s
     bounds the clean shutdown: that long after the first signal, the process exits anyway.
@@ -66,7 +66,10 @@ class StopEvent:
         self._r, self._w = os.pipe()
         self._watcher = threading.Thread(target=self._watch, name="stop-signals", daemon=True)
         self._watcher.start()
-        self._old = {s: signal.signal(s, self._handle) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+        # SIGHUP unless ignored (nohup): a run started with nohup outlives the terminal, as it asked
+        caught = (signal.SIGINT, signal.SIGTERM) + (() if signal.getsignal(signal.SIGHUP) is signal.SIG_IGN else
+                                                    (signal.SIGHUP,))
+        self._old = {s: signal.signal(s, self._handle) for s in caught}
         return self.event
 
     def _handle(self, signum, frame) -> None:
@@ -306,9 +309,22 @@ def setup_logging(quiet: bool = False) -> None:
     """Log lines on stderr at --log-level (SWARM_LOG_LEVEL, which swarm up hands its children), else INFO
     (WARNING when quiet)."""
     level = os.environ.get("SWARM_LOG_LEVEL", "").upper()
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_Printable("%(asctime)s %(name)s %(levelname)s: %(message)s"))
     logging.basicConfig(level=getattr(logging, level) if level in ("DEBUG", "INFO", "WARNING", "ERROR")
-                        else logging.WARNING if quiet else logging.INFO, stream=sys.stderr,
-                        format="%(asctime)s %(name)s %(levelname)s: %(message)s")
+                        else logging.WARNING if quiet else logging.INFO, handlers=[handler])
+
+
+class _Printable(logging.Formatter):
+    """Log lines with the control characters of their text escaped (a forged estop reason, key or payload quoted
+    in a refusal must not retitle the terminal or erase lines); line breaks and a traceback's stay."""
+
+    def formatMessage(self, record: logging.LogRecord) -> str:
+        text = super().formatMessage(record)
+        if text.isprintable():
+            return text
+        return "".join(c if c.isprintable() or c in "\n\t" else c.encode("unicode_escape").decode("ascii")
+                       for c in text)
 
 
 def write_json(path: Path, obj: dict) -> None:
@@ -369,7 +385,7 @@ def check_out_dir(flag: str, path: Path | None) -> None:
         raise BadInput(f"{flag} {path}: {path.parent} is not a directory")
     if path.is_dir():
         raise BadInput(f"{flag} {path}: is a directory (give a file name)")
-    if flag == "--trace" and path.suffix.lower() != ".npz":  # numpy would write PATH.npz, not the name given
+    if flag == "--trace" and path.suffix != ".npz":  # numpy would write PATH.npz, not the name given
         raise BadInput(f"--trace {path}: a trace is a numpy .npz file, name it *.npz")
     check_writable(flag, path, path.parent)
 

@@ -8,6 +8,7 @@ A command-line flag beats the scenario file, which beats the built-in default.
 from __future__ import annotations
 
 import importlib
+import errno
 import os
 import re
 import sys
@@ -52,9 +53,13 @@ def _dash_values(argv: Sequence[str], takes_value: set[str] | None = None) -> li
     return out
 
 
+_GONE = (errno.EPIPE, errno.EIO, errno.ENXIO)  # a closed pipe; a terminal that hung up (closed, logged out)
+
+
 class _PipeSafe:
-    """A console stream that outlives a closed pipe (`swarm sim ... | head -1`): the run goes on, and its files
-    and exit code are those it would have had; what it would still print goes to /dev/null."""
+    """A console stream that outlives a closed pipe (`swarm sim ... | head -1`) or a closed terminal (its writes
+    fail with EIO once it hung up): the run goes on, and its files and exit code are those it would have had;
+    what it would still print goes to /dev/null."""
 
     def __init__(self, stream) -> None:
         self._stream = stream
@@ -62,14 +67,18 @@ class _PipeSafe:
     def write(self, text: str) -> int:
         try:
             return self._stream.write(text)
-        except BrokenPipeError:
+        except OSError as e:
+            if e.errno not in _GONE:
+                raise
             self._mute()
             return len(text)
 
     def flush(self) -> None:
         try:
             self._stream.flush()
-        except BrokenPipeError:
+        except OSError as e:
+            if e.errno not in _GONE:
+                raise
             self._mute()
 
     def _mute(self) -> None:

@@ -28,7 +28,7 @@ from swarm.cli.common import (CHILD_EXIT_AFTER_S, EXIT_INTERRUPTED, EXIT_OK, Bad
                               check_endpoint, check_listen_free, check_out_dir, check_resources, check_viz_apart,
                               check_viz_port, clear_metrics, load_scenario, make_log_dir, open_bus, record_rate,
                               scenario_args, setup_logging, viz_options, write_json, write_metrics, Refused, close_recorder,
-                              read_metrics)
+                              read_metrics, refuse_a_taken_fleet)
 from swarm.cli.console import EstopFollower, converged_phrase, exit_status, progress_line, summary
 from swarm.core import inventory
 from swarm.core.clock import WALL
@@ -235,6 +235,7 @@ def cmd_world_referee(args, started: float) -> int:
     with StopEvent(exit_after_s=CHILD_EXIT_AFTER_S) as stop:
         bus = open_bus(args, timeout_s=args.start_timeout, stop=stop, role="world")
         try:
+            refuse_a_taken_fleet(bus, name, ", ".join(args.connect or []) or "the router")
             if not args.no_preflight:
                 try:
                     report = preflight.check(bus, fleet, stop=stop)
@@ -410,6 +411,8 @@ def cmd_up_inventory(args, started: float, module: str = "swarm.cli") -> int:
                                          args.start_timeout))
             bus = open_bus(argparse.Namespace(connect=[plan.endpoint], zenoh_config=opts.zenoh_config, secure=None,
                                               multicast=opts.multicast), timeout_s=15.0, stop=stop, role="launcher")
+            if plan.router is None:  # another's router: this fleet must be free there
+                refuse_a_taken_fleet(bus, name, plan.endpoint)
             presence.announce(bus, name, "launcher")  # `swarm ps` lists this process too
             estop = EstopFollower(bus, name, say)  # the status line says E-STOP while it is engaged
             if not args.no_preflight:

@@ -85,6 +85,7 @@ class Teller:
     def __init__(self, fd: int) -> None:
         self.fd = fd
         os.set_blocking(fd, False)
+        os.set_inheritable(fd, False)  # for this process alone: nothing it starts gets the launcher's pipe
         self._epoch_told = False
         self.dropped = 0  # lines the full pipe did not take
 
@@ -108,10 +109,16 @@ class Teller:
         if self.fd < 0:
             return False
         try:
-            os.write(self.fd, line)  # a line is far below PIPE_BUF: written whole or not at all
-            return True
+            sent = os.write(self.fd, line)  # whole or nothing below PIPE_BUF (4096 on Linux; 512 on macOS)
         except BlockingIOError:
             self.dropped += 1
+            return False
         except OSError:  # the launcher is gone
             self.fd = -1
-        return False
+            return False
+        if sent < len(line):  # torn (a long line on a system with a small PIPE_BUF): the reader would misread
+            self.fd = -1  # the rest; stop telling rather than tell wrong
+            log.warning("the progress pipe took %d of a %d-byte line; the launcher hears no more progress", sent,
+                        len(line))
+            return False
+        return True

@@ -137,6 +137,11 @@ def outside(w: Window, t: float, seq: int, ahead: bool) -> str:
     return w.check(t, seq) if v == OK else v
 
 
+ESTOP_SPAN_S = 30.0  # s: how far ahead of a receiver's clock an operator's may be (StopOrder), and so how long one
+# forged engage far ahead may hold the stop against the operator's release; far wider than t_span, since an
+# operator's laptop is not a robot: a release refused for a clock 3 s off would leave the swarm stopped
+
+
 class StopOrder:
     """The emergency stop's order as one receiver takes it (the robots and the world; docs/protocol.md, "Windows").
     Messages are ordered by (t, seq), t the operator's unix time. An engage is always obeyed; a release only when
@@ -147,7 +152,7 @@ class StopOrder:
 
     __slots__ = ("span", "mark")
 
-    def __init__(self, span: float) -> None:
+    def __init__(self, span: float = ESTOP_SPAN_S) -> None:
         self.span = span
         self.mark: tuple[float, int] = (-math.inf, -1)  # the latest engage taken: (t, seq)
 

@@ -206,7 +206,7 @@ def test_an_engaged_emergency_stop_is_always_obeyed_and_a_release_only_when_newe
     w.agent.clock = clock = FakeClock(epoch=time.time())  # the robot's own clock: the operator's is unix time
     now = clock.time()
     stop = lambda t, seq, engaged: w.put(keys.estop(F), protocol.Estop(t=t, seq=seq, engaged=engaged, reason="test"))  # noqa: E731
-    stop(now + 5, 2**53, False)  # a forged release far ahead: refused, counted
+    stop(now + 100, 2**53, False)  # a forged release far ahead: refused, counted
     assert w.agent.estopped is None and w.agent.bad.count == 1
     stop(now, int(now * 1000), True)  # the operator's stop: obeyed
     assert w.agent.estopped == "test"
@@ -214,9 +214,9 @@ def test_an_engaged_emergency_stop_is_always_obeyed_and_a_release_only_when_newe
     assert w.agent.estopped is None
     stop(1e11, 2**53, True)  # a forged engage far ahead: obeyed (safety first), counted
     assert w.agent.estopped == "test" and w.agent.bad.count == 2
-    stop(now + 1, int(now * 1000) + 1000, False)  # within the span it marks (now + t_span): the stop holds
+    stop(now + 1, int(now * 1000) + 1000, False)  # within the span it marks (now + ESTOP_SPAN_S): the stop holds
     assert w.agent.estopped == "test" and w.agent.bad.stale == 1
-    clock.advance(w.agent._spans[0] + 1)
+    clock.advance(w.agent.estop_order.span + 1)
     later = clock.time()  # the operator's release after the span: taken (before, the forged engage held for good)
     stop(later, int(later * 1000), False)
     assert w.agent.estopped is None

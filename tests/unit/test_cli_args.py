@@ -147,3 +147,66 @@ def test_the_compile_note_asks_the_cache_for_the_loop_the_run_takes(tmp_path, mo
         (cache / name).write_text("")
         assert kernel_cached(parallel, faults)
     assert kernel_cached(True, True)  # a run under faults is serial: the fault kernel's index
+
+
+def test_a_console_stream_outlives_a_terminal_that_hung_up(tmp_path):
+    """After a hang-up a terminal's writes fail with EIO (not a broken pipe): the stream goes on to /dev/null,
+    so the run still writes its metrics and recording; another error is still raised."""
+    import errno
+    import os
+
+    from swarm.cli.main import _PipeSafe
+
+    class HungUp:
+        def __init__(self, fd: int, err: int) -> None:
+            self.fd, self.err, self.gone = fd, err, False
+
+        def write(self, text: str) -> int:
+            if not self.gone:
+                raise OSError(self.err, os.strerror(self.err))
+            return len(text)
+
+        def flush(self) -> None:
+            pass
+
+        def fileno(self) -> int:
+            self.gone = True
+            return self.fd
+
+    fd = os.open(tmp_path / "tty", os.O_WRONLY | os.O_CREAT)
+    try:
+        assert _PipeSafe(HungUp(fd, errno.EIO)).write("summary\n") == len("summary\n")
+        assert os.path.samestat(os.fstat(fd), os.stat(os.devnull))  # the fd now goes to /dev/null
+        with pytest.raises(OSError):
+            _PipeSafe(HungUp(fd, errno.ENOSPC)).write("summary\n")
+    finally:
+        os.close(fd)
+
+
+def test_sighup_stops_a_run_unless_nohup_ignored_it():
+    import signal
+
+    from swarm.cli.common import StopEvent
+
+    before = signal.getsignal(signal.SIGHUP)
+    try:
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)
+        with StopEvent():
+            assert signal.getsignal(signal.SIGHUP) not in (signal.SIG_DFL, signal.SIG_IGN)
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)  # nohup
+        with StopEvent():
+            assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, before)
+
+
+def test_log_lines_escape_the_control_characters_of_network_text():
+    import logging
+
+    from swarm.cli.common import _Printable
+
+    fmt = _Printable("%(levelname)s: %(message)s")
+    rec = logging.LogRecord("swarm.world", logging.WARNING, __file__, 1, "emergency stop ENGAGED: %s", ("\x1b]0;pwned\x07",),
+                            None)
+    line = fmt.format(rec)
+    assert line == "WARNING: emergency stop ENGAGED: \\x1b]0;pwned\\x07" and line.isprintable()
