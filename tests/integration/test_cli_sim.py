@@ -118,7 +118,11 @@ def test_explicit_scenario_round_trips_through_show(tmp_path):
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_interrupt_writes_metrics_and_exits_130(tmp_path, sig):
     out = tmp_path / "m.json"
-    proc = subprocess.Popen(swarm_cmd() + ["sim", "--duration", "100000", "--metrics", str(out)],
+    # SIGHUP as a terminal would send it: not ignored (a test run under nohup hands its children SIGHUP ignored,
+    # and swarm then keeps it ignored, as nohup asks)
+    hup_default = [sys.executable, "-c", "import os, signal, sys; signal.signal(signal.SIGHUP, signal.SIG_DFL); "
+                   "os.execv(sys.argv[1], sys.argv[1:])"]
+    proc = subprocess.Popen(hup_default + swarm_cmd() + ["sim", "--duration", "100000", "--metrics", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         deadline = time.monotonic() + 60

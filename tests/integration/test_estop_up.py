@@ -37,7 +37,8 @@ def test_an_emergency_stop_mid_run_is_logged_counted_summarised_and_recorded(tmp
     operator = None
     try:
         wait_for_ticks(endpoint, "t", 150, proc)
-        subprocess.run(stop + ["--reason", REASON], capture_output=True, text=True, timeout=60, check=True)
+        said = subprocess.run(stop + ["--reason", REASON], capture_output=True, text=True, timeout=60, check=True)
+        assert "the world logged it at t = " in said.stdout, said.stdout  # the operator knows it took
         # the release from a session already open, as `swarm stop --release` puts it: a second process's start
         # (a second or more on a loaded machine) could outlast a 3-robot lock-step run, which is over in seconds
         operator = ZenohBus(zenoh_config(connect=[endpoint]))

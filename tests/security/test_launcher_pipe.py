@@ -54,8 +54,9 @@ def _forger(endpoint: str, mode: str, stop: threading.Event) -> None:
 
 @pytest.mark.parametrize("mode", ["lockstep", "realtime"])
 def test_forged_progress_and_clocks_neither_bring_a_kill_forward_nor_hold_it_back(tmp_path, mode):
+    speed = ("--speed", "2") if mode == "realtime" else ()  # 7 wall s of real time
     cmd, metrics = up(tmp_path, "--mode", mode, "--robots", "5", "--duration", "14", "--kill", f"2@{KILL_AT_S:g}",
-                      "--quiet", fleet=FLEET)
+                      *speed, "--quiet", fleet=FLEET)
     endpoint = cmd[cmd.index("--listen") + 1]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     stop = threading.Event()
