@@ -65,7 +65,9 @@ class StatusLine:
 
     def clear(self) -> None:
         """Erase the status line (on a terminal), so another stream can print a line of its own;
-        the status line is redrawn at the next update."""
+        the status line is redrawn at the next update. An update held back is dropped: written after that line
+        (a log's at close()), it would say the state before it ("running" under the run's result)."""
+        self.pending = None
         if self.enabled and self.tty and self.width:
             self.stream.write("\r" + " " * self.width + "\r")
             self.stream.flush()

@@ -118,6 +118,15 @@ def test_the_status_line_shows_the_final_state_it_held_back():
     assert out.getvalue() == "t 1/20\n"
     line.close()
     assert out.getvalue() == "t 1/20\nt 20/20\n"
+    # a line of its own after clear() (a campaign row's result) is not followed by the state before it
+    out = io.StringIO()
+    line = StatusLine(stream=out, log_every=60.0)
+    line.update("up 2/2: swarm up running, 1 s")
+    line.update("up 2/2: swarm up running, 6 s")  # held back
+    line.clear()
+    out.write("up 2/2: OK, identical to swarm sim\n")
+    line.close()
+    assert out.getvalue().splitlines()[-1] == "up 2/2: OK, identical to swarm sim"
 
 
 def test_the_compile_note_asks_the_cache_for_the_loop_the_run_takes(tmp_path, monkeypatch):
