@@ -320,11 +320,9 @@ class _Printable(logging.Formatter):
     in a refusal must not retitle the terminal or erase lines); line breaks and a traceback's stay."""
 
     def formatMessage(self, record: logging.LogRecord) -> str:
-        text = super().formatMessage(record)
-        if text.isprintable():
-            return text
-        return "".join(c if c.isprintable() or c in "\n\t" else c.encode("unicode_escape").decode("ascii")
-                       for c in text)
+        from swarm.cli.console import printable
+
+        return printable(super().formatMessage(record), keep="\n\t")
 
 
 def write_json(path: Path, obj: dict) -> None:

@@ -317,13 +317,13 @@ def fault_fields(dropped: int = 0, dead: int = 0, hung: int = 0) -> str:
     return "".join(f"  {name} {n}" for name, n in (("dropped", dropped), ("dead", dead), ("hung", hung)) if n)
 
 
-def printable(text: str) -> str:
+def printable(text: str, keep: str = "") -> str:
     """Text from the network, safe on a terminal: every character that is not printable (controls such as ESC,
     which could retitle the terminal, erase lines or fake a row; bidirectional overrides; line breaks) written
-    as its escape (\\x1b), the rest as it is."""
+    as its escape (\\x1b), the rest as it is, and the characters of `keep`."""
     if text.isprintable():
         return text
-    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
+    return "".join(c if c.isprintable() or c in keep else c.encode("unicode_escape").decode("ascii") for c in text)
 
 
 class EstopFollower:
