@@ -12,6 +12,7 @@ with two, naming it (CONTRIBUTING.md, "Test tiers").
 from __future__ import annotations
 
 import copy
+import functools
 import math
 import os
 from pathlib import Path
@@ -106,22 +107,110 @@ def tier_error(markers: set[str]) -> str | None:
 
 
 UNIT_WORKERS = 2  # processes `pytest -m unit` runs in (pytest-xdist): the inner loop uses both cores of a laptop
+PROCESSES = "processes"  # the one xdist scope of every test file but the unit tier's, in the whole suite
+# The whole suite on two workers: one runs the unit tier, the other every other test file, in order. These files
+# go first in that order: they run lock-step swarms, compile, or type-check (none of them times anything in
+# real time), so the minutes the unit tests load the machine are not the minutes a real-time swarm runs.
+PROCESSES_FIRST = ("tests/integration/test_userlaw_runs.py", "tests/integration/test_cli_sim.py",
+                   "tests/integration/test_campaign.py", "tests/protocol/test_types.py",
+                   "tests/protocol/test_layers.py", "tests/protocol/test_docs.py", "tests/integration/test_docs_site.py")
+SPLIT_ENV = "SWARM_TEST_SPLIT"  # set by the controller of a whole-suite run: its workers order the tests so
+
+
+def _xdist_usable(config: pytest.Config) -> bool:
+    opt = config.option
+    return config.pluginmanager.hasplugin("xdist") and not getattr(opt, "numprocesses", None) and not (
+        os.environ.get("SWARM_TEST_SERIAL") or os.environ.get("PYTEST_XDIST_WORKER") or getattr(opt, "usepdb", False))
 
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_cmdline_main(config: pytest.Config) -> None:
-    """`pytest -m unit` alone runs on UNIT_WORKERS processes (pytest-xdist, when installed): the unit tier is CPU
-    bound and has no shared state between tests. Any other selection, an explicit -n, `-p no:xdist`, or
-    SWARM_TEST_SERIAL=1 runs in this process as usual (the integration tests start processes of their own)."""
+    """Two selections run on pytest-xdist's workers when it is installed. `pytest -m unit` alone: on UNIT_WORKERS
+    processes (the unit tier is CPU bound and has no shared state between tests). The whole suite (`pytest`, no
+    path, -m or -k): on two, one for the unit tier and one for every other test file, one after another (they
+    start processes and routers of their own, on ports and namespaces that two of them at once would share:
+    pytest_xdist_make_scheduler), so the unit tier costs no time of its own. Any other selection, an explicit -n,
+    `-p no:xdist`, or SWARM_TEST_SERIAL=1 runs in this process as usual."""
     opt = config.option
-    if (getattr(opt, "markexpr", "") or "").strip() != "unit" or not config.pluginmanager.hasplugin("xdist"):
+    if not _xdist_usable(config) or (os.cpu_count() or 1) < 2:
         return
-    if getattr(opt, "numprocesses", None) or os.environ.get("SWARM_TEST_SERIAL") or \
-            os.environ.get("PYTEST_XDIST_WORKER") or getattr(opt, "usepdb", False):
-        return
-    opt.numprocesses = min(UNIT_WORKERS, os.cpu_count() or 1)
-    if opt.numprocesses > 1 and getattr(opt, "dist", "no") == "no":
-        opt.dist = "load"
+    mark = (getattr(opt, "markexpr", "") or "").strip()
+    if mark == "unit":
+        opt.numprocesses = min(UNIT_WORKERS, os.cpu_count() or 1)
+        if getattr(opt, "dist", "no") == "no":
+            opt.dist = "load"
+    elif not mark and not getattr(opt, "keyword", "") and not getattr(opt, "file_or_dir", None) and \
+            getattr(opt, "dist", "no") == "no":
+        opt.numprocesses, opt.dist = 2, "load"
+        os.environ[SPLIT_ENV] = "1"  # the workers inherit it
+
+
+def _marks(node) -> set[str]:
+    """The tier names in `pytest.mark.<tier>` expressions under an AST node (decorators, a pytestmark value)."""
+    import ast
+
+    return {n.attr for n in ast.walk(node) if isinstance(n, ast.Attribute) and n.attr in TIERS and
+            isinstance(n.value, ast.Attribute) and n.value.attr == "mark"}
+
+
+@functools.cache
+def _tiers_of_file(path: str) -> tuple[frozenset[str], dict[str, frozenset[str]]] | None:
+    """(the module's pytestmark tiers, {test or class name: its decorators' tiers}) of a test file, or None when
+    it cannot be read."""
+    import ast
+
+    try:
+        tree = ast.parse((TESTS.parent / path).read_text())
+    except (OSError, SyntaxError):
+        return None
+    module: set[str] = set()
+    named: dict[str, frozenset[str]] = {}
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "pytestmark" for t in node.targets):
+            module |= _marks(node.value)
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            named[node.name] = frozenset(set().union(*[_marks(d) for d in node.decorator_list]))
+            for sub in node.body if isinstance(node, ast.ClassDef) else ():
+                if isinstance(sub, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    named[f"{node.name}::{sub.name}"] = frozenset(set().union(*[_marks(d) for d in sub.decorator_list]))
+    return frozenset(module), named
+
+
+def unit_test(nodeid: str) -> bool:
+    """Whether a test is of the unit tier, read from its file's text (the controller of an xdist run collects
+    nothing): its own or its class's tier decorators, else the module's pytestmark. Whatever this cannot tell
+    counts as not a unit test: at worst a unit test runs in the PROCESSES scope, one after another with the rest."""
+    path, _, rest = nodeid.partition("::")
+    tiers = _tiers_of_file(path)
+    if tiers is None or not rest:
+        return False
+    module, named = tiers
+    names = [name.split("[", 1)[0] for name in rest.split("::")]
+    marks = set(module) | named.get(names[0], frozenset()) | named.get("::".join(names[:2]), frozenset())
+    return marks == {"unit"}
+
+
+@pytest.hookimpl(optionalhook=True)  # a hook of pytest-xdist's: unknown under -p no:xdist
+def pytest_xdist_make_scheduler(config: pytest.Config, log):
+    """The whole suite's two workers (pytest_cmdline_main): xdist's scope scheduling, each unit-tier test its own
+    scope, every other file's tests one scope (PROCESSES), the largest, which the first worker takes whole.
+    (xdist's own --dist loadgroup would do it by marker, but its groups are lost on pytest 9's node ids.)"""
+    if not os.environ.get(SPLIT_ENV):
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class TierScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return nodeid if unit_test(nodeid) else PROCESSES
+
+    return TierScheduling(config, log)
+
+
+def _processes_in_order(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """PROCESSES_FIRST's files first (a stable sort: the same order on every worker, as xdist requires)."""
+    if os.environ.get(SPLIT_ENV):
+        first = {f: i for i, f in enumerate(PROCESSES_FIRST)}
+        items.sort(key=lambda it: first.get(it.nodeid.split("::")[0], len(first)))
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -138,3 +227,4 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         raise pytest.UsageError(
             "every test needs exactly one tier marker: @pytest.mark.unit, integration or browser, or slow "
             "(alone or with integration or browser); see CONTRIBUTING.md\n  " + "\n  ".join(bad))
+    _processes_in_order(config, items)
