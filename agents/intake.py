@@ -215,6 +215,10 @@ class Intake(AgentState):
         v = self._judge(self.w_clock, c.t, c.seq, lead=0)
         if v is None or not self.bad.verdict(key, v, "the clock's t or seq"):
             return
+        if self.cfg.lockstep and self.clock_seq < self._clock_needed <= c.seq and self.k_started >= 0:
+            # the start barrier passed during the tick under way: the reference the leader puts on hearing this
+            # clock gets a whole wait of its own (not what is left of the one that began at the pose)
+            self.deadline = self.clock.monotonic() + self.wait_timeout
         self.clock_seq = max(self.clock_seq, c.seq)
         if c.epoch > 0 and self.epoch is None:  # real time: the run's epoch, once (a new run is a new agent)
             self.clock.anchor()  # take up a step of the system clock made before this run

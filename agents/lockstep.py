@@ -202,6 +202,13 @@ class Lockstep(Bodies):
             newest: protocol.Pose = self.pose  # type: ignore[assignment]  # not None: a pose came (above)
             pose = newest if newest.seq == k else pose
             overdue = self.clock.monotonic() >= self.deadline
+            if overdue and self.clock_seq < min(k, self._clock_needed) and self.world_alive:
+                # the start barrier: clock_0 comes once every robot's state_0 is in the world, which may take it
+                # longer than a tick's wait (a robot slow to start, pose_0 repeated to it every 0.25 s); going on
+                # without it would go on without the reference too (the leader answers clock_0 with ref_0), and
+                # the run would differ from swarm sim from its first tick. The world ends a barrier that fails.
+                self.deadline = self.clock.monotonic() + self.wait_timeout
+                return False
             if overdue and k not in self.refs and (not self.leader_alive or self.leader_ups != self._leader_ups_seen):
                 # no reference because the leader is away, or came back during the tick and is catching up:
                 # wait for it (the world holds the tick and ends the run if it does not come back)

@@ -302,3 +302,33 @@ def test_a_lockstep_robot_puts_its_state_and_command_reliably():
         assert w.tick(k, (0.1 * k, 0.1, 0.0), ref, [(7, (1.1, -0.3, 0.0))])
     assert bus.reliable["cell"] == {True} and bus.reliable["cmd"] == {True}, bus.reliable
     w.agent.close()
+
+
+@pytest.mark.unit
+def test_the_start_barrier_is_waited_for_past_a_ticks_wait_and_the_reference_gets_a_wait_after_the_clock():
+    """clock_0 comes once every robot's state_0 is in the world, which may take longer than a tick's wait (a robot
+    slow to start); the leader answers it with ref_0. A robot that went on after 1 s without them commanded zero at
+    tick 0 where swarm sim moved it: the run differed from its first tick. It waits while the world is there, and
+    the reference has a whole wait from the clock; without the world it goes on as before."""
+    ref = Ref(t=0.0, seq=0, x=1.0, y=0.5, theta=0.2, v=0.5, w=0.05)
+    for world in (True, False):
+        w = Wire()
+        w.agent.clock = clock = FakeClock()
+        tokens = [w.probe.token(keys.alive(F, "leader"))] + ([w.probe.token(keys.alive(F, "world"))] if world else [])
+        assert w.agent.world_alive == world and w.agent.leader_alive
+        w.put(keys.robot_pose(F, CFG.id), Pose(t=0.0, seq=0, x=0.2, y=0.1, theta=0.4))
+        assert not w.agent.tick_lockstep()  # tick 0 begins: it waits for the clock and the reference
+        clock.advance(5 * w.agent.wait_timeout)  # the world's barrier takes 5 s
+        if not world:  # nobody to wait for: on it goes, without a reference (no command), as it always did
+            assert w.agent.tick_lockstep() and not w.cmds and w.agent.skipped == 1
+            continue
+        assert not w.agent.tick_lockstep() and not w.cmds
+        w.put(keys.world_clock(F), Clock(t=0.0, seq=0, epoch=0.0, speed=1.0))
+        clock.advance(0.9 * w.agent.wait_timeout)  # the leader's answer takes most of a wait: still awaited
+        assert not w.agent.tick_lockstep() and not w.cmds
+        w.put(keys.leader_ref(F), ref)
+        assert w.agent.tick_lockstep() and w.agent._overdue == 0
+        v, om = law_command((0.2, 0.1, 0.4), (ref.x, ref.y, ref.theta, ref.v, ref.w), 0.0, [])
+        assert (w.cmds[0].v, w.cmds[0].w) == (v, om) != (0.0, 0.0)
+        for t in tokens:
+            t.close()
