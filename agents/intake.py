@@ -140,6 +140,10 @@ class Intake(AgentState):
                     self.w_clock.reset()
                     self.w_bodies.reset()  # real time: this robot was away (hung past its lease): the list moved on
                     self._world_ups += 1
+                    if self.cfg.lockstep and self.view is None and self._world_ups > 1 and self.k_started >= 0:
+                        # its session came back (it was stopped past its lease): the world went on without it and
+                        # waits for its commands again; its next pose is of a tick ahead of this robot's (_judge)
+                        self._rejoin = True
                     if self.view is not None and self._world_ups > 1:
                         # the world's token again: this robot's session came back (it was stopped past its lease):
                         # say so once its subscriptions are back (they were sent before this could arrive)
@@ -192,6 +196,16 @@ class Intake(AgentState):
             if seq > nxt + lead:
                 if self.view is not None and not self.view.active(nxt):
                     return None  # dead or hung by the schedule to its end: the messages pass it by
+                if self._rejoin and w is self.w_pose:
+                    # the world's first pose since this robot's session came back: it rejoins at that tick (the
+                    # world waits for its commands again); only then, once, may a pose skip ticks
+                    self._rejoin = False
+                    self._rejoin_tick = seq
+                    self.rejoined += 1
+                    log.warning("robot %d: back after its session dropped; rejoins at tick %d (its last was %d)",
+                                self.id, seq, self.k_done)
+                    w.reset()
+                    return w.check(t, seq)
                 return window.outside(w, t, seq, True)
             if seq <= self.k_done:
                 return window.outside(w, t, seq, False)

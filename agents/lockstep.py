@@ -239,6 +239,12 @@ class Lockstep(Bodies):
                     v, w, r = self._command_under_faults(k, ref)
                     belief: protocol.Pose = self.belief  # type: ignore[assignment]  # _start_tick set it: k is not idle
                     pose = belief
+            elif k == self._rejoin_tick:
+                # it rejoins at k (its session dropped and came back; the world went on): it knows nobody's state
+                # of k - 1, so nobody was waited for, and holds still for this tick, as it stood while lost
+                v = w = 0.0
+                r = (ref.x, ref.y, ref.theta, ref.v, ref.w) if ref is not None else \
+                    (pose.x - self.cfg.dx, pose.y - self.cfg.dy, pose.theta, 0.0, 0.0)
             elif ref is None:
                 self.skipped += 1  # no reference for this tick (a restart mid-run): no command, the world holds
                 log.warning("robot %d: no reference for tick %d, no command", self.id, k)

@@ -84,6 +84,8 @@ class AgentState:
     _world_ups = 0  # times the world's token appeared
     world_alive = False  # the world's token is there
     _announce = False  # lock-step under faults: its session came back; tell the world (FaultStats)
+    _rejoin = False  # lock-step without faults: its session came back; the world's next pose ahead is taken
+    _rejoin_tick = -1  # lock-step without faults: the tick it rejoined at (it holds still then)
     _clock_needed = 0  # lock-step: clock_0 is the start barrier; later ticks need no clock message
     _rt_seq = -1  # real time: seq of the pose the last command was computed from
     _pose_mono = -math.inf  # real time: when the newest pose came (monotonic)
@@ -200,6 +202,7 @@ class AgentState:
         self.process_cpu_s = 0.0  # CPU time of the whole process (zenoh's threads too) while its loop ran
         self.ticks = 0
         self.skipped = 0
+        self.rejoined = 0  # lock-step: times it rejoined the run at a later tick after its session dropped
         self.stale_total = 0
         self.seq = 0
         self._last_status_t = -math.inf
@@ -291,6 +294,8 @@ class AgentState:
     def _inputs_complete(self, k: int) -> bool:
         if self._idle == k:
             return True  # dead or hung at k (the fault schedule): nothing to compute
+        if k == self._rejoin_tick:
+            return True  # it rejoins at k and holds still (Lockstep.tick_lockstep): nothing to wait for
         return k in self.refs and self.clock_seq >= min(k, self._clock_needed) and not self.waiting and \
             (self.view is None or k in self.static_by_seq)
 

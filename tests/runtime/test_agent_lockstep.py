@@ -332,3 +332,32 @@ def test_the_start_barrier_is_waited_for_past_a_ticks_wait_and_the_reference_get
         assert (w.cmds[0].v, w.cmds[0].w) == (v, om) != (0.0, 0.0)
         for t in tokens:
             t.close()
+
+
+@pytest.mark.unit
+def test_a_robot_whose_session_came_back_rejoins_at_the_worlds_tick_holding_still_for_it():
+    """A robot stopped past its lease is lost; the world goes on and, once its token is back, waits for its
+    commands again. It refused the world's poses as ahead of its own tick, so it never caught up (every later tick
+    cost the world its tick timeout). Once its session is back (the world's token again), the world's next pose is
+    taken whatever its tick, once: it rejoins there, holding still that tick (it knows nobody's state of the tick
+    before), then runs the law again. A pose ahead without that is still refused."""
+    w = Wire()
+    ref = (0.0, 0.0, 0.0, 0.5, 0.0)
+    world = w.probe.token(keys.alive(F, "world"))
+    leader = w.probe.token(keys.alive(F, "leader"))
+    for k in range(2):
+        assert w.tick(k, (0.1 * k, 0.1, 0.0), ref)
+    w.put(keys.robot_pose(F, CFG.id), Pose(t=50 * CFG.dt, seq=50, x=0.2, y=0.1, theta=0.0))
+    assert not w.agent.tick_lockstep() and w.agent.bad.count == 1  # ahead: refused (a forger's, or a lost one)
+    world.close()  # its session dropped: every token went, and came back with it
+    world = w.probe.token(keys.alive(F, "world"))
+    w.put(keys.robot_pose(F, CFG.id), Pose(t=60 * CFG.dt, seq=60, x=0.2, y=0.1, theta=0.0))
+    assert w.agent.tick_lockstep() and w.agent.rejoined == 1 and w.agent.bad.count == 1
+    assert (w.cmds[-1].seq, w.cmds[-1].v, w.cmds[-1].w) == (60, 0.0, 0.0)  # no reference needed: it holds still
+    assert w.tick(61, (0.2, 0.1, 0.0), ref)
+    assert w.cmds[-1].seq == 61 and (w.cmds[-1].v, w.cmds[-1].w) == law_command((0.2, 0.1, 0.0), ref, 61 * CFG.dt, [],
+                                                                                   mem=None)
+    w.put(keys.robot_pose(F, CFG.id), Pose(t=90 * CFG.dt, seq=90, x=0.2, y=0.1, theta=0.0))
+    assert not w.agent.tick_lockstep() and w.agent.bad.count == 2  # once only
+    world.close()
+    leader.close()
