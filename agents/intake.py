@@ -12,7 +12,7 @@ from swarm.proto import keys, protocol
 from swarm.core import safety
 from swarm.proto import window
 from swarm.proto.protocol import ProtocolError, State
-from agents.state import AgentState, HEAR_GAP_PERIODS
+from agents.state import REJOIN_AWAY_S, REJOIN_TICKS_PER_S, AgentState, HEAR_GAP_PERIODS
 
 log = logging.getLogger("swarm.robot")
 
@@ -140,9 +140,10 @@ class Intake(AgentState):
                     self.w_clock.reset()
                     self.w_bodies.reset()  # real time: this robot was away (hung past its lease): the list moved on
                     self._world_ups += 1
-                    if self.cfg.lockstep and self.view is None and self._world_ups > 1 and self.k_started >= 0:
-                        # its session came back (it was stopped past its lease): the world went on without it and
-                        # waits for its commands again; its next pose is of a tick ahead of this robot's (_judge)
+                    if self.cfg.lockstep and self.view is None and self._world_ups > 1 and self.k_started >= 0 and \
+                            self.clock.monotonic() - self._tick_mono > REJOIN_AWAY_S:
+                        # its session came back (it was stopped past its lease, no tick begun since): the world went
+                        # on without it and waits for its commands again; its next pose is of a tick ahead (_judge)
                         self._rejoin = True
                     if self.view is not None and self._world_ups > 1:
                         # the world's token again: this robot's session came back (it was stopped past its lease):
@@ -196,9 +197,13 @@ class Intake(AgentState):
             if seq > nxt + lead:
                 if self.view is not None and not self.view.active(nxt):
                     return None  # dead or hung by the schedule to its end: the messages pass it by
-                if self._rejoin and w is self.w_pose:
+                if self._rejoin and w is not self.w_pose:
+                    return None  # the world went on while it was away: passed by, uncounted, until it rejoins
+                if self._rejoin and seq <= self.k_done + 2 + REJOIN_TICKS_PER_S * (
+                        self.clock.monotonic() - self._tick_mono) and w.peek(t, seq) != window.FORGED:
                     # the world's first pose since this robot's session came back: it rejoins at that tick (the
-                    # world waits for its commands again); only then, once, may a pose skip ticks
+                    # world waits for its commands again); only then, once, may a pose skip ticks, and no further
+                    # than the world could have gone meanwhile
                     self._rejoin = False
                     self._rejoin_tick = seq
                     self.rejoined += 1
@@ -254,6 +259,8 @@ class Intake(AgentState):
         else:
             now = self.sim_time(self.clock.time())
             ahead = now is not None and s.t > now + self._spans[0]
+        if ahead and self._rejoin:
+            return  # the swarm went on while this robot was away: passed by, uncounted, until it rejoins
         if ahead:
             self.bad.reject(key, ProtocolError(f"robot {s.id}'s state (t {s.t:g}, seq {s.seq}) is ahead of this "
                                                f"robot's clock beyond the window"))
@@ -317,6 +324,7 @@ class Intake(AgentState):
         v = self._judge(self.w_pose, pose.t, pose.seq, lead=0)
         if v is None or not self.bad.verdict(key, v, "the pose's t or seq"):
             return
+        self._rejoin = False  # a pose taken: in step with the world (rejoined, or it never fell behind)
         if not self.cfg.lockstep:
             mono = self.clock.monotonic()
             last = self.pose

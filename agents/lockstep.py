@@ -149,6 +149,7 @@ class Lockstep(Bodies):
                     # --process-faults played)
                     self.mem = self.control.fresh_memory()
             self.deadline = self.clock.monotonic() + self.wait_timeout
+            self._tick_mono = self.clock.monotonic()
             self._leader_ups_seen = self.leader_ups
             self.k_started = k
             if self._state_sink is not None:  # the tick under way and whom it waits for, as the sink reads them

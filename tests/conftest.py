@@ -114,12 +114,13 @@ PROCESSES = "processes"  # the one xdist scope of every test file but the unit t
 PROCESSES_FIRST = ("tests/integration/test_userlaw_runs.py", "tests/integration/test_cli_sim.py",
                    "tests/integration/test_campaign.py", "tests/protocol/test_types.py",
                    "tests/protocol/test_layers.py", "tests/protocol/test_docs.py", "tests/integration/test_docs_site.py")
-SPLIT_ENV = "SWARM_TEST_SPLIT"  # set by the controller of a whole-suite run: its workers order the tests so
+COLLECTED = pytest.StashKey[list]()  # config.stash: every test collected, before any is deselected
+SPLIT_ENV = "SWARM_TEST_SPLIT"  # set by the controller of a whole-suite run: its workers order the tests (PROCESSES_FIRST)
 
 
 def _xdist_usable(config: pytest.Config) -> bool:
     opt = config.option
-    return config.pluginmanager.hasplugin("xdist") and not getattr(opt, "numprocesses", None) and not (
+    return config.pluginmanager.hasplugin("xdist") and getattr(opt, "numprocesses", None) is None and not (
         os.environ.get("SWARM_TEST_SERIAL") or os.environ.get("PYTEST_XDIST_WORKER") or getattr(opt, "usepdb", False))
 
 
@@ -129,8 +130,8 @@ def pytest_cmdline_main(config: pytest.Config) -> None:
     processes (the unit tier is CPU bound and has no shared state between tests). The whole suite (`pytest`, no
     path, -m or -k): on two, one for the unit tier and one for every other test file, one after another (they
     start processes and routers of their own, on ports and namespaces that two of them at once would share:
-    pytest_xdist_make_scheduler), so the unit tier costs no time of its own. Any other selection, an explicit -n,
-    `-p no:xdist`, or SWARM_TEST_SERIAL=1 runs in this process as usual."""
+    pytest_xdist_make_scheduler), so the unit tier costs no time of its own. Any other selection, an explicit -n
+    (-n 0 included), -x, --maxfail, --sw, `-p no:xdist`, or SWARM_TEST_SERIAL=1 runs in this process as usual."""
     opt = config.option
     if not _xdist_usable(config) or (os.cpu_count() or 1) < 2:
         return
@@ -140,7 +141,8 @@ def pytest_cmdline_main(config: pytest.Config) -> None:
         if getattr(opt, "dist", "no") == "no":
             opt.dist = "load"
     elif not mark and not getattr(opt, "keyword", "") and not getattr(opt, "file_or_dir", None) and \
-            getattr(opt, "dist", "no") == "no":
+            getattr(opt, "dist", "no") == "no" and not getattr(opt, "maxfail", 0) and not getattr(opt, "stepwise", False):
+        # (-x, --maxfail, --sw: one process, which stops where asked; the worker of the other tests would not)
         opt.numprocesses, opt.dist = 2, "load"
         os.environ[SPLIT_ENV] = "1"  # the workers inherit it
 
@@ -206,6 +208,12 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log):
     return TierScheduling(config, log)
 
 
+@pytest.fixture
+def collected_tests(request) -> list[pytest.Item]:
+    """Every test this run collected, before -m or -k deselected any (tests/unit/test_suite_split.py)."""
+    return request.config.stash[COLLECTED]
+
+
 def _processes_in_order(config: pytest.Config, items: list[pytest.Item]) -> None:
     """PROCESSES_FIRST's files first (a stable sort: the same order on every worker, as xdist requires)."""
     if os.environ.get(SPLIT_ENV):
@@ -223,6 +231,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         why = tier_error({m.name for m in item.iter_markers()})
         if why:
             bad.append(f"{item.nodeid}: {why}")
+    config.stash[COLLECTED] = list(items)  # every test collected, before -m or -k deselects (test_suite_split.py)
     if bad:
         raise pytest.UsageError(
             "every test needs exactly one tier marker: @pytest.mark.unit, integration or browser, or slow "
