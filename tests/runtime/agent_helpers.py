@@ -36,6 +36,15 @@ class Wire:
     def put(self, key, msg):
         self.probe.put(key, protocol.encode(msg))
 
+    def rebus(self, bus_class):
+        """The agent again, started on a bus of bus_class (a MemoryBus that records something) on the same net;
+        returns that bus."""
+        self.agent.close()
+        bus = bus_class(self.net)
+        self.agent = robot.Agent(bus, self.agent.cfg, F, wait_timeout=60.0)
+        self.agent.start([])
+        return bus
+
     def tick(self, k, pose, ref, neighbours=()):
         """One lock-step tick in the world's order: ref (a tick ahead), pose, the neighbours'
         states, and at k = 0 the clock (the world's start barrier)."""

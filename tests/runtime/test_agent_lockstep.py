@@ -133,10 +133,7 @@ def test_the_cell_keys_a_robot_hears_are_hinted_to_its_bus_once_each():
     """ZenohBus.hint: zenoh resolves a hinted key's route once. Every neighbour's cell key the agent
     heard goes to its bus at its next tick, once; a key it never heard does not."""
     w = Wire()
-    w.agent.close()
-    bus = HintBus(w.net)
-    w.agent = robot.Agent(bus, CFG, F, wait_timeout=60.0)
-    w.agent.start([])
+    bus = w.rebus(HintBus)
     ref = (0.0, 0.0, 0.0, 0.5, 0.0)
     nbs = [(7, (1.1, -0.3, 0.0)), (1, (-0.8, 0.2, 1.0))]
     w.tick(0, (0.1, 0.1, 0.0), ref, nbs)
@@ -293,10 +290,7 @@ def test_a_lockstep_robot_puts_its_state_and_command_reliably():
     when a queue is busy for a millisecond, on a loaded machine): a state_0 lost so went unnoticed (the start
     barrier waits for nobody's state) and the run differed from swarm sim. State and command are put BLOCK."""
     w = Wire()
-    w.agent.close()
-    bus = ReliabilityBus(w.net)
-    w.agent = robot.Agent(bus, CFG, F, wait_timeout=60.0)
-    w.agent.start([])
+    bus = w.rebus(ReliabilityBus)
     ref = (0.0, 0.0, 0.0, 0.5, 0.0)
     for k in range(3):
         assert w.tick(k, (0.1 * k, 0.1, 0.0), ref, [(7, (1.1, -0.3, 0.0))])
