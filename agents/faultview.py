@@ -105,10 +105,13 @@ class FaultView:
 
     # ------------------------------------------------------------------ tick k
 
-    def start(self, k: int, pose: tuple[float, float, float]) -> tuple[float, float, float] | None:
+    def start(self, k: int, pose: tuple[float, float, float], rejoin: bool = False) -> tuple[float, float, float] | None:
         """Tick k begins (its raw pose came): the process events, then its belief at k; None while its
-        process is dead or hung (it does nothing at k)."""
+        process is dead or hung (it does nothing at k). rejoin: its session dropped outside the schedule and
+        came back, and it rejoins the run at k (agents.intake): as a resume ("rejoin"), it listens at k."""
         self.event = event = self.schedule.fresh(self.id, k)
+        if rejoin and event is None:
+            self.event = event = "rejoin"
         if event == "restart":  # a fresh process knows nothing, nor takes what was sent to the old one
             self.kb, self.kp, self.kr, self.born = -1, -1, -1, k
             self.tk.clear()

@@ -12,7 +12,7 @@ from swarm.proto import keys, protocol
 from swarm.core import safety
 from swarm.proto import window
 from swarm.proto.protocol import ProtocolError, State
-from agents.state import REJOIN_AWAY_S, REJOIN_TICKS_PER_S, AgentState, HEAR_GAP_PERIODS
+from agents.state import AgentState, HEAR_GAP_PERIODS
 
 log = logging.getLogger("swarm.robot")
 
@@ -140,10 +140,10 @@ class Intake(AgentState):
                     self.w_clock.reset()
                     self.w_bodies.reset()  # real time: this robot was away (hung past its lease): the list moved on
                     self._world_ups += 1
-                    if self.cfg.lockstep and self.view is None and self._world_ups > 1 and self.k_started >= 0 and \
-                            self.clock.monotonic() - self._tick_mono > REJOIN_AWAY_S:
-                        # its session came back (it was stopped past its lease, no tick begun since): the world went
-                        # on without it and waits for its commands again; its next pose is of a tick ahead (_judge)
+                    if self.cfg.lockstep and self._world_ups > 1 and self.k_started >= 0:
+                        # its session came back (it was stopped past its lease): the world went on without it and
+                        # waits for its commands again; its next pose is of a tick ahead (_judge). (The world's own
+                        # session coming back sets this too: the world's next pose, in step, ends it: _on_pose.)
                         self._rejoin = True
                     if self.view is not None and self._world_ups > 1:
                         # the world's token again: this robot's session came back (it was stopped past its lease):
@@ -199,11 +199,9 @@ class Intake(AgentState):
                     return None  # dead or hung by the schedule to its end: the messages pass it by
                 if self._rejoin and w is not self.w_pose:
                     return None  # the world went on while it was away: passed by, uncounted, until it rejoins
-                if self._rejoin and seq <= self.k_done + 2 + REJOIN_TICKS_PER_S * (
-                        self.clock.monotonic() - self._tick_mono) and w.peek(t, seq) != window.FORGED:
+                if self._rejoin and w.peek(t, seq) != window.FORGED:
                     # the world's first pose since this robot's session came back: it rejoins at that tick (the
-                    # world waits for its commands again); only then, once, may a pose skip ticks, and no further
-                    # than the world could have gone meanwhile
+                    # world waits for its commands again); only then, once, may a pose skip ticks
                     self._rejoin = False
                     self._rejoin_tick = seq
                     self.rejoined += 1

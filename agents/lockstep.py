@@ -109,7 +109,7 @@ class Lockstep(Bodies):
         k = pose.seq
         view = self.view
         if view is not None:
-            b = view.start(k, (pose.x, pose.y, pose.theta))
+            b = view.start(k, (pose.x, pose.y, pose.theta), rejoin=k == self._rejoin_tick)
             if b is None:
                 with self.lock:
                     self._idle = k
@@ -139,7 +139,9 @@ class Lockstep(Bodies):
                     if nb.seq == k - 1 and j not in dead and (px - nb.x) * (px - nb.x) + (py - nb.y) * (py - nb.y) < \
                             reach2 and (view is None or view.other_active(j, k)):  # under faults: nobody waits for a stopped robot
                         self.waiting.add(j)
-            if view is not None and view.event is not None:
+            if k == self._rejoin_tick:
+                self.waiting = set()  # it rejoins at k, listening (it holds still): nobody to wait for
+            elif view is not None and view.event is not None:
                 # it returns at k (restarted or resumed): it knows nobody's state of k - 1, so it waits for
                 # every robot running at k (heard in every cell: _listen_all), but those already here
                 self.waiting = {j for j in range(self.cfg.robots) if j != self.id and j not in dead and
@@ -149,7 +151,6 @@ class Lockstep(Bodies):
                     # --process-faults played)
                     self.mem = self.control.fresh_memory()
             self.deadline = self.clock.monotonic() + self.wait_timeout
-            self._tick_mono = self.clock.monotonic()
             self._leader_ups_seen = self.leader_ups
             self.k_started = k
             if self._state_sink is not None:  # the tick under way and whom it waits for, as the sink reads them

@@ -38,8 +38,6 @@ if TYPE_CHECKING:
 log = logging.getLogger("swarm.robot")
 
 
-REJOIN_AWAY_S = 1.0  # lock-step: a robot that began no tick for this long (its lease) when the world's token came back was away
-REJOIN_TICKS_PER_S = 10_000  # lock-step: more ticks than this a second since its last, a pose to rejoin at is not the world's
 WAIT_TIMEOUT_S = 1.0  # lock-step: wall seconds to wait for a tick's inputs before going on without them
 STATUS_PERIOD_S = 0.1  # simulated seconds between status messages
 RT_BODIES_TTL_S = 1.0  # real time under faults: a list of still robots older than this [simulated s] is dropped
@@ -86,9 +84,8 @@ class AgentState:
     _world_ups = 0  # times the world's token appeared
     world_alive = False  # the world's token is there
     _announce = False  # lock-step under faults: its session came back; tell the world (FaultStats)
-    _rejoin = False  # lock-step without faults: its session came back; the world's next pose ahead is taken
-    _rejoin_tick = -1  # lock-step without faults: the tick it rejoined at (it holds still then)
-    _tick_mono = -math.inf  # lock-step: when (monotonic) its newest tick began
+    _rejoin = False  # lock-step: its session came back; the world's next pose ahead is taken
+    _rejoin_tick = -1  # lock-step: the tick it rejoined at (it holds still then)
     _clock_needed = 0  # lock-step: clock_0 is the start barrier; later ticks need no clock message
     _rt_seq = -1  # real time: seq of the pose the last command was computed from
     _pose_mono = -math.inf  # real time: when the newest pose came (monotonic)

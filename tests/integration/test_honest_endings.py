@@ -100,11 +100,13 @@ def test_a_collision_is_a_failed_check_exit_3(tmp_path):
     assert out.returncode == 0, out.stderr
 
 
-def test_misses_and_a_lost_robot_show_in_the_summary_and_exit_3_and_the_robot_rejoins(tmp_path):
+@pytest.mark.parametrize("faults", [(), ("--drop", "0.1")], ids=["no-faults", "drop-0.1"])
+def test_misses_and_a_lost_robot_show_in_the_summary_and_exit_3_and_the_robot_rejoins(tmp_path, faults):
     """Finding 3 (misses): a lock-step run with 1064 missed commands printed a clean summary, exit 0. A robot hung
-    past its lease (1 s) is lost; when it resumes, its session comes back and it rejoins at the world's tick (it
-    had refused the world's poses as ahead of its own, and every later tick cost the world its tick timeout)."""
-    cmd, metrics = up(tmp_path, *SCN, "--duration", "40", "--tick-timeout", "0.05", "--restarts", "0")
+    past its lease (1 s), outside any fault schedule, is lost; when it resumes, its session comes back and it
+    rejoins at the world's tick (it had refused the world's poses as ahead of its own, and every later tick cost
+    the world its tick timeout), under a fault schedule too."""
+    cmd, metrics = up(tmp_path, *SCN, "--duration", "40", "--tick-timeout", "0.05", "--restarts", "0", *faults)
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     log = tmp_path / "logs" / "robot-1.log"
     try:
