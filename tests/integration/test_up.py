@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shlex
 import re
 import signal
 import subprocess
@@ -69,9 +70,14 @@ def test_robots_without_the_compiled_parts_say_so_and_give_the_same_run(tmp_path
     assert out.returncode == 0, out.stderr + logs
     assert "message loops and law run as Python (SWARM_PURE_PYTHON is set)" in out.stdout + out.stderr
     assert logs.count("law Python, message loops Python") == 7 and "compiled" not in logs
-    scn = scenario_file.load("paper-50hz", Overrides(robots=7, duration=6.0))
+    # its summary names its twin in swarm sim (whose default scenario is not swarm up's): run as printed
+    twin = next(line for line in out.stdout.splitlines() if line.startswith("the same run in swarm sim: "))
+    assert twin == "the same run in swarm sim: swarm sim --scenario paper-50hz --robots 7 --duration 6.0", twin
+    sim = subprocess.run([sys.executable, "-m", "swarm.cli", *shlex.split(twin.split(": swarm ", 1)[1]), "--trace",
+                          str(tmp_path / "sim.npz"), "--quiet"], capture_output=True, text=True, timeout=120)
+    assert sim.returncode == 0, sim.stderr
     q = np.load(tmp_path / "trace.npz")["q"]
-    assert np.abs(q - Simulation(scn, record_period=scn.dt).run().recording.q).max() <= 1e-9
+    assert np.abs(q - np.load(tmp_path / "sim.npz")["q"]).max() <= 1e-9
 
 
 @pytest.mark.integration
