@@ -199,10 +199,12 @@ def cmd_scenario_scale(args: argparse.Namespace, started: float) -> int:
 
     scn = scenario_file.load(args.source, overrides(args), progress=scenario_file.silent)
     out, k = scenario_file.scaled(scn, args.v_max, args.w_max)
-    sys.stdout.write(scenario_file.to_toml(out))
     said = "fits as it is" if k == 1.0 else f"{1 / k:.4g} times slower: the same path in {out.duration:g} s"
-    print(f"swarm scenario scale: time scale k = {k:.4g} ({said}; v_max {out.control.v_max:g} m/s"
-          f"{'' if out.control.w_max is None else f', w_max {out.control.w_max:g} rad/s'})", file=sys.stderr)
+    scale = (f"time scale k = {k:.4g} ({said}; v_max {out.control.v_max:g} m/s"
+             f"{'' if out.control.w_max is None else f', w_max {out.control.w_max:g} rad/s'})")
+    # the file says how it was made, the time scale included (the leader's path is the source's, k times slower)
+    sys.stdout.write(scenario_file.to_toml(out, f"swarm scenario scale from '{scn.name}', {scale}"))
+    print(f"swarm scenario scale: {scale}", file=sys.stderr)
     return EXIT_OK
 
 

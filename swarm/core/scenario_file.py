@@ -757,8 +757,9 @@ def _quote(text: str) -> str:
     return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
-def to_toml(scn: Scenario) -> str:
-    """The resolved scenario as a TOML file with explicit lists (loads back to the same numbers)."""
+def to_toml(scn: Scenario, written_by: str = "swarm scenario show") -> str:
+    """The resolved scenario as a TOML file with explicit lists (loads back to the same numbers); its first line, a
+    comment, names what wrote it (part of the run's digest: swarm.core.runid keeps the default)."""
 
     def num(x: float) -> str:
         return repr(float(x))
@@ -768,7 +769,7 @@ def to_toml(scn: Scenario) -> str:
 
     c = scn.control
     lines = [
-        f"# scenario '{scn.name}': {scn.n} robots, {len(scn.obstacles)} obstacles (written by swarm scenario show)",
+        f"# scenario '{scn.name}': {scn.n} robots, {len(scn.obstacles)} obstacles (written by {written_by})",
         "[run]", f"duration = {num(scn.duration)}", f"dt = {num(scn.dt)}", f"seed = {scn.seed}", "",
         "[control]", f"k1 = {num(c.k1)}", f"k2 = {num(c.k2)}", f"k3 = {num(c.k3)}", f"tu = {num(c.tu)}",
         f"vt = {num(c.vt)}", f'threshold = "{c.threshold}"', f"governor = {'true' if c.governor else 'false'}",

@@ -211,6 +211,10 @@ def test_scenario_scale_writes_a_scenario_that_fits_and_says_its_time_scale(tmp_
     p = run(["scenario", "scale", "paper-50hz", "--robots", "7", "--v-max", "0.22", "--w-max", "2.84"])
     assert p.returncode == 0, p.stderr
     assert "time scale k = 0.2719 (3.678 times slower: the same path in 441.315 s" in p.stderr
+    # the file itself says so (it outlives the terminal)
+    assert p.stdout.splitlines()[0].startswith("# scenario 'paper-50hz': 7 robots, 15 obstacles (written by swarm "
+                                               "scenario scale from 'paper-50hz', time scale k = 0.2719 (3.678 times "
+                                               "slower"), p.stdout.splitlines()[0]
     f = tmp_path / "burger.toml"
     f.write_text(p.stdout)
     check = run(["scenario", "check", str(f)])
