@@ -373,6 +373,9 @@ def check_rows(args: argparse.Namespace, out: Path, rows: list[dict], n: int, qu
     status = console.StatusLine(enabled=not quiet, log_every=10.0)
     print(f"swarm up, lock-step, against swarm sim: the first {n} of {len(rows)} runs, one at a time "
           f"(files in {out}/up/)", flush=True)
+    for old in (out / "up").glob("row-*"):  # an earlier check's of more rows: up.csv will not list them
+        if old.name[4:].isdigit() and int(old.name[4:]) > n and old.is_dir():
+            shutil.rmtree(old, ignore_errors=True)
     checks: list[Check] = []
     with StopEvent(hard_second=False) as stop:
         for i, row in enumerate(rows[:n], 1):

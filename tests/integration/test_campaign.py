@@ -260,8 +260,12 @@ def test_up_from_a_campaign_whose_rows_no_longer_match_swarm_sim_says_stale_with
         w = csv.DictWriter(f, cols, lineterminator="\n")
         w.writeheader()
         w.writerows(rows)
+    earlier = copy / "up" / "row-2"  # the files of an earlier check of two rows: up.csv will list one
+    earlier.mkdir(parents=True)
+    (earlier / "up.log").write_text("an earlier check's\n")
     q = swarm("campaign", "--up", "1", "--from", str(copy), "--quiet")
     assert q.returncode == 3, q.stdout + q.stderr
+    assert not earlier.exists()
     assert "up 1/1, seed 0 drop 0.3: STALE" in q.stdout and "min_robot_distance_m" in q.stdout
     assert "seed 0 drop 0.3 stale" in q.stderr
     _, up = read_csv(copy / "up.csv")
