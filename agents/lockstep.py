@@ -245,8 +245,7 @@ class Lockstep(Bodies):
                 # it rejoins at k (its session dropped and came back; the world went on): it knows nobody's state
                 # of k - 1, so nobody was waited for, and holds still for this tick, as it stood while lost
                 v = w = 0.0
-                r = (ref.x, ref.y, ref.theta, ref.v, ref.w) if ref is not None else \
-                    (pose.x - self.cfg.dx, pose.y - self.cfg.dy, pose.theta, 0.0, 0.0)
+                r = (ref.x, ref.y, ref.theta, ref.v, ref.w) if ref is not None else self._standing_ref(pose)
             elif ref is None:
                 self.skipped += 1  # no reference for this tick (a restart mid-run): no command, the world holds
                 log.warning("robot %d: no reference for tick %d, no command", self.id, k)
@@ -279,7 +278,7 @@ class Lockstep(Bodies):
         b: protocol.Pose = self.belief  # type: ignore[assignment]  # _start_tick set it: tick k is not idle
         if listen or r is None:
             v = w = 0.0  # listening (just restarted or resumed), or no reference yet: it holds still
-            r = r or (b.x - self.cfg.dx, b.y - self.cfg.dy, b.theta, 0.0, 0.0)
+            r = r or self._standing_ref(b)
         else:
             static = self.static_by_seq.get(k, {})
             nx, ny, nr, nR, nk, na = view.bodies(k, static, self.obstacles, self.cfg.r, self.cfg.R, law.KIND_ROBOT,
@@ -290,6 +289,10 @@ class Lockstep(Bodies):
             self.neighbours = sum(1 for kind in nk if kind == law.KIND_ROBOT)
         view.commanded(k, v, w)
         return v, w, r
+
+    def _standing_ref(self, pose) -> tuple[float, float, float, float, float]:
+        """The reference of a robot holding still at pose without one (for its status): its slot where it stands."""
+        return (pose.x - self.cfg.dx, pose.y - self.cfg.dy, pose.theta, 0.0, 0.0)
 
     def next_wakeup(self) -> float:
         """Seconds until tick_lockstep() may act by timeout (a bound for the loop's wait)."""

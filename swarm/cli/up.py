@@ -344,7 +344,7 @@ def cmd_up(args, started: float) -> int:
         if args.mode == "lockstep":  # its twin: the same scenario flags (swarm sim's default scenario is not up's)
             import shlex
 
-            print(f"the same run in swarm sim: swarm sim {' '.join(map(shlex.quote, scenario_args(args)))}")
+            print(f"the same run in swarm sim: {shlex.join(['swarm', 'sim', *scenario_args(args)])}")
     elif not args.quiet:  # nothing ran: no table of zeros that reads like a clean run
         print(f"no run: nothing was simulated (metrics with the failure: {metrics_path})")
     if record_note and not args.quiet:
