@@ -7,8 +7,12 @@ Lock-step tick k (the world owns the clock; docs/runtime.md):
      reach is the largest R (the law ignores bodies farther than that) and L = (side - reach) / 3
      is the largest step the protocol assumes (a robot that can matter at k, closer than reach,
      was within reach + 2L at k-1; one that was that close is still inside the cells subscribed
-     at k-1, so its state_k is sure to arrive), for ref_k and for clock_k (clock_0 is the world's
-     start barrier: every state_0 has been delivered). After `wait_timeout` seconds it goes on
+     at k-1, so its state_k is sure to arrive), for ref_k and for clock_k. At tick 0 nobody's previous
+     state is known: it waits for the state_0 of every robot of the run that runs at 0 and is not lost,
+     heard in every cell (a subscription declared before its liveliness token, so before the world's
+     pose_0 and anyone's state_0). clock_0, the world's start barrier, says only that every state_0 reached
+     the world, not this robot: through a router, a neighbour's state_0 may reach it after clock_0 and
+     ref_0 (seen under load: the run then differed from swarm sim at tick 1). After `wait_timeout` seconds it goes on
      with what it has and counts the missing as stale. A robot that moves more than L in a tick
      breaks the premise; the world then counts the pairs the rule could not cover (metrics
      `lockstep_overruns`): only then can a run differ from swarm sim.
@@ -65,9 +69,9 @@ class Lockstep(Bodies):
             self._listen_all(True)
 
     def _listen_all(self, on: bool) -> None:
-        """Lock-step under faults (loop thread, or start()): hear every robot's state, in every cell, for
-        a tick this robot returns at (restarted or resumed, it knows nobody's previous state, so it waits
-        for the state of every robot running then)."""
+        """Lock-step (loop thread, or start()): hear every robot's state, in every cell, for tick 0 and, under
+        faults, for a tick this robot returns at (restarted or resumed): it knows nobody's previous state then,
+        so it waits for the state of every robot running then."""
         if on and self._all_sub is None:
             self._all_sub = self.bus.subscribe(keys.cell_all(self.fleet), self._on_any_state_msg)
         elif not on and self._all_sub is not None:
@@ -75,8 +79,9 @@ class Lockstep(Bodies):
             self._all_sub = None
 
     def _on_any_state_msg(self, key: str, data: bytes) -> None:
-        """A state heard through _listen_all: kept only when it is of a tick this robot returns at (its
-        cells' subscriptions bring the same message through the windows of _on_state)."""
+        """A state heard through _listen_all: kept only when it is of tick 0 before this robot has done it, or
+        of a tick it returns at (its cells' subscriptions bring the same message through the windows of
+        _on_state)."""
         if self.ended:
             return
         j = keys.cell_robot(key)
@@ -85,14 +90,17 @@ class Lockstep(Bodies):
                 raise ProtocolError(f"not a cell key: {key!r}")
             s = protocol.decode(data, "state", j, self.limits)
         except ProtocolError as e:
-            with self.lock:
-                self.bad.reject(key, e)
+            if not self._hears_cell(key):  # else its cell's subscription counts it (once)
+                with self.lock:
+                    self.bad.reject(key, e)
             return
         with self.lock:
-            if s.id == self.id or self.view is None:
+            if s.id == self.id:
                 return
-            if s.seq <= self.k_done or s.seq > self._next_tick() or self.view.schedule.fresh(self.id, s.seq) is None:
-                return  # not of a return tick of this robot (or too far ahead): the cells' subscriptions decide
+            start = s.seq == 0 and self.k_done < 0
+            if not start and (self.view is None or s.seq <= self.k_done or s.seq > self._next_tick() or
+                              self.view.schedule.fresh(self.id, s.seq) is None):
+                return  # not of tick 0 nor of a return tick of this robot (or too far ahead): the cells' subscriptions decide
             nb = self.table.get(s.id)
             if nb is None or nb.seq < s.seq:
                 self.table[s.id] = s
@@ -101,6 +109,11 @@ class Lockstep(Bodies):
             due = self._due()
         if due:
             self.kick.set()
+
+    def _hears_cell(self, key: str) -> bool:
+        """A cell subscription of this robot's hears `key` too."""
+        p = keys.parse(key)
+        return p is not None and p.kind == "cell" and (p.cx, p.cy) in self._cells
 
     def _start_tick(self, pose) -> None:
         """Lock-step tick k starts (loop thread): publish state_k, decide whose state_k to wait for.
@@ -141,12 +154,13 @@ class Lockstep(Bodies):
                         self.waiting.add(j)
             if k == self._rejoin_tick:
                 self.waiting = set()  # it rejoins at k, listening (it holds still): nobody to wait for
-            elif view is not None and view.event is not None:
-                # it returns at k (restarted or resumed): it knows nobody's state of k - 1, so it waits for
-                # every robot running at k (heard in every cell: _listen_all), but those already here
+            elif k == 0 or (view is not None and view.event is not None):
+                # tick 0, or it returns at k (restarted or resumed): it knows nobody's state of k - 1, so it waits
+                # for every robot running at k (heard in every cell: _listen_all), but those already here
                 self.waiting = {j for j in range(self.cfg.robots) if j != self.id and j not in dead and
-                                view.other_active(j, k) and not (j in self.table and self.table[j].seq == k)}
-                if view.event == "restart":
+                                (view is None or view.other_active(j, k)) and
+                                not (j in self.table and self.table[j].seq == k)}
+                if view is not None and view.event == "restart":
                     # a fresh controller (the same object when the process was not really killed: swarm world
                     # --process-faults played)
                     self.mem = self.control.fresh_memory()
@@ -186,11 +200,12 @@ class Lockstep(Bodies):
                 # at the tick it was restarted for, it never reached the idle tick that subscribes it)
                 with self.lock:
                     nxt = self._next_tick()
-                self._listen_all(self.view.schedule.fresh(self.id, nxt) is not None)
+                self._listen_all(nxt == 0 or self.view.schedule.fresh(self.id, nxt) is not None)
                 self._resubscribe()
                 self.bus.put(self._faults_key, protocol.encode(protocol.FaultStats(
                     done * self.cfg.dt, done, *self.view.counters(),
                     frozen=bool(self.mem[law.M_FROZEN]))), reliable=True)
+        self._end_start_listen()
         with self.lock:
             pose = self.pose
         if pose is None or pose.seq <= self.k_done:
@@ -263,7 +278,14 @@ class Lockstep(Bodies):
             self.bus.put(self._faults_key, protocol.encode(protocol.FaultStats(
                 pose.t, k, *c, frozen=bool(self.mem[law.M_FROZEN]))), reliable=True)
         self._publish(pose.t, k, v, w, r, pose)
+        self._end_start_listen()
         return True
+
+    def _end_start_listen(self) -> None:
+        """Without faults, once tick 0 is done: its cells bring every state it waits for from now on."""
+        if self.view is None and self.k_done >= 0 and self._all_sub is not None:
+            self._release("all", self._all_sub)
+            self._all_sub = None
 
     def _command_under_faults(self, k: int, ref) -> tuple[float, float, tuple]:
         """Lock-step under faults (under the lock): the law given what the fault layer delivered; returns

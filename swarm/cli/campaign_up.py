@@ -288,7 +288,28 @@ def check_row(args, out: Path, index: int, row: dict, stop, status, total: int) 
         (d / "trace.npz").unlink(missing_ok=True)
     else:
         c.result = "differs"
+        c.why = "; ".join(overdue_ticks(d / "logs")) or None
     return c
+
+
+OVERDUE = (" goes on after ", ": no reference for tick ")  # a lock-step robot's tick without all its inputs
+
+
+def overdue_ticks(logs: Path, most: int = 3) -> list[str]:
+    """The first lines (at most `most`) in which a lock-step robot's log says it computed a tick without all of
+    its inputs (agents.lockstep): what makes a run differ from swarm sim when nothing in the schedule does."""
+    out: list[str] = []
+    for path in sorted(logs.glob("robot-*.log"), key=lambda p: int(p.stem[6:]) if p.stem[6:].isdigit() else -1):
+        try:
+            text = path.read_text(errors="replace")
+        except OSError:
+            continue
+        for ln in text.splitlines():
+            if any(m in ln for m in OVERDUE):
+                out.append(ln.split(": ", 1)[-1].strip())
+                if len(out) >= most:
+                    return out
+    return out
 
 
 def _tail(path: Path, lines: int = 2) -> str:
@@ -321,7 +342,8 @@ def line(c: Check, total: int, dt: float) -> str:
 
         causes = nondeterminism(c.up or {})
         said = f"; swarm up says: {', '.join(causes)}" if causes else ""
-        return f"{head}DIFFERS {where}{metrics}{said}{walls}; its files: {c.out}/"
+        logs = f"; its robots' logs: {c.why}" if c.why else ""
+        return f"{head}DIFFERS {where}{metrics}{said}{logs}{walls}; its files: {c.out}/"
     if c.result == "stale":
         return f"{head}STALE: {c.why} ({'; '.join(c.metrics[:3])}{' ...' if len(c.metrics) > 3 else ''})"
     if c.result == "interrupted":

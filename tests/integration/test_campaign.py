@@ -215,10 +215,16 @@ def up_logs(out: Path) -> str:
     return "".join(f"\n--- {p}\n{p.read_text(errors='replace')[-2000:]}" for p in sorted(out.glob("up/row-*/**/*.log")))
 
 
+def worst_first(p: subprocess.CompletedProcess) -> str:
+    """The lines of the rows that did not check, first (a failure's summary shows only the first line)."""
+    bad = [ln for ln in p.stdout.splitlines() if ln.startswith("up ") and ("DIFFERS" in ln or "FAILED" in ln)]
+    return "\n".join(bad + [p.stdout + p.stderr])
+
+
 @pytest.mark.timeout(480)
 def test_up_reruns_the_first_rows_as_lockstep_swarm_up_identical_to_swarm_sim(checked):
     out, p = checked
-    assert p.returncode == 0, p.stdout + p.stderr + up_logs(out)
+    assert p.returncode == 0, worst_first(p) + up_logs(out)
     said = [line for line in p.stdout.splitlines() if line.startswith("up ")]
     assert [s.split(":")[0] for s in said] == ["up 1/2, seed 0 drop 0.3", "up 2/2, seed 1 drop 0.3"], p.stdout
     assert all(": OK, identical to swarm sim" in s and "swarm up " in s and "swarm sim " in s for s in said), said

@@ -45,6 +45,11 @@ class Wire:
         self.agent.start([])
         return bus
 
+    def far_states(self, k, but=()):
+        """state_k of every robot of the run but this one and `but`, far away (far_states below)."""
+        for key, data in far_states(k, self.agent.cfg, but):
+            self.probe.put(key, data)
+
     def tick(self, k, pose, ref, neighbours=()):
         """One lock-step tick in the world's order: ref (a tick ahead), pose, the neighbours'
         states, and at k = 0 the clock (the world's start barrier)."""
@@ -55,10 +60,24 @@ class Wire:
         for j, (x, y, th) in neighbours:
             cx, cy = keys.cell_of(x, y, CFG.sense)
             self.put(keys.cell(F, cx, cy, j), State(id=j, t=t, seq=k, x=x, y=y, theta=th, r=0.3, R=1.2, frozen=False))
-        if k == 0:
+        if k == 0:  # every other robot of the run says where it starts (far away): tick 0 waits for them all
+            self.far_states(k, {j for j, _ in neighbours})
             assert not acted, "tick 0 must wait for the start barrier"
             self.put(keys.world_clock(F), Clock(t=t, seq=k, epoch=0.0, speed=1.0))
         return acted or self.agent.tick_lockstep()
+
+
+def far_states(k, cfg=CFG, but=()):
+    """(key, payload) of state_k of every robot of cfg's run but cfg's own and `but`, each far from everyone
+    (out of reach): what the rest of a run says at tick 0, which a robot waits for."""
+    out = []
+    for j in range(cfg.robots):
+        if j != cfg.id and j not in but:
+            x = 1000.0 + 10.0 * j
+            cx, cy = keys.cell_of(x, 0.0, cfg.sense)
+            out.append((keys.cell(F, cx, cy, j), protocol.encode(State(
+                id=j, t=k * cfg.dt, seq=k, x=x, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False))))
+    return out
 
 
 def law_command(pose, ref, t, bodies, mem=None, cfg=CFG, horizon=None, obstacle_r=0.0):

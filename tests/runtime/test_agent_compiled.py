@@ -185,7 +185,9 @@ def _lockstep_run(sink: bool, seed: int) -> tuple:
         w.put(keys.robot_pose(F, CFG.id), Pose(t=t, seq=k, x=0.0, y=0.0, theta=0.0))
         w.agent.tick_lockstep()
         w.agent.wake.clear()
-        msgs = [state(j, k, 0.4 * j - 1.0) for j in (1, 2, 5, 6) if rng.random() < 0.9]
+        msgs = [state(j, k, 0.4 * j - 1.0) for j in (1, 2, 5, 6) if rng.random() < 0.9 or k == 0]
+        if k == 0:  # tick 0 waits for every robot of the run: the others start far away
+            w.far_states(0, but={1, 2, 5, 6})
         hostile = [
             state(5, k, 0.2),  # the same state again: a duplicate
             state(6, k - 2, 0.2),  # stale

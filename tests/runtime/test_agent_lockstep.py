@@ -82,6 +82,7 @@ def test_the_wait_reach_follows_the_largest_R_of_any_body(distance, awaited):
     w.agent.tick_lockstep()
     w.put(keys.cell(F, *keys.cell_of(distance, 0.0, 2.3), 5),
           State(id=5, t=0.0, seq=0, x=distance, y=0.0, theta=0.0, r=0.3, R=1.2, frozen=False))
+    w.far_states(0, but={5})
     w.put(keys.world_clock(F), Clock(t=0.0, seq=0, epoch=0.0, speed=1.0))
     assert w.agent.tick_lockstep()
     w.put(keys.leader_ref(F), Ref(t=0.02, seq=1, x=0.0, y=0.0, theta=0.0, v=ref[3], w=0.0))
@@ -176,7 +177,7 @@ def test_bad_messages_are_dropped_counted_and_never_reach_the_law():
     nan_pose = msgpack.packb({"v": 1, "kind": "pose", "t": 0.02, "seq": 1, "x": math.nan, "y": 0.0, "theta": 0.0})
     w.probe.put(keys.robot_pose(F, CFG.id), nan_pose)
     assert w.agent.bad.count == 5
-    assert 8 not in w.agent.table and 9 not in w.agent.table
+    assert w.agent.table[8].seq == w.agent.table[9].seq == 0  # their far states of tick 0 (Wire.tick), not these
     assert w.agent.pose.seq == 0  # the NaN pose was refused
     assert w.tick(1, (0.0, 0.0, 0.0), ref)  # and the agent goes on
     assert w.statuses[-1].bad == 5 or w.agent.bad.count == 5
@@ -311,6 +312,7 @@ def test_the_start_barrier_is_waited_for_past_a_ticks_wait_and_the_reference_get
         tokens = [w.probe.token(keys.alive(F, "leader"))] + ([w.probe.token(keys.alive(F, "world"))] if world else [])
         assert w.agent.world_alive == world and w.agent.leader_alive
         w.put(keys.robot_pose(F, CFG.id), Pose(t=0.0, seq=0, x=0.2, y=0.1, theta=0.4))
+        w.far_states(0)
         assert not w.agent.tick_lockstep()  # tick 0 begins: it waits for the clock and the reference
         clock.advance(5 * w.agent.wait_timeout)  # the world's barrier takes 5 s
         if not world:  # nobody to wait for: on it goes, without a reference (no command), as it always did
@@ -326,6 +328,31 @@ def test_the_start_barrier_is_waited_for_past_a_ticks_wait_and_the_reference_get
         assert (w.cmds[0].v, w.cmds[0].w) == (v, om) != (0.0, 0.0)
         for t in tokens:
             t.close()
+
+
+@pytest.mark.unit
+def test_tick_0_waits_for_every_robots_state_0_even_after_the_clock_and_the_reference():
+    """clock_0 says that every state_0 reached the world, not this robot: through a router, a neighbour's state_0
+    may come after clock_0 and ref_0 (in CI one robot computed tick 0 without its neighbour's, and the run
+    differed from swarm sim from tick 1). Tick 0 waits for the state_0 of every robot of the run but the lost,
+    heard in every cell (robot 9 starts far away, in no cell this robot hears), and commands with them; then it
+    stops hearing every cell."""
+    w = Wire()
+    ref = Ref(t=0.0, seq=0, x=1.0, y=0.5, theta=0.2, v=0.5, w=0.05)
+    tok = w.probe.token(keys.alive(F, "robot", 7))
+    tok.close()  # robot 7 is lost before tick 0: not awaited
+    assert w.agent._all_sub is not None  # from start(), before its token
+    w.put(keys.robot_pose(F, CFG.id), Pose(t=0.0, seq=0, x=0.2, y=0.1, theta=0.4))
+    w.far_states(0, but={5, 7})
+    w.put(keys.world_clock(F), Clock(t=0.0, seq=0, epoch=0.0, speed=1.0))
+    w.put(keys.leader_ref(F), ref)
+    assert not w.agent.tick_lockstep() and w.agent.waiting == {5} and not w.cmds
+    w.put(keys.cell(F, 0, 0, 5), State(id=5, t=0.0, seq=0, x=0.9, y=0.1, theta=0.0, r=0.3, R=1.2, frozen=False))
+    assert w.agent.tick_lockstep() and w.agent._overdue == 0
+    v, om = law_command((0.2, 0.1, 0.4), (ref.x, ref.y, ref.theta, ref.v, ref.w), 0.0,
+                        [(0.9, 0.1, 0.3, 1.2, law.KIND_ROBOT)])
+    assert (w.cmds[0].v, w.cmds[0].w) == (v, om)
+    assert w.agent._all_sub is None and w.agent.table[9].x == 1090.0
 
 
 @pytest.mark.unit

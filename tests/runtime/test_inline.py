@@ -16,7 +16,7 @@ from swarm.core.wake import Runner, Wake
 from swarm.net.bus import MemoryBus, MemoryNet
 from swarm.proto import keys, protocol
 from swarm.proto.protocol import Clock, Pose, Ref, State
-from tests.runtime.agent_helpers import CFG, F, Wire
+from tests.runtime.agent_helpers import CFG, F, Wire, far_states
 
 pytestmark = pytest.mark.unit
 
@@ -120,7 +120,9 @@ def _inline_run(inputs) -> tuple[list, set, robot.Agent, ThreadedBus, threading.
         probe.put(keys.robot_pose(F, CFG.id), protocol.encode(Pose(t=t, seq=k, x=pose[0], y=pose[1], theta=pose[2])))
         for j, (x, y, th) in nbs:
             probe.put(*_state_msg(j, k, x, y, th))
-        if k == 0:
+        if k == 0:  # the rest of the run (Wire.tick's), and the start barrier
+            for key, data in far_states(k, CFG, {j for j, _ in nbs}):
+                probe.put(key, data)
             probe.put(keys.world_clock(F), protocol.encode(Clock(t=t, seq=k, epoch=0.0, speed=1.0)))
         c = cmds.get(timeout=DEADLINE_S)
         got.append((c.seq, c.v, c.w))

@@ -10,7 +10,7 @@ import pytest
 
 from swarm.cli.campaign import _worst
 from swarm.cli.campaign_files import campaign_command, cell, read_campaign, write_campaign_json
-from swarm.cli.campaign_up import Check, TraceDiff, compare_traces, line, metric_differences, row_differences
+from swarm.cli.campaign_up import Check, TraceDiff, compare_traces, line, metric_differences, overdue_ticks, row_differences
 from swarm.cli.common import BadInput
 
 pytestmark = pytest.mark.unit
@@ -77,6 +77,27 @@ def test_the_line_of_a_row_that_differs_names_the_tick_the_robots_and_what_swarm
     ok = Check(1, "paper-50hz", 0, 0.0, result="identical", up_s=5.0, sim_s=0.1)
     assert line(ok, 4, 0.02) == ("up 1/4, seed 0 drop 0: OK, identical to swarm sim: every tick of every robot "
                                  "and the metrics (swarm up 5.0 s; swarm sim 0.10 s)")
+
+
+def test_a_row_that_differs_quotes_its_robots_ticks_without_all_their_inputs(tmp_path):
+    """What makes a lock-step run differ when nothing in the schedule does: a robot that went on without an
+    input. The first such lines of its robots' logs, in robot order (10 after 2), go into the row's line and why."""
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / "robot-10.log").write_text(
+        "2026-12-06 16:19:14,041 swarm.robot WARNING: robot 10: no reference for tick 7, no command\n")
+    (logs / "robot-2.log").write_text(
+        "2026-12-06 16:19:14,041 swarm.robot INFO: robot 2: run r (lock-step, 7 robots)\n"
+        "2026-12-06 16:19:15,000 swarm.robot WARNING: robot 2: tick 0 goes on after 1 s without the states of "
+        "robots [5] (1 ticks so far)\n")
+    (logs / "world.log").write_text("2026-12-06 16:19:15,000 swarm.world WARNING: world: tick 3 goes on after 1 s\n")
+    said = overdue_ticks(logs)
+    assert said == ["robot 2: tick 0 goes on after 1 s without the states of robots [5] (1 ticks so far)",
+                    "robot 10: no reference for tick 7, no command"]
+    assert overdue_ticks(logs, most=1) == said[:1] and overdue_ticks(tmp_path / "none") == []
+    c = Check(2, "paper-50hz", 1, 0.3, result="differs", trace=TraceDiff(1, (3,), 500), up={"mode": "lockstep"},
+              why="; ".join(said), out="up/row-2")
+    assert "; its robots' logs: robot 2: tick 0 goes on after 1 s without the states of robots [5]" in line(c, 2, 0.02)
 
 
 @pytest.mark.parametrize("codes, worst", [((0, 0), 0), ((0, 3), 3), ((3, 1), 1), ((1, 130), 130), ((3, 0), 3)])
