@@ -104,6 +104,15 @@ def lockstep(agent, scn, me: int, others: list[int], ticks: int, prof) -> tuple[
         agent._on_ref_msg(ref_key, ref)
         for key, data in states:
             agent._on_state_msg(key, data)
+        if k == 0:  # tick 0 waits for every robot's state_0, heard in every cell (agents.lockstep)
+            near = {j for j in others if any(key.endswith(f"/{j}") for key, _ in states)}
+            for j in others:
+                if j not in near:
+                    sx, sy, sth = slots[j]
+                    c = keys.cell_of(sx, sy, scn.cell_side)
+                    agent._on_any_state_msg(keys.cell(f, c[0], c[1], j), protocol.encode(protocol.State(
+                        id=j, t=t, seq=k, x=sx, y=sy, theta=sth, r=scn.r, R=scn.R, frozen=False, stop=0.05,
+                        still=0.0)))
         done = agent.k_done
         while agent.tick_lockstep():  # inputs complete: the command goes out
             pass
