@@ -80,10 +80,11 @@ class Agent(Lockstep, Realtime):
         self._handles.append(self.bus.subscribe(keys.estop(f), self._on_estop_msg))
         if not self.cfg.lockstep or self.view is None:  # robots standing still (lock-step under faults: an input)
             self._handles.append(self.bus.subscribe(keys.world_bodies(f), self._on_bodies_msg))
-        if self.cfg.lockstep:
+        if self.cfg.lockstep and (self.view is None or self.view.active(0) or self.view.returns()):
             # tick 0 waits for every robot's state_0, heard in every cell (agents.lockstep): subscribed before the
             # token, so before anyone's state_0 (the world sends pose_0 once it has every token); under faults it
-            # also serves a return tick, the first tick of the process of a restart among them
+            # also serves a return tick, the first tick of the process of a restart among them. A robot the
+            # schedule has away from tick 0 for good runs no tick: it would hear every state of the run for nothing
             self._listen_all(True)
         self._clock_sub = self.bus.subscribe(keys.world_clock(f), self._on_clock_msg)
         self._handles.append(self.bus.watch_alive(keys.alive_any(f), self._on_alive_msg))

@@ -127,9 +127,9 @@ class Links(Intake):
         # the fields in State's order, encoded without building one (protocol.encoder)
         s = self._enc_state(self.id, pose.t, seq, pose.x, pose.y, pose.theta, self._r, self._R,
                             bool(self.mem[law.M_FROZEN]), self._rt_stop, self._rt_still)
-        # lock-step: reliable (BLOCK). A state lost on the way breaks the tick's inputs silently at the start barrier
-        # (clock_0 says every state_0 was delivered: nobody waits for one) and costs a wait_timeout later; zenoh's
-        # DROP loses messages when a queue is busy for a millisecond (a loaded machine), not only when it is full.
+        # lock-step: reliable (BLOCK). A state lost on the way costs its neighbours a wait_timeout and the run its
+        # equality with swarm sim; zenoh's DROP loses messages when a queue is busy for a millisecond (a loaded
+        # machine), not only when it is full.
         # Real time: best effort (a late state is worth less than the next one). Its own state is of no use to
         # this robot's cell inboxes (loopback off).
         self.bus.put(key, s, reliable=self.cfg.lockstep, loopback=False)

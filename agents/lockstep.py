@@ -111,9 +111,17 @@ class Lockstep(Bodies):
             self.kick.set()
 
     def _hears_cell(self, key: str) -> bool:
-        """A cell subscription of this robot's hears `key` too."""
-        p = keys.parse(key)
-        return p is not None and p.kind == "cell" and (p.cx, p.cy) in self._cells
+        """A cell subscription of this robot's (`cell/<cx>/<cy>/*`, or one being released) may hear `key` too:
+        its cell is one of them, or the key is no concrete cell (a put on a wildcard reaches them all)."""
+        p = key.split("/")
+        if len(p) < 4:
+            return False
+        cx, cy = p[-3], p[-2]
+        try:
+            c = (int(cx), int(cy))
+        except ValueError:
+            return "*" in cx or "*" in cy or "$" in cx or "$" in cy
+        return c in self._cells or c in self._closing
 
     def _start_tick(self, pose) -> None:
         """Lock-step tick k starts (loop thread): publish state_k, decide whose state_k to wait for.
@@ -200,7 +208,7 @@ class Lockstep(Bodies):
                 # at the tick it was restarted for, it never reached the idle tick that subscribes it)
                 with self.lock:
                     nxt = self._next_tick()
-                self._listen_all(nxt == 0 or self.view.schedule.fresh(self.id, nxt) is not None)
+                self._listen_all((nxt == 0 and self.view.active(0)) or self.view.schedule.fresh(self.id, nxt) is not None)
                 self._resubscribe()
                 self.bus.put(self._faults_key, protocol.encode(protocol.FaultStats(
                     done * self.cfg.dt, done, *self.view.counters(),

@@ -19,7 +19,8 @@ from agents import robot
 from swarm.proto import keys, protocol
 from swarm.core import law
 from swarm.core.clock import FakeClock
-from swarm.net.bus import MemoryBus
+from swarm.net.bus import MemoryBus, MemoryNet
+from swarm.core.faults import Kill
 from swarm.proto.protocol import Clock, Pose, Ref, State
 from tests.runtime.agent_helpers import CFG, F, Wire, law_command
 
@@ -353,6 +354,37 @@ def test_tick_0_waits_for_every_robots_state_0_even_after_the_clock_and_the_refe
                         [(0.9, 0.1, 0.3, 1.2, law.KIND_ROBOT)])
     assert (w.cmds[0].v, w.cmds[0].w) == (v, om)
     assert w.agent._all_sub is None and w.agent.table[9].x == 1090.0
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("kill, listens", [(None, True), (Kill(3, 0.0), False), (Kill(3, 0.0, restart=1.0), True),
+                                           (Kill(3, 2.0), True), (Kill(5, 0.0), True)])
+def test_under_faults_only_a_robot_that_runs_a_tick_hears_every_cell(kill, listens):
+    """A robot the schedule has dead from tick 0 for good runs no tick: hearing every state of the run would be for
+    nothing (a SIGSTOPped process's router queue filling with the whole swarm's). One that runs at 0, or returns
+    later (a restart: its first tick is a return), hears every cell from its start."""
+    from swarm.core.faults import Faults
+
+    faults = Faults(seed=1, kills=() if kill is None else (kill,))
+    net = MemoryNet()
+    agent = robot.Agent(MemoryBus(net), CFG, F, wait_timeout=60.0, faults=faults)
+    agent.start([])
+    assert (agent._all_sub is not None) == listens
+    agent.close()
+
+
+@pytest.mark.unit
+def test_a_bad_message_heard_in_every_cell_is_counted_by_the_all_cells_path_only_where_no_cell_hears_it():
+    """Until tick 0 is done a robot hears every cell too: a bad message on a cell it subscribes (or is letting go
+    of, or a put on a wildcard, which zenoh hands every subscription it meets) is counted once, by its cell's
+    path."""
+    w = Wire()
+    ours, theirs = keys.cell(F, 0, 0, 8), keys.cell(F, 40, 40, 8)
+    assert w.agent._hears_cell(ours) and not w.agent._hears_cell(theirs)
+    assert w.agent._hears_cell(f"swarm/{F}/cell/*/*/8") and w.agent._hears_cell(f"swarm/{F}/cell/0/0/abc")
+    for key in (ours, theirs):
+        w.probe.put(key, b"\xc1garbage")
+    assert w.agent.bad.count == 2  # one each, though the first came twice
 
 
 @pytest.mark.unit
