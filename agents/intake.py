@@ -291,7 +291,8 @@ class Intake(AgentState):
                 log.log(logging.WARNING if self.world_alive else logging.INFO,
                         "robot %d: robot %d lost (its liveliness token is gone)", self.id, j)
             self.dead.add(j)
-            self.waiting.discard(j)
+            if not (self.cfg.lockstep and self.k_started == 0 and self.k_done < 0):
+                self.waiting.discard(j)  # at tick 0 it is waited for all the same (Lockstep._start_tick)
 
     def _on_ref(self, ref: protocol.Ref, key: str = "") -> None:
         v = self._judge(self.w_ref, ref.t, ref.seq, lead=1)

@@ -8,8 +8,8 @@ Lock-step tick k (the world owns the clock; docs/runtime.md):
      is the largest step the protocol assumes (a robot that can matter at k, closer than reach,
      was within reach + 2L at k-1; one that was that close is still inside the cells subscribed
      at k-1, so its state_k is sure to arrive), for ref_k and for clock_k. At tick 0 nobody's previous
-     state is known: it waits for the state_0 of every robot of the run that runs at 0 and is not lost,
-     heard in every cell (a subscription declared before its liveliness token, so before the world's
+     state is known: it waits for the state_0 of every robot of the run that runs at 0 (its token gone or
+     not, as the world's barrier does), heard in every cell (a subscription declared before its liveliness token, so before the world's
      pose_0 and anyone's state_0). clock_0, the world's start barrier, says only that every state_0 reached
      the world, not this robot: through a router, a neighbour's state_0 may reach it after clock_0 and
      ref_0 (seen under load: the run then differed from swarm sim at tick 1). After `wait_timeout` seconds it goes on
@@ -164,8 +164,11 @@ class Lockstep(Bodies):
                 self.waiting = set()  # it rejoins at k, listening (it holds still): nobody to wait for
             elif k == 0 or (view is not None and view.event is not None):
                 # tick 0, or it returns at k (restarted or resumed): it knows nobody's state of k - 1, so it waits
-                # for every robot running at k (heard in every cell: _listen_all), but those already here
-                self.waiting = {j for j in range(self.cfg.robots) if j != self.id and j not in dead and
+                # for every robot running at k (heard in every cell: _listen_all), but those already here. At tick 0
+                # the lost too, as the world's start barrier does (a robot serving several runs sees the token of
+                # another's last run go, and its new one come, around pose_0): its state_0 came to the world if
+                # clock_0 did
+                self.waiting = {j for j in range(self.cfg.robots) if j != self.id and (k == 0 or j not in dead) and
                                 (view is None or view.other_active(j, k)) and
                                 not (j in self.table and self.table[j].seq == k)}
                 if view is not None and view.event == "restart":

@@ -335,20 +335,26 @@ def test_the_start_barrier_is_waited_for_past_a_ticks_wait_and_the_reference_get
 def test_tick_0_waits_for_every_robots_state_0_even_after_the_clock_and_the_reference():
     """clock_0 says that every state_0 reached the world, not this robot: through a router, a neighbour's state_0
     may come after clock_0 and ref_0 (in CI one robot computed tick 0 without its neighbour's, and the run
-    differed from swarm sim from tick 1). Tick 0 waits for the state_0 of every robot of the run but the lost,
-    heard in every cell (robot 9 starts far away, in no cell this robot hears), and commands with them; then it
-    stops hearing every cell."""
+    differed from swarm sim from tick 1). Tick 0 waits for the state_0 of every robot of the run, heard in every
+    cell (robot 9 starts far away, in no cell this robot hears), and commands with them; then it stops hearing
+    every cell. A robot whose token went is waited for all the same, as the world's barrier does (robot 7: a
+    robot serving several runs, its last run's token gone, its state_0 on the way)."""
     w = Wire()
     ref = Ref(t=0.0, seq=0, x=1.0, y=0.5, theta=0.2, v=0.5, w=0.05)
     tok = w.probe.token(keys.alive(F, "robot", 7))
-    tok.close()  # robot 7 is lost before tick 0: not awaited
+    tok.close()  # before tick 0
     assert w.agent._all_sub is not None  # from start(), before its token
     w.put(keys.robot_pose(F, CFG.id), Pose(t=0.0, seq=0, x=0.2, y=0.1, theta=0.4))
     w.far_states(0, but={5, 7})
     w.put(keys.world_clock(F), Clock(t=0.0, seq=0, epoch=0.0, speed=1.0))
     w.put(keys.leader_ref(F), ref)
-    assert not w.agent.tick_lockstep() and w.agent.waiting == {5} and not w.cmds
+    tok = w.probe.token(keys.alive(F, "robot", 6))
+    tok.close()  # during tick 0, after its state_0 came: nothing changes
+    assert not w.agent.tick_lockstep() and w.agent.waiting == {5, 7} and not w.cmds
     w.put(keys.cell(F, 0, 0, 5), State(id=5, t=0.0, seq=0, x=0.9, y=0.1, theta=0.0, r=0.3, R=1.2, frozen=False))
+    assert not w.agent.tick_lockstep() and w.agent.waiting == {7}
+    w.probe.token(keys.alive(F, "robot", 7))  # its new token, then its state_0
+    w.far_states(0, but=set(range(16)) - {7})
     assert w.agent.tick_lockstep() and w.agent._overdue == 0
     v, om = law_command((0.2, 0.1, 0.4), (ref.x, ref.y, ref.theta, ref.v, ref.w), 0.0,
                         [(0.9, 0.1, 0.3, 1.2, law.KIND_ROBOT)])
