@@ -9,13 +9,13 @@ Lock-step tick k (the world owns the clock; docs/runtime.md):
      was within reach + 2L at k-1; one that was that close is still inside the cells subscribed
      at k-1, so its state_k is sure to arrive), for ref_k and for clock_k. At tick 0 nobody's previous
      state is known: it waits for the state_0 of every robot of the run that runs at 0 (its token gone or
-     not, as the world's barrier does), heard in every cell (a subscription declared before its liveliness token, so before the world's
-     pose_0 and anyone's state_0). clock_0, the world's start barrier, says only that every state_0 reached
-     the world, not this robot: through a router, a neighbour's state_0 may reach it after clock_0 and
-     ref_0 (seen under load: the run then differed from swarm sim at tick 1). After `wait_timeout` seconds it goes on
-     with what it has and counts the missing as stale. A robot that moves more than L in a tick
-     breaks the premise; the world then counts the pairs the rule could not cover (metrics
-     `lockstep_overruns`): only then can a run differ from swarm sim.
+     not, as the world's barrier does), heard in every cell (a subscription declared before its liveliness
+     token, so before the world's pose_0 and anyone's state_0). clock_0, the world's start barrier, says
+     only that every state_0 reached the world, not this robot: through a router, a neighbour's state_0
+     may reach it after clock_0 and ref_0 (the run then differs from swarm sim from tick 1). After
+     `wait_timeout` seconds it goes on with what it has and counts the missing as stale. A robot that
+     moves more than L in a tick breaks the premise; the world then counts the pairs the rule could not
+     cover (metrics `lockstep_overruns`): only then can a run differ from swarm sim.
   3. Compute cmd_k from the bodies closer than the cell side in ascending id order (the
      simulator's order: robots by id, then obstacles, then dead robots as static bodies; the
      law uses those closer than reach) and publish it.
@@ -100,7 +100,7 @@ class Lockstep(Bodies):
             start = s.seq == 0 and self.k_done < 0
             if not start and (self.view is None or s.seq <= self.k_done or s.seq > self._next_tick() or
                               self.view.schedule.fresh(self.id, s.seq) is None):
-                return  # not of tick 0 nor of a return tick of this robot (or too far ahead): the cells' subscriptions decide
+                return  # not of tick 0 nor of a return tick of this robot (or too far ahead): its cells decide
             nb = self.table.get(s.id)
             if nb is None or nb.seq < s.seq:
                 self.table[s.id] = s
@@ -211,7 +211,8 @@ class Lockstep(Bodies):
                 # at the tick it was restarted for, it never reached the idle tick that subscribes it)
                 with self.lock:
                     nxt = self._next_tick()
-                self._listen_all((nxt == 0 and self.view.active(0)) or self.view.schedule.fresh(self.id, nxt) is not None)
+                self._listen_all((nxt == 0 and self.view.active(0)) or
+                                 self.view.schedule.fresh(self.id, nxt) is not None)
                 self._resubscribe()
                 self.bus.put(self._faults_key, protocol.encode(protocol.FaultStats(
                     done * self.cfg.dt, done, *self.view.counters(),

@@ -86,12 +86,13 @@ def lockstep(agent, scn, me: int, others: list[int], ticks: int, prof) -> tuple[
         t = k * scn.dt
         slots, lead = formation(scn, t)
         x, y, th = slots[me]
-        states = []
+        states, far = [], []  # in its 3x3 cells; elsewhere (heard only at tick 0, on every cell's key)
         for j in others:
             sx, sy, sth = slots[j]
-            if abs(sx - x) < 1.5 * scn.cell_side and abs(sy - y) < 1.5 * scn.cell_side:
+            near = abs(sx - x) < 1.5 * scn.cell_side and abs(sy - y) < 1.5 * scn.cell_side
+            if near or k == 0:
                 c = keys.cell_of(sx, sy, scn.cell_side)
-                states.append((keys.cell(f, c[0], c[1], j), protocol.encode(protocol.State(
+                (states if near else far).append((keys.cell(f, c[0], c[1], j), protocol.encode(protocol.State(
                     id=j, t=t, seq=k, x=sx, y=sy, theta=sth, r=scn.r, R=scn.R, frozen=False, stop=0.05, still=0.0))))
         ref = protocol.encode(protocol.Ref(t, k, *lead))
         pose = protocol.encode(protocol.Pose(t=t, seq=k, x=x, y=y, theta=th, cmd=-1.0))
@@ -104,15 +105,8 @@ def lockstep(agent, scn, me: int, others: list[int], ticks: int, prof) -> tuple[
         agent._on_ref_msg(ref_key, ref)
         for key, data in states:
             agent._on_state_msg(key, data)
-        if k == 0:  # tick 0 waits for every robot's state_0, heard in every cell (agents.lockstep)
-            near = {j for j in others if any(key.endswith(f"/{j}") for key, _ in states)}
-            for j in others:
-                if j not in near:
-                    sx, sy, sth = slots[j]
-                    c = keys.cell_of(sx, sy, scn.cell_side)
-                    agent._on_any_state_msg(keys.cell(f, c[0], c[1], j), protocol.encode(protocol.State(
-                        id=j, t=t, seq=k, x=sx, y=sy, theta=sth, r=scn.r, R=scn.R, frozen=False, stop=0.05,
-                        still=0.0)))
+        for key, data in far:  # tick 0 waits for every robot's state_0 (agents.lockstep)
+            agent._on_any_state_msg(key, data)
         done = agent.k_done
         while agent.tick_lockstep():  # inputs complete: the command goes out
             pass
