@@ -44,12 +44,12 @@ class Agent(Lockstep, Realtime):
 
     def __init__(self, bus, cfg: Config, fleet: str = "default", wait_timeout: float = WAIT_TIMEOUT_S,
                  clock=WALL, drive: Drive | None = None, guard=None, faults=None, counters=None, inline: bool = False,
-                 partitions=(), law_file: str | None = None):
+                 partitions=(), law_file: str | None = None, ahead: bool = False):
         """inline (zenoh's bus, no faults): a lock-step tick runs on the bus thread whose message made it due
         (its pose, the last state it waited for), and a real-time step on the thread of its simulated drive's
         pose, instead of waking the loop thread for it (`kick`, a swarm.core.wake.Runner; only on a bus that
         calls another session's messages on threads of its own: zenoh's). The other arguments: AgentState."""
-        super().__init__(bus, cfg, fleet, wait_timeout, clock, drive, guard, faults, counters, partitions, law_file)
+        super().__init__(bus, cfg, fleet, wait_timeout, clock, drive, guard, faults, counters, partitions, law_file, ahead)
         drive = self.drive
         if inline and self.view is None and counters is None and (cfg.lockstep or (drive is not None and drive.takes_callback)):
             self.kick = Runner(self._ticks if cfg.lockstep else self._step_inline, self.wake)

@@ -158,8 +158,10 @@ class Links(Intake):
                 elif due:
                     self.bus.put(k, s, loopback=False)
 
-    def _publish(self, t: float, seq: int, v: float, w: float, ref: tuple, pose) -> None:
-        if self.estopped is not None:
+    def _publish(self, t: float, seq: int, v: float, w: float, ref: tuple, pose, estop_checked: bool = False) -> None:
+        """Its command (v, w) of tick seq, and every STATUS_PERIOD_S its status; estop_checked: (v, w) is already zero
+        if the emergency stop was engaged when it was computed (its pose ahead was predicted with it)."""
+        if self.estopped is not None and not estop_checked:
             v = w = 0.0  # the emergency stop holds every robot still
         until = None if self.cfg.lockstep else self._rt_until  # real time: how long the drive may execute it
         cmd = Cmd(t=t, seq=seq, v=v, w=w, until=until)

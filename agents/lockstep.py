@@ -19,6 +19,19 @@ Lock-step tick k (the world owns the clock; docs/runtime.md):
   3. Compute cmd_k from the bodies closer than the cell side in ascending id order (the
      simulator's order: robots by id, then obstacles, then dead robots as static bodies; the
      law uses those closer than reach) and publish it.
+
+States a tick ahead (`swarm robot`'s agents; without faults): once cmd_k is known, so is pose_(k+1), which the world
+computes with kinematics.step_pose from pose_k and cmd_k as sent. The robot runs the same step on its own copy of the
+pose and its compensations (from pose_0, where the world's compensations are 0 too: the same bits), moves its cells
+to that pose, publishes cmd_k, then state_(k+1). So state_(k+1) is usually with its neighbours before pose_(k+1), and
+a tick is one wake-up of each robot instead of two (its pose, then its last awaited state). As tick k + 1 starts, the
+robot checks pose_(k+1) against its prediction: a world that did not apply cmd_k as sent (a miss: it held the last
+command) makes them differ; the robot then says so (`mispredicted`), and from then on sends each state on its pose.
+Its cells move before its command goes out, so they are in place before any neighbour's state_(k+1) can come (that
+comes after the world's pose_k, which comes after this robot's cmd_(k-1)): step 2's argument holds as it stands.
+A neighbour's state_(k+1) may then come while this robot is still at tick k, or before its pose_k: it is kept aside
+(`early`) until tick k is done, so the law of k takes the neighbour's state_k. Robots that send on their pose (a
+restarted process, another implementation of the key space, any run under faults) mix freely with those ahead.
 """
 
 from __future__ import annotations
@@ -27,7 +40,7 @@ import logging
 from typing import TYPE_CHECKING
 
 from swarm.proto import keys, protocol
-from swarm.core import law
+from swarm.core import kinematics, law
 from swarm.proto.protocol import ProtocolError
 from agents.bodies import Bodies
 
@@ -140,8 +153,10 @@ class Lockstep(Bodies):
                 return
             pose = protocol.Pose(t=pose.t, seq=k, x=b[0], y=b[1], theta=b[2])
             self.belief = pose
-        self._move_cells(pose.x, pose.y)
-        self._publish_state(pose, k)
+        if not (self.ahead and self._as_predicted(pose, k)):
+            self._move_cells(pose.x, pose.y)
+        if self._sent_ahead != k:
+            self._publish_state(pose, k)
         with self.lock:
             if view is not None:
                 px, py, _ = view.previous(k)
@@ -180,6 +195,47 @@ class Lockstep(Bodies):
             self.k_started = k
             if self._state_sink is not None:  # the tick under way and whom it waits for, as the sink reads them
                 self._state_sink.started, self._state_sink.waiting = k, self.waiting
+
+    def _as_predicted(self, pose, k: int) -> bool:
+        """States a tick ahead, as tick k starts: True if pose_k is the pose this robot predicted at the end of tick
+        k - 1 (its cells were moved there then). Otherwise the prediction starts again from pose_k: exact at tick 0
+        (the world's compensations start at 0 too), and only for its cells after any other miss (the world's
+        compensations are not known then); a state of k that went out ahead was wrong, and says so."""
+        q = self._pred
+        if self._pred_seq == k and pose.x == q[0] and pose.y == q[1] and pose.theta == q[2]:
+            return True
+        if self._sent_ahead == k:
+            self.mispredicted += 1
+            if self.mispredicted <= 5 or self.mispredicted % 100 == 0:
+                log.warning("robot %d: pose %d is not the one its state %d said ahead (%r, %r, %r against %r): the "
+                            "world did not apply command %d as sent; states go out on poses from now on (%d so far)",
+                            self.id, k, k, pose.x, pose.y, pose.theta, q, k - 1, self.mispredicted)
+        self._pred, self._pred_c, self._pred_seq = [pose.x, pose.y, pose.theta], [0.0, 0.0, 0.0], k
+        self._exact = k == 0
+        return False
+
+    def _step_ahead(self, k: int, v: float, w: float) -> protocol.Pose | None:
+        """States a tick ahead (under the lock), once cmd_k = (v, w) is known: this robot's pose at tick k + 1 as the
+        world will integrate it (kinematics.step_pose, the world's own step), or None without a prediction of k."""
+        if self._pred_seq != k:
+            return None
+        q = self._pred
+        kinematics.step_pose(q, self._pred_c, v, w, self.cfg.dt)
+        self._pred_seq = k + 1
+        return protocol.Pose(t=(k + 1) * self.cfg.dt, seq=k + 1, x=q[0], y=q[1], theta=q[2])
+
+    def _take_early(self, k: int) -> None:
+        """Tick k is done (under the lock): the states of k + 1 kept aside while it was under way go to the table."""
+        early = self.early
+        if early:
+            table = self.table
+            for j, s in early.items():
+                nb = table.get(j)
+                if nb is None or nb.seq < s.seq:
+                    table[j] = s
+            early.clear()
+        if self._state_sink is not None:
+            self._state_sink.done = k
 
     def command(self, t: float, x: float, y: float, th: float, ref: tuple, seq: int) -> tuple[float, float]:
         """Lock-step: the law for this robot at time t with pose (x, y, th) and live reference ref = (xl, yl, thl,
@@ -256,6 +312,7 @@ class Lockstep(Bodies):
                     log.warning("robot %d: tick %d goes on after %g s without %s (%d ticks so far)", self.id, k,
                                 self.wait_timeout, ", ".join(what), self._overdue)
             ref = self.refs.get(k)
+            ahead: protocol.Pose | None = None  # its pose at tick k + 1, predicted (states a tick ahead)
             self.k_done = k
             self.prev_xy = (pose.x, pose.y)
             for old in [s for s in self.refs if s <= k]:
@@ -276,10 +333,16 @@ class Lockstep(Bodies):
             elif ref is None:
                 self.skipped += 1  # no reference for this tick (a restart mid-run): no command, the world holds
                 log.warning("robot %d: no reference for tick %d, no command", self.id, k)
+                self._take_early(k)
                 return True
             else:
                 r = (ref.x, ref.y, ref.theta, ref.v, ref.w)
                 v, w = self.command(pose.t, pose.x, pose.y, pose.theta, r, k)
+                if self.estopped is not None:
+                    v = w = 0.0  # the emergency stop holds every robot still (_publish): what the world applies
+                if self.ahead:
+                    ahead = self._step_ahead(k, v, w)
+            self._take_early(k)
         if self.view is not None:
             # before its command goes out (the world starts the next tick only once it has it): the next
             # tick this robot runs is a return tick, so it hears every cell from now on
@@ -289,7 +352,12 @@ class Lockstep(Bodies):
             c = self.view.counters()
             self.bus.put(self._faults_key, protocol.encode(protocol.FaultStats(
                 pose.t, k, *c, frozen=bool(self.mem[law.M_FROZEN]))), reliable=True)
-        self._publish(pose.t, k, v, w, r, pose)
+        if ahead is not None:  # its cells for tick k + 1 before its command: before anyone's state of k + 1 can come
+            self._move_cells(ahead.x, ahead.y)
+        self._publish(pose.t, k, v, w, r, pose, estop_checked=ahead is not None)
+        if ahead is not None and self._exact:
+            self._sent_ahead = k + 1
+            self._publish_state(ahead, k + 1)
         self._end_start_listen()
         return True
 

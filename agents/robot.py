@@ -171,7 +171,8 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
             agent = Agent(rbus, cfg, fleet, wait_timeout=wait_timeout, clock=clock, drive=drive, guard=guard,
                           faults=faults if cfg.lockstep else None, counters=fbus,
                           inline=getattr(rbus, "threaded_callbacks", False),
-                          partitions=() if cfg.lockstep or not faults else faults.partitions, law_file=law_file)
+                          partitions=() if cfg.lockstep or not faults else faults.partitions, law_file=law_file,
+                          ahead=True)
             box.append(agent)
             current[:] = [agent]
             if runs.latest is not None and runs.latest.run != run.run:

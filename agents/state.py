@@ -97,13 +97,15 @@ class AgentState:
 
     def __init__(self, bus, cfg: Config, fleet: str = "default", wait_timeout: float = WAIT_TIMEOUT_S,
                  clock=WALL, drive: Drive | None = None, guard=None, faults=None, counters=None, partitions=(),
-                 law_file: str | None = None):
+                 law_file: str | None = None, ahead: bool = False):
         """What a robot knows at its start: its run's config `cfg` on `bus` (fleet `fleet`), its clock, its drive
         (real time; None: the simulated world's, swarm.drives.sim) and guard (agents.guard); lock-step: `faults`, the
         run's (a fault view decides what the law is given: agents.faultview), and wait_timeout. Real time: counters, when given, is an object with `dropped` and `delayed` lists by class (a
         swarm.net.faultbus.FaultBus): reported to the world with every status; partitions, the run's
         (swarm.core.faults.Partition): a neighbour cut off by one is never taken as away while it lasts. law_file: where
-        this machine keeps the file of the run's law, when not where the run's config says (swarm robot --law-file)."""
+        this machine keeps the file of the run's law, when not where the run's config says (swarm robot --law-file).
+        ahead (lock-step without faults): each state_(k+1) goes out with cmd_k (agents.lockstep, "States a tick
+        ahead")."""
         self.bus, self.cfg, self.fleet = bus, cfg, fleet
         self.id = cfg.id
         self.clock = clock
@@ -133,6 +135,17 @@ class AgentState:
             self.view = FaultView(cfg.id, cfg.robots, cfg.dt, cfg.reach, cfg.sense, faults)
             self.p[law.P_DT] = horizon(faults, cfg.dt)
         self.mem = self.control.fresh_memory()
+        # lock-step without faults: its pose at the next tick as the world integrates it (swarm.core.kinematics, the
+        # world's own step: bit for bit while the world applies every command as sent), so that state_(k+1) goes out
+        # with cmd_k and the cells of tick k + 1 are subscribed before it (agents.lockstep, "States a tick ahead")
+        self.ahead = ahead and cfg.lockstep and self.view is None
+        self._pred = [cfg.x, cfg.y, cfg.theta]  # [x, y, theta] at tick _pred_seq (-1: none)
+        self._pred_c = [0.0, 0.0, 0.0]  # its compensations (kinematics.step_pose): the world's too while _exact
+        self._pred_seq = -1
+        self._sent_ahead = -1  # the newest tick whose state went out with the command of the tick before
+        self._exact = False  # the chain holds the world's own bits since pose_0: its states may go out ahead
+        self.mispredicted = 0  # ticks whose pose was not the one its state had said ahead (the world held a command)
+        self.early: dict[int, State] = {}  # lock-step: states of the tick after the one under way, until it is done
         self.side = cfg.sense
         self._wait_reach = keys.lockstep_wait_reach(cfg.reach, cfg.sense)
         self._cmd_key, self._status_key = keys.robot_cmd(fleet, self.id), keys.robot_status(fleet, self.id)

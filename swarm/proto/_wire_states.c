@@ -312,7 +312,8 @@ done:
  * Python path `slow(key, payload)` and `report(key, error)`, its lock's `acquire` and `release`, `kick()` (the
  * loop woken, or the tick run on this thread: agents.agent), `due()` (is the tick due now), and its `table`,
  * sender `windows` and `waiting` set; the agent keeps the members `ended`, `started` (the tick under way) and
- * `posed` (its newest pose's seq) up to date under its lock, and reads `taken` (the states taken here).
+ * `posed` (its newest pose's seq) and `done` (the newest tick done) up to date under its lock, and reads `taken` (the
+ * states taken here). A state of a tick past done + 1 goes to the Python, which keeps it aside until done + 1 is done.
  * A state whose cell key's id is known, that dec decodes, of another robot, not ahead of the robot's next tick,
  * and that its sender's window takes in the common case, is taken under the lock: counted, put in the table, and
  * no longer waited for if it is of the tick under way; kick() is called when that took the last awaited robot off
@@ -322,7 +323,7 @@ typedef struct {
     PyObject_HEAD
     vectorcallfunc vectorcall;
     PyObject *ids, *dec, *slow, *report, *acquire, *release, *kick, *due, *table, *windows, *waiting;
-    long long me, started, posed, taken;
+    long long me, started, posed, done, taken;
     char ended;
 } StateSink;
 
@@ -341,7 +342,7 @@ static PyObject *StateSink_new(PyTypeObject *tp, PyObject *args, PyObject *kw) {
         return NULL;
     k->vectorcall = StateSink_vectorcall;
     k->me = me;
-    k->started = k->posed = -1;
+    k->started = k->posed = k->done = -1;
     PyObject **slots[11] = {&k->ids, &k->dec, &k->slow, &k->report, &k->acquire, &k->release, &k->kick, &k->due,
                             &k->table, &k->windows, &k->waiting};
     for (int i = 0; i < 11; i++)
@@ -410,6 +411,8 @@ static int sink_take(StateSink *k, PyObject *st, int *due) {
     rc = 0;
     long long now = k->started > k->posed ? k->started : k->posed; /* Agent._next_tick, no faults: now + 1 */
     if (q > now + 1) /* ahead of this robot: refused, and counted, the long way */
+        goto done;
+    if (q > k->done + 1) /* of the tick after the next one it computes: kept aside by the Python (Intake._on_state) */
         goto done;
     PyObject *w = PyDict_GetItemWithError(k->windows, j); /* borrowed */
     if (w == NULL) {
@@ -556,6 +559,7 @@ static PyMemberDef StateSink_members[] = {
     {"ended", T_BOOL, offsetof(StateSink, ended), 0, "the run is over: nothing is taken"},
     {"started", T_LONGLONG, offsetof(StateSink, started), 0, "the tick under way (-1: none)"},
     {"posed", T_LONGLONG, offsetof(StateSink, posed), 0, "the seq of the robot's newest pose (-1: none)"},
+    {"done", T_LONGLONG, offsetof(StateSink, done), 0, "the newest tick done, its early states taken (-1: none)"},
     {"taken", T_LONGLONG, offsetof(StateSink, taken), 0, "the states taken here"},
     {"me", T_LONGLONG, offsetof(StateSink, me), READONLY, "the robot's id"},
     {NULL, 0, 0, 0, NULL},

@@ -20,9 +20,9 @@ CFG = Config(id=3, x=0.0, y=0.0, theta=0.0, dx=1.5, dy=-0.5, r=0.3, R=1.2, k1=0.
 class Wire:
     """An agent on a MemoryNet plus a probe bus that records what it publishes."""
 
-    def __init__(self, cfg=CFG, obstacles=()):
+    def __init__(self, cfg=CFG, obstacles=(), ahead=False):
         self.net = MemoryNet()
-        self.agent = robot.Agent(MemoryBus(self.net), cfg, F, wait_timeout=60.0)
+        self.agent = robot.Agent(MemoryBus(self.net), cfg, F, wait_timeout=60.0, ahead=ahead)
         self.agent.start([protocol.Obstacle(*o) for o in obstacles])
         self.probe = MemoryBus(self.net)
         self.cmds: list[protocol.Cmd] = []

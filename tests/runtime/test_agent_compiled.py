@@ -183,7 +183,7 @@ def _lockstep_run(sink: bool, seed: int) -> tuple:
         t = k * CFG.dt
         w.put(keys.leader_ref(F), Ref(t=t, seq=k, x=ref[0], y=ref[1], theta=ref[2], v=ref[3], w=ref[4]))
         w.put(keys.robot_pose(F, CFG.id), Pose(t=t, seq=k, x=0.0, y=0.0, theta=0.0))
-        w.agent.tick_lockstep()
+        acted = w.agent.tick_lockstep()  # the states it waits for may all be in (robot 1's, a tick ahead)
         w.agent.wake.clear()
         msgs = [state(j, k, 0.4 * j - 1.0) for j in (1, 2, 5, 6) if rng.random() < 0.9 or k == 0]
         if k == 0:  # tick 0 waits for every robot of the run: the others start far away
@@ -204,6 +204,7 @@ def _lockstep_run(sink: bool, seed: int) -> tuple:
             state(11, 10**6, 0.3, t=t),  # a seq far ahead
             state(5, k + 1, 0.2, t=1e8),  # the next tick's seq with a forged t: refused, never adopted
             state(6, k, 0.2, t=t + 0.5),  # this tick's seq, a t that is not its tick's
+            state(1, k + 1, -0.6),  # the next tick's, sent with robot 1's command (states a tick ahead): aside
         ]
         msgs += rng.sample(hostile, rng.randint(0, len(hostile)))
         rng.shuffle(msgs)
@@ -212,13 +213,13 @@ def _lockstep_run(sink: bool, seed: int) -> tuple:
             wakes.append(w.agent.wake.is_set())
         if k == 0:
             w.put(keys.world_clock(F), Clock(t=t, seq=k, epoch=0.0, speed=1.0))
-        done.append(w.agent.tick_lockstep() or w.agent.tick_lockstep())
+        done.append(acted or w.agent.tick_lockstep() or w.agent.tick_lockstep())
         if k == 11:
             w.agent.end()
             w.probe.put(*state(1, k + 1, 0.3))  # after the end: nothing is taken
     a = w.agent
     windows = {j: (v.t, v.seq, v._cand, v._run) for j, v in a.w_state.items()}
-    out = (dict(a.table), windows, set(a.waiting), a.states_received, a.bad.count, a.bad.stale, a.bad.duplicates,
+    out = (dict(a.table), dict(a.early), windows, set(a.waiting), a.states_received, a.bad.count, a.bad.stale, a.bad.duplicates,
            a.k_done, [(c.seq, c.v, c.w) for c in w.cmds], wakes, done)
     a.close()
     return out
@@ -234,9 +235,9 @@ def test_the_compiled_lockstep_sink_takes_what_the_python_callback_takes(seed):
     waits, counts, wake-ups after each message, commands, and ticks computed."""
     with_sink, without = _lockstep_run(True, seed), _lockstep_run(False, seed)
     assert with_sink == without
-    table, _, _, received, bad, stale, duplicates, k_done, cmds, _, done = with_sink
+    table, early, _, _, received, bad, stale, duplicates, k_done, cmds, _, done = with_sink
     assert k_done >= 4 and len(cmds) == sum(done) >= 4 and received > 0 and bad > 0  # a tick missing a state waits
-    assert 1 in table and CFG.id not in table
+    assert (1 in table or 1 in early) and CFG.id not in table
 
 
 @pytest.mark.unit

@@ -434,3 +434,92 @@ def test_a_robot_whose_session_came_back_rejoins_at_the_worlds_tick_holding_stil
     assert not w.agent.tick_lockstep() and w.agent.bad.count == 4  # once only
     world.close()
     leader.close()
+
+
+def _ahead_of(pose, v, w, dt=CFG.dt):
+    """The pose after one world step from `pose` (compensations 0) under (v, w): what the world integrates."""
+    from swarm.core import kinematics
+
+    q, c = list(pose), [0.0, 0.0, 0.0]
+    kinematics.step_pose(q, c, v, w, dt)
+    return q, c
+
+
+@pytest.mark.unit
+def test_a_robot_ahead_sends_its_next_state_with_its_command_as_the_world_integrates_it():
+    """States a tick ahead: after tick k a robot sends state_(k+1) with cmd_k, its pose the world's own step of
+    cmd_k (swarm.core.kinematics, bit for bit, compensations kept over ticks), and its cells of tick k + 1 are
+    subscribed before; pose_(k+1) as predicted sends no second state. The world's two steps land where it said."""
+    from swarm.core import kinematics
+
+    w = Wire(ahead=True)
+    ref = (1.0, 0.5, 0.2, 0.5, 0.05)
+    world, comp = [0.2, 0.1, 0.4], [0.0, 0.0, 0.0]
+    for k in range(3):
+        assert w.tick(k, tuple(world), ref)
+        c = w.cmds[-1]
+        assert c.seq == k
+        kinematics.step_pose(world, comp, c.v, c.w, CFG.dt)  # the world's step
+        s = w.states[-1]
+        assert (s.seq, s.t, s.x, s.y, s.theta) == (k + 1, (k + 1) * CFG.dt, world[0], world[1], world[2])
+        assert keys.cell_of(world[0], world[1], CFG.sense) in {(a, b) for a, b in w.agent.subscribed_cells}
+    assert [s.seq for s in w.states] == [0, 1, 2, 3]  # state_0 on its pose, each later one ahead, none twice
+    assert w.agent.mispredicted == 0 and w.agent.bad.count == 0
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("sink", [True, False])
+def test_a_neighbours_state_of_the_next_tick_waits_aside_until_this_tick_is_done(sink):
+    """A neighbour ahead sends state_(k+1) with cmd_k, which may come while this robot still waits at tick k, or
+    before its pose_k: the law of tick k takes the neighbour's state_k (bit for bit), and tick k + 1 does not wait
+    for it; a state two ticks past the one under way is refused. Through the compiled sink and the Python."""
+    if sink and protocol._wire is None:
+        pytest.skip("the compiled codec is not built here (no C compiler)")
+    w = Wire()
+    if not sink:
+        w.agent._state_sink = None
+    ref, pose = (1.0, 0.5, 0.2, 0.5, 0.05), (0.2, 0.1, 0.4)
+    nb = {5: (1.1, -0.3, 0.0), 6: (-0.8, 0.2, 1.0)}
+    assert w.tick(0, pose, ref, list(nb.items()))
+
+    def state(j, k, x):  # in cell (0, 0), which this robot hears
+        return keys.cell(F, 0, 0, j), protocol.encode(State(id=j, t=k * CFG.dt, seq=k, x=x, y=nb[j][1],
+                                                            theta=0.0, r=0.3, R=1.2, frozen=False))
+    w.probe.put(*state(5, 1, nb[5][0]))  # robot 5's state_1 before this robot's pose_1: taken
+    w.probe.put(*state(5, 2, 0.7))  # and its state_2, sent with its cmd_1: aside, not bad
+    w.put(keys.leader_ref(F), Ref(t=CFG.dt, seq=1, x=ref[0], y=ref[1], theta=ref[2], v=ref[3], w=ref[4]))
+    w.put(keys.robot_pose(F, CFG.id), Pose(t=CFG.dt, seq=1, x=pose[0], y=pose[1], theta=pose[2]))
+    assert not w.agent.tick_lockstep() and w.agent.waiting == {6}
+    w.probe.put(*state(5, 3, 0.6))  # two past the tick under way: refused
+    assert w.agent.bad.count == 1 and w.agent.table[5].seq == 1 and w.agent.early[5].seq == 2
+    w.probe.put(*state(6, 1, nb[6][0]))
+    assert w.agent.tick_lockstep()
+    bodies = [(nb[j][0], nb[j][1], 0.3, 1.2, law.KIND_ROBOT) for j in (5, 6)]  # by id
+    mem = [0.0] * law.M_SIZE
+    assert (w.cmds[0].v, w.cmds[0].w) == law_command(pose, ref, 0.0, bodies, mem)
+    assert (w.cmds[1].v, w.cmds[1].w) == law_command(pose, ref, CFG.dt, bodies, mem)  # robot 5 at its state_1
+    assert w.agent.table[5].seq == 2 and not w.agent.early  # tick 1 done: state_2 in the table
+    w.put(keys.leader_ref(F), Ref(t=2 * CFG.dt, seq=2, x=ref[0], y=ref[1], theta=ref[2], v=ref[3], w=ref[4]))
+    w.put(keys.robot_pose(F, CFG.id), Pose(t=2 * CFG.dt, seq=2, x=pose[0], y=pose[1], theta=pose[2]))
+    assert not w.agent.tick_lockstep() and w.agent.waiting == {6}  # not for 5: its state_2 is here
+    assert w.agent.bad.count == 1
+
+
+@pytest.mark.unit
+def test_a_pose_not_as_predicted_is_said_and_its_states_go_out_on_poses_from_then_on(caplog):
+    """A world that did not apply cmd_k as sent (it held an older command: a miss) puts pose_(k+1) elsewhere than
+    the state this robot sent ahead: it says so, counts it, sends no second state_(k+1), and from then on sends each
+    state on its pose (its prediction is not the world's bits any more); its cells follow the pose it got."""
+    w = Wire(ahead=True)
+    ref = (1.0, 0.5, 0.2, 0.5, 0.05)
+    assert w.tick(0, (0.2, 0.1, 0.4), ref)
+    assert [s.seq for s in w.states] == [0, 1]
+    with caplog.at_level("WARNING", logger="swarm.robot"):
+        assert w.tick(1, (4.0, 0.1, 0.4), ref)  # not where the world's step of cmd_0 puts it
+    assert w.agent.mispredicted == 1 and "is not the one its state 1 said ahead" in caplog.text
+    assert [s.seq for s in w.states] == [0, 1]  # no state_1 again, none ahead
+    assert keys.cell_of(4.0, 0.1, CFG.sense) in w.agent.subscribed_cells
+    q, _ = _ahead_of((4.0, 0.1, 0.4), w.cmds[-1].v, w.cmds[-1].w)
+    assert w.tick(2, tuple(q), ref)  # even where its own step would put it: on its pose
+    assert [s.seq for s in w.states] == [0, 1, 2] and (w.states[-1].x, w.states[-1].y) == (q[0], q[1])
+    assert w.agent.mispredicted == 1
