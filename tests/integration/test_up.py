@@ -313,7 +313,8 @@ def test_a_second_swarm_on_a_fleet_that_has_a_world_is_refused_and_the_first_run
     """`swarm up --connect` to a router where the fleet already has a world: exit 2 before anything starts,
     naming the fleet and --fleet; the first run is untouched (before, each took the other's robots and leader,
     and both failed)."""
-    first, metrics = up(tmp_path / "a", "--robots", "3", "--duration", "12", "--quiet")
+    # 120 simulated s: 3 lock-step robots run 12 s in under a second, which can end before the second swarm has asked
+    first, metrics = up(tmp_path / "a", "--robots", "3", "--duration", "120", "--quiet")
     (tmp_path / "a").mkdir()
     endpoint = first[first.index("--listen") + 1]
     proc = subprocess.Popen(first, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
