@@ -253,9 +253,9 @@ class Intake(AgentState):
             nxt = self._next_tick()
             if self.view is not None and s.seq > nxt and not self.view.active(nxt):
                 return  # its process is away by the fault schedule: states pass it by (no fault of the sender's)
-            # without faults a neighbour's state may come two ticks past the newest this robot has done: it sent
+            # without faults a neighbour's state may come a tick past the next one this robot computes: it sent
             # state_(k+1) with cmd_k before this robot's pose_k came (agents.lockstep, "States a tick ahead")
-            ahead = s.seq > (nxt if self.view is not None else max(nxt, self.k_done + 2))
+            ahead = s.seq > (nxt if self.view is not None else max(nxt, self._law_tick() + 1))
         else:
             now = self.sim_time(self.clock.time())
             ahead = now is not None and s.t > now + self._spans[0]
@@ -272,9 +272,10 @@ class Intake(AgentState):
         if v != window.OK and not self.bad.verdict(key, v, f"robot {s.id}'s t or seq"):
             return
         self._received += 1
-        if self.cfg.lockstep and s.seq > self.k_done + 1 and self.view is None:
+        if self.cfg.lockstep and self.view is None and s.seq > self._law_tick():
             # of the tick after the next one this robot computes (its sender sent it with its command: agents.lockstep,
-            # "States a tick ahead"): kept aside until that tick is done, whose law takes the sender's state of it
+            # "States a tick ahead"): kept aside until that tick is done (or passed by), whose law takes the
+            # sender's state of it
             self.early[s.id] = s
             return
         self.table[s.id] = s

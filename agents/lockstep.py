@@ -158,6 +158,8 @@ class Lockstep(Bodies):
         if self._sent_ahead != k:
             self._publish_state(pose, k)
         with self.lock:
+            if self.early:  # of ticks up to k (tick k - 1 was left for this one, not done): this tick's now
+                self._take_early(k)
             if view is not None:
                 px, py, _ = view.previous(k)
             else:
@@ -197,13 +199,16 @@ class Lockstep(Bodies):
                 self._state_sink.started, self._state_sink.waiting = k, self.waiting
 
     def _as_predicted(self, pose, k: int) -> bool:
-        """States a tick ahead, as tick k starts: True if pose_k is the pose this robot predicted at the end of tick
-        k - 1 (its cells were moved there then). Otherwise the prediction starts again from pose_k: exact at tick 0
+        """States a tick ahead, as tick k starts: True if its cells are in place for pose_k (it moved them at the end
+        of tick k - 1 to the pose it predicted, in the cell pose_k is in: moved again, the block it left would go a
+        tick early). Unless pose_k is that pose bit for bit, the prediction starts again from pose_k: exact at tick 0
         (the world's compensations start at 0 too), and only for its cells after any other miss (the world's
         compensations are not known then); a state of k that went out ahead was wrong, and says so."""
         q = self._pred
-        if self._pred_seq == k and pose.x == q[0] and pose.y == q[1] and pose.theta == q[2]:
+        moved = self._pred_seq == k
+        if moved and pose.x == q[0] and pose.y == q[1] and pose.theta == q[2]:
             return True
+        in_place = moved and keys.cell_of(pose.x, pose.y, self.side) == keys.cell_of(q[0], q[1], self.side)
         if self._sent_ahead == k:
             self.mispredicted += 1
             if self.mispredicted <= 5 or self.mispredicted % 100 == 0:
@@ -212,7 +217,7 @@ class Lockstep(Bodies):
                             self.id, k, k, pose.x, pose.y, pose.theta, q, k - 1, self.mispredicted)
         self._pred, self._pred_c, self._pred_seq = [pose.x, pose.y, pose.theta], [0.0, 0.0, 0.0], k
         self._exact = k == 0
-        return False
+        return in_place
 
     def _step_ahead(self, k: int, v: float, w: float) -> protocol.Pose | None:
         """States a tick ahead (under the lock), once cmd_k = (v, w) is known: this robot's pose at tick k + 1 as the
@@ -224,16 +229,21 @@ class Lockstep(Bodies):
         self._pred_seq = k + 1
         return protocol.Pose(t=(k + 1) * self.cfg.dt, seq=k + 1, x=q[0], y=q[1], theta=q[2])
 
-    def _take_early(self, k: int) -> None:
-        """Tick k is done (under the lock): the states of k + 1 kept aside while it was under way go to the table."""
+    def _take_early(self, upto: int) -> None:
+        """Under the lock, as tick upto - 1 is done or tick upto starts: the states of ticks up to `upto` kept aside
+        go to the table."""
         early = self.early
         if early:
             table = self.table
-            for j, s in early.items():
+            for j in [j for j, s in early.items() if s.seq <= upto]:
+                s = early.pop(j)
                 nb = table.get(j)
                 if nb is None or nb.seq < s.seq:
                     table[j] = s
-            early.clear()
+
+    def _tick_done(self, k: int) -> None:
+        """Tick k is done (under the lock): the states of k + 1 kept aside while it was under way go to the table."""
+        self._take_early(k + 1)
         if self._state_sink is not None:
             self._state_sink.done = k
 
@@ -333,7 +343,7 @@ class Lockstep(Bodies):
             elif ref is None:
                 self.skipped += 1  # no reference for this tick (a restart mid-run): no command, the world holds
                 log.warning("robot %d: no reference for tick %d, no command", self.id, k)
-                self._take_early(k)
+                self._tick_done(k)
                 return True
             else:
                 r = (ref.x, ref.y, ref.theta, ref.v, ref.w)
@@ -342,7 +352,7 @@ class Lockstep(Bodies):
                     v = w = 0.0  # the emergency stop holds every robot still (_publish): what the world applies
                 if self.ahead:
                     ahead = self._step_ahead(k, v, w)
-            self._take_early(k)
+            self._tick_done(k)
         if self.view is not None:
             # before its command goes out (the world starts the next tick only once it has it): the next
             # tick this robot runs is a return tick, so it hears every cell from now on

@@ -201,9 +201,10 @@ def run_robot(bus, clock, robot_id: int, fleet: str = "default", stop: threading
                     fbus.detach()
                 current.clear()
             log.info("robot %d, run %s: %d ticks, %d skipped, %d states and %d references received, %d bad messages, "
-                     "%d stale, %d duplicated, loop CPU %.0f us a tick, process CPU %.0f us a tick", robot_id,
-                     agent.cfg.run, agent.ticks, agent.skipped, agent.states_received, agent.refs_taken, agent.bad_count(),
-                     agent.bad.stale, agent.bad.duplicates, 1e6 * agent.loop_cpu_s / max(1, agent.ticks),
+                     "%d stale, %d duplicated, %d poses not as its states ahead said, loop CPU %.0f us a tick, "
+                     "process CPU %.0f us a tick", robot_id, agent.cfg.run, agent.ticks, agent.skipped,
+                     agent.states_received, agent.refs_taken, agent.bad_count(), agent.bad.stale, agent.bad.duplicates,
+                     agent.mispredicted, 1e6 * agent.loop_cpu_s / max(1, agent.ticks),
                      1e6 * agent.process_cpu_s / max(1, agent.ticks))
             if not agent.cfg.lockstep:
                 w = agent.held_why

@@ -312,6 +312,11 @@ class AgentState:
         return k in self.refs and self.clock_seq >= min(k, self._clock_needed) and not self.waiting and \
             (self.view is None or k in self.static_by_seq)
 
+    def _law_tick(self) -> int:
+        """Lock-step: the tick whose law this robot computes next: the one under way, or the one after the last it
+        did (a tick it started and left for a newer pose, the world having gone on, is never done)."""
+        return max(self.k_done + 1, self.k_started)
+
     def _next_tick(self) -> int:
         """Lock-step: the newest tick this robot can hear of now: the one after the newest it started or was
         posed (a message of a later tick is ahead of it, refused). Under faults, a robot whose process is away

@@ -313,7 +313,8 @@ done:
  * loop woken, or the tick run on this thread: agents.agent), `due()` (is the tick due now), and its `table`,
  * sender `windows` and `waiting` set; the agent keeps the members `ended`, `started` (the tick under way) and
  * `posed` (its newest pose's seq) and `done` (the newest tick done) up to date under its lock, and reads `taken` (the
- * states taken here). A state of a tick past done + 1 goes to the Python, which keeps it aside until done + 1 is done.
+ * states taken here). A state of a tick past the next one the robot computes (the larger of done + 1 and started) goes
+ * to the Python, which keeps it aside until that tick is done.
  * A state whose cell key's id is known, that dec decodes, of another robot, not ahead of the robot's next tick,
  * and that its sender's window takes in the common case, is taken under the lock: counted, put in the table, and
  * no longer waited for if it is of the tick under way; kick() is called when that took the last awaited robot off
@@ -412,7 +413,8 @@ static int sink_take(StateSink *k, PyObject *st, int *due) {
     long long now = k->started > k->posed ? k->started : k->posed; /* Agent._next_tick, no faults: now + 1 */
     if (q > now + 1) /* ahead of this robot: refused, and counted, the long way */
         goto done;
-    if (q > k->done + 1) /* of the tick after the next one it computes: kept aside by the Python (Intake._on_state) */
+    long long law = k->done + 1 > k->started ? k->done + 1 : k->started; /* Agent._law_tick */
+    if (q > law) /* of the tick after the next one it computes: kept aside by the Python (Intake._on_state) */
         goto done;
     PyObject *w = PyDict_GetItemWithError(k->windows, j); /* borrowed */
     if (w == NULL) {

@@ -296,7 +296,8 @@ def test_processes_say_what_they_do_and_log_level_quiets_them(tmp_path):
     robot, leader, world = ((logs / f"{name}.log").read_text() for name in ("robot-0", "leader", "world"))
     assert "robot 0: connected" in robot and re.search(r"robot 0: run \S+ \(lock-step, 2 robots; law (compiled|Python), "
                                                        r"message loops (compiled|Python)\)", robot)
-    assert re.search(r"robot 0, run \S+: \d+ ticks, .* duplicated, loop CPU", robot)
+    assert re.search(r"robot 0, run \S+: \d+ ticks, .* duplicated, 0 poses not as its states ahead said, loop CPU",
+                     robot)
     assert "leader: connected" in leader and re.search(r"leader: run \S+ begins", leader)
     assert re.search(r"leader: run \S+ (ended|stopped): \d+ references sent", leader)
     assert "world: connected" in world and re.search(r"world: every robot and the leader alive; run \S+ begins", world)

@@ -523,3 +523,64 @@ def test_a_pose_not_as_predicted_is_said_and_its_states_go_out_on_poses_from_the
     assert w.tick(2, tuple(q), ref)  # even where its own step would put it: on its pose
     assert [s.seq for s in w.states] == [0, 1, 2] and (w.states[-1].x, w.states[-1].y) == (q[0], q[1])
     assert w.agent.mispredicted == 1
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("sink", [True, False])
+def test_a_tick_left_for_a_newer_pose_takes_the_states_kept_aside_for_the_new_one(sink):
+    """The world went on without this robot's cmd_1 (its --tick-timeout: robot 6 never answered tick 1): pose_2
+    comes while tick 1 still waits. Robot 5's state_2, sent ahead with its cmd_1 and kept aside, is tick 2's: tick 2
+    takes it and does not wait for robot 5 (nor compute without it)."""
+    if sink and protocol._wire is None:
+        pytest.skip("the compiled codec is not built here (no C compiler)")
+    w = Wire()
+    if not sink:
+        w.agent._state_sink = None
+    ref, pose = (1.0, 0.5, 0.2, 0.5, 0.05), (0.2, 0.1, 0.4)
+    nb = {5: (1.1, -0.3, 0.0), 6: (-0.8, 0.2, 1.0)}
+    assert w.tick(0, pose, ref, list(nb.items()))
+
+    def state(j, k, x):  # in cell (0, 0), which this robot hears
+        return keys.cell(F, 0, 0, j), protocol.encode(State(id=j, t=k * CFG.dt, seq=k, x=x, y=nb[j][1],
+                                                            theta=0.0, r=0.3, R=1.2, frozen=False))
+    for k in (1, 2):
+        w.put(keys.leader_ref(F), Ref(t=k * CFG.dt, seq=k, x=ref[0], y=ref[1], theta=ref[2], v=ref[3], w=ref[4]))
+    w.put(keys.robot_pose(F, CFG.id), Pose(t=CFG.dt, seq=1, x=pose[0], y=pose[1], theta=pose[2]))
+    assert not w.agent.tick_lockstep() and w.agent.waiting == {5, 6}
+    w.probe.put(*state(5, 1, 1.1))
+    w.probe.put(*state(5, 2, 1.05))  # robot 5 ahead: its state_2 with its cmd_1, kept aside
+    assert w.agent.early[5].seq == 2
+    w.put(keys.robot_pose(F, CFG.id), Pose(t=2 * CFG.dt, seq=2, x=pose[0], y=pose[1], theta=pose[2]))
+    # robot 6's newest state is of tick 0: tick 2 neither waits for it nor takes it (the run has a miss already)
+    assert w.agent.tick_lockstep() and w.agent.k_done == 2
+    assert w.agent.table[5].seq == 2 and not w.agent.early and w.agent.bad.count == 0
+    bodies = [(1.05, nb[5][1], 0.3, 1.2, law.KIND_ROBOT)]
+    mem = [0.0] * law.M_SIZE
+    law_command(pose, ref, 0.0, [(nb[j][0], nb[j][1], 0.3, 1.2, law.KIND_ROBOT) for j in (5, 6)], mem)
+    assert (w.cmds[-1].seq, w.cmds[-1].v, w.cmds[-1].w) == (2, *law_command(pose, ref, 2 * CFG.dt, bodies, mem))
+
+
+@pytest.mark.unit
+def test_a_robot_not_sending_ahead_keeps_the_block_it_left_for_one_more_tick():
+    """After a pose not as predicted a robot's prediction is no longer the world's bits, but still says where its
+    cells go: it moves them ahead once a tick, and the pose that comes a few bits off in the same cell does not
+    move them again (that let the block around its cell of the tick before go a tick early, and robot 5, waited
+    for, stepped into it unheard: a wait of wait_timeout)."""
+    w = Wire(ahead=True)
+    ref = (3.0, 0.5, 0.0, 2.0, 0.0)  # a leader ahead in +x: the robot drives +x
+    a = w.agent
+    assert w.tick(0, (0.0, 0.2, 0.0), ref, [(5, (0.0, 0.2, 0.0))])
+    assert w.tick(1, (0.5, 0.2, 0.0), ref, [(5, (0.05, 0.2, 0.0))])  # not where its step of cmd_0 said
+    assert a.mispredicted == 1 and not a._exact
+    assert w.tick(2, (1.45, 0.2, 0.0), ref, [(5, (0.06, 0.2, 0.0))])  # cell (0, 0); robot 5 1.39 m away
+    p = list(a._pred)
+    assert keys.cell_of(p[0], p[1], CFG.sense) == (1, 0)  # its prediction of tick 3
+    w.put(keys.leader_ref(F), Ref(t=3 * CFG.dt, seq=3, x=ref[0], y=ref[1], theta=ref[2], v=ref[3], w=ref[4]))
+    w.put(keys.robot_pose(F, CFG.id), Pose(t=3 * CFG.dt, seq=3, x=p[0] + 1e-15, y=p[1], theta=p[2]))
+    assert not a.tick_lockstep() and a.waiting == {5}
+    a.close_released()
+    assert {(cx, cy) for cx in (-1, 0, 1) for cy in (-1, 0, 1)} <= a.subscribed_cells  # the block it left
+    assert w.states[-1].seq == 3 and w.states[-1].x == p[0] + 1e-15  # on its pose
+    w.put(keys.cell(F, -1, 0, 5), State(id=5, t=3 * CFG.dt, seq=3, x=-0.02, y=0.2, theta=0.0, r=0.3, R=1.2,
+                                          frozen=False))
+    assert a.tick_lockstep() and a.table[5].seq == 3
