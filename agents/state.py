@@ -145,7 +145,7 @@ class AgentState:
         self._sent_ahead = -1  # the newest tick whose state went out with the command of the tick before
         self._exact = False  # the chain holds the world's own bits since pose_0: its states may go out ahead
         self.mispredicted = 0  # ticks whose pose was not the one its state had said ahead (the world held a command)
-        self.early: dict[int, State] = {}  # lock-step: states of the tick after the one under way, until it is done
+        self.early: dict[int, State] = {}  # lock-step: states of a tick past the next one it computes (_law_tick)
         self.side = cfg.sense
         self._wait_reach = keys.lockstep_wait_reach(cfg.reach, cfg.sense)
         self._cmd_key, self._status_key = keys.robot_cmd(fleet, self.id), keys.robot_status(fleet, self.id)
