@@ -467,12 +467,9 @@ def test_a_robot_ahead_sends_its_next_state_with_its_command_as_the_world_integr
     assert w.agent.mispredicted == 0 and w.agent.bad.count == 0
 
 
-@pytest.mark.unit
-@pytest.mark.parametrize("sink", [True, False])
-def test_a_neighbours_state_of_the_next_tick_waits_aside_until_this_tick_is_done(sink):
-    """A neighbour ahead sends state_(k+1) with cmd_k, which may come while this robot still waits at tick k, or
-    before its pose_k: the law of tick k takes the neighbour's state_k (bit for bit), and tick k + 1 does not wait
-    for it; a state two ticks past the one under way is refused. Through the compiled sink and the Python."""
+def _two_neighbours(sink):
+    """A robot (through the compiled sink or the Python) that did tick 0 with robots 5 and 6 near, in cell (0, 0):
+    (the Wire, its reference, its pose, the neighbours' (x, y, theta), state(j, k, x): a state of j in that cell)."""
     if sink and protocol._wire is None:
         pytest.skip("the compiled codec is not built here (no C compiler)")
     w = Wire()
@@ -482,9 +479,19 @@ def test_a_neighbours_state_of_the_next_tick_waits_aside_until_this_tick_is_done
     nb = {5: (1.1, -0.3, 0.0), 6: (-0.8, 0.2, 1.0)}
     assert w.tick(0, pose, ref, list(nb.items()))
 
-    def state(j, k, x):  # in cell (0, 0), which this robot hears
+    def state(j, k, x):
         return keys.cell(F, 0, 0, j), protocol.encode(State(id=j, t=k * CFG.dt, seq=k, x=x, y=nb[j][1],
                                                             theta=0.0, r=0.3, R=1.2, frozen=False))
+    return w, ref, pose, nb, state
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("sink", [True, False])
+def test_a_neighbours_state_of_the_next_tick_waits_aside_until_this_tick_is_done(sink):
+    """A neighbour ahead sends state_(k+1) with cmd_k, which may come while this robot still waits at tick k, or
+    before its pose_k: the law of tick k takes the neighbour's state_k (bit for bit), and tick k + 1 does not wait
+    for it; a state two ticks past the one under way is refused. Through the compiled sink and the Python."""
+    w, ref, pose, nb, state = _two_neighbours(sink)
     w.probe.put(*state(5, 1, nb[5][0]))  # robot 5's state_1 before this robot's pose_1: taken
     w.probe.put(*state(5, 2, 0.7))  # and its state_2, sent with its cmd_1: aside, not bad
     w.put(keys.leader_ref(F), Ref(t=CFG.dt, seq=1, x=ref[0], y=ref[1], theta=ref[2], v=ref[3], w=ref[4]))
@@ -531,18 +538,7 @@ def test_a_tick_left_for_a_newer_pose_takes_the_states_kept_aside_for_the_new_on
     """The world went on without this robot's cmd_1 (its --tick-timeout: robot 6 never answered tick 1): pose_2
     comes while tick 1 still waits. Robot 5's state_2, sent ahead with its cmd_1 and kept aside, is tick 2's: tick 2
     takes it and does not wait for robot 5 (nor compute without it)."""
-    if sink and protocol._wire is None:
-        pytest.skip("the compiled codec is not built here (no C compiler)")
-    w = Wire()
-    if not sink:
-        w.agent._state_sink = None
-    ref, pose = (1.0, 0.5, 0.2, 0.5, 0.05), (0.2, 0.1, 0.4)
-    nb = {5: (1.1, -0.3, 0.0), 6: (-0.8, 0.2, 1.0)}
-    assert w.tick(0, pose, ref, list(nb.items()))
-
-    def state(j, k, x):  # in cell (0, 0), which this robot hears
-        return keys.cell(F, 0, 0, j), protocol.encode(State(id=j, t=k * CFG.dt, seq=k, x=x, y=nb[j][1],
-                                                            theta=0.0, r=0.3, R=1.2, frozen=False))
+    w, ref, pose, nb, state = _two_neighbours(sink)
     for k in (1, 2):
         w.put(keys.leader_ref(F), Ref(t=k * CFG.dt, seq=k, x=ref[0], y=ref[1], theta=ref[2], v=ref[3], w=ref[4]))
     w.put(keys.robot_pose(F, CFG.id), Pose(t=CFG.dt, seq=1, x=pose[0], y=pose[1], theta=pose[2]))
