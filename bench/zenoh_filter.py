@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 N_KEYS = 8
-VARIANTS = ("full", "no-hint", "no-ros", "no-filter")
+VARIANTS = ("full", "no-hint", "no-ros", "no-filter", "none")
 
 
 def cpu_s() -> float:
@@ -45,11 +45,11 @@ def session(mode: str, endpoint: str, variant: str = "full"):
     if variant == "no-ros":
         for rule in rules:
             rule["key_exprs"] = [k for k in rule["key_exprs"] if not k.startswith("**")]
-    elif variant == "no-filter":
+    elif variant in ("no-filter", "none"):
         rules = []
     busmod.size_limits = lambda: rules  # read by zenoh_config below
     conf = busmod.zenoh_config(mode, listen=[endpoint]) if mode == "router" else \
-        busmod.zenoh_config(mode, connect=[endpoint])
+        busmod.zenoh_config(mode, connect=[endpoint], ingress_checks=variant != "none")
     return busmod.ZenohBus(conf)
 
 
@@ -117,6 +117,8 @@ def main() -> int:
                 sub = subprocess.run(me + ["--role", "sub", "--endpoint", ep, "--variant", variant],
                                      capture_output=True, text=True, timeout=a.seconds + 60)
                 pub.wait(timeout=30)
+                if sub.returncode != 0 or not sub.stdout.strip():
+                    raise SystemExit(f"zenoh_filter: the {variant} subscriber exited {sub.returncode}:\n{sub.stderr[-2000:]}")
                 got = json.loads(sub.stdout.strip().splitlines()[-1])
                 print(f"round {r + 1}  {variant:>9}: {got['cpu_us_per_message']:5.2f} us a message "
                       f"({got['messages']} messages)", flush=True)

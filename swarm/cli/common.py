@@ -207,7 +207,8 @@ def open_bus(args, mode: str = "client", listen: list[str] | None = None, timeou
             base = secure_base(secure_dir, role, robot_id, connect, listen) if secure_dir is not None else None
             conf = zenoh_config(mode, connect=None if base is not None else connect,
                                 listen=None if base is not None else listen, config_file=cfg_file,
-                                multicast=getattr(args, "multicast", False), base=base)
+                                multicast=getattr(args, "multicast", False), base=base,
+                                ingress_checks=mode != "client" or not getattr(args, "router_checks", False))
         except BadInput:
             raise
         except Exception as e:

@@ -316,9 +316,10 @@ def add_ros2_flags(g, world: bool | str = False) -> None:
 
 
 def add_net_flags(p: argparse.ArgumentParser, listen: bool = False, connect_help: str | None = None,
-                  starts: bool = False) -> None:
+                  starts: bool = False, started: bool = False) -> None:
     """The flags of a command on the bus: --log-level, and zenoh's (--listen when it may run a router, --connect,
-    --fleet, --zenoh-config, --secure). starts: it starts the other processes (swarm up)."""
+    --fleet, --zenoh-config, --secure). starts: it starts the other processes (swarm up). started: a process
+    swarm up starts (--router-checks)."""
     p.add_argument("--log-level", choices=("debug", "info", "warning", "error"), metavar="LEVEL",
                    help="what the process logs on stderr: debug, info (default), warning or error" +
                         ("; passed to every process it starts (their logs are in its log folder)" if starts else ""))
@@ -337,6 +338,13 @@ def add_net_flags(p: argparse.ArgumentParser, listen: bool = False, connect_help
                    help="the fleet's certificates and access control (a directory of `swarm secure init`, or one "
                         "identity's folder): mutual TLS, each process with its role (docs/security.md)")
     g.add_argument("--multicast", action="store_true", help="turn multicast scouting on (off by default)")
+    if started:
+        g.add_argument("--router-checks", action="store_true",
+                       help="the router this process connects to is a swarm router (swarm up's own, or swarm router): it "
+                            "drops, as they come in, payloads beyond the codec's size limits and puts on key expressions "
+                            "with wildcards, so this session does not check them again (4-6 us of CPU a message "
+                            "received). Only where that router is this process's one link; swarm up gives it to the "
+                            "processes it starts on its own router")
 
 
 def add_run_flags(p: argparse.ArgumentParser, up: bool = False) -> None:

@@ -64,7 +64,7 @@ def add_runtime_parsers(sub) -> None:
                                        "configuration, own the clock in lock-step, referee the run.")
     add_scenario_flags(world, "paper-50hz")
     add_run_flags(world)
-    add_net_flags(world)
+    add_net_flags(world, started=True)
     g = world.add_argument_group("simulated ROS 2 fleet (real time)")
     g.add_argument("--ros2-sim", choices=("rmw_zenoh", "bridge"), metavar="FLAVOR",
                    help="the simulated robots speak ROS 2: each takes cmd_vel and gives odometry (its own frame, zero "
@@ -86,7 +86,7 @@ def add_runtime_parsers(sub) -> None:
                             description="Publish the virtual leader's reference from the scenario's segments.")
     add_scenario_flags(leader, "paper-50hz")
     add_run_flags(leader)
-    add_net_flags(leader)
+    add_net_flags(leader, started=True)
     leader.set_defaults(func="swarm.cli.leader:cmd_leader")
 
     robot = sub.add_parser("robot", help="one robot's agent (its decentralized controller)",
@@ -101,7 +101,7 @@ def add_runtime_parsers(sub) -> None:
                        help="this machine's copy of the run's control law (control.law = \"FILE.py:NAME\"), when "
                             "it is not at the path the run names; its sha256 must be the run's (docs/control.md)")
     add_run_flags(robot)
-    add_net_flags(robot)
+    add_net_flags(robot, started=True)
     g = robot.add_argument_group("drive (where the agent meets its robot; real time)")
     g.add_argument("--drive", choices=("sim", "ros2"), default="sim",
                    help="sim: the simulated world's pose and cmd keys (default); ros2: a ROS 2 robot (odometry in, "
@@ -197,7 +197,7 @@ def add_runtime_parsers(sub) -> None:
                      help="append the meshcat server's own log (connections) to PATH (default: discarded)")
     viz.add_argument("--start-timeout", type=positive_float, default=60.0, metavar="S",
                      help="seconds to wait for the router at start (default 60)")
-    add_net_flags(viz)
+    add_net_flags(viz, started=True)
     viz.set_defaults(func="swarm.cli.viz:cmd_viz")
 
     replay = sub.add_parser("replay", help="play a recording (swarm sim/up --record) in the browser viewer",

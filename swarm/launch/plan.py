@@ -117,6 +117,8 @@ def make_plan(o: UpOptions, python: str = sys.executable) -> Plan:
         net += ["--secure", o.secure]
     if o.multicast:
         net += ["--multicast"]
+    if o.connect is None:  # its own router checks what comes in (swarm.net.bus.size_limits, wildcard_guard)
+        net += ["--router-checks"]
     base = (python, "-m", "swarm.cli")
     router = None
     if o.connect is None:

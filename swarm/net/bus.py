@@ -293,7 +293,8 @@ class MemoryBus:
 
 
 def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen: list[str] | None = None,
-                 config_file: str | None = None, lease_ms: int = 1000, multicast: bool = False, base=None):
+                 config_file: str | None = None, lease_ms: int = 1000, multicast: bool = False, base=None,
+                 ingress_checks: bool = True):
     """A zenoh.Config for our topology (docs/runtime.md): explicit endpoints, multicast scouting off
     unless asked, a short lease so a hung process is noticed in about 1 s, zenoh's own size limits.
     Our settings go on top of `base` (an identity's config from swarm.net.secure) or of config_file
@@ -323,7 +324,8 @@ def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen:
     conf.insert_json5("transport/link/rx/buffer_size", "4096")
     # payloads beyond the codec's limits are dropped by zenoh itself, on the way in and out, so an
     # oversized payload never reaches a subscriber (the codec would refuse it, but only after it came)
-    conf.insert_json5("low_pass_filter", json.dumps(size_limits()))
+    if ingress_checks:
+        conf.insert_json5("low_pass_filter", json.dumps(size_limits()))
     # ... but zenoh applies that filter to a whole message, once it has put the message's fragments back
     # together, up to 1 GiB by default: 12 puts of 64 MiB from a client left the router 84-160 MiB larger
     # (bench/router_memory.py). Each link's defragmentation stops at the largest message the swarm sends:
@@ -339,7 +341,8 @@ def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen:
         theirs = json.loads(conf.get_json("downsampling") or "null") or []
     except Exception:  # not set
         theirs = []
-    conf.insert_json5("downsampling", json.dumps(list(theirs) + [wildcard_guard()]))
+    if ingress_checks:
+        conf.insert_json5("downsampling", json.dumps(list(theirs) + [wildcard_guard()]))
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps(connect))
     if listen is not None:

@@ -34,6 +34,18 @@ def test_plan_starts_router_world_leader_and_one_process_per_robot():
 
 
 @pytest.mark.unit
+def test_processes_on_the_embedded_router_leave_the_ingress_checks_to_it():
+    """Its own router drops oversized and wildcard puts as they come in (swarm.net.bus.size_limits,
+    wildcard_guard), so the processes swarm up starts on it do not check them again; a router swarm up did not
+    start may be somebody else's: there every process keeps its own checks."""
+    own = make_plan(opts(), python="py")
+    assert "--router-checks" not in own.router.argv
+    assert all("--router-checks" in p.argv for p in own.processes if p is not own.router)
+    joined = make_plan(opts(connect="tcp/10.0.0.5:7447", listen=None), python="py")
+    assert not any("--router-checks" in p.argv for p in joined.processes)
+
+
+@pytest.mark.unit
 def test_plan_is_pure_and_deterministic():
     assert make_plan(opts(), python="py") == make_plan(opts(), python="py")
 

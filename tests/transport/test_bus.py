@@ -205,11 +205,12 @@ def test_zenohs_threads_keep_their_python_thread_state_between_callbacks(pin):
 
 @pytest.mark.integration
 @pytest.mark.timeout(60)
-@pytest.mark.parametrize("router_filters", [True, False])
-def test_zenoh_drops_a_payload_past_the_size_limit_on_its_way_in(router_filters):
+@pytest.mark.parametrize("router_filters,client_checks", [(True, True), (False, True), (True, False)])
+def test_zenoh_drops_a_payload_past_the_size_limit_on_its_way_in(router_filters, client_checks):
     """zenoh's low_pass_filter (bus.size_limits) drops a payload larger than the codec's limit before any
-    subscriber sees it: at our router's ingress, and, behind a router without the rules (somebody
-    else's), at the receiving client's ingress. A payload at the limit goes through."""
+    subscriber sees it: at our router's ingress (also for a client without checks of its own, as swarm up's
+    processes run: --router-checks), and, behind a router without the rules (somebody else's), at the
+    receiving client's ingress. A payload at the limit goes through."""
     from swarm.proto.protocol import MAX_PAYLOAD
 
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
@@ -217,7 +218,7 @@ def test_zenoh_drops_a_payload_past_the_size_limit_on_its_way_in(router_filters)
                              busmod.plain_config("router", listen=[endpoint]))
     try:
         with busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint])) as a, \
-                busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint])) as b:
+                busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint], ingress_checks=client_checks)) as b:
             box = b.inbox("swarm/t/cell/0/0/*", depth=16)
             _prime(box, lambda: a.put("swarm/t/cell/0/0/1", b"ping", reliable=True), "the inbox")
             a.put("swarm/t/cell/0/0/1", b"x" * (MAX_PAYLOAD + 1), reliable=True)
@@ -234,25 +235,50 @@ def test_zenoh_drops_a_payload_past_the_size_limit_on_its_way_in(router_filters)
         router.close()
 
 
+@pytest.mark.unit
+@pytest.mark.parametrize("cmd", ["robot", "world", "leader", "viz"])
+def test_router_checks_leaves_the_ingress_checks_to_the_router(monkeypatch, cmd):
+    """`--router-checks` (what swarm up gives the processes on its own router) opens a session without zenoh's
+    size filter and wildcard guard; without it a session has both. A router always keeps them."""
+    import json
+
+    from swarm.cli.common import open_bus
+    from swarm.cli.parser import build_parser
+
+    monkeypatch.setattr(busmod, "ZenohBus", lambda conf: conf)  # open_bus returns the config it would open
+
+    def checks(conf) -> tuple[bool, bool]:
+        down = json.loads(conf.get_json("downsampling") or "null") or []
+        return bool(json.loads(conf.get_json("low_pass_filter") or "null")), \
+            any(d.get("id") == "swarm-wildcards" for d in down)
+
+    parse = build_parser().parse_args
+    assert checks(open_bus(parse([cmd, "--router-checks"]))) == (False, False)
+    assert checks(open_bus(parse([cmd]))) == (True, True)
+    assert checks(open_bus(parse([cmd, "--router-checks"]), mode="router", listen=["tcp/127.0.0.1:7447"])) == \
+        (True, True)
+
+
 WILDCARDS = ["swarm/t/cell/*/*/5", "swarm/t/cell/**", "swarm/**", "swarm/t/cell/0/*/5", "swarm/t/cell/$*0/0/5",
              "swarm/t/cell/0/0/*", "**", "swarm/t/**/5", "*/t/cell/0/0/5", "swarm/*/cell/0/0/5"]
 
 
 @pytest.mark.integration
 @pytest.mark.timeout(60)
-@pytest.mark.parametrize("router_filters", [True, False])
-def test_zenoh_drops_a_put_on_a_wildcard_key_expression_before_any_subscriber(router_filters):
+@pytest.mark.parametrize("router_filters,client_checks", [(True, True), (False, True), (True, False)])
+def test_zenoh_drops_a_put_on_a_wildcard_key_expression_before_any_subscriber(router_filters, client_checks):
     """A put on a key expression with wildcards (cell/*/*/5) reaches every subscription it intersects: a
     robot's 9 cell subscriptions got it 9 times, a flood of them stalled a lock-step swarm. zenoh's
     downsampling interceptor (bus.wildcard_guard, a rate of 0 on the key expressions only a wildcard put can
-    intersect) drops it at our router's ingress, and, behind a router without the rule, at the receiving
-    client's ingress. Concrete keys go through; the receiver sees none of the wildcard puts."""
+    intersect) drops it at our router's ingress (also for a client without checks of its own: --router-checks),
+    and, behind a router without the rule, at the receiving client's ingress. Concrete keys go through; the
+    receiver sees none of the wildcard puts."""
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     router = busmod.ZenohBus(busmod.zenoh_config("router", listen=[endpoint]) if router_filters else
                              busmod.plain_config("router", listen=[endpoint]))
     attacker_conf = busmod.plain_config("client", connect=[endpoint])  # no rule of ours on its way out
     try:
-        with busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint])) as b, \
+        with busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint], ingress_checks=client_checks)) as b, \
                 busmod.ZenohBus(attacker_conf) as a:
             events, got = Events(), []
 
