@@ -5,7 +5,8 @@
                                 [--callbacks]
 
 It starts what `swarm up` starts (a router, a world, N robot processes, each a zenoh client of the
-router with swarm's session settings and runtime) and moves the same messages. Real time: the world
+router with swarm's session settings and runtime, leaving the ingress checks to the router as `swarm up`'s
+processes do: --router-checks) and moves the same messages. Real time: the world
 sends robot i its pose at phase i/N of every control period; robot i blocks on its pose inbox, drains
 the states in the 3x3 cells around its slot in the built-in scenario's formation (or its start
 position: `--layout start`), sends its state on its own cell key and a command that echoes the pose's
@@ -92,7 +93,7 @@ def robot(i: int, n: int, endpoint: str, layout: str, wait: bool, callbacks: boo
         return robot_callbacks(i, n, endpoint, layout)
     cells, (cx, cy), near_cells = neighbourhood(i, n, layout)
     others = [sum(1 for j in range(n) if j != i and cells[j] == c) for c in near_cells]  # robots in each cell
-    with ZenohBus(zenoh_config("client", connect=[endpoint])) as bus:
+    with ZenohBus(zenoh_config("client", connect=[endpoint], ingress_checks=False)) as bus:
         pose = bus.inbox(f"{PREFIX}/robot/{i}/pose", depth=8)
         near = [bus.inbox(f"{PREFIX}/cell/{c[0]}/{c[1]}/*", depth=64) for c in near_cells]
         mine, cmd = f"{PREFIX}/cell/{cx}/{cy}/{i}", f"{PREFIX}/robot/{i}/cmd"
@@ -162,7 +163,7 @@ def robot_callbacks(i: int, n: int, endpoint: str, layout: str) -> None:
     cond = threading.Condition()
     poses: list[bytes] = []
     states: list[bytes] = []
-    with ZenohBus(zenoh_config("client", connect=[endpoint])) as bus:
+    with ZenohBus(zenoh_config("client", connect=[endpoint], ingress_checks=False)) as bus:
         def on_pose(_key: str, data: bytes) -> None:
             with cond:
                 poses.append(data)
@@ -227,7 +228,7 @@ def robot_callbacks(i: int, n: int, endpoint: str, layout: str) -> None:
 
 def world(n: int, endpoint: str, duration: float, rate: float, lockstep: bool) -> None:
     period = 1.0 / rate
-    with ZenohBus(zenoh_config("client", connect=[endpoint])) as bus:
+    with ZenohBus(zenoh_config("client", connect=[endpoint], ingress_checks=False)) as bus:
         cmds = bus.inbox(f"{PREFIX}/robot/*/cmd", depth=4 * n)
         for i in range(n):  # as swarm's world does (ZenohBus.hint)
             bus.hint(f"{PREFIX}/robot/{i}/cmd")
