@@ -202,19 +202,22 @@ def open_bus(args, mode: str = "client", listen: list[str] | None = None, timeou
     start = time.monotonic()
     end = start + timeout_s
     told = False  # a client said why it still waits
+    # --router-checks ZID: the checks are left to router ZID, and kept if this session's router is another
+    checker = getattr(args, "router_checks", None) if mode == "client" else None
     while True:
         try:
             base = secure_base(secure_dir, role, robot_id, connect, listen) if secure_dir is not None else None
             conf = zenoh_config(mode, connect=None if base is not None else connect,
                                 listen=None if base is not None else listen, config_file=cfg_file,
                                 multicast=getattr(args, "multicast", False), base=base,
-                                ingress_checks=mode != "client" or not getattr(args, "router_checks", False))
+                                ingress_checks=checker is None,
+                                zid=getattr(args, "zid", None) if mode == "router" else None)
         except BadInput:
             raise
         except Exception as e:
             raise BadInput(f"zenoh configuration: {zenoh_error(e)}") from None
         try:
-            return ZenohBus(conf)
+            bus = ZenohBus(conf)
         except Exception as e:
             where = ", ".join(listen or []) if mode == "router" else ", ".join(connect) or "the identity's router"
             if mode != "client":
@@ -238,6 +241,16 @@ def open_bus(args, mode: str = "client", listen: list[str] | None = None, timeou
                     raise Failure(f"cannot open a zenoh client session{within}: "
                                   f"{why or f'{where}: {zenoh_error(e)}'}{hint}") from None
             time.sleep(0.1)
+            continue
+        if checker is None:
+            return bus
+        routers = [str(z) for z in bus.session.info.routers_zid()]
+        if routers == [checker]:
+            return bus
+        bus.close()  # not the router that checks: this session checks what comes in itself
+        log.warning("--router-checks %s: this session's router is %s, not it: zenoh's ingress checks stay on",
+                    checker, ", ".join(routers) or "none")
+        checker = None
 
 
 _RUST_WHERE = re.compile(r"\s+at\s+\S+\.rs:\d+\.?")

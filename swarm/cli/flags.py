@@ -315,6 +315,13 @@ def add_ros2_flags(g, world: bool | str = False) -> None:
                                                                       if world == "up" else ""))
 
 
+def zenoh_id(s: str) -> str:
+    """A zenoh id as zenoh writes it: 1 to 32 lower-case hex digits, not 0, no leading 0."""
+    if not (1 <= len(s) <= 32) or any(c not in "0123456789abcdef" for c in s) or s[0] == "0":
+        raise argparse.ArgumentTypeError(f"not a zenoh id: {s!r} (1 to 32 lower-case hex digits, the first not 0)")
+    return s
+
+
 def add_net_flags(p: argparse.ArgumentParser, listen: bool = False, connect_help: str | None = None,
                   starts: bool = False, started: bool = False) -> None:
     """The flags of a command on the bus: --log-level, and zenoh's (--listen when it may run a router, --connect,
@@ -339,12 +346,17 @@ def add_net_flags(p: argparse.ArgumentParser, listen: bool = False, connect_help
                         "identity's folder): mutual TLS, each process with its role (docs/security.md)")
     g.add_argument("--multicast", action="store_true", help="turn multicast scouting on (off by default)")
     if started:
-        g.add_argument("--router-checks", action="store_true",
-                       help="the router this process connects to is a swarm router (swarm up's own, or swarm router): it "
-                            "drops, as they come in, payloads beyond the codec's size limits and puts on key expressions "
-                            "with wildcards, so this session does not check them again (4-6 us of CPU a message "
-                            "received). Only where that router is this process's one link; swarm up gives it to the "
-                            "processes it starts on its own router")
+        g.add_argument("--router-checks", type=zenoh_id, metavar="ZID",
+                       help="leave zenoh's ingress checks to the router whose zenoh id is ZID (a swarm router started "
+                            "with --zid ZID): it drops payloads beyond the codec's size limits and puts on key "
+                            "expressions with wildcards as they come in, so this session does not check them again "
+                            "(zenoh's CPU for each message received). Checked as the session opens: on any other "
+                            "router this process keeps its checks. swarm up gives it to the processes it starts on "
+                            "its own router")
+    elif listen and not starts:
+        g.add_argument("--zid", type=zenoh_id, metavar="ZID",
+                       help="this router's zenoh id (hex, up to 32 digits; default: a random one): processes given "
+                            "--router-checks ZID leave their ingress checks to it")
 
 
 def add_run_flags(p: argparse.ArgumentParser, up: bool = False) -> None:

@@ -107,6 +107,13 @@ def refuse_unused_flags(args) -> None:
             raise BadInput(f"{flag} needs --drive ros2 (the simulated ROS 2 robots' wire)")
 
 
+def fresh_zid() -> str:
+    """A random zenoh id for the embedded router (32 hex digits, the first not 0: as zenoh writes it)."""
+    import secrets
+
+    return format(secrets.randbits(128) | 1 << 127, "032x")
+
+
 def cmd_up(args, started: float) -> int:
     die_with_parent()  # started by another swarm command (swarm campaign --up): dies with it, however it dies
     if args.inventory is not None:
@@ -177,7 +184,7 @@ def cmd_up(args, started: float) -> int:
         robots=scn.n, scenario_args=scenario_args(args), mode=args.mode, speed=args.speed, fleet=fleet,
         listen=None if args.connect else (args.listen[0] if args.listen else (None if args.secure else DEFAULT_LISTEN)),
         secure=str(Path(args.secure).absolute()) if args.secure else None, secure_endpoint=secure_endpoint,
-        connect=args.connect[0] if args.connect else None,
+        connect=args.connect[0] if args.connect else None, router_zid=None if args.connect else fresh_zid(),
         zenoh_config=str(Path(args.zenoh_config).absolute()) if args.zenoh_config else None,
         multicast=args.multicast, metrics=str(metrics_path),
         trace=str(Path(args.trace).absolute()) if args.trace else None, start_timeout=args.start_timeout,

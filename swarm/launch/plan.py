@@ -48,6 +48,7 @@ class UpOptions:
     fleet: str = "default"
     listen: str | None = DEFAULT_LISTEN  # the embedded router's endpoint (None with connect)
     connect: str | None = None  # join an existing router instead
+    router_zid: str | None = None  # the embedded router's zenoh id: the processes on it leave it the ingress checks
     zenoh_config: str | None = None
     secure: str | None = None  # a fleet directory of `swarm secure init`: every process with its role (mutual TLS, ACL)
     secure_endpoint: str | None = None  # with secure and no listen: the router identity's (tls/127.0.0.1:PORT)
@@ -117,8 +118,8 @@ def make_plan(o: UpOptions, python: str = sys.executable) -> Plan:
         net += ["--secure", o.secure]
     if o.multicast:
         net += ["--multicast"]
-    if o.connect is None:  # its own router checks what comes in (swarm.net.bus.size_limits, wildcard_guard)
-        net += ["--router-checks"]
+    if o.connect is None and o.router_zid is not None:  # its own router checks what comes in (bus.size_limits,
+        net += ["--router-checks", o.router_zid]           # wildcard_guard): its processes need not, once on it
     base = (python, "-m", "swarm.cli")
     router = None
     if o.connect is None:
@@ -129,6 +130,8 @@ def make_plan(o: UpOptions, python: str = sys.executable) -> Plan:
             r_argv += ["--secure", o.secure]
         if o.multicast:
             r_argv += ["--multicast"]
+        if o.router_zid is not None:
+            r_argv += ["--zid", o.router_zid]
         router = ProcSpec("router", "router", 0, tuple(r_argv))
     w_argv = [*base, "world", *o.scenario_args, "--mode", o.mode, "--speed", repr(o.speed),
               "--start-timeout", repr(o.start_timeout), "--tick-timeout", repr(o.tick_timeout),

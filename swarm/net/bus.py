@@ -294,9 +294,11 @@ class MemoryBus:
 
 def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen: list[str] | None = None,
                  config_file: str | None = None, lease_ms: int = 1000, multicast: bool = False, base=None,
-                 ingress_checks: bool = True):
+                 ingress_checks: bool = True, zid: str | None = None):
     """A zenoh.Config for our topology (docs/runtime.md): explicit endpoints, multicast scouting off
-    unless asked, a short lease so a hung process is noticed in about 1 s, zenoh's own size limits.
+    unless asked, a short lease so a hung process is noticed in about 1 s, zenoh's own size limits and
+    wildcard guard on the way in (ingress_checks=False leaves both out: a client whose router checks them,
+    --router-checks). zid: the session's zenoh id (hex), else zenoh's random one.
     Our settings go on top of `base` (an identity's config from swarm.net.secure) or of config_file
     (--zenoh-config), or of zenoh's defaults."""
     import json
@@ -308,6 +310,8 @@ def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen:
     else:
         conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
     conf.insert_json5("mode", json.dumps(mode))
+    if zid is not None:
+        conf.insert_json5("id", json.dumps(zid))
     conf.insert_json5("scouting/multicast/enabled", "true" if multicast else "false")
     conf.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
     # a reliable put to a peer that takes nothing (behind a silent network cut) blocks the sender, the
@@ -389,9 +393,10 @@ def wildcard_guard() -> dict:
 def size_limits() -> list[dict]:
     """zenoh low_pass_filter rules: the large kinds (snapshot, obstacles, run, bodies) up to the
     codec's large limit, every other swarm key and the ROS 2 topics a drive uses up to the small one.
-    On ingress only: every process (the router too) checks what comes in, so a payload is checked where
-    it enters our router and again where it enters a process (behind a router that is not ours); egress
-    rules checked the same payloads twice more (docs/protocol.md)."""
+    On ingress only: every router and every process checks what comes in, so a payload is checked where
+    it enters our router and again where it enters a process (behind a router that is not ours), but in
+    the processes swarm up starts on its own router (--router-checks); egress rules checked the same
+    payloads twice more (docs/protocol.md)."""
     from swarm.proto.protocol import MAX_LARGE_PAYLOAD, MAX_PAYLOAD
 
     large = [f"swarm/*/world/{k}" for k in ("snapshot", "obstacles", "run", "bodies")]

@@ -38,11 +38,17 @@ def test_processes_on_the_embedded_router_leave_the_ingress_checks_to_it():
     """Its own router drops oversized and wildcard puts as they come in (swarm.net.bus.size_limits,
     wildcard_guard), so the processes swarm up starts on it do not check them again; a router swarm up did not
     start may be somebody else's: there every process keeps its own checks."""
-    own = make_plan(opts(), python="py")
-    assert "--router-checks" not in own.router.argv
-    assert all("--router-checks" in p.argv for p in own.processes if p is not own.router)
-    joined = make_plan(opts(connect="tcp/10.0.0.5:7447", listen=None), python="py")
+    from swarm.launch.plan import VizOptions
+
+    zid = "c3" * 16
+    own = make_plan(opts(router_zid=zid, viz=VizOptions()), python="py")
+    assert own.router.argv[-2:] == ("--zid", zid) and "--router-checks" not in own.router.argv
+    for p in own.processes[1:]:  # the viewer, the world, the leader, the robots
+        a = list(p.argv)
+        assert a[a.index("--router-checks") + 1] == zid, p.name
+    joined = make_plan(opts(connect="tcp/10.0.0.5:7447", listen=None, router_zid=zid), python="py")
     assert not any("--router-checks" in p.argv for p in joined.processes)
+    assert not any("--router-checks" in p.argv for p in make_plan(opts(), python="py").processes)
 
 
 @pytest.mark.unit

@@ -205,12 +205,12 @@ def test_zenohs_threads_keep_their_python_thread_state_between_callbacks(pin):
 
 @pytest.mark.integration
 @pytest.mark.timeout(60)
-@pytest.mark.parametrize("router_filters,client_checks", [(True, True), (False, True), (True, False)])
+@pytest.mark.parametrize("router_filters,client_checks", [(True, True), (False, True), (True, False), (False, False)])
 def test_zenoh_drops_a_payload_past_the_size_limit_on_its_way_in(router_filters, client_checks):
     """zenoh's low_pass_filter (bus.size_limits) drops a payload larger than the codec's limit before any
     subscriber sees it: at our router's ingress (also for a client without checks of its own, as swarm up's
     processes run: --router-checks), and, behind a router without the rules (somebody else's), at the
-    receiving client's ingress. A payload at the limit goes through."""
+    receiving client's ingress. A payload at the limit goes through. With neither, the large one comes."""
     from swarm.proto.protocol import MAX_PAYLOAD
 
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
@@ -229,34 +229,57 @@ def test_zenoh_drops_a_payload_past_the_size_limit_on_its_way_in(router_filters,
                 got += box.wait()
                 got += box.drain()
             sizes = [len(p) for _, p in got if p != b"ping"]
-            assert sizes == [MAX_PAYLOAD, 4]
+            assert sizes == ([MAX_PAYLOAD, 4] if router_filters or client_checks else [MAX_PAYLOAD + 1, MAX_PAYLOAD, 4])
             box.close()
     finally:
         router.close()
 
 
-@pytest.mark.unit
+@pytest.mark.integration
+@pytest.mark.timeout(60)
 @pytest.mark.parametrize("cmd", ["robot", "world", "leader", "viz"])
-def test_router_checks_leaves_the_ingress_checks_to_the_router(monkeypatch, cmd):
-    """`--router-checks` (what swarm up gives the processes on its own router) opens a session without zenoh's
-    size filter and wildcard guard; without it a session has both. A router always keeps them."""
+def test_router_checks_leaves_the_ingress_checks_to_that_router_only(monkeypatch, caplog, cmd):
+    """`--router-checks ZID` (what swarm up gives the processes on its own router, started with --zid ZID) opens a
+    session without zenoh's size filter and wildcard guard once its router is ZID; on another router (a foreign one
+    that took the port) it keeps both, and says so. Without the flag, and in a router, they are always on."""
     import json
 
     from swarm.cli.common import open_bus
     from swarm.cli.parser import build_parser
 
-    monkeypatch.setattr(busmod, "ZenohBus", lambda conf: conf)  # open_bus returns the config it would open
+    made = []  # each config open_bus made: (size rules, wildcard guard)
+    real = busmod.zenoh_config
 
-    def checks(conf) -> tuple[bool, bool]:
+    def recording(*a, **kw):
+        conf = real(*a, **kw)
         down = json.loads(conf.get_json("downsampling") or "null") or []
-        return bool(json.loads(conf.get_json("low_pass_filter") or "null")), \
-            any(d.get("id") == "swarm-wildcards" for d in down)
+        made.append((bool(json.loads(conf.get_json("low_pass_filter") or "null")),
+                     any(d.get("id") == "swarm-wildcards" for d in down)))
+        return conf
 
+    monkeypatch.setattr(busmod, "zenoh_config", recording)
+    zid, other = "a1" * 16, "b2" * 16
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
     parse = build_parser().parse_args
-    assert checks(open_bus(parse([cmd, "--router-checks"]))) == (False, False)
-    assert checks(open_bus(parse([cmd]))) == (True, True)
-    assert checks(open_bus(parse([cmd, "--router-checks"]), mode="router", listen=["tcp/127.0.0.1:7447"])) == \
-        (True, True)
+    with open_bus(parse(["router", "--listen", endpoint, "--zid", zid]), mode="router", listen=[endpoint]) as router:
+        assert str(router.session.info.zid()) == zid and made == [(True, True)]
+        with open_bus(parse([cmd, "--connect", endpoint, "--router-checks", zid])):
+            assert made[1:] == [(False, False)]
+        with caplog.at_level("WARNING", logger="swarm"):
+            with open_bus(parse([cmd, "--connect", endpoint, "--router-checks", other])):
+                assert made[2:] == [(False, False), (True, True)]  # opened, found another router, opened again
+        assert f"this session's router is {zid}, not it" in caplog.text
+        with open_bus(parse([cmd, "--connect", endpoint])):
+            assert made[4:] == [(True, True)]
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("bad", ["", "0abc", "ABC", "xyz", "a" * 33])
+def test_a_zenoh_id_that_zenoh_would_not_write_is_refused(bad):
+    from swarm.cli.parser import build_parser
+
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["robot", "--router-checks", bad])
 
 
 WILDCARDS = ["swarm/t/cell/*/*/5", "swarm/t/cell/**", "swarm/**", "swarm/t/cell/0/*/5", "swarm/t/cell/$*0/0/5",
