@@ -154,8 +154,10 @@ def bind_error(host: str, port: int) -> str | None:
 
 
 def check_listen_free(ep: str) -> None:
-    """A router that cannot bind its port only says so in its log, and the swarm then joins whatever
-    holds the port (another swarm's router): refuse before anything starts."""
+    """A router that cannot bind its port exits (its log says why), and meanwhile the processes started
+    after it join whatever holds the port (another swarm's router): refuse before anything starts. A
+    program that takes the port between this check and the bind gets a run that fails ("router lost"),
+    and processes that keep their ingress checks (--router-checks ZID names swarm up's own router)."""
     proto, _, rest = ep.partition("/")
     if proto not in ("tcp", "tls"):
         return
