@@ -323,10 +323,10 @@ def zenoh_id(s: str) -> str:
 
 
 def add_net_flags(p: argparse.ArgumentParser, listen: bool = False, connect_help: str | None = None,
-                  starts: bool = False, started: bool = False) -> None:
+                  starts: bool = False, started: bool = False, router: bool = False) -> None:
     """The flags of a command on the bus: --log-level, and zenoh's (--listen when it may run a router, --connect,
     --fleet, --zenoh-config, --secure). starts: it starts the other processes (swarm up). started: a process
-    swarm up starts (--router-checks)."""
+    swarm up starts (--router-checks). router: swarm router (--zid)."""
     p.add_argument("--log-level", choices=("debug", "info", "warning", "error"), metavar="LEVEL",
                    help="what the process logs on stderr: debug, info (default), warning or error" +
                         ("; passed to every process it starts (their logs are in its log folder)" if starts else ""))
@@ -353,7 +353,7 @@ def add_net_flags(p: argparse.ArgumentParser, listen: bool = False, connect_help
                             "(zenoh's CPU for each message received). Checked as the session opens: on any other "
                             "router this process keeps its checks. swarm up gives it to the processes it starts on "
                             "its own router")
-    elif listen and not starts:
+    if router:
         g.add_argument("--zid", type=zenoh_id, metavar="ZID",
                        help="this router's zenoh id (hex, up to 32 digits; default: a random one): processes given "
                             "--router-checks ZID leave their ingress checks to it")

@@ -56,7 +56,7 @@ def add_runtime_parsers(sub) -> None:
     router = sub.add_parser("router", help="a zenoh router (what swarm up embeds)",
                             description="Run a zenoh router in this process. Routers on several machines "
                                         "connect to each other with --connect.")
-    add_net_flags(router, listen=True, connect_help="another router to connect to (across machines)")
+    add_net_flags(router, listen=True, connect_help="another router to connect to (across machines)", router=True)
     router.set_defaults(func="swarm.cli.router:cmd_router")
 
     world = sub.add_parser("world", help="the simulated world: kinematics, obstacles, clock, metrics",
