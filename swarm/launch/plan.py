@@ -118,8 +118,9 @@ def make_plan(o: UpOptions, python: str = sys.executable) -> Plan:
         net += ["--secure", o.secure]
     if o.multicast:
         net += ["--multicast"]
-    if o.connect is None and o.router_zid is not None:  # its own router checks what comes in (bus.size_limits,
-        net += ["--router-checks", o.router_zid]           # wildcard_guard): its processes need not, once on it
+    if o.connect is None and o.router_zid is not None:
+        # its own router checks what comes in (bus.size_limits, wildcard_guard): a process on it need not
+        net += ["--router-checks", o.router_zid]
     base = (python, "-m", "swarm.cli")
     router = None
     if o.connect is None:

@@ -326,7 +326,7 @@ def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen:
     # small batches: lock-step traffic is many ~100-byte messages
     conf.insert_json5("transport/link/tx/batch_size", "4096")
     conf.insert_json5("transport/link/rx/buffer_size", "4096")
-    # payloads beyond the codec's limits are dropped by zenoh itself, on the way in and out, so an
+    # payloads beyond the codec's limits are dropped by zenoh itself on the way in, so an
     # oversized payload never reaches a subscriber (the codec would refuse it, but only after it came)
     if ingress_checks:
         conf.insert_json5("low_pass_filter", json.dumps(size_limits()))
@@ -341,11 +341,11 @@ def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen:
     conf.insert_json5("transport/link/rx/max_message_size", str(MAX_LARGE_PAYLOAD + MAX_PAYLOAD))
     # a put on a key expression with wildcards (cell/*/*/5) reaches every subscription it intersects: dropped
     # on the way in, before routing or any callback (wildcard_guard), after any downsampling of the user's
-    try:
-        theirs = json.loads(conf.get_json("downsampling") or "null") or []
-    except Exception:  # not set
-        theirs = []
     if ingress_checks:
+        try:
+            theirs = json.loads(conf.get_json("downsampling") or "null") or []
+        except Exception:  # not set
+            theirs = []
         conf.insert_json5("downsampling", json.dumps(list(theirs) + [wildcard_guard()]))
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps(connect))
