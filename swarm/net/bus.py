@@ -323,6 +323,10 @@ def zenoh_config(mode: str = "client", connect: list[str] | None = None, listen:
     conf.insert_json5("transport/unicast/open_timeout", "2000")
     conf.insert_json5("connect/retry", json.dumps({"period_init_ms": 250, "period_max_ms": 1000,
                                                    "period_increase_factor": 2}))
+    # no shared memory: zenoh would carry a payload beyond 3 kB between two processes of one machine in it (a
+    # world's config replies), and from then on each process that took one runs a watchdog thread, 41 of them in
+    # a 37-robot swarm for 1.4 % of the machine; swarm's messages are small, and most cross machines
+    conf.insert_json5("transport/shared_memory/enabled", "false")
     # small batches: lock-step traffic is many ~100-byte messages
     conf.insert_json5("transport/link/tx/batch_size", "4096")
     conf.insert_json5("transport/link/rx/buffer_size", "4096")
@@ -451,6 +455,7 @@ class ZenohBus:
         self._handles: list[Closable] = []
         self._closed = False
         self._pubs: OrderedDict[tuple[str, bool, bool], zenoh.Publisher] = OrderedDict()
+        self._wanted: dict[str, list] = {}  # key -> [its matching status], as wanted() keeps it
         self._pub_lock = threading.Lock()
         self._hints: dict[str, zenoh.KeyExpr] = {}
         self.errors = _errors()  # exceptions of this bus's callbacks, counted (see guarded)
@@ -474,7 +479,24 @@ class ZenohBus:
             self._publisher(key, reliable, loopback).put(payload, attachment=attachment)
 
     def wanted(self, key: str) -> bool:
-        return bool(self._publisher(key, False).matching_status.matching)
+        """Whether some subscriber would receive a put on `key`: zenoh's matching status, kept up to date by a
+        matching listener from the first call (asked each time, the status waited on the session's routing, and a
+        world asks before every tick's snapshot: docs/performance.md, "The world's part of a lock-step tick")."""
+        w = self._wanted.get(key)
+        if w is None:
+            with self._pub_lock:
+                w = self._wanted.get(key)
+                if w is None:
+                    w = self._wanted[key] = [None]
+                    pub = self.session.declare_publisher(key)  # its own: the LRU of _publisher may let one go
+
+                    def changed(status, w=w) -> None:
+                        w[0] = bool(status.matching)
+
+                    self._handles += [_Undeclare(pub), _Undeclare(pub.declare_matching_listener(changed))]
+                    if w[0] is None:  # unless the listener told a newer status already
+                        w[0] = bool(pub.matching_status.matching)
+        return bool(w[0])
 
     def _publisher(self, key: str, reliable: bool, loopback: bool = True):
         """A declared publisher per key, kept for the next put (LRU, at most PUBLISHERS): a declared
