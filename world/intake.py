@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import logging
 import threading
-from typing import cast
+from typing import Callable, cast
 
 import numpy as np
 
@@ -22,6 +22,12 @@ log = logging.getLogger("swarm.world")
 class Intake(WorldState):
     _leader_back = False  # the leader's token came back during the run (lock-step: repeat the clock for it)
     leader_ups = 0  # times the leader's token appeared
+    # lock-step without faults (world.lockstep_loop, "the tick's last command finishes it"): a robot's pose of the
+    # next tick stepped as its command comes; the tick taken over by the thread of its last awaited command, and
+    # its clock and poses published there
+    _step_next: Callable[[int, protocol.Cmd], None]
+    _take_over: Callable[[], tuple[float, int, list[bytes]] | None]
+    _publish_taken: Callable[[float, int, list[bytes]], None]
 
     # ------------------------------------------------------------------ events
 
@@ -55,7 +61,10 @@ class Intake(WorldState):
                 self.bad.reject(key, e)
                 return
             due = self._await >= 0 and not self._awaited
-        if due:
+            tick = self._take_over() if due else None
+        if tick is not None:  # this thread finishes the tick: the next one's clock and poses out now
+            self._publish_taken(*tick)
+        elif due:
             self.wake.set()
 
     def _take_cmd(self, i: int, c: protocol.Cmd) -> None:
@@ -68,6 +77,8 @@ class Intake(WorldState):
             self.cmd_seq[i] = c.seq
             self._pending[i] = (c.v, c.w)
             self._awaited.discard(i)
+            if self.wf is None:
+                self._step_next(i, c)
         elif c.seq > self.k:
             raise ProtocolError(f"a command for tick {c.seq} while the world is at tick {self.k}")
         else:

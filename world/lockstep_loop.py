@@ -97,11 +97,12 @@ class LockstepLoop(Publishing):
         # without faults the check of a step's wait rule (it only counts) runs once the next tick's poses are
         # out: off the path every robot waits on
         later = None
+        taken = False  # the thread of the last tick's last command finished it and published this one
         try:
             for k in range(n_steps + 1):
                 self.k, self.t = k, k * dt
                 t = self.t
-                if k > 0:
+                if k > 0 and not taken:
                     if not self._hold(stop):
                         return stop.is_set()
                     if wf is not None:
@@ -130,34 +131,45 @@ class LockstepLoop(Publishing):
                 with self.lock:
                     self._await = k
                     self._awaited = set(self._missing())
+                    self._inline_from = k if wf is None else -1  # its last command's thread may finish tick k
                     ups = self.leader_ups
+                taken = False
                 while True:
                     if stop.is_set():
                         return True
                     self._resend_clock()  # a leader that came back during this tick hears the clock at once
                     with self.lock:
-                        waiting = self._missing()
-                        self._awaited = set(waiting)
-                        if not waiting:
-                            self._await = -1
-                            pending, self._pending = self._pending, {}
-                            break
-                        left = deadline - self.clock.monotonic()
-                        # no reference without the leader: a tick whose leader is away, or came back during it,
-                        # is held (no miss) until the leader is back and answered
-                        away = left <= 0 and (not self.leader_alive or self.leader_ups != ups)
-                        ups = self.leader_ups
-                        if left <= 0 and not away:
-                            self.misses += len(waiting)
-                            self._miss_events += 1
-                            if self._miss_events <= 10 or self._miss_events % 100 == 0:
-                                log.warning("world: no command from robot%s %s for tick %d (t = %g s) within %g s; %s "
-                                            "held (%d ticks with misses so far)", "s" if len(waiting) > 1 else "",
-                                            ", ".join(map(str, waiting[:8])), k, t, self.tick_timeout,
-                                            "they are" if len(waiting) > 1 else "it is", self._miss_events)
-                            self._await = -1
-                            pending, self._pending = self._pending, {}
-                            break
+                        # taken over by the thread of its last command (_take_over): done once the clock and poses
+                        # of k + 1 are out
+                        taken = self.k > k
+                        if taken:
+                            if not self._inline_busy:
+                                later, self._inline_later = self._inline_later, None
+                                break
+                            left, away = 0.5, False
+                        else:
+                            waiting = self._missing()
+                            self._awaited = set(waiting)
+                            if not waiting:
+                                self._await = -1
+                                pending, self._pending = self._pending, {}
+                                break
+                            left = deadline - self.clock.monotonic()
+                            # no reference without the leader: a tick whose leader is away, or came back during it,
+                            # is held (no miss) until the leader is back and answered
+                            away = left <= 0 and (not self.leader_alive or self.leader_ups != ups)
+                            ups = self.leader_ups
+                            if left <= 0 and not away:
+                                self.misses += len(waiting)
+                                self._miss_events += 1
+                                if self._miss_events <= 10 or self._miss_events % 100 == 0:
+                                    log.warning("world: no command from robot%s %s for tick %d (t = %g s) within %g s; "
+                                                "%s held (%d ticks with misses so far)", "s" if len(waiting) > 1 else "",
+                                                ", ".join(map(str, waiting[:8])), k, t, self.tick_timeout,
+                                                "they are" if len(waiting) > 1 else "it is", self._miss_events)
+                                self._await = -1
+                                pending, self._pending = self._pending, {}
+                                break
                     if away:  # no reference without the leader: hold the tick until it is back (no miss)
                         if not self._hold(stop):
                             return stop.is_set()
@@ -165,6 +177,8 @@ class LockstepLoop(Publishing):
                         continue
                     self.wake.wait(min(left, 0.5))
                     self.wake.clear()
+                if taken:  # stepped and published already: the next tick's bookkeeping
+                    continue
                 before = np.array(self.q)[:, :2]
                 if wf is not None:  # the commands the fault schedule lets through, held, braked or stopped
                     applied = wf.apply(k, pending)
@@ -199,9 +213,68 @@ class LockstepLoop(Publishing):
                 else:
                     self._check_wait_rule(t + dt, before)
         finally:
+            with self.lock:
+                self._inline_from = -1  # no command's thread takes a tick over from now on
+            end = self.clock.monotonic() + 5.0
+            while self._inline_busy and self.clock.monotonic() < end:  # one is publishing: let it finish
+                self.wake.wait(0.05)
+                self.wake.clear()
             if later is not None:
                 self._check_wait_rule(*later)
+            log.debug("world: %d of %d ticks finished on the thread of their last command", self.taken_over, self.k)
         return stop.is_set()
+
+    # ------------------------------------------------------------------ the tick's last command finishes it
+
+    def _step_next(self, i: int, c: protocol.Cmd) -> None:
+        """Lock-step without faults, under the lock, as robot i's command of tick k is taken: its pose of tick k + 1
+        (the run loop's step: the same function on the same bits) and that pose encoded, for _take_over."""
+        q, comp = self.q[i][:], self.comp[i][:]
+        kinematics.step_pose(q, comp, c.v, c.w, self.scn.dt)
+        k1 = c.seq + 1
+        payload = None  # a pose that is not finite: the run loop steps it again and ends the run (self.failure)
+        if all(math.isfinite(a) for a in q):
+            payload = protocol.encode(protocol.Pose(t=k1 * self.scn.dt, seq=k1, x=q[0], y=q[1], theta=q[2],
+                                                    cmd=self.cmd_t[i]))
+        self._next[i] = (c.seq, q, comp, payload)
+
+    def _take_over(self) -> tuple[float, int, list[bytes]] | None:
+        """Lock-step without faults, under the lock, on the thread of tick k's last awaited command: finish tick k
+        here when the run loop would do nothing else (every robot and the leader alive, every robot's command of k
+        in, tick k not the last): the step of every robot, then (t, k + 1, the poses) for _publish_taken. None
+        otherwise: the run loop, woken, does it."""
+        k = self._await
+        if (k != self._inline_from or self._inline_busy or k >= self.scn.steps or not self.leader_alive or
+                self._leader_back or not self.alive.all()):
+            return None
+        nxt, pending = self._next, self._pending
+        if len(pending) != self.n or any(e is None or e[0] != k or e[3] is None for e in nxt):
+            return None
+        before = np.array(self.q)[:, :2]
+        t = self.t
+        for i, (_k, q, comp, _payload) in enumerate(nxt):
+            self.cmd[i] = pending[i]
+            self.cmd_time[i] = t
+            self.stopped[i] = False
+            self.q[i][:] = q
+            self.comp[i][:] = comp
+        self._pending = {}
+        self._await = self._inline_from = -1
+        self._inline_busy = True
+        self.taken_over += 1
+        self._inline_later = (t + self.scn.dt, before, self.alive.copy())
+        self.k, self.t = k + 1, (k + 1) * self.scn.dt
+        return self.t, self.k, [e[3] for e in nxt]
+
+    def _publish_taken(self, t: float, k: int, poses: list[bytes]) -> None:
+        """On the thread that took tick k - 1 over: clock k and the poses of k out, then the run loop wakes for tick
+        k's bookkeeping (the metrics' sample, the progress, the wait rule's check of the step)."""
+        try:
+            self._publish_tick(t, k, poses=poses)
+        finally:
+            with self.lock:
+                self._inline_busy = False
+            self.wake.set()
 
     # ------------------------------------------------------------------ lock-step under faults
 

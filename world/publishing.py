@@ -25,16 +25,22 @@ PROGRESS_PERIOD_S = 0.25  # wall seconds between progress messages
 class Publishing(Intake):
     # ------------------------------------------------------------------ publishing
 
-    def _publish_tick(self, t: float, seq: int, epoch: float = 0.0) -> None:
+    def _publish_tick(self, t: float, seq: int, epoch: float = 0.0, poses: list[bytes] | None = None) -> None:
+        """The clock of tick seq, then every robot's pose (poses: each robot's pose already encoded)."""
         f = self.fleet
         self.bus.put(keys.world_clock(f), protocol.encode(Clock(t=t, seq=seq, epoch=epoch, speed=self.speed)),
                      reliable=True)
-        self._publish_poses(t, seq)
+        self._publish_poses(t, seq, poses)
 
-    def _publish_poses(self, t: float, seq: int) -> None:
+    def _publish_poses(self, t: float, seq: int, poses: list[bytes] | None = None) -> None:
         # the snapshot first: it is best effort (a viewer must never hold the world back), and at the
         # head of the burst it finds the send queue empty instead of behind N reliable poses
         self._publish_snapshot(t, seq)
+        if poses is not None:  # lock-step without faults, each encoded as its command came (world.lockstep_loop)
+            put, pose_keys = self.bus.put, self._pose_keys
+            for i, payload in enumerate(poses):
+                put(pose_keys[i], payload, reliable=True)
+            return
         wf = self.wf
         for i in range(self.n):
             if wf is None or wf.running(i, seq):  # under faults: only to robots whose process runs at seq

@@ -162,6 +162,13 @@ class WorldState:
         self._awaited: set[int] = set()  # lock-step: robots whose command of _await had not come (see _on_cmd)
         self._dec_cmd = protocol.decoder("cmd", self.limits)
         self._pending: dict[int, tuple[float, float]] = {}
+        # lock-step without faults: the tick a command's own thread may finish (world.lockstep_loop, "The last
+        # command's thread"), and each robot's pose of the next tick, stepped as its command came
+        self._inline_from = -1  # the run loop waits at this tick, its bookkeeping done (-1: nobody may advance it)
+        self.taken_over = 0  # ticks a command's thread finished
+        self._inline_busy = False  # a command's thread is publishing the tick it advanced to
+        self._inline_later: tuple | None = None  # what it leaves the run loop: the step's wait-rule check
+        self._next: list = [None] * n  # per robot: (tick of its command, next pose, compensations, the pose encoded)
         self.bad = protocol.BadMessages(log)
         self.robot_bad = protocol.Claims()  # the robots' own counts of bad messages, bounded
         self.misses = 0

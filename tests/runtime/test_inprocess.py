@@ -29,6 +29,8 @@ def test_lockstep_equals_the_simulator_step_for_step():
     assert {k: metrics[k] for k in METRIC_KEYS} == {k: sim.metrics[k] for k in METRIC_KEYS}
     assert metrics["cmd_misses"] == 0 and metrics["bad_messages"] == 0 and metrics["lockstep_overruns"] == 0
     assert all(a.ticks >= 150 for a in agents)  # tick 150 (the last state) may or may not be computed
+    # the ticks the thread of their last command finished (_take_over) are in the parity above
+    assert world.taken_over > 0
 
 
 def test_lockstep_counts_steps_longer_than_its_wait_rule_assumes(write_scenario, caplog):
