@@ -29,7 +29,7 @@ from __future__ import annotations
 import secrets
 import threading
 from collections import OrderedDict, deque
-from typing import TYPE_CHECKING, Callable, Protocol, final
+from typing import TYPE_CHECKING, Any, Callable, Protocol, final
 
 from swarm.proto import protocol as _protocol
 
@@ -488,7 +488,9 @@ class ZenohBus:
                 w = self._wanted.get(key)
                 if w is None:
                     w = self._wanted[key] = [None]
-                    pub = self.session.declare_publisher(key)  # its own: the LRU of _publisher may let one go
+                    # its own publisher: the LRU of _publisher may let one go (Any: zenoh's stub calls its
+                    # matching_status a bool; it is a MatchingStatus, as the listener's argument is)
+                    pub: Any = self.session.declare_publisher(key)
 
                     def changed(status, w=w) -> None:
                         w[0] = bool(status.matching)
