@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+from types import ModuleType
 
 import numpy as np
 
@@ -18,9 +20,54 @@ from swarm.core import law, metrics
 from swarm.core.metrics import CONVERGED_ANGLE_RAD, CONVERGED_POSITION_M, step_time
 from swarm.core.scenario import Scenario
 
+_referee: ModuleType | None
+try:  # pair_scan below, compiled (setup.py, where a C compiler is found)
+    from world import _referee
+except ImportError:
+    _referee = None
+if os.environ.get("SWARM_PURE_PYTHON"):
+    _referee = None
+
 FREEZE_MERGE_S = 0.1
 COLLISIONS_LOGGED = 20  # a run logs its first collisions one by one, then says that it stops
 _BLOCK = 256  # rows of the pairwise distance matrix computed at once
+
+
+def pair_scan(q: np.ndarray, r: np.ndarray, R: np.ndarray, live: np.ndarray, obstacles: np.ndarray,
+              freezes: bool) -> tuple[float, float, list[tuple[int, int]], bytes]:
+    """Every pair of a sample at once: (the smallest centre distance of two robots, the smallest centre distance of a
+    robot to an obstacle's centre (inf where there is none), the pairs (i, j) of robots closer than max(r_i, r_j)
+    with i < j and (i, n + m) of a robot inside obstacle m, which robots are frozen: n bytes). q: n x 3 poses;
+    obstacles: m x 4. Compiled in world/_referee.c (the same floats: tests/unit/test_referee_compiled.py)."""
+    n = len(r)
+    x, y = q[:, 0], q[:, 1]
+    inside: list[tuple[int, int]] = []
+    frozen = np.zeros(n, bool)
+    min_rr = min_ro = math.inf
+    for a in range(0, n, _BLOCK):
+        b = min(n, a + _BLOCK)
+        dx = x[a:b, None] - x[None, :]
+        dy = y[a:b, None] - y[None, :]
+        d = np.sqrt(dx * dx + dy * dy)
+        rows = np.arange(a, b)
+        d[rows - a, rows] = np.inf
+        upper = np.where(np.arange(n)[None, :] > rows[:, None], d, np.inf)
+        if n >= 2:
+            min_rr = min(min_rr, float(upper.min()))
+        rmax = np.maximum(r[a:b, None], r[None, :])
+        inside += [(int(a + i), int(j)) for i, j in zip(*np.nonzero(upper < rmax))]
+        # frozen: inside R_j of another live robot j (the law's freeze rule)
+        near = (dx * dx + dy * dy < (R * R)[None, :]) & live[None, :]
+        near[rows - a, rows] = False
+        frozen[a:b] = near.any(axis=1) & live[a:b] & freezes
+    if len(obstacles) and n:
+        ox, oy, orr = obstacles[:, 0], obstacles[:, 1], obstacles[:, 2]
+        for a in range(0, n, _BLOCK):
+            b = min(n, a + _BLOCK)
+            d = np.sqrt((x[a:b, None] - ox[None, :]) ** 2 + (y[a:b, None] - oy[None, :]) ** 2)
+            min_ro = min(min_ro, float(d.min()))
+            inside += [(int(a + i), n + int(m)) for i, m in zip(*np.nonzero(d < orr[None, :]))]
+    return min_rr, min_ro, inside, frozen.tobytes()
 
 
 class Referee:
@@ -76,34 +123,16 @@ class Referee:
         self.last_t = t
         self.last_xy = q[live, :2].copy()
         self.samples += 1
-        inside = set()
-        frozen = np.zeros(self.n, bool)
         freezes = self.scn.control.law is None  # a user's law never freezes (docs/control.md)
-        for a in range(0, self.n, _BLOCK):
-            b = min(self.n, a + _BLOCK)
-            dx = x[a:b, None] - x[None, :]
-            dy = y[a:b, None] - y[None, :]
-            d = np.sqrt(dx * dx + dy * dy)
-            rows = np.arange(a, b)
-            d[rows - a, rows] = np.inf
-            upper = np.where(np.arange(self.n)[None, :] > rows[:, None], d, np.inf)
-            if self.n >= 2:
-                self.min_rr = min(self.min_rr, float(upper.min()))
-            rmax = np.maximum(self.r[a:b, None], self.r[None, :])
-            for i, j in zip(*np.nonzero(upper < rmax)):
-                inside.add((int(a + i), int(j)))
-            # frozen: inside R_j of another live robot j (the law's freeze rule)
-            near = (dx * dx + dy * dy < (self.R * self.R)[None, :]) & live[None, :]
-            near[rows - a, rows] = False
-            frozen[a:b] = near.any(axis=1) & live[a:b] & freezes
+        scan = _referee.pair_scan if _referee is not None else pair_scan
+        min_rr, min_ro, pairs, frozen_bytes = scan(np.ascontiguousarray(q, float), self.r, self.R, live, self.obstacles,
+                                                   freezes)
+        inside = set(pairs)
+        frozen = np.frombuffer(frozen_bytes, bool).copy()
+        if self.n >= 2:
+            self.min_rr = min(self.min_rr, min_rr)
         if len(self.obstacles) and self.n:
-            ox, oy, orr = self.obstacles[:, 0], self.obstacles[:, 1], self.obstacles[:, 2]
-            for a in range(0, self.n, _BLOCK):
-                b = min(self.n, a + _BLOCK)
-                d = np.sqrt((x[a:b, None] - ox[None, :]) ** 2 + (y[a:b, None] - oy[None, :]) ** 2)
-                self.min_ro = min(self.min_ro, float(d.min()))
-                for i, m in zip(*np.nonzero(d < orr[None, :])):
-                    inside.add((int(a + i), self.n + int(m)))
+            self.min_ro = min(self.min_ro, min_ro)
         new = sorted(inside - self._inside)
         self.collisions += len(new)
         self.new_collisions = [(i, j, self._distance(x, y, i, j)) for i, j in new]
