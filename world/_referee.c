@@ -7,7 +7,8 @@
    paper's law; a user's law never freezes). Returns the smallest centre distance of two robots (inf below two
    robots), the smallest centre distance of a robot to an obstacle's centre (inf without one), the pairs
    (i, j) of robots closer than max(r_i, r_j) with i < j and the pairs (i, n + m) of a robot inside obstacle m,
-   in that order, and which robots are frozen (n bytes, 0 or 1).
+   in that order, and which robots are frozen (n bytes, 0 or 1). A distance that is not a number (a pose that is
+   not) is passed over by the minimums and makes no pair, as in the numpy.
 
    The same floats as the numpy of Referee.sample, in the same operations (setup.py compiles it without fused
    multiply-add): tests/unit/test_referee_compiled.py holds the two to the same answers. The world runs it
@@ -68,7 +69,8 @@ static PyObject *pair_scan(PyObject *self, PyObject *const *args, Py_ssize_t nar
     }
     PyObject *out = NULL, *inside = NULL, *frozen = NULL;
     Py_ssize_t n = br.len / 8, m = bo.len / 32;
-    if (bq.len != 24 * n || bR.len != 8 * n || bl.len != n || bo.len != 32 * m) {
+    if (bq.ndim != 2 || bq.shape[1] != 3 || bq.shape[0] != n || br.ndim != 1 || bR.ndim != 1 || bR.len != 8 * n ||
+        bl.ndim != 1 || bl.len != n || bo.ndim != 2 || bo.shape[1] != 4 || bo.shape[0] != m) {
         PyErr_SetString(PyExc_ValueError, "pair_scan: q must be n x 3, r, R and live n long, obstacles m x 4");
         goto done;
     }

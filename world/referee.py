@@ -38,7 +38,8 @@ def pair_scan(q: np.ndarray, r: np.ndarray, R: np.ndarray, live: np.ndarray, obs
     """Every pair of a sample at once: (the smallest centre distance of two robots, the smallest centre distance of a
     robot to an obstacle's centre (inf where there is none), the pairs (i, j) of robots closer than max(r_i, r_j)
     with i < j and (i, n + m) of a robot inside obstacle m, which robots are frozen: n bytes). q: n x 3 poses;
-    obstacles: m x 4. Compiled in world/_referee.c (the same floats: tests/unit/test_referee_compiled.py)."""
+    obstacles: m x 4. A distance that is not a number (from a pose that is not: the world ends such a run first)
+    counts for nothing. Compiled in world/_referee.c (the same floats: tests/unit/test_referee_compiled.py)."""
     n = len(r)
     x, y = q[:, 0], q[:, 1]
     inside: list[tuple[int, int]] = []
@@ -52,9 +53,9 @@ def pair_scan(q: np.ndarray, r: np.ndarray, R: np.ndarray, live: np.ndarray, obs
         rows = np.arange(a, b)
         d[rows - a, rows] = np.inf
         upper = np.where(np.arange(n)[None, :] > rows[:, None], d, np.inf)
-        if n >= 2:
-            min_rr = min(min_rr, float(upper.min()))
-        rmax = np.maximum(r[a:b, None], r[None, :])
+        if n >= 2:  # fmin: a distance that is not a number (a pose that is not) is passed over, not the block
+            min_rr = min(min_rr, float(np.fmin.reduce(upper, axis=None)))
+        rmax = np.where(r[a:b, None] > r[None, :], r[a:b, None], r[None, :])
         inside += [(int(a + i), int(j)) for i, j in zip(*np.nonzero(upper < rmax))]
         # frozen: inside R_j of another live robot j (the law's freeze rule)
         near = (dx * dx + dy * dy < (R * R)[None, :]) & live[None, :]
@@ -65,7 +66,7 @@ def pair_scan(q: np.ndarray, r: np.ndarray, R: np.ndarray, live: np.ndarray, obs
         for a in range(0, n, _BLOCK):
             b = min(n, a + _BLOCK)
             d = np.sqrt((x[a:b, None] - ox[None, :]) ** 2 + (y[a:b, None] - oy[None, :]) ** 2)
-            min_ro = min(min_ro, float(d.min()))
+            min_ro = min(min_ro, float(np.fmin.reduce(d, axis=None)))
             inside += [(int(a + i), n + int(m)) for i, m in zip(*np.nonzero(d < orr[None, :]))]
     return min_rr, min_ro, inside, frozen.tobytes()
 

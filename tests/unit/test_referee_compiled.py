@@ -1,10 +1,12 @@
 """The referee's compiled look at every pair (world/_referee.c) gives what its numpy gives (world.referee.pair_scan):
 the smallest distances to the bit, the same pairs inside each other and inside obstacles, the same frozen robots;
-with dead robots, robots on top of each other, no obstacle, one robot and none, and more robots than one block of
-the numpy's rows; and it refuses arrays it cannot read."""
+with dead robots, robots on top of each other, no obstacle, one robot and none, more robots than one block of
+the numpy's rows, and values no run's pose has (NaN, infinite: passed over alike); and it refuses arrays it
+cannot read."""
 
 from __future__ import annotations
 
+import math
 import os
 import struct
 
@@ -30,7 +32,8 @@ def test_ci_builds_the_compiled_referee():
 def both(q, r, R, live, obstacles, freezes):
     args = (np.ascontiguousarray(q, float).reshape(-1, 3), np.ascontiguousarray(r, float), np.ascontiguousarray(R, float),
             np.ascontiguousarray(live, bool), np.ascontiguousarray(obstacles, float).reshape(-1, 4), freezes)
-    py = referee.pair_scan(*args)
+    with np.errstate(all="ignore"):  # numpy says so of NaN and overflow; the compiled scan is silent
+        py = referee.pair_scan(*args)
     c = referee._referee.pair_scan(*args)
     return py, c
 
@@ -45,10 +48,11 @@ def same(py, c) -> None:
 def swarms(draw):
     n = draw(st.integers(0, 12))
     m = draw(st.integers(0, 4))
-    coord = st.one_of(st.floats(-3.0, 3.0), st.sampled_from([0.0, -0.0, 0.25, 1e-12]))
+    odd = st.sampled_from([math.nan, math.inf, -math.inf, 1e308])  # no run's pose, but the same answer all the same
+    coord = st.one_of(st.floats(-3.0, 3.0), st.sampled_from([0.0, -0.0, 0.25, 1e-12]), odd)
     q = [[draw(coord), draw(coord), draw(st.floats(-4.0, 4.0))] for _ in range(n)]
-    r = [draw(st.sampled_from([0.0, 0.2, 0.25, 0.5])) for _ in range(n)]
-    R = [draw(st.sampled_from([0.0, 0.3, 0.5, 1.0])) for _ in range(n)]
+    r = [draw(st.sampled_from([0.0, 0.2, 0.25, 0.5, math.nan])) for _ in range(n)]
+    R = [draw(st.sampled_from([0.0, 0.3, 0.5, 1.0, math.nan, math.inf])) for _ in range(n)]
     live = [draw(st.booleans()) for _ in range(n)]
     obstacles = [[draw(coord), draw(coord), draw(st.sampled_from([0.0, 0.3, 1.0])), 0.0] for _ in range(m)]
     return q, r, R, live, obstacles, draw(st.booleans())
@@ -87,7 +91,12 @@ def test_arrays_it_cannot_read_are_refused_not_misread():
         scan(q.astype(np.float32), r, r, live, none, True)
     with pytest.raises(TypeError, match="live must be a contiguous array of '\\?'"):
         scan(q, r, r, live.astype(np.int8), none, True)
-    with pytest.raises(ValueError, match="q must be n x 3"):
-        scan(np.zeros((2, 3)), r, r, live, none, True)
+    for q_bad in (np.zeros((2, 3)), np.zeros(9), np.zeros((3, 3)).T.copy().reshape(3, 3)[:, :2].copy()):
+        with pytest.raises(ValueError, match="q must be n x 3"):
+            scan(q_bad, r, r, live, none, True)
+    with pytest.raises(ValueError, match="obstacles m x 4"):
+        scan(q, r, r, live, np.zeros(8), True)
+    with pytest.raises(ValueError, match="contiguous"):  # numpy's own refusal of a buffer it cannot give as asked
+        scan(np.zeros((3, 6))[:, ::2], r, r, live, none, True)
     with pytest.raises(TypeError, match="6 arguments"):
         scan(q, r, r, live, none)
