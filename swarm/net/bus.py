@@ -433,6 +433,7 @@ ROUTER_RUNTIME = "(rx:(worker_threads:16))"
 
 
 PUBLISHERS = 64  # declared publishers a ZenohBus keeps (a robot uses 3 or 4: cmd, status, its cell)
+WANTED = 256  # keys whose matching status wanted() keeps by a listener (a world: 1; preflight: 2 a robot)
 KEY_HINTS = 1024  # keys a ZenohBus keeps declared for hint() (a robot of a 37-robot run uses a few hundred)
 
 
@@ -455,7 +456,7 @@ class ZenohBus:
         self._handles: list[Closable] = []
         self._closed = False
         self._pubs: OrderedDict[tuple[str, bool, bool], zenoh.Publisher] = OrderedDict()
-        self._wanted: dict[str, list] = {}  # key -> [its matching status], as wanted() keeps it
+        self._wanted: dict[str, _Matching] = {}  # key -> its matching status, as wanted() keeps it
         self._pub_lock = threading.Lock()
         self._hints: dict[str, zenoh.KeyExpr] = {}
         self.errors = _errors()  # exceptions of this bus's callbacks, counted (see guarded)
@@ -480,41 +481,54 @@ class ZenohBus:
 
     def wanted(self, key: str) -> bool:
         """Whether some subscriber would receive a put on `key`: zenoh's matching status, kept up to date by a
-        matching listener from the first call (asked each time, the status waited on the session's routing, and a
-        world asks before every tick's snapshot: docs/performance.md, "The world's part of a lock-step tick")."""
-        w = self._wanted.get(key)
-        if w is None:
-            with self._pub_lock:
-                w = self._wanted.get(key)
-                if w is None:
-                    w = self._wanted[key] = [None]
-                    # its own publisher: the LRU of _publisher may let one go (Any: zenoh's stub calls its
-                    # matching_status a bool; it is a MatchingStatus, as the listener's argument is)
-                    pub: Any = self.session.declare_publisher(key)
-
-                    def changed(status, w=w) -> None:
-                        w[0] = bool(status.matching)
-
-                    self._handles += [_Undeclare(pub), _Undeclare(pub.declare_matching_listener(changed))]
-                    if w[0] is None:  # unless the listener told a newer status already
-                        w[0] = bool(pub.matching_status.matching)
-        return bool(w[0])
+        matching listener from the first call, for up to WANTED keys (asked each time, the status waited on the
+        session's routing, and a world asks before every tick's snapshot: docs/performance.md, "The world's part
+        of a lock-step tick"). False once the bus is closed."""
+        m = self._wanted.get(key)
+        if m is not None:
+            return m.now
+        with self._pub_lock:
+            m = self._wanted.get(key)
+            if m is not None:
+                return m.now
+            if self._closed:
+                return False
+            if len(self._wanted) >= WANTED:  # keys past the cap are asked each time
+                return bool(self._publisher_locked(key, False, True).matching_status.matching)
+            m = _Matching()
+            # its own publisher: the LRU of _publisher may let one go (Any: zenoh's stub calls its matching_status a
+            # bool; it is a MatchingStatus, as the listener's argument is). The listener runs on zenoh's thread
+            # (indirect=False: no thread of its own), and tells the status at once if a subscriber matches already
+            pub: Any = self.session.declare_publisher(key)
+            try:
+                listener = pub.declare_matching_listener(self._z.handlers.Callback(m.changed, indirect=False))
+            except BaseException:
+                pub.undeclare()
+                raise
+            self._handles += [_Undeclare(pub), _Undeclare(listener)]
+            m.first(bool(pub.matching_status.matching))
+            self._wanted[key] = m  # only now: a reader without the lock sees a status, never a half-made entry
+            return m.now
 
     def _publisher(self, key: str, reliable: bool, loopback: bool = True):
         """A declared publisher per key, kept for the next put (LRU, at most PUBLISHERS): a declared
         key is resolved once, and a put on it costs about a third of a session.put on a string."""
         with self._pub_lock:
-            pub = self._pubs.get((key, reliable, loopback))
-            if pub is not None:
-                self._pubs.move_to_end((key, reliable, loopback))
-                return pub
-            cc = self._z.CongestionControl.BLOCK if reliable else self._z.CongestionControl.DROP
-            where = self._z.Locality.ANY if loopback else self._z.Locality.REMOTE
-            pub = self._pubs[(key, reliable, loopback)] = self.session.declare_publisher(
-                key, congestion_control=cc, allowed_destination=where)
-            if len(self._pubs) > PUBLISHERS:
-                self._pubs.popitem(last=False)[1].undeclare()
+            return self._publisher_locked(key, reliable, loopback)
+
+    def _publisher_locked(self, key: str, reliable: bool, loopback: bool):
+        """_publisher, under _pub_lock."""
+        pub = self._pubs.get((key, reliable, loopback))
+        if pub is not None:
+            self._pubs.move_to_end((key, reliable, loopback))
             return pub
+        cc = self._z.CongestionControl.BLOCK if reliable else self._z.CongestionControl.DROP
+        where = self._z.Locality.ANY if loopback else self._z.Locality.REMOTE
+        pub = self._pubs[(key, reliable, loopback)] = self.session.declare_publisher(
+            key, congestion_control=cc, allowed_destination=where)
+        if len(self._pubs) > PUBLISHERS:
+            self._pubs.popitem(last=False)[1].undeclare()
+        return pub
 
     def hint(self, key: str) -> None:
         """A concrete key this process will receive on many times, through a wildcard subscription (a
@@ -735,6 +749,28 @@ def drainer(boxes: list) -> Callable[[], list[tuple[str, bytes]]]:
         return lambda: wire.drain(recvs, wake)
     boxes = list(boxes)
     return lambda: [item for b in boxes for item in b.drain()]
+
+
+class _Matching:
+    """A publisher's matching status as its listener tells it (ZenohBus.wanted): the listener's word wins over the
+    first look, whichever comes last."""
+
+    __slots__ = ("now", "told", "lock")
+
+    def __init__(self) -> None:
+        self.now = False
+        self.told = False
+        self.lock = threading.Lock()
+
+    def changed(self, status) -> None:  # on zenoh's thread
+        pin_thread()
+        with self.lock:
+            self.now, self.told = bool(status.matching), True
+
+    def first(self, matching: bool) -> None:
+        with self.lock:
+            if not self.told:
+                self.now = matching
 
 
 class _Undeclare:

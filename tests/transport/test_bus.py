@@ -178,6 +178,40 @@ print(threading.get_native_id(), *(f"{t}:{h}" for t, h in seen))
 """
 
 
+def _until(what, cond, timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not cond():  # zenoh tells a publisher of a subscription asynchronously, through the router
+        assert time.monotonic() < deadline, f"{what} within {timeout_s} s"
+        time.sleep(0.02)
+
+
+@pytest.mark.integration
+def test_wanted_follows_the_subscribers_that_come_and_go(monkeypatch):
+    """ZenohBus.wanted (the world builds a snapshot only when it is wanted) says whether a subscriber would get a
+    put on a key: true as one comes, false as it goes, kept by a matching listener past the first call (one
+    publisher and listener a key, no thread of their own); past WANTED keys it asks zenoh each time, with the same
+    answers; a closed bus says no."""
+    monkeypatch.setattr(busmod, "WANTED", 1)
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    router = busmod.ZenohBus(busmod.zenoh_config("router", listen=[endpoint]))
+    try:
+        a = busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint]))
+        with busmod.ZenohBus(busmod.zenoh_config("client", connect=[endpoint])) as b:
+            kept, asked = "swarm/t/world/snapshot", "swarm/t/world/other"
+            assert not a.wanted(kept) and not a.wanted(asked)
+            assert list(a._wanted) == [kept]  # the second key is past the cap
+            threads = threading.active_count()
+            sub = b.subscribe("swarm/t/world/*", lambda k, p: None)
+            _until("a subscriber known", lambda: a.wanted(kept) and a.wanted(asked))
+            sub.close()
+            _until("its end known", lambda: not a.wanted(kept) and not a.wanted(asked))
+            assert threading.active_count() == threads
+        a.close()
+        assert not a.wanted(kept) and not a.wanted("swarm/t/world/never")
+    finally:
+        router.close()
+
+
 @pytest.mark.integration
 @pytest.mark.parametrize("pin", ["compiled", "ctypes", "none"])
 def test_zenohs_threads_keep_their_python_thread_state_between_callbacks(pin):
