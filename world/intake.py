@@ -42,8 +42,9 @@ class Intake(WorldState):
 
     def _on_cmd(self, key: str, data: bytes) -> None:
         """Lock-step: a command, on the bus's thread. event(("cmd", key, data)) in few steps: 37 of these a
-        tick run on zenoh's threads. The run loop is woken when the last awaited command came (_awaited: it
-        sets it from _missing() at each wake-up; a robot that came or went wakes it anyway)."""
+        tick run on zenoh's threads. The last awaited command ends the tick on its thread (world.lockstep_loop,
+        _take_over) when nothing else is due, else wakes the run loop (_awaited: the run loop sets it from
+        _missing() at each wake-up; a robot that came or went wakes it anyway)."""
         i = self._cmd_ids.get(key)
         if i is None:  # not a command key of this world: named the long way
             self.event(("cmd", key, data))

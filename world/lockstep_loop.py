@@ -145,6 +145,8 @@ class LockstepLoop(Publishing):
                         if taken:
                             if not self._inline_busy:
                                 later, self._inline_later = self._inline_later, None
+                                if self.failure is not None:  # its poses did not go out (_publish_taken)
+                                    return stop.is_set()
                                 break
                             left, away = 0.5, False
                         else:
@@ -219,6 +221,9 @@ class LockstepLoop(Publishing):
             while self._inline_busy and self.clock.monotonic() < end:  # one is publishing: let it finish
                 self.wake.wait(0.05)
                 self.wake.clear()
+            with self.lock:  # a step taken over that the run loop did not see (it stopped meanwhile)
+                if later is None and self._inline_later is not None:
+                    later, self._inline_later = self._inline_later, None
             if later is not None:
                 self._check_wait_rule(*later)
             log.debug("world: %d of %d ticks finished on the thread of their last command", self.taken_over, self.k)
@@ -271,6 +276,9 @@ class LockstepLoop(Publishing):
         k's bookkeeping (the metrics' sample, the progress, the wait rule's check of the step)."""
         try:
             self._publish_tick(t, k, poses=poses)
+        except Exception as e:  # the run loop ends the run with it (on its own thread the error ends it too)
+            with self.lock:
+                self.failure = f"the clock and poses of tick {k} could not be published: {type(e).__name__}: {e}"
         finally:
             with self.lock:
                 self._inline_busy = False

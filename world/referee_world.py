@@ -124,7 +124,7 @@ class RefereeWorld:
         self._handles += [self._states, self._statuses]
         self._handles.append(self.bus.watch_alive(keys.alive_any(f, "robot"), self._on_robot))
         self._handles.append(self.bus.watch_alive(keys.alive(f, "leader"), self._on_leader))
-        self.bus.wanted(keys.world_snapshot(f))  # declare the snapshot's publisher before the first one
+        self.bus.wanted(keys.world_snapshot(f))  # its matching status kept from now on (bus.wanted), before the first
         self._handles.append(presence.announce(self.bus, f, "world", run=lambda: self.run_id))
         self.estop = EstopLog(self.bus, f, now=lambda: (self.t, self.k), wall=self.clock.time)  # logged, told, counted (world.estop)
         self.estop.start()

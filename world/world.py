@@ -94,8 +94,8 @@ class World(LockstepLoop, RealtimeLoop):
         self._handles.append(self.bus.watch_alive(keys.alive(f, "leader"), lambda k, up: ev(("leader", k, up))))
         if self.lockstep:  # the start barrier: every robot's state_0 (unsubscribed once passed)
             self._prime = self.bus.subscribe(keys.cell_all(f), lambda k, b: ev(("state", k, b)))
-        # declare the snapshot's publisher now, so zenoh knows of the viewers and recorders already
-        # subscribed by tick 0 (wanted() would otherwise say no for the first snapshot)
+        # start keeping the snapshot key's matching status now (bus.wanted: a publisher and its listener), so that
+        # the viewers and recorders already subscribed are known by tick 0 (else the first snapshot would go unsent)
         self.bus.wanted(keys.world_snapshot(f))
         self._handles.append(presence.announce(self.bus, f, "world", run=lambda: self.run_id))
         self.estop = EstopLog(self.bus, f, now=lambda: (self.t, self.k), wall=self.clock.time)  # logged, told, counted (world.estop)

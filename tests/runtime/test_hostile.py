@@ -222,6 +222,85 @@ def test_the_world_wakes_its_loop_when_the_last_awaited_command_comes():
     assert world.wake.is_set() and world._missing() == [] and sorted(world._pending) == [0, 1, 2]
 
 
+def _waiting_world(n: int = 3, k: int = 5):
+    """A lock-step world whose run loop waits for the commands of tick k, its bookkeeping of k done (as
+    World._run_lockstep leaves it), every robot and the leader alive, and what it publishes."""
+    from world.world import World
+
+    scn = scenario_file.load("paper-50hz", Overrides(robots=n, duration=1.0))
+    net = MemoryNet()
+    world = World(MemoryBus(net), scn, F, lockstep=True)
+    world.alive[:] = True
+    world.leader_alive = True
+    world.k, world.t = k, k * scn.dt
+    world._await = world._inline_from = k
+    world._awaited = set(world._missing())
+    heard: list = []
+    MemoryBus(net).subscribe(keys.robot_any(F, "pose"), lambda key, b: heard.append(protocol.decode(b, "pose")))
+    return world, scn, heard
+
+
+def test_the_last_awaited_command_ends_the_tick_as_the_run_loop_would():
+    """Lock-step without faults: the thread of the tick's last awaited command steps every robot (with the run
+    loop's function, on the same bits) and publishes the next tick's poses itself; refused, stale and foreign
+    commands step nothing; the run loop is left the wait rule's check of the step."""
+    from swarm.core import kinematics
+
+    world, scn, heard = _waiting_world()
+    start = [list(p) for p in world.q]
+
+    def cmd(i, seq, v):
+        world._on_cmd(keys.robot_cmd(F, i), protocol.encode(protocol.Cmd(t=seq * scn.dt, seq=seq, v=v, w=0.3)))
+
+    cmd(0, 5, 0.2)
+    cmd(1, 4, 9.0)  # late: stale
+    cmd(1, 6, 9.0)  # ahead of the world: refused
+    cmd(2, 5, 1e9)  # beyond the speed limit: refused
+    assert world.k == 5 and not heard and world.q == start
+    cmd(1, 5, 0.3)
+    cmd(2, 5, 0.4)
+    assert world.k == 6 and world.t == 6 * scn.dt and world.taken_over == 1 and not world._inline_busy
+    assert world._await == world._inline_from == -1  # nothing more to end before the run loop's next wait
+    for i, v in enumerate((0.2, 0.3, 0.4)):
+        q, c = list(start[i]), [0.0, 0.0, 0.0]
+        kinematics.step_pose(q, c, v, 0.3, scn.dt)
+        assert world.q[i] == q and world.cmd[i] == (v, 0.3)  # bit for bit
+    assert [(p.seq, p.x, p.y, p.theta) for p in heard] == [(6, *world.q[i]) for i in range(3)]
+    later = world._inline_later
+    assert later[0] == 5 * scn.dt + scn.dt and np.array_equal(later[1], np.array(start)[:, :2])
+    assert world.wake.is_set()  # the run loop: the metrics sample of tick 6 and that check
+
+
+def test_a_tick_is_left_to_the_run_loop_when_anything_else_is_due():
+    """A robot lost, the leader away, or the run loop not waiting (its bookkeeping under way): the last command
+    only wakes the run loop, which ends the tick its own way."""
+    for what in ("lost", "leader", "busy"):
+        world, scn, heard = _waiting_world()
+        if what == "lost":
+            world.alive[1] = False
+            world._awaited = set(world._missing())
+        elif what == "leader":
+            world.leader_alive = False
+        else:
+            world._inline_from = -1
+        for i in range(3):
+            world._on_cmd(keys.robot_cmd(F, i), protocol.encode(protocol.Cmd(t=5 * scn.dt, seq=5, v=0.1, w=0.0)))
+        assert world.k == 5 and world.taken_over == 0 and not heard and world.wake.is_set(), what
+
+
+def test_poses_that_cannot_be_published_end_the_run_with_the_reason():
+    world, scn, heard = _waiting_world()
+
+    def refuse(*a, **kw):
+        raise RuntimeError("session closed")
+
+    world._publish_tick = refuse
+    for i in range(3):
+        world._on_cmd(keys.robot_cmd(F, i), protocol.encode(protocol.Cmd(t=5 * scn.dt, seq=5, v=0.1, w=0.0)))
+    assert world.failure == "the clock and poses of tick 6 could not be published: RuntimeError: session closed"
+    assert not world._inline_busy and world.wake.is_set()
+
+
 _values = st.one_of(st.none(), st.booleans(), st.integers(-2**63, 2**64 - 1), st.floats(), st.text(max_size=8),
                     st.binary(max_size=8), st.lists(st.integers(-2**63, 2**63 - 1), max_size=3))
 _maps = st.dictionaries(st.sampled_from(["v", "kind", "t", "seq", "x", "y", "theta", "vel", "w", "id", "r", "R", "frozen",
