@@ -178,11 +178,16 @@ print(threading.get_native_id(), *(f"{t}:{h}" for t, h in seen))
 """
 
 
-def _until(what, cond, timeout_s: float = 10.0) -> None:
+def _until(told: threading.Condition, what, cond, timeout_s: float = 10.0) -> None:
+    """Wait on `told` (notified by the matching listener) until cond() holds: zenoh tells a publisher of a
+    subscription asynchronously, through the router. The key past the cap has no listener: it is looked at
+    again at each notification and every 50 ms, up to the deadline."""
     deadline = time.monotonic() + timeout_s
-    while not cond():  # zenoh tells a publisher of a subscription asynchronously, through the router
-        assert time.monotonic() < deadline, f"{what} within {timeout_s} s"
-        time.sleep(0.02)
+    with told:
+        while not cond():
+            left = deadline - time.monotonic()
+            assert left > 0, f"{what} within {timeout_s} s"
+            told.wait(min(left, 0.05))
 
 
 @pytest.mark.integration
@@ -192,6 +197,15 @@ def test_wanted_follows_the_subscribers_that_come_and_go(monkeypatch):
     publisher and listener a key, no thread of their own); past WANTED keys it asks zenoh each time, with the same
     answers; a closed bus says no."""
     monkeypatch.setattr(busmod, "WANTED", 1)
+    told = threading.Condition()
+    heard = busmod._Matching.changed
+
+    def changed(self, status) -> None:  # the listener's word, and a notification for the test
+        heard(self, status)
+        with told:
+            told.notify_all()
+
+    monkeypatch.setattr(busmod._Matching, "changed", changed)
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     router = busmod.ZenohBus(busmod.zenoh_config("router", listen=[endpoint]))
     try:
@@ -202,9 +216,9 @@ def test_wanted_follows_the_subscribers_that_come_and_go(monkeypatch):
             assert list(a._wanted) == [kept]  # the second key is past the cap
             threads = threading.active_count()
             sub = b.subscribe("swarm/t/world/*", lambda k, p: None)
-            _until("a subscriber known", lambda: a.wanted(kept) and a.wanted(asked))
+            _until(told, "a subscriber known", lambda: a.wanted(kept) and a.wanted(asked))
             sub.close()
-            _until("its end known", lambda: not a.wanted(kept) and not a.wanted(asked))
+            _until(told, "its end known", lambda: not a.wanted(kept) and not a.wanted(asked))
             assert threading.active_count() == threads
         a.close()
         assert not a.wanted(kept) and not a.wanted("swarm/t/world/never")
